@@ -1,0 +1,270 @@
+"""The ask / tell / stop / result contract shared by every optimiser (after pycma).
+
+An optimiser holds a diagonal Gaussian search distribution over ProMP weights for ``B``
+independent problems at once: ``mean (B, N)`` and ``var (B, N)`` are buffers. Evaluation stays
+outside::
+
+    opt = PRO(mean, var, beta=20.0)
+    while not opt.stop():
+        w = opt.ask()                      # (B, S, N) weights to evaluate
+        opt.tell(objective(w))             # (B, S, O) costs, >= 0, lower is better
+    res = opt.result()
+
+Each algorithm is written top to bottom as a generator (``_iteration``) that yields the weights
+it wants evaluated and receives their costs, so one iteration may ask several times (PRO asks
+once for its relevance samples and once per objective). ``B`` problems advance together: one
+``ask`` serves all of them, which is what makes the batched self-improvement loop fast.
+An optimiser built from an unbatched ``mean (N,)`` speaks unbatched shapes: ``ask`` gives
+``(S, N)``, ``tell`` takes ``(S, O)`` or ``(S,)`` and ``result`` drops the batch dimension.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Generator
+
+import torch
+from torch import Tensor, nn
+
+from .._checks import check_positive, check_tensor
+
+__all__ = ["BaseOptimizer", "OptimizeResult"]
+
+
+@dataclass
+class OptimizeResult:
+    """What an optimiser returns: the final distribution and how it got there.
+
+    ``history`` holds per-iteration tensors stacked on a leading iteration axis:
+    ``cost (I, B, O)`` (mean cost of the samples each objective was updated with),
+    ``mean (I, B, N)``, ``var (I, B, N)`` and, for relevance-based optimisers,
+    ``relevance (I, B, O, N)``. The batch dimension is dropped for unbatched optimisers.
+    """
+
+    mean: Tensor
+    var: Tensor
+    converged: Tensor
+    iterations: int
+    history: dict[str, Tensor] = field(default_factory=dict)
+    relevance_seconds: list[float] = field(default_factory=list)
+
+
+class BaseOptimizer(nn.Module):
+    """Common state and contract; subclasses implement :meth:`_iteration`.
+
+    Args:
+        mean: ``(N,)`` or ``(B, N)`` initial mean.
+        var: initial diagonal variance, same shape as ``mean`` (or broadcastable), >= 0.
+        beta: reward temperature ``R = exp(-beta * cost)``: a float or ``(B,)``.
+        num_samples: ``S`` rollouts per update.
+        max_iter: hard limit on iterations.
+        tol, window: the authors' convergence rule: a problem has converged once every
+            objective's per-iteration cost stayed within ``tol`` (max - min) over the last
+            ``window`` iterations. ``tol=0`` disables it. Converged problems stop moving.
+        num_objectives: ``O``; inferred from the first ``tell`` when ``None``.
+        seed: seed of the optimiser's own ``torch.Generator`` (reproducible sampling).
+        dtype: dtype of the distribution (float64 default; float32 is fine for sampling).
+    """
+
+    def __init__(
+        self,
+        mean: Tensor,
+        var: Tensor,
+        *,
+        beta: float | Tensor,
+        num_samples: int = 100,
+        max_iter: int = 200,
+        tol: float = 1e-3,
+        window: int = 5,
+        num_objectives: int | None = None,
+        seed: int | None = None,
+        dtype: torch.dtype | None = None,
+    ) -> None:
+        super().__init__()
+        mean = check_tensor(mean, "mean")
+        if mean.ndim not in (1, 2):
+            raise ValueError(f"mean must be (N,) or (B, N), got shape {tuple(mean.shape)}")
+        self.batched = mean.ndim == 2
+        dtype = dtype or (mean.dtype if mean.is_floating_point() else torch.float64)
+        mean = mean.to(dtype)
+        mean2 = mean if self.batched else mean[None]  # (B, N)
+        var = check_tensor(torch.as_tensor(var, dtype=dtype, device=mean.device), "var")
+        if bool((var < 0).any()):
+            raise ValueError("var must be >= 0")
+        try:
+            var2 = torch.broadcast_to(var if self.batched or var.ndim < 1 else var[None], mean2.shape)
+        except RuntimeError:
+            raise ValueError(f"var of shape {tuple(var.shape)} does not match mean {tuple(mean.shape)}") from None
+        beta_t = torch.as_tensor(beta, dtype=dtype, device=mean.device)
+        check_positive(beta_t, "beta")
+        if beta_t.ndim > 1 or (beta_t.ndim == 1 and beta_t.shape[0] not in (1, mean2.shape[0])):
+            raise ValueError(f"beta must be a float or ({mean2.shape[0]},), got shape {tuple(beta_t.shape)}")
+        if int(num_samples) < 2:
+            raise ValueError(f"num_samples must be >= 2, got {num_samples}")
+        if int(max_iter) < 1:
+            raise ValueError(f"max_iter must be >= 1, got {max_iter}")
+        if tol < 0 or int(window) < 1:
+            raise ValueError(f"need tol >= 0 and window >= 1, got tol={tol}, window={window}")
+        if num_objectives is not None and int(num_objectives) < 1:
+            raise ValueError(f"num_objectives must be >= 1, got {num_objectives}")
+        self.register_buffer("mean", mean2.clone())  # (B, N)
+        self.register_buffer("var", var2.clone())  # (B, N)
+        self.register_buffer("beta", beta_t.expand(mean2.shape[0]).clone())  # (B,)
+        self.register_buffer("converged", torch.zeros(mean2.shape[0], dtype=torch.bool, device=mean.device))
+        self.num_samples = int(num_samples)
+        self.max_iter = int(max_iter)
+        self.tol = float(tol)
+        self.window = int(window)
+        self.num_objectives = None if num_objectives is None else int(num_objectives)
+        self.generator = torch.Generator(device=mean.device)
+        if seed is not None:
+            self.generator.manual_seed(int(seed))
+        else:
+            self.generator.seed()
+        self.iteration = 0
+        self.history: dict[str, list[Tensor]] = {"cost": [], "mean": [], "var": []}
+        self.relevance_seconds: list[float] = []
+        self._gen: Generator[Tensor, Tensor, None] | None = None
+        self._next: Tensor | None = None
+        self._asked: Tensor | None = None
+        self._iter_cost: Tensor | None = None
+
+    # -------------------------------------------------------------- sizes
+    @property
+    def batch_size(self) -> int:
+        return self.mean.shape[0]
+
+    @property
+    def num_weights(self) -> int:
+        return self.mean.shape[1]
+
+    # ------------------------------------------------------------ helpers
+    def _randn(self, *shape: int) -> Tensor:
+        return torch.randn(*shape, generator=self.generator, dtype=self.mean.dtype, device=self.mean.device)
+
+    def _sample(self, var: Tensor, num: int) -> Tensor:
+        """``num`` draws from ``N(mean, diag(var))`` per problem: ``var (B, N)`` -> ``(B, num, N)``."""
+        eps = self._randn(self.batch_size, num, self.num_weights)  # (B, S, N)
+        return self.mean[:, None, :] + eps * var.clamp_min(0).sqrt()[:, None, :]
+
+    def _record_cost(self, objective: int | slice, costs: Tensor) -> None:
+        """Note the mean cost this iteration's update saw for ``objective``: ``costs (B, S[, O])``."""
+        if self._iter_cost is None:
+            self._iter_cost = torch.full(
+                (self.batch_size, self.num_objectives), float("nan"), dtype=costs.dtype, device=costs.device
+            )
+        self._iter_cost[:, objective] = costs.mean(1)
+
+    def _apply(self, new_mean: Tensor, new_var: Tensor) -> None:
+        """Commit an update to the problems that have not converged."""
+        active = ~self.converged[:, None]  # (B, 1)
+        self.mean.copy_(torch.where(active, new_mean, self.mean))
+        self.var.copy_(torch.where(active, new_var.clamp_min(0), self.var))
+
+    # ------------------------------------------------------------ contract
+    def _iteration(self) -> Generator[Tensor, Tensor, None]:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def ask(self) -> Tensor:
+        """Weights to evaluate next: ``(B, S, N)`` (``(S, N)`` unbatched)."""
+        if self._asked is not None:
+            raise RuntimeError("ask() called twice without tell() in between")
+        if self.stop():
+            raise RuntimeError(f"the optimiser has stopped ({self.stop_reason()}); read result()")
+        if self._next is None:
+            self._gen = self._iteration()
+            self._next = next(self._gen)
+        self._asked = self._next
+        return self._asked if self.batched else self._asked[0]
+
+    def tell(self, costs: Tensor) -> None:
+        """Costs of the last asked weights: ``(B, S, O)`` (unbatched: ``(S, O)`` or ``(S,)``)."""
+        if self._asked is None:
+            raise RuntimeError("tell() called without a pending ask()")
+        costs = check_tensor(costs, "costs")
+        if not costs.is_floating_point():
+            costs = costs.to(self.mean.dtype)
+        if not self.batched:
+            costs = costs[None]
+        if costs.ndim == 2:
+            costs = costs[..., None]
+        expect = tuple(self._asked.shape[:2])
+        if costs.ndim != 3 or tuple(costs.shape[:2]) != expect:
+            raise ValueError(
+                f"costs must be (B, S, O) with (B, S) = {expect} (unbatched: (S, O)), got {tuple(costs.shape)}"
+            )
+        if self.num_objectives is None:
+            self.num_objectives = costs.shape[-1]
+        elif costs.shape[-1] != self.num_objectives:
+            raise ValueError(f"expected {self.num_objectives} objective(s), got costs of shape {tuple(costs.shape)}")
+        self._asked = None
+        try:
+            self._next = self._gen.send(costs.to(self.mean.dtype))
+        except StopIteration:
+            self._next = None
+            self._end_iteration()
+
+    def _end_iteration(self) -> None:
+        self.iteration += 1
+        cost = self._iter_cost
+        self._iter_cost = None
+        self.history["mean"].append(self.mean.clone())
+        self.history["var"].append(self.var.clone())
+        if cost is not None:
+            self.history["cost"].append(cost)
+        if self.tol > 0 and len(self.history["cost"]) >= self.window:
+            recent = torch.stack(self.history["cost"][-self.window :])  # (W, B, O)
+            spread = (recent.amax(0) - recent.amin(0)).nan_to_num(nan=float("inf"))  # (B, O)
+            self.converged |= (spread <= self.tol).all(-1)
+
+    def stop_reason(self) -> str | None:
+        if bool(self.converged.all()):
+            return "converged"
+        if self.iteration >= self.max_iter:
+            return "max_iter"
+        return None
+
+    def stop(self) -> bool:
+        """True once every problem converged or ``max_iter`` iterations ran."""
+        return self._asked is None and self._next is None and self.stop_reason() is not None
+
+    def result(self) -> OptimizeResult:
+        def unb(x: Tensor, axis: int = 0) -> Tensor:
+            return x if self.batched else x.squeeze(axis)
+
+        hist = {k: unb(torch.stack(v), 1) for k, v in self.history.items() if v}
+        return OptimizeResult(
+            mean=unb(self.mean.clone()),
+            var=unb(self.var.clone()),
+            converged=unb(self.converged.clone()),
+            iterations=self.iteration,
+            history=hist,
+            relevance_seconds=list(self.relevance_seconds),
+        )
+
+    def minimize(
+        self,
+        objective: Callable[[Tensor], Tensor],
+        *,
+        callback: Callable[["BaseOptimizer"], None] | None = None,
+        progress: bool = False,
+    ) -> OptimizeResult:
+        """Run ask/tell until :meth:`stop`; ``objective`` maps ``(B, S, N)`` to ``(B, S, O)``
+        (unbatched ``(S, N)`` to ``(S, O)``). ``callback(self)`` runs after each iteration."""
+        bar = None
+        if progress:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(total=self.max_iter, desc=type(self).__name__, leave=False)
+        while not self.stop():
+            it = self.iteration
+            self.tell(objective(self.ask()))
+            if self.iteration != it:
+                if callback is not None:
+                    callback(self)
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix(converged=f"{int(self.converged.sum())}/{self.batch_size}")
+        if bar is not None:
+            bar.close()
+        return self.result()

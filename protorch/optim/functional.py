@@ -1,0 +1,147 @@
+"""The pure functional core of PRO (Ewerton et al., IROS 2019, Sec. III A-B).
+
+No state, no randomness: each function maps tensors to tensors and accepts any leading batch
+dimensions ``...``. ``S`` samples, ``N`` weights, ``O`` objectives.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from .._checks import check_positive, check_tensor
+
+__all__ = ["stable_rewards", "pearson_relevance", "pro_update", "noise_floor_threshold"]
+
+
+def _beta_tensor(beta, ref: Tensor) -> Tensor:
+    beta_t = torch.as_tensor(beta, dtype=ref.dtype, device=ref.device)
+    check_positive(beta_t, "beta")
+    return beta_t
+
+
+def stable_rewards(costs: Tensor, beta, dim: int = -1) -> Tensor:
+    """``exp(-beta * (cost - min cost))`` along ``dim``: the best sample gets reward 1.
+
+    Shifting by the minimum leaves the normalised weights ``R_i / sum_j R_j`` of Eq. 4-5 unchanged
+    and keeps them finite for any cost scale. ``beta`` is a float or a tensor that broadcasts
+    against ``costs`` with ``dim`` removed (one beta per problem).
+    """
+    costs = check_tensor(costs, "costs")
+    beta_t = _beta_tensor(beta, costs)
+    if beta_t.ndim > 0:
+        beta_t = beta_t.unsqueeze(dim)
+    shifted = costs - costs.amin(dim, keepdim=True)
+    return torch.exp(-beta_t * shifted)
+
+
+def noise_floor_threshold(num_samples: int, z: float) -> float:
+    """|rho| below ``z / sqrt(S)`` is indistinguishable from an uncorrelated pair (to ~z sigma)."""
+    return float(z) / math.sqrt(num_samples)
+
+
+def _is_constant(centered: Tensor, raw: Tensor, std: Tensor) -> Tensor:
+    """Entries whose sample std is at rounding level relative to their magnitude."""
+    eps = torch.finfo(raw.dtype).eps
+    scale = raw.abs().amax(-2)
+    return std <= 64 * eps * scale.clamp_min(torch.finfo(raw.dtype).tiny)
+
+
+def pearson_relevance(w: Tensor, costs: Tensor, *, noise_floor: float | None = None) -> Tensor:
+    """Relevance of each weight to each objective: normalised ``|Pearson rho(w_n, o)|``.
+
+    Args:
+        w: ``(..., S, N)`` weight samples (the authors draw them around the mean with a small
+            uniform variance).
+        costs: ``(..., S, O)`` objective values of those samples.
+        noise_floor: optional ``z``. An estimated correlation of two unrelated variables is not 0
+            but noise of size ``1/sqrt(S)``; with ``z`` set, ``|rho| < z / sqrt(S)`` counts as 0
+            before normalising. ``None`` is the paper's formula as written. See GUIDE.md: without
+            a floor the irrelevant variance slowly collapses in the Fig. 3 toy.
+
+    Returns:
+        ``(..., O, N)`` in [0, 1], each objective's row divided by its maximum. A constant weight,
+        a constant objective, or an objective with no correlation above the floor gives 0.
+    """
+    w = check_tensor(w, "w", ndim_min=2)
+    costs = check_tensor(costs, "costs", ndim_min=2)
+    if w.shape[:-1] != costs.shape[:-1]:
+        raise ValueError(
+            f"w (..., S, N) and costs (..., S, O) must agree on (..., S): got {tuple(w.shape)} "
+            f"and {tuple(costs.shape)}"
+        )
+    num_samples = w.shape[-2]
+    if num_samples < 3:
+        raise ValueError(f"a Pearson correlation needs at least 3 samples, got S = {num_samples}")
+    dtype = torch.promote_types(w.dtype, costs.dtype)
+    if not dtype.is_floating_point:
+        dtype = torch.get_default_dtype()
+    w, costs = w.to(dtype), costs.to(dtype)
+    wc = w - w.mean(-2, keepdim=True)  # (..., S, N)
+    cc = costs - costs.mean(-2, keepdim=True)  # (..., S, O)
+    sw = wc.pow(2).mean(-2).sqrt()  # (..., N)
+    sc = cc.pow(2).mean(-2).sqrt()  # (..., O)
+    cov = torch.einsum("...sn,...so->...on", wc, cc) / num_samples  # (..., O, N)
+    const_w = _is_constant(wc, w, sw)  # (..., N)
+    const_c = _is_constant(cc, costs, sc)  # (..., O)
+    denom = sc[..., :, None] * sw[..., None, :]  # (..., O, N)
+    dead = const_c[..., :, None] | const_w[..., None, :]  # (..., O, N)
+    rho = torch.where(dead, torch.zeros_like(cov), cov / torch.where(dead, torch.ones_like(denom), denom))
+    rho = rho.abs().clamp(max=1.0)  # (..., O, N)
+    if noise_floor is not None:
+        if noise_floor < 0:
+            raise ValueError(f"noise_floor must be >= 0, got {noise_floor}")
+        rho = torch.where(rho < noise_floor_threshold(num_samples, noise_floor), torch.zeros_like(rho), rho)
+    top = rho.amax(-1, keepdim=True)  # (..., O, 1)
+    return torch.where(top > 0, rho / torch.where(top > 0, top, torch.ones_like(top)), torch.zeros_like(rho))
+
+
+def pro_update(
+    mean: Tensor, var: Tensor, samples: Tensor, costs: Tensor, relevance: Tensor, beta
+) -> tuple[Tensor, Tensor]:
+    """One objective's PRO step (Eq. 4, 5 around the old mean, and 6).
+
+    Args:
+        mean: ``(..., N)`` current mean.
+        var: ``(..., N)`` current diagonal variance.
+        samples: ``(..., S, N)`` weights drawn from ``N(mean, diag(var * relevance))``.
+        costs: ``(..., S)`` this objective's cost of each sample (``(..., S, 1)`` accepted).
+        relevance: ``(..., N)`` in [0, 1] for this objective.
+        beta: reward temperature > 0: a float or ``(...)`` (one per problem).
+
+    Returns:
+        ``(new_mean (..., N), new_var (..., N))`` with
+        ``new_mean = sum_i R_i w_i / sum_i R_i``,
+        ``C_n = sum_i R_i (w_in - mean_n)^2 / sum_i R_i`` and
+        ``new_var = (1 - f_n) var_n + f_n C_n``, ``R_i = exp(-beta cost_i)``.
+    """
+    mean = check_tensor(mean, "mean", ndim_min=1)
+    var = check_tensor(var, "var", ndim_min=1)
+    samples = check_tensor(samples, "samples", ndim_min=2)
+    costs = check_tensor(costs, "costs", ndim_min=1)
+    relevance = check_tensor(relevance, "relevance", ndim_min=1)
+    if costs.ndim == samples.ndim and costs.shape[-1] == 1:
+        costs = costs[..., 0]
+    batch, n = mean.shape[:-1], mean.shape[-1]
+    if var.shape != mean.shape or relevance.shape != mean.shape:
+        raise ValueError(
+            f"mean, var and relevance must share a shape (..., N): got {tuple(mean.shape)}, "
+            f"{tuple(var.shape)}, {tuple(relevance.shape)}"
+        )
+    if samples.shape[:-2] != batch or samples.shape[-1] != n:
+        raise ValueError(f"samples must be (..., S, {n}) with ... = {tuple(batch)}, got {tuple(samples.shape)}")
+    if costs.shape != samples.shape[:-1]:
+        raise ValueError(f"costs must be (..., S) = {tuple(samples.shape[:-1])}, got {tuple(costs.shape)}")
+    if bool((var < 0).any()):
+        raise ValueError("var must be >= 0")
+    if bool(((relevance < 0) | (relevance > 1)).any()):
+        raise ValueError("relevance must lie in [0, 1]")
+    rewards = stable_rewards(costs, beta, dim=-1)  # (..., S)
+    weights = rewards / rewards.sum(-1, keepdim=True)  # (..., S), sums to 1, max weight > 0
+    weights = weights.to(samples.dtype)
+    new_mean = torch.einsum("...s,...sn->...n", weights, samples)  # (..., N)
+    spread = torch.einsum("...s,...sn->...n", weights, (samples - mean.unsqueeze(-2)) ** 2)  # (..., N)
+    new_var = (1 - relevance) * var + relevance * spread  # (..., N)
+    return new_mean, new_var

@@ -1,0 +1,48 @@
+"""Reward-weighted regression over the weight Gaussian: PRO with every relevance equal to 1."""
+
+from __future__ import annotations
+
+from typing import Generator
+
+import torch
+from torch import Tensor
+
+from .base import BaseOptimizer
+from .functional import pro_update
+
+__all__ = ["RWR"]
+
+
+class RWR(BaseOptimizer):
+    """RWR (Peters and Schaal 2007) on a diagonal Gaussian: each iteration asks ``num_samples``
+    weights from ``N(mean, diag(var))``, scores them with ``exp(-beta * sum_o c_o * cost_o)``
+    and refits the Gaussian by weighted maximum likelihood: ``mean' = sum R w / sum R`` and
+    ``var' = sum R (w - mean')^2 / sum R``, around the *new* mean, the textbook RWR update
+    (``center="old"`` gives PRO's Eq. 5 with every relevance 1 instead).
+    ``objective_weights`` (``(O,)``, default all ones) combines the objectives into one cost.
+    """
+
+    def __init__(
+        self, mean: Tensor, var: Tensor, *, beta: float | Tensor, objective_weights=None, center: str = "new", **kwargs
+    ):
+        super().__init__(mean, var, beta=beta, **kwargs)
+        if center not in ("new", "old"):
+            raise ValueError(f"center must be 'new' or 'old', got {center!r}")
+        self.center = center
+        self.objective_weights = None if objective_weights is None else torch.as_tensor(
+            objective_weights, dtype=self.mean.dtype, device=self.mean.device
+        )
+
+    def _iteration(self) -> Generator[Tensor, Tensor, None]:
+        w = self._sample(self.var, self.num_samples)  # (B, S, N)
+        costs = yield w  # (B, S, O)
+        self._record_cost(slice(None), costs)
+        c = self.objective_weights
+        if c is not None and c.shape != (self.num_objectives,):
+            raise ValueError(f"objective_weights must be ({self.num_objectives},), got {tuple(c.shape)}")
+        total = costs.sum(-1) if c is None else costs @ c  # (B, S)
+        ones = torch.ones_like(self.var)  # (B, N)
+        new_mean, new_var = pro_update(self.mean, self.var, w, total, ones, self.beta)
+        if self.center == "new":  # weighted ML: E_R[(w - mean')^2] = E_R[(w - mean)^2] - (mean' - mean)^2
+            new_var = new_var - (new_mean - self.mean) ** 2
+        self._apply(new_mean, new_var)

@@ -1,0 +1,41 @@
+"""The Hydra command line: ``python -m protorch experiment=fig4_window [key=value ...]``.
+
+A thin edge: it composes the config, resolves it to a plain dict and calls
+:func:`protorch.experiments.run_experiment`. Nothing else in the package imports Hydra.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, OmegaConf
+
+
+def config_dir() -> Path:
+    """``conf/`` beside the package in a source checkout, ``protorch/conf`` in an installed wheel."""
+    here = Path(__file__).resolve().parent
+    for candidate in (here / "conf", here.parent / "conf"):
+        if (candidate / "config.yaml").is_file():
+            return candidate
+    raise FileNotFoundError(f"protorch's Hydra configs were not found beside {here}")
+
+
+@hydra.main(version_base=None, config_path=str(config_dir()), config_name="config")
+def main(cfg: DictConfig) -> float | None:
+    from protorch.experiments import run_experiment
+    from protorch.experiments.common import write_json  # noqa: F401  (keeps imports lazy)
+
+    out_dir = Path(HydraConfig.get().runtime.output_dir)
+    plain = OmegaConf.to_container(cfg, resolve=True)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    OmegaConf.save(OmegaConf.create(plain), out_dir / "config.yaml")
+    metrics = run_experiment(plain, out_dir)
+    print(f"[protorch] {plain['name']}: results in {out_dir}")
+    value = metrics.get("objective")
+    return float(value) if value is not None else None
+
+
+if __name__ == "__main__":
+    main()

@@ -248,15 +248,19 @@ class ProMP(nn.Module):
         phase = torch.as_tensor(phase, dtype=self.basis.dtype, device=self.basis.device).reshape(-1)
         if bool(((phase < 0) | (phase > 1)).any()):
             raise ValueError(f"via-point phases must lie in [0, 1], got {phase.tolist()}")
-        y = check_tensor(torch.as_tensor(y), "y").to(self.basis).reshape(-1, self.num_dof)  # (V, D)
         v, d = phase.shape[0], self.num_dof
+        y = check_tensor(torch.as_tensor(y), "y").to(self.basis)
+        if y.ndim == 1:  # (D,) for one via point, or (V,) for a 1-DoF ProMP
+            y = y[:, None] if d == 1 else y[None]
+        if y.ndim != 2 or y.shape[1] != d:
+            raise ValueError(f"y must be (V, {d}) or ({d},) for a {d}-DoF ProMP, got shape {tuple(y.shape)}")
         if y.shape[0] != v:
             raise ValueError(f"{v} via phase(s) but y has {y.shape[0]} row(s) of {d} DoF")
         y_cov = torch.as_tensor(y_cov, dtype=self.basis.dtype, device=self.basis.device)
         eye_d = torch.eye(d, dtype=self.basis.dtype, device=self.basis.device)
         if y_cov.ndim == 0:
             y_cov = (y_cov * eye_d).expand(v, d, d)
-        elif y_cov.ndim == 2:
+        elif y_cov.ndim == 2 and y_cov.shape == (d, d):
             y_cov = y_cov.expand(v, d, d)
         if y_cov.shape != (v, d, d):
             raise ValueError(f"y_cov must be a float, ({d}, {d}) or ({v}, {d}, {d}), got {tuple(y_cov.shape)}")

@@ -93,7 +93,11 @@ class RWPO(PRO):
         eye3 = torch.eye(3, dtype=dt, device=dev)
         other = 1 - 2 * torch.eye(o_count, dtype=dt, device=dev)  # (O, O): -1 on the diagonal
         for _ in range(self.relevance_iters):
-            chol = torch.linalg.cholesky(theta_cov + 1e-12 * eye3)  # (B, O, 3, 3)
+            chol, info = torch.linalg.cholesky_ex(theta_cov + 1e-12 * eye3)  # (B, O, 3, 3)
+            if bool((info != 0).any()):  # semi-definite (rewards on few draws): symmetric root
+                evals, evecs = torch.linalg.eigh(theta_cov)
+                root = evecs * evals.clamp_min(0).sqrt()[..., None, :]  # root @ root^T = theta_cov
+                chol = torch.where((info != 0)[..., None, None], root, chol)
             z = torch.randn(b, o_count, m, 3, generator=self.generator, dtype=dt, device=dev)
             theta = theta_mean[:, :, None] + torch.einsum("boij,bomj->bomi", chol, z)  # (B, O, M, 3)
             r = (theta @ self.features).clamp(0, 1)  # (B, O, M, K)

@@ -2,7 +2,8 @@
 
 Core pieces: :class:`ProMP` (demonstrations -> Gaussian over basis weights), the functional PRO
 core (:func:`pearson_relevance`, :func:`pro_update`) and the optimisers :class:`PRO`,
-:class:`RWR` and :class:`RWPO` sharing one ask / tell contract.
+:class:`RWR` and :class:`RWPO` sharing one ask / tell contract; the environment -> ProMP map
+(:func:`make_env_map`, :class:`TrajectoryDataset`, :func:`load`).
 """
 
 from .optim import (
@@ -15,11 +16,15 @@ from .optim import (
     pro_update,
     stable_rewards,
 )
+from .dataset import TrajectoryDataset
+from .gp import load_env_map, make_env_map
+from .io import CheckpointError, EnvToProMP, load, save_model
 from .promp import ProMP
 
 __version__ = "0.1.0"
 
 __all__ = [
     "ProMP", "PRO", "RWR", "RWPO", "BaseOptimizer", "OptimizeResult",
-    "pearson_relevance", "pro_update", "stable_rewards", "__version__",
+    "pearson_relevance", "pro_update", "stable_rewards", "TrajectoryDataset", "make_env_map",
+    "load_env_map", "EnvToProMP", "CheckpointError", "load", "save_model", "__version__",
 ]

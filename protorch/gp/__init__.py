@@ -1,0 +1,49 @@
+"""Environment -> ProMP maps (Sec. III C, Eq. 7 and 8): one GP per weight, pluggable backends.
+
+``make_env_map("torch" | "gpytorch", alpha, **options)`` builds one; both share the
+:class:`EnvMap` contract (``fit``, ``add``, ``predict``, ``predict_mean``, ``save``) and
+:func:`load_env_map` reads what ``save`` wrote.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .base import ENV_MAP_FORMAT, ENV_MAP_SCHEMA, EnvMap, rbf
+from .closed_form import TorchEnvMap
+from .gpytorch_exact import GPyTorchEnvMap
+
+__all__ = ["EnvMap", "TorchEnvMap", "GPyTorchEnvMap", "BACKENDS", "make_env_map", "load_env_map", "rbf"]
+
+BACKENDS: dict[str, type[EnvMap]] = {"torch": TorchEnvMap, "gpytorch": GPyTorchEnvMap}
+
+
+def make_env_map(backend: str = "torch", alpha: float = 1.0, **options) -> EnvMap:
+    """An empty environment map of the given backend (``"torch"`` or ``"gpytorch"``).
+
+    ``options``: ``nearest_k``, ``dtype``, ``device`` for every backend, plus the backend's own
+    (see :class:`TorchEnvMap`, :class:`GPyTorchEnvMap`). Unknown names raise ``TypeError``.
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown GP backend {backend!r}; choose one of {sorted(BACKENDS)}")
+    return BACKENDS[backend](alpha, **options)
+
+
+def load_env_map(path: str | Path, *, backend: str | None = None, **options) -> EnvMap:
+    """Rebuild (refit) an environment map saved by :meth:`EnvMap.save`.
+
+    ``backend`` and ``options`` override the saved ones (e.g. ``device="cuda"``).
+    """
+    from ..io import read_safetensors
+
+    tensors, meta = read_safetensors(
+        path, fmt=ENV_MAP_FORMAT, schema_version=ENV_MAP_SCHEMA, keys=("E", "MU", "VAR", "labels")
+    )
+    saved = dict(meta.get("options", {}))
+    if backend is not None and backend != meta["backend"]:  # the other backend's options differ
+        saved = {"nearest_k": saved.get("nearest_k")}
+    opts = {**saved, **options}
+    env_map = make_env_map(backend or meta["backend"], meta["alpha"], **opts)
+    if tensors["E"].shape[0]:
+        env_map.fit(tensors["E"], tensors["MU"], tensors["VAR"], tensors["labels"])
+    return env_map

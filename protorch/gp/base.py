@@ -1,0 +1,359 @@
+"""The environment map of PRO (Ewerton et al. 2019, Sec. III C): one GP per ProMP weight.
+
+Known environments ``E (M, d)`` each carry a diagonal weight Gaussian ``MU (M, N)``,
+``VAR (M, N)``. For weight ``n`` and a new environment ``e`` (Eq. 7, 8)::
+
+    k(e_i, e_j) = exp(-alpha ||e_i - e_j||^2)
+    A_n         = K + diag(VAR[:, n])                           (heteroscedastic noise)
+    mu_n(e)     = mu0_n + k_e^T A_n^-1 (MU[:, n] - mu0_n)       mu0_n  = mean_m MU[m, n]
+    var_n(e)    = k(e, e) + vbar_n - k_e^T A_n^-1 k_e           vbar_n = mean_m VAR[m, n]
+
+:class:`EnvMap` holds the data, validates every input before touching its state, groups the data
+by label (each label is a separate set of GPs: solutions passing left and right of an obstacle
+are never averaged) and implements ``nearest_k`` (each query uses the GP of Eq. 7, 8 built on
+its ``k`` nearest known environments of its label, prior mean and average variance included).
+A backend implements the exact solve for one label group (``_group_*``) and for a batch of
+per-query subsets (``_predict_subsets``).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from pathlib import Path
+
+import torch
+from torch import Tensor, nn
+
+from .._checks import check_nonnegative, check_positive, check_tensor
+
+__all__ = ["EnvMap", "rbf", "sq_dist", "posdef_cholesky", "ENV_MAP_FORMAT", "ENV_MAP_SCHEMA"]
+
+ENV_MAP_FORMAT = "protorch.env_map"
+ENV_MAP_SCHEMA = 1
+
+
+def sq_dist(a: Tensor, b: Tensor) -> Tensor:
+    """Squared Euclidean distances ``(..., P, d), (..., R, d) -> (..., P, R)`` from differences
+    (no ``|a|^2 + |b|^2 - 2ab`` cancellation, so duplicates give exactly 0)."""
+    return torch.cdist(a, b, compute_mode="donot_use_mm_for_euclid_dist") ** 2
+
+
+def rbf(a: Tensor, b: Tensor, alpha: float) -> Tensor:
+    """The paper's kernel ``exp(-alpha ||a - b||^2)``: ``(..., P, d), (..., R, d) -> (..., P, R)``."""
+    return torch.exp(-alpha * sq_dist(a, b))
+
+
+def posdef_cholesky(a: Tensor, *, max_tries: int = 6) -> tuple[Tensor, Tensor]:
+    """Cholesky factor of a batch of SPD matrices ``(..., P, P)``.
+
+    Exact whenever float64 allows it. A matrix whose factorisation fails (duplicate
+    environments with variances near 0 make ``K + Sigma`` singular to round-off) is retried with
+    ``jitter = 1e-12, 1e-11, ...`` times its mean diagonal added to the diagonal, for that matrix
+    only. Returns ``(L (..., P, P), jitter (...,))`` so the caller can report what was added.
+    """
+    chol, info = torch.linalg.cholesky_ex(a)  # (..., P, P), (...,)
+    jitter = torch.zeros(a.shape[:-2], dtype=a.dtype, device=a.device)  # (...,)
+    bad = info != 0  # (...,)
+    if not bool(bad.any()):
+        return chol, jitter
+    scale = a.diagonal(dim1=-2, dim2=-1).mean(-1).abs().clamp_min(1e-300)  # (...,)
+    eye = torch.eye(a.shape[-1], dtype=a.dtype, device=a.device)
+    for t in range(max_tries):
+        j = torch.where(bad, scale * 10.0 ** (-12 + t), torch.zeros_like(scale))  # (...,)
+        c2, info2 = torch.linalg.cholesky_ex(a + j[..., None, None] * eye)
+        fixed = bad & (info2 == 0)
+        chol = torch.where(fixed[..., None, None], c2, chol)
+        jitter = torch.where(fixed, j, jitter)
+        bad = bad & ~fixed
+        if not bool(bad.any()):
+            return chol, jitter
+    raise torch.linalg.LinAlgError(
+        "K + diag(VAR) is not positive definite even with jitter 1e-7 x its mean diagonal; "
+        "check the environments and variances"
+    )
+
+
+def _as_labels(labels, m: int, device) -> Tensor:
+    """``None`` / int / ``(m,)`` integer array -> ``(m,)`` int64 tensor."""
+    if labels is None:
+        return torch.zeros(m, dtype=torch.long, device=device)
+    if isinstance(labels, (int,)) and not isinstance(labels, bool):
+        return torch.full((m,), int(labels), dtype=torch.long, device=device)
+    lab = torch.as_tensor(labels, device=device)
+    if lab.ndim == 0:
+        lab = lab.expand(m)
+    if lab.ndim != 1 or lab.shape[0] != m:
+        raise ValueError(f"labels must be an int or have shape ({m},), got shape {tuple(lab.shape)}")
+    if lab.is_floating_point():
+        if not bool(torch.isfinite(lab).all()) or not bool((lab == lab.round()).all()):
+            raise ValueError("labels must be integers")
+    elif lab.dtype == torch.bool or lab.is_complex():
+        raise ValueError(f"labels must be integers, got dtype {lab.dtype}")
+    return lab.to(torch.long)
+
+
+class EnvMap(nn.Module, ABC):
+    """Environment ``(Q, d)`` -> diagonal weight Gaussian ``(mu (Q, N), var (Q, N))``.
+
+    Args:
+        alpha: kernel parameter of ``exp(-alpha ||e_i - e_j||^2)``, > 0.
+        nearest_k: if set, each query uses only its ``k`` nearest known environments (of its
+            label), as the authors' code does with ``k = 30``; ties are broken by insertion
+            order, so ``add`` in steps and a refit choose the same neighbours.
+        dtype, device: of the stored data and the computations (float64 by default).
+
+    Use :meth:`fit` to set the data, :meth:`add` to append without refitting, :meth:`predict`
+    (or :meth:`predict_mean`) to query, :meth:`save` / :func:`protorch.gp.load_env_map` to
+    persist. Every method validates its inputs completely before changing any state.
+    """
+
+    backend: str = "base"
+
+    def __init__(
+        self,
+        alpha: float,
+        *,
+        nearest_k: int | None = None,
+        dtype: torch.dtype = torch.float64,
+        device: torch.device | str | None = None,
+    ) -> None:
+        super().__init__()
+        check_positive(alpha, "alpha")
+        if nearest_k is not None:
+            if isinstance(nearest_k, bool) or int(nearest_k) != nearest_k or int(nearest_k) < 1:
+                raise ValueError(f"nearest_k must be None or an int >= 1, got {nearest_k!r}")
+            nearest_k = int(nearest_k)
+        if not dtype.is_floating_point:
+            raise ValueError(f"dtype must be a floating dtype, got {dtype}")
+        self.alpha = float(alpha)
+        self.nearest_k = nearest_k
+        kw = dict(dtype=dtype, device=device)
+        self._m = 0  # number of stored points
+        # storage with spare capacity, so add() appends in amortised O(1) per point
+        self.register_buffer("_E", torch.zeros(0, 0, **kw))  # (cap, d)
+        self.register_buffer("_MU", torch.zeros(0, 0, **kw))  # (cap, N)
+        self.register_buffer("_VAR", torch.zeros(0, 0, **kw))  # (cap, N)
+        self.register_buffer("_labels", torch.zeros(0, dtype=torch.long, device=device))  # (cap,)
+
+    # ----------------------------------------------------------------- state
+    @property
+    def num_points(self) -> int:
+        """``M``, the number of known environments."""
+        return self._m
+
+    @property
+    def env_dim(self) -> int:
+        return self._E.shape[1]
+
+    @property
+    def num_weights(self) -> int:
+        return self._MU.shape[1]
+
+    @property
+    def E(self) -> Tensor:
+        return self._E[: self._m]  # (M, d)
+
+    @property
+    def MU(self) -> Tensor:
+        return self._MU[: self._m]  # (M, N)
+
+    @property
+    def VAR(self) -> Tensor:
+        return self._VAR[: self._m]  # (M, N)
+
+    @property
+    def labels(self) -> Tensor:
+        return self._labels[: self._m]  # (M,)
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self._E.dtype
+
+    @property
+    def device(self) -> torch.device:
+        return self._E.device
+
+    def options(self) -> dict:
+        """Constructor options (JSON-serialisable) that :meth:`save` records."""
+        return {"nearest_k": self.nearest_k}
+
+    def extra_repr(self) -> str:
+        return f"backend={self.backend!r}, alpha={self.alpha:g}, nearest_k={self.nearest_k}, M={self._m}"
+
+    # ------------------------------------------------------------ validation
+    def _validate(self, E, MU, VAR, labels, *, appending: bool):
+        E = check_tensor(E, "E", ndim=2)
+        MU = check_tensor(MU, "MU", ndim=2)
+        VAR = check_tensor(VAR, "VAR", ndim=2)
+        for x, name in ((E, "E"), (MU, "MU"), (VAR, "VAR")):
+            if not x.is_floating_point():
+                raise ValueError(f"{name} must be a floating-point tensor, got {x.dtype}")
+        m = E.shape[0]
+        if m == 0:
+            raise ValueError("E is empty: give at least one environment")
+        if MU.shape[0] != m or VAR.shape[0] != m:
+            raise ValueError(
+                f"E, MU and VAR must have the same number of rows, got {m}, {MU.shape[0]}, {VAR.shape[0]}"
+            )
+        if MU.shape != VAR.shape:
+            raise ValueError(f"MU and VAR must have the same shape, got {tuple(MU.shape)} and {tuple(VAR.shape)}")
+        if E.shape[1] == 0 or MU.shape[1] == 0:
+            raise ValueError(f"E and MU need at least one column, got {tuple(E.shape)} and {tuple(MU.shape)}")
+        check_nonnegative(VAR, "VAR")
+        if appending and self._m > 0:
+            if E.shape[1] != self.env_dim:
+                raise ValueError(f"E must have {self.env_dim} columns like the stored data, got {E.shape[1]}")
+            if MU.shape[1] != self.num_weights:
+                raise ValueError(f"MU must have {self.num_weights} columns like the stored data, got {MU.shape[1]}")
+        kw = dict(dtype=self.dtype, device=self.device)
+        lab = _as_labels(labels, m, self.device)
+        return E.to(**kw), MU.to(**kw), VAR.to(**kw), lab
+
+    def _validate_query(self, E, labels) -> tuple[Tensor, Tensor]:
+        if self._m == 0:
+            raise RuntimeError("the environment map has no data: call fit() first")
+        E = check_tensor(E, "E", ndim=2)
+        if not E.is_floating_point():
+            raise ValueError(f"E must be a floating-point tensor, got {E.dtype}")
+        if E.shape[1] != self.env_dim:
+            raise ValueError(f"E must be (Q, {self.env_dim}), got {tuple(E.shape)}")
+        known = torch.unique(self.labels)
+        if labels is None:
+            if known.numel() > 1:
+                raise ValueError(
+                    f"the data has several labels {known.tolist()}: pass labels= to predict per label"
+                )
+            lab = known.expand(E.shape[0])
+        else:
+            lab = _as_labels(labels, E.shape[0], self.device)
+            missing = sorted(set(torch.unique(lab).tolist()) - set(known.tolist()))
+            if missing:
+                raise ValueError(f"no known environment has label(s) {missing}; known: {known.tolist()}")
+        return E.to(dtype=self.dtype, device=self.device), lab
+
+    # ------------------------------------------------------------------ API
+    def fit(self, E: Tensor, MU: Tensor, VAR: Tensor, labels=None) -> "EnvMap":
+        """Replace the data: ``E (M, d)``, ``MU (M, N)``, ``VAR (M, N) >= 0``, ``labels (M,)``."""
+        E, MU, VAR, lab = self._validate(E, MU, VAR, labels, appending=False)
+        self._m = 0
+        self._reset_groups()
+        self._append_storage(E, MU, VAR, lab)
+        if self.nearest_k is None:
+            for g in torch.unique(lab).tolist():
+                sel = lab == g
+                self._group_fit(g, E[sel], MU[sel], VAR[sel])
+        return self
+
+    def add(self, E: Tensor, MU: Tensor, VAR: Tensor, labels=None) -> "EnvMap":
+        """Append ``B`` environments without refitting the existing ones (same shapes as fit)."""
+        if self._m == 0:
+            return self.fit(E, MU, VAR, labels)
+        E, MU, VAR, lab = self._validate(E, MU, VAR, labels, appending=True)
+        self._append_storage(E, MU, VAR, lab)
+        if self.nearest_k is None:
+            for g in torch.unique(lab).tolist():
+                sel = lab == g
+                if self._has_group(g):
+                    self._group_add(g, E[sel], MU[sel], VAR[sel])
+                else:
+                    self._group_fit(g, E[sel], MU[sel], VAR[sel])
+        return self
+
+    def predict(self, E: Tensor, labels=None, *, approx_var: bool = False) -> tuple[Tensor, Tensor]:
+        """``E (Q, d)`` -> ``(mu (Q, N), var (Q, N))`` by Eq. 7 and 8, per label.
+
+        ``approx_var=True`` uses the backend's fast approximate variance (see its docs); the
+        mean is exact either way.
+        """
+        return self._predict(E, labels, need_var=True, approx_var=approx_var)
+
+    def predict_mean(self, E: Tensor, labels=None) -> Tensor:
+        """``E (Q, d)`` -> ``mu (Q, N)`` (Eq. 7) only; the fast path for online queries."""
+        return self._predict(E, labels, need_var=False, approx_var=False)[0]
+
+    def forward(self, E: Tensor, labels=None) -> tuple[Tensor, Tensor]:
+        return self.predict(E, labels)
+
+    def _predict(self, E, labels, *, need_var: bool, approx_var: bool):
+        E, lab = self._validate_query(E, labels)
+        q, n = E.shape[0], self.num_weights
+        mu = torch.empty(q, n, dtype=self.dtype, device=self.device)  # (Q, N)
+        var = torch.empty(q, n, dtype=self.dtype, device=self.device) if need_var else None  # (Q, N)
+        for g in torch.unique(lab).tolist():
+            sel = lab == g
+            if self.nearest_k is None:
+                m_g, v_g = self._group_predict(g, E[sel], need_var=need_var, approx_var=approx_var)
+            else:
+                m_g, v_g = self._nearest_predict(g, E[sel], need_var=need_var)
+            mu[sel] = m_g
+            if need_var:
+                var[sel] = v_g
+        return mu, var
+
+    def _nearest_predict(self, g: int, Eq: Tensor, *, need_var: bool):
+        sel = self.labels == g
+        Eg, MUg, VARg = self.E[sel], self.MU[sel], self.VAR[sel]  # (Mg, d), (Mg, N), (Mg, N)
+        k = min(self.nearest_k, Eg.shape[0])
+        d2 = sq_dist(Eq, Eg)  # (Q, Mg)
+        idx = torch.sort(d2, dim=1, stable=True).indices[:, :k]  # (Q, k), ties by insertion order
+        return self._predict_subsets(Eg[idx], MUg[idx], VARg[idx], Eq, need_var=need_var)
+
+    # -------------------------------------------------------------- storage
+    def _append_storage(self, E: Tensor, MU: Tensor, VAR: Tensor, lab: Tensor) -> None:
+        b, m = E.shape[0], self._m
+        if m == 0 or self._E.shape[0] < m + b:
+            cap = max(m + b, 2 * self._E.shape[0], 16)
+            kw = dict(dtype=self.dtype, device=self.device)
+            newE = torch.zeros(cap, E.shape[1], **kw)  # (cap, d)
+            newMU = torch.zeros(cap, MU.shape[1], **kw)  # (cap, N)
+            newVAR = torch.zeros(cap, MU.shape[1], **kw)  # (cap, N)
+            newL = torch.zeros(cap, dtype=torch.long, device=self.device)  # (cap,)
+            if m:
+                newE[:m], newMU[:m], newVAR[:m], newL[:m] = self.E, self.MU, self.VAR, self.labels
+            self._E, self._MU, self._VAR, self._labels = newE, newMU, newVAR, newL
+        self._E[m : m + b] = E
+        self._MU[m : m + b] = MU
+        self._VAR[m : m + b] = VAR
+        self._labels[m : m + b] = lab
+        self._m = m + b
+
+    # --------------------------------------------------------- persistence
+    def save(self, path: str | Path) -> Path:
+        """Write the data and settings to one safetensors file, atomically."""
+        from ..io import atomic_write_safetensors
+
+        tensors = {"E": self.E, "MU": self.MU, "VAR": self.VAR, "labels": self.labels}
+        meta = {
+            "format": ENV_MAP_FORMAT,
+            "schema_version": ENV_MAP_SCHEMA,
+            "backend": self.backend,
+            "alpha": self.alpha,
+            "options": self.options(),
+        }
+        return atomic_write_safetensors(path, tensors, meta)
+
+    # -------------------------------------------------------- backend hooks
+    @abstractmethod
+    def _reset_groups(self) -> None:
+        """Forget every fitted group."""
+
+    @abstractmethod
+    def _has_group(self, g: int) -> bool: ...
+
+    @abstractmethod
+    def _group_fit(self, g: int, E: Tensor, MU: Tensor, VAR: Tensor) -> None:
+        """Exact GPs of label ``g`` from its data ``(Mg, d), (Mg, N), (Mg, N)``."""
+
+    @abstractmethod
+    def _group_add(self, g: int, E: Tensor, MU: Tensor, VAR: Tensor) -> None:
+        """Append ``(B, d), (B, N), (B, N)`` to label ``g`` (prior mean and vbar change too)."""
+
+    @abstractmethod
+    def _group_predict(self, g: int, Eq: Tensor, *, need_var: bool, approx_var: bool):
+        """``Eq (Q, d)`` -> ``(mu (Q, N), var (Q, N) or None)`` for label ``g``."""
+
+    @abstractmethod
+    def _predict_subsets(self, Es: Tensor, MUs: Tensor, VARs: Tensor, Eq: Tensor, *, need_var: bool):
+        """Query ``q`` uses only its own data ``Es[q] (k, d), MUs[q] (k, N), VARs[q] (k, N)``:
+        ``(Q, k, d), (Q, k, N), (Q, k, N), (Q, d)`` -> ``(mu (Q, N), var (Q, N) or None)``."""
+

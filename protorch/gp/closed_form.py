@@ -165,7 +165,9 @@ class _CholGroup(nn.Module):
             self._build_nystrom()
         kS = rbf(self.nys_S, Eq, self.alpha)  # (r, Q)
         f = torch.linalg.solve_triangular(self.nys_R, kS, upper=False)  # (r, Q)
-        quad = torch.einsum("rq,nrs,sq->qn", f, self.nys_H, f)  # (Q, N)
+        n, r = self.nys_H.shape[:2]
+        hf = (self.nys_H.reshape(n * r, r) @ f).reshape(n, r, -1)  # (N, r, Q): one big matmul
+        quad = (hf * f).sum(1).T  # (Q, N)
         return (1.0 - quad).clamp_min(0) + self.vbar  # (Q, N)
 
     def _build_nystrom(self) -> None:

@@ -143,18 +143,13 @@ def _count_probe_asks(opt, fn):
     return probes
 
 
+def _probe_pro(mean, **kw):
+    """A small PRO on ``two_objectives`` whose probe asks are recognisable by their size (30)."""
+    return PRO(mean, 1.0, **{"beta": 2.0, "num_samples": 20, "relevance_samples": 30, "tol": 0.0, "seed": 0, **kw})
+
+
 def test_relevance_every_zero_computes_relevance_once():
-    opt = PRO(
-        torch.zeros(2, 3, dtype=F64),
-        1.0,
-        beta=2.0,
-        num_samples=20,
-        relevance_samples=30,
-        relevance_every=0,
-        max_iter=6,
-        tol=0.0,
-        seed=0,
-    )
+    opt = _probe_pro(torch.zeros(2, 3, dtype=F64), relevance_every=0, max_iter=6)
     assert _count_probe_asks(opt, two_objectives) == 1
     res = opt.result()
     assert len(res.relevance_seconds) == 1
@@ -163,17 +158,7 @@ def test_relevance_every_zero_computes_relevance_once():
 
 
 def test_relevance_every_k_recomputes_every_k_iterations():
-    opt = PRO(
-        torch.zeros(3, dtype=F64),
-        1.0,
-        beta=2.0,
-        num_samples=20,
-        relevance_samples=30,
-        relevance_every=2,
-        max_iter=5,
-        tol=0.0,
-        seed=0,
-    )
+    opt = _probe_pro(torch.zeros(3, dtype=F64), relevance_every=2, max_iter=5)
     assert _count_probe_asks(opt, two_objectives) == 3  # iterations 0, 2 and 4
     rel = opt.result().history["relevance"]
     assert torch.equal(rel[0], rel[1]) and torch.equal(rel[2], rel[3])
@@ -181,16 +166,7 @@ def test_relevance_every_k_recomputes_every_k_iterations():
 
 
 def test_relevance_seconds_recorded_every_iteration_by_default():
-    opt = PRO(
-        torch.zeros(3, dtype=F64),
-        1.0,
-        beta=2.0,
-        num_samples=20,
-        relevance_samples=30,
-        max_iter=4,
-        tol=0.0,
-        seed=0,
-    )
+    opt = _probe_pro(torch.zeros(3, dtype=F64), max_iter=4)
     assert _count_probe_asks(opt, two_objectives) == 4
     secs = opt.result().relevance_seconds
     assert len(secs) == 4 and all(isinstance(s, float) and s > 0 for s in secs)

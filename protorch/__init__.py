@@ -3,7 +3,8 @@
 Core pieces: :class:`ProMP` (demonstrations -> Gaussian over basis weights), the functional PRO
 core (:func:`pearson_relevance`, :func:`pro_update`) and the optimisers :class:`PRO`,
 :class:`RWR` and :class:`RWPO` sharing one ask / tell contract; the environment -> ProMP map
-(:func:`make_env_map`, :class:`TrajectoryDataset`, :func:`load`).
+(:func:`make_env_map`, :class:`TrajectoryDataset`, :func:`load`); the self-improvement loop
+(:func:`self_improve`).
 """
 
 from .optim import (
@@ -19,6 +20,7 @@ from .optim import (
 from .dataset import TrajectoryDataset
 from .gp import load_env_map, make_env_map
 from .io import CheckpointError, EnvToProMP, load, save_model
+from .loop import LoopResult, demonstration_dataset, self_improve
 from .promp import ProMP
 
 __version__ = "0.1.0"
@@ -26,5 +28,6 @@ __version__ = "0.1.0"
 __all__ = [
     "ProMP", "PRO", "RWR", "RWPO", "BaseOptimizer", "OptimizeResult",
     "pearson_relevance", "pro_update", "stable_rewards", "TrajectoryDataset", "make_env_map",
-    "load_env_map", "EnvToProMP", "CheckpointError", "load", "save_model", "__version__",
+    "load_env_map", "EnvToProMP", "CheckpointError", "load", "save_model", "self_improve", "LoopResult",
+    "demonstration_dataset", "__version__",
 ]

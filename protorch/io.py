@@ -97,7 +97,15 @@ def atomic_write_safetensors(path: str | Path, tensors: dict[str, Tensor], meta:
 
 
 def _sniff(data: bytes, path: Path) -> int:
-    """Refuse anything that is not a complete safetensors file; return its header length."""
+    """Refuse anything that is not a complete safetensors file; return its header length.
+
+    The safetensors layout (8-byte little-endian header length, then a JSON object) is checked
+    first: its length bytes can be anything, so a header of 128 + 256 k bytes starts with the
+    byte ``0x80`` like a pickle, and one of 0x4B50 + 65536 k bytes with ``PK`` like a zip."""
+    if len(data) >= 10 and data[8:9] == b"{":
+        n = int.from_bytes(data[:8], "little")
+        if 8 + n <= len(data):
+            return n
     if data[:2] == b"PK":
         raise CheckpointError(
             f"{path} is a zip archive (the torch.save format, which contains a pickle); "
@@ -240,9 +248,11 @@ def load(run_dir_or_checkpoint: str | Path, *, device=None, dtype: torch.dtype =
     settings = ds.metadata.get("env_map")
     if not settings:
         raise CheckpointError(f"{path} holds no environment-map settings: write it with protorch.io.save_model")
-    keep = ds.origin != ORIGINS.index("learned")  # (M,)
-    if not settings.get("include_unconverged", False):
-        keep = keep | ds.converged
+    keep = ds.origin != ORIGINS.index("learned")  # (M,) demonstrations and priors always count
+    if settings.get("include_unconverged", False):
+        keep = torch.ones_like(keep)  # every learned entry too
+    else:
+        keep = keep | ds.converged  # learned entries only where their run converged
     if not bool(keep.any()):
         raise CheckpointError(f"{path} holds no entry usable by the environment map")
     chosen = backend or settings["backend"]

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["plot_cloud", "plot_curves", "plot_trajectories", "plot_window", "plot_relevance", "save_figure"]
+__all__ = [
+    "plot_cloud", "plot_curves", "plot_trajectories", "plot_window", "plot_point_particle", "plot_relevance",
+    "save_figure",
+]
 
 
 def _np(x):
@@ -52,6 +55,26 @@ def plot_window(ax, task):
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 1)
     ax.set_aspect("equal")
+    return ax
+
+
+def plot_point_particle(ax, task, env):
+    """Wall rectangles, hole centre, start (green x) and goal (red x) of one point-particle
+    environment ``env (E,)`` in the workspace ``[0, 10]^2``."""
+    from matplotlib.patches import Rectangle
+
+    rects = _np(task.wall_rectangles(env))  # (2, 4) x_min, x_max, y_min, y_max
+    for x0, x1, y0, y1 in rects:
+        if y1 > y0:
+            ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, facecolor="0.65", edgecolor="0.2", lw=1))
+    e = _np(task.full_env(env))  # (6,)
+    ax.plot(e[2], e[3], "+", color="0.2", ms=8)
+    ax.plot(e[0], e[1], "gx", ms=9, mew=2)
+    ax.plot(e[4], e[5], "rx", ms=9, mew=2)
+    ax.set_xlim(0, 10)
+    ax.set_ylim(0, 10)
+    ax.set_aspect("equal")
+    ax.tick_params(labelsize=7)
     return ax
 
 

@@ -24,6 +24,11 @@ TINY = {
         "optimizer.max_iter=3", "optimizer.num_samples=20", "optimizer.pro.relevance_samples=20",
         "optimizer.rwpo.relevance_iters=2", "optimizer.rwpo.theta_samples=4", "optimizer.rwpo.trajectory_samples=3",
     ],
+    "point_particle": [
+        "settings.loop.num_envs=20", "settings.loop.batch_size=10", "optimizer.max_iter=10",
+        "optimizer.num_samples=20", "optimizer.pro.relevance_samples=20", "settings.test.num_envs=10",
+        "settings.dynamic.episodes=3", "settings.progress=false",
+    ],
 }
 
 

@@ -7,7 +7,9 @@ import torch
 from protorch import ProMP
 from protorch.dataset import TrajectoryDataset
 from protorch.gp import make_env_map
-from protorch.io import CheckpointError, EnvToProMP, atomic_write_bytes, checkpoint_path, load, save_model
+from protorch.io import (
+    CheckpointError, EnvToProMP, atomic_write_bytes, atomic_write_safetensors, checkpoint_path, load, save_model,
+)
 
 PROMP = dict(num_dof=2, num_basis=4, num_steps=30)  # N = 8
 
@@ -46,6 +48,16 @@ def test_load_run_dir_gives_the_env_map_of_the_usable_entries(tmp_path):
     for where in (tmp_path / "run" / "checkpoint", tmp_path / "run" / "checkpoint" / "dataset.safetensors"):
         assert torch.allclose(load(where)(Q, lab)[0], mu, atol=1e-12)
     assert torch.allclose(load(tmp_path / "run", backend="gpytorch")(Q, lab)[0], mu, atol=1e-8)
+
+
+def test_include_unconverged_keeps_every_learned_entry(tmp_path):
+    ds, E, MU, VAR = _run(tmp_path, backend="torch", alpha=2.0, include_unconverged=True)
+    model = load(tmp_path / "run")
+    assert model.env_map.num_points == 12  # demonstrations, converged and unconverged learned entries
+    ref = make_env_map("torch", 2.0).fit(E, MU, VAR, ds.label)
+    Q = torch.rand(3, 2, dtype=torch.float64)
+    lab = torch.tensor([0, 1, 0])
+    assert torch.allclose(model(Q, lab)[0], ref.predict(Q, lab)[0], atol=1e-12)
 
 
 def test_load_checks_promp_and_settings(tmp_path):
@@ -91,3 +103,21 @@ def test_atomic_write_replaces_whole_file(tmp_path):
     assert p.read_bytes() == b"b" * 10
     assert sorted(x.name for x in tmp_path.iterdir()) == ["x.bin"]
     np.testing.assert_equal(len(list(tmp_path.glob(".*.tmp"))), 0)
+
+
+@pytest.mark.parametrize("first_byte", [0x80, ord("P")])
+def test_header_lengths_that_look_like_a_pickle_or_zip_still_load(tmp_path, first_byte):
+    """The first byte of a safetensors file is the low byte of its header length: 0x80 (a pickle's
+    first byte) or 'P' (a zip's) must not make a valid checkpoint unreadable."""
+    from protorch.io import read_safetensors
+
+    tensors = {"x": torch.arange(3.0)}
+    path = tmp_path / "c.safetensors"
+    for pad in range(300):
+        atomic_write_safetensors(path, tensors, {"format": "f", "schema_version": 1, "pad": "#" * pad})
+        if path.read_bytes()[0] == first_byte:
+            break
+    else:  # pragma: no cover
+        pytest.fail("no padding gave the wanted header length")
+    got, meta = read_safetensors(path, fmt="f", schema_version=1, keys=["x"])
+    assert torch.equal(got["x"], tensors["x"]) and meta["pad"] == "#" * pad

@@ -126,6 +126,9 @@ class BaseOptimizer(nn.Module):
         self.relevance_seconds: list[float] = []
         self._gen: Generator[Tensor, Tensor, None] | None = None
         self._next: Tensor | None = None
+        # the objective whose costs the pending ask's update reads (None: it reads all of them);
+        # a caller may fill the other columns with any finite value (e.g. skip computing them)
+        self.asked_objective: int | None = None
         self._asked: Tensor | None = None
         self._iter_cost: Tensor | None = None
 
@@ -216,6 +219,25 @@ class BaseOptimizer(nn.Module):
             recent = torch.stack(self.history["cost"][-self.window :])  # (W, B, O)
             spread = (recent.amax(0) - recent.amin(0)).nan_to_num(nan=float("inf"))  # (B, O)
             self.converged |= (spread <= self.tol).all(-1)
+
+    def mark_converged(self, mask) -> None:
+        """Declare problems finished from outside, e.g. once their mean already solves the task
+        (the self-improvement loop's ``solved`` check): they stop moving, count as converged and
+        :meth:`stop` no longer waits for them. ``mask`` is ``(B,)`` bool (unbatched: a bool)."""
+        m = torch.as_tensor(mask, device=self.converged.device)
+        if m.dtype != torch.bool:
+            raise ValueError(f"mask must be bool, got {m.dtype}")
+        if not self.batched and m.numel() == 1:
+            m = m.reshape(1)
+        if tuple(m.shape) != (self.batch_size,):
+            raise ValueError(f"mask must be ({self.batch_size},) bool, got shape {tuple(m.shape)}")
+        self.converged |= m
+
+    @property
+    def active(self) -> Tensor:
+        """``(B,)`` bool: problems still moving (not converged). Their costs are the only ones an
+        update reads, so a caller may skip evaluating the others (any finite cost will do)."""
+        return ~self.converged
 
     def stop_reason(self) -> str | None:
         if bool(self.converged.all()):

@@ -75,6 +75,7 @@ class PRO(BaseOptimizer):
         """Ask the relevance samples and return ``f (B, O, N)`` (Sec. III A)."""
         probe_var = torch.full_like(self.var, self.relevance_var)  # (B, N)
         w = self._sample(probe_var, self.relevance_samples)  # (B, S_rel, N)
+        self.asked_objective = None  # the correlation reads every objective
         costs = yield w  # (B, S_rel, O)
         return pearson_relevance(w, costs, noise_floor=self.noise_floor)  # (B, O, N)
 
@@ -87,6 +88,7 @@ class PRO(BaseOptimizer):
         for o in range(self.num_objectives):
             f = self.relevance[:, o]  # (B, N)
             w = self._sample(self.var * f, self.num_samples)  # (B, S, N)
+            self.asked_objective = o  # this update reads objective o only
             costs = yield w  # (B, S, O)
             self._record_cost(o, costs[..., o])
             new_mean, new_var = pro_update(self.mean, self.var, w, costs[..., o], f, self.beta)

@@ -61,6 +61,11 @@ def signed_distance_to_wall(points: Tensor, env6: Tensor, *, infinite_wall: bool
     wx, hy = env6[..., 2], env6[..., 3]  # (...)
     q_x = (points[..., 0] - wx).abs() - WALL_HALF_WIDTH  # (...)  > 0: beside the wall
     y = points[..., 1]  # (...)
+    if infinite_wall:
+        # the nearer rectangle is the one on the same side of the hole's centre line, and a box's
+        # signed distance grows with its y-distance, so one box term suffices (half the work)
+        q_y = HOLE_HALF_HEIGHT - (y - hy).abs()  # (...)  > 0: inside the hole's y-range
+        return torch.hypot(q_x.clamp_min(0), q_y.clamp_min(0)) + torch.maximum(q_x, q_y).clamp_max(0)
     # box distance along y, > 0 outside the rectangle's y-range: max(y - top, bottom - y)
     q_low = y - (hy - HOLE_HALF_HEIGHT)  # (...)  lower rectangle, top face hole_y - 1
     q_up = (hy + HOLE_HALF_HEIGHT) - y  # (...)  upper rectangle, bottom face hole_y + 1
@@ -277,6 +282,19 @@ class PointParticleTask(Task):
             sd = signed_distance_to_wall(traj, env[..., None, :], infinite_wall=self.infinite_wall)  # (..., T)
             middle = (HOLE_HALF_HEIGHT - sd.amin(-1)).clamp_min(0)  # (...)
         return torch.stack([d_start, middle, d_goal], -1)  # (..., 3)
+
+    def objective_cost(self, traj: Tensor, env: Tensor, index: int) -> Tensor:
+        """Objective ``index`` of :meth:`costs` alone: ``(...)``. The self-improvement loop calls
+        it when the optimiser's update reads one objective (PRO's per-objective steps), so the
+        start and goal steps do not pay for the path's clearance."""
+        if index not in (0, 1, 2):
+            raise ValueError(f"index must be 0, 1 or 2, got {index!r}")
+        if index == 1:
+            return self.costs(traj, env)[..., 1]
+        traj, env = self._prepare(traj[..., [0, -1], :], env)  # the two end points suffice
+        if index == 0:
+            return (traj[..., 0, :] - env[..., 0:2]).norm(dim=-1)  # (...)
+        return (traj[..., -1, :] - env[..., 4:6]).norm(dim=-1)  # (...)
 
     def success(self, traj: Tensor, env: Tensor, tol: float = 0.2) -> Tensor:
         """Start and end within ``tol`` of their targets and the path, between samples as well,

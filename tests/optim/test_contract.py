@@ -195,6 +195,42 @@ def test_tol_zero_never_converges(make):
     assert res.iterations == 6 and not bool(res.converged)
 
 
+def test_mark_converged_freezes_problems_from_outside(make):
+    opt = make(torch.zeros(3, 4, dtype=F64), max_iter=6, tol=0.0)
+    opt.mark_converged(torch.tensor([True, False, False]))
+    assert opt.active.tolist() == [False, True, True]
+    res = opt.minimize(two_objectives)
+    assert res.iterations == 6 and res.converged.tolist() == [True, False, False]
+    assert torch.equal(res.mean[0], torch.zeros(4, dtype=F64))  # never moved
+    assert not torch.equal(res.mean[1], torch.zeros(4, dtype=F64))
+    opt = make(torch.zeros(2, 4, dtype=F64), max_iter=6, tol=0.0)
+    opt.mark_converged(torch.tensor([True, True]))
+    assert opt.stop() and opt.stop_reason() == "converged"
+    unbatched = make(torch.zeros(4, dtype=F64))
+    unbatched.mark_converged(True)
+    assert unbatched.stop()
+    with pytest.raises(ValueError, match="bool"):
+        opt.mark_converged(torch.tensor([1, 0]))
+    with pytest.raises(ValueError, match=r"\(2,\)"):
+        opt.mark_converged(torch.tensor([True, False, True]))
+
+
+def test_costs_of_inactive_problems_are_never_read(make):
+    """The loop evaluates only ``opt.active`` problems: any finite cost for the others is fine."""
+    runs = []
+    for filler in (0.0, 1e6):
+        opt = make(torch.zeros(3, 4, dtype=F64), max_iter=5, tol=0.0)
+        opt.mark_converged(torch.tensor([False, True, False]))
+
+        def fn(w, opt=opt, filler=filler):
+            c = two_objectives(w)
+            c[~opt.active] = filler
+            return c
+
+        runs.append(opt.minimize(fn))
+    assert torch.equal(runs[0].mean, runs[1].mean) and torch.equal(runs[0].var, runs[1].var)
+
+
 def test_converged_problems_stop_moving(make):
     # problem 0 has a constant cost (converges after `window` iterations), problem 1 does not
     window = 3

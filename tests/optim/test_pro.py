@@ -242,3 +242,26 @@ def test_rwr_bad_arguments_raise():
     w = opt.ask()
     with pytest.raises(ValueError, match=r"objective_weights must be \(2,\)"):
         opt.tell(two_objectives(w))
+
+
+def test_asked_objective_names_the_only_column_an_update_reads():
+    """None for the relevance probes (every objective), then 0, 1, ... for the per-objective
+    updates; filling the other columns with zeros changes nothing."""
+    runs, seen = [], []
+    for sparse in (False, True):
+        opt = PRO(torch.zeros(2, 4, dtype=torch.float64), torch.ones(2, 4, dtype=torch.float64), beta=2.0,
+                  num_samples=20, relevance_samples=20, max_iter=4, tol=0.0, seed=0)
+        while not opt.stop():
+            w = opt.ask()
+            o = opt.asked_objective
+            if sparse:
+                seen.append(o)
+            c = two_objectives(w)
+            if sparse and o is not None:
+                keep = torch.zeros_like(c)
+                keep[..., o] = c[..., o]
+                c = keep
+            opt.tell(c)
+        runs.append(opt.result())
+    assert seen == [None, 0, 1] * 4
+    assert torch.equal(runs[0].mean, runs[1].mean) and torch.equal(runs[0].var, runs[1].var)

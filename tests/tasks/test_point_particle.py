@@ -106,6 +106,31 @@ def test_costs_are_nonnegative_on_random_paths(gen):
 
 
 # ------------------------------------------------------------------ success and collisions
+@pytest.mark.parametrize("objectives", ["hole", "clearance"])
+def test_objective_cost_is_one_column_of_the_costs(objectives, gen):
+    task = PointParticleTask(objectives=objectives)
+    env = task.sample_envs(6, gen)[:, None]  # (6, 1, 6)
+    traj = 10 * torch.rand(6, 5, 30, 2, generator=gen, dtype=F64)  # (6, 5, 30, 2)
+    full = task.costs(traj, env)  # (6, 5, 3)
+    for o in range(3):
+        torch.testing.assert_close(task.objective_cost(traj, env, o), full[..., o], rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="index"):
+        task.objective_cost(traj, env, 3)
+
+
+def test_infinite_wall_signed_distance_matches_the_two_box_formula(gen):
+    """The fast path (one box, the nearer rectangle) equals the minimum over both rectangles."""
+    task = PointParticleTask()
+    env = task.sample_envs(40, gen)[:, None]  # (40, 1, 6)
+    p = -2 + 14 * torch.rand(40, 300, 2, generator=gen, dtype=F64)  # (40, 300, 2) also outside [0, 10]^2
+    wx, hy = env[..., 2], env[..., 3]
+    qx = ((p[..., 0] - wx).abs() - 1)[..., None]  # (40, 300, 1)
+    qy = torch.stack([p[..., 1] - (hy - 1), (hy + 1) - p[..., 1]], -1)  # (40, 300, 2)
+    qx = qx.expand_as(qy)
+    ref = (torch.hypot(qx.clamp_min(0), qy.clamp_min(0)) + torch.maximum(qx, qy).clamp_max(0)).amin(-1)
+    torch.testing.assert_close(task.signed_distance_to_wall(p, env), ref, rtol=0, atol=1e-12)
+
+
 def test_success_through_the_hole_and_not_through_the_wall():
     task = PointParticleTask()
     # two samples only, both outside the wall: a check at the samples alone would miss the wall

@@ -1,0 +1,371 @@
+"""Sec. IV-B of the paper: a point particle passes the hole of a thick wall (the README's main job).
+
+1. Demonstrations: 30 environments x 3 (synthetic, or the authors' human demonstrations from a
+   folder), one ProMP weight Gaussian per environment.
+2. The self-improvement loop (:func:`protorch.loop.self_improve`) with PRO over 1000 random
+   environments, ``B`` at a time; the data set is checkpointed in ``<out_dir>/checkpoint``
+   (``protorch.load(out_dir)`` gives the trained map) and can be resumed.
+3. Evaluation of the map's mean trajectories on 200 held-out random environments (a fixed seed
+   of their own) and on 100 moving-environment episodes (:func:`protorch.online.run_episodes`,
+   the paper's Fig. 6 test), for the trained map and for two baselines in the same run: the GP
+   on the demonstrations only, and the same loop with RWR in place of PRO
+   (``<out_dir>/baselines/rwr``).
+4. Figures: success rate vs loop iteration, a grid of test environments with sampled and mean
+   trajectories, Fig. 6-style frames of one moving episode and an animated GIF of it.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+import torch
+
+from ..io import EnvToProMP, checkpoint_path, load
+from ..loop import ADD_ONLY, CHOICES, LoopResult, demonstration_dataset, self_improve
+from ..optim import PRO, RWR
+from ..promp import ProMP
+from ..tasks import PointParticleTask, load_human_demos
+from .common import optimizer_kwargs, resolve_dtype
+
+__all__ = ["run", "prepare", "Setup", "TEST_SEED", "DYNAMIC_SEED"]
+
+TEST_SEED = 2_000_003  # the held-out test environments: fixed, never a training seed
+DYNAMIC_SEED = 3_000_017  # the moving-environment episodes (start environments and walks)
+_DEMO_SEED_OFFSET = 10_007  # synthetic demonstrations: seed + offset (the loop's pool uses seed)
+_BASELINES = ("demos_only", "rwr")
+_TASK_KEYS = {"objectives", "fixed_start", "infinite_wall", "demos", "demo_envs", "demos_per_env"}
+_GP_KEYS = {"backend", "alpha", "var_floor", "nearest_k"}
+_LOOP_KEYS = {"num_envs", "batch_size", "add_only", "choice", "checkpoint_every", "eval_dtype", "min_var",
+              "stop_when_solved"}
+_DYNAMIC_KEYS = {"episodes", "duration", "hold", "dt", "kp", "kd", "step_std", "start", "goal_tol"}
+
+
+def _unknown(given: dict, allowed: set, where: str) -> None:
+    extra = sorted(set(given) - allowed)
+    if extra:
+        raise ValueError(f"unknown {where} setting(s) {extra}; allowed: {sorted(allowed)}")
+
+
+def _int(v, name: str, lo: int) -> int:
+    if isinstance(v, bool) or int(v) != v or int(v) < lo:
+        raise ValueError(f"{name} must be an int >= {lo}, got {v!r}")
+    return int(v)
+
+
+@dataclass
+class Setup:
+    """Everything the experiment builds from its settings (:func:`prepare`): the task, the ProMP,
+    the demonstrations, the held-out and moving-environment test sets and the loop's settings.
+    ``benchmarks/loop.py`` uses it to time the loop at other batch sizes."""
+
+    task: PointParticleTask
+    promp: ProMP
+    demos: list
+    demo_envs: torch.Tensor
+    source: str
+    seed: int
+    test_envs: torch.Tensor  # (Q, E)
+    test_seed: int
+    dyn_env0: torch.Tensor  # (episodes, E)
+    dyn_cfg: dict
+    optimizers: dict  # name -> (class, kwargs)
+    loop_kwargs: dict  # self_improve keyword arguments (no optimizer, run_dir, resume, progress)
+    env_map: Callable
+    var_floor: float
+
+    def initial_data(self):
+        """A fresh data set of the demonstrations (each loop grows its own)."""
+        return demonstration_dataset(self.promp, self.demos, self.demo_envs, task_name=self.task.name,
+                                     var_floor=self.var_floor, dtype=self.promp.basis.dtype)
+
+    def run_loop(self, method: str = "pro", **overrides) -> LoopResult:
+        """:func:`~protorch.loop.self_improve` with ``method``'s optimiser ("pro" / "rwr");
+        ``overrides`` replace loop settings (``batch_size``, ``num_envs``, ``run_dir``, ...)."""
+        cls, kwargs = self.optimizers[method]
+        kw = {**self.loop_kwargs, **overrides}
+        return self_improve(self.task, self.promp, self.initial_data(), optimizer=cls, optimizer_kwargs=kwargs,
+                            env_map=self.env_map, **kw)
+
+    def evaluate(self, model) -> tuple[dict, dict, object]:
+        """``(test metrics, dynamic metrics, the episodes)`` of a map (an EnvToProMP)."""
+        return _test(self.task, model, self.test_envs, self.test_seed), *_dynamic(
+            self.task, model, self.dyn_env0, self.dyn_cfg)
+
+
+def prepare(
+    *,
+    seed: int = 0,
+    device: str | torch.device = "cpu",
+    dtype: torch.dtype = torch.float64,
+    optimizer: dict,
+    task: dict | None = None,
+    gp: dict | None = None,
+    promp: dict | None = None,
+    loop: dict | None = None,
+    test: dict | None = None,
+    dynamic: dict | None = None,
+) -> Setup:
+    """Validate every setting (clear errors, before any work), load or synthesise the
+    demonstrations and draw the test environments; see :func:`run` for the settings."""
+    task_cfg, gp_cfg = dict(task or {}), dict(gp or {})
+    loop_cfg, test_cfg, dyn_cfg = dict(loop or {}), dict(test or {}), dict(dynamic or {})
+    _unknown(task_cfg, _TASK_KEYS, "task")
+    _unknown(gp_cfg, _GP_KEYS, "gp")
+    _unknown(loop_cfg, _LOOP_KEYS, "loop")
+    _unknown(test_cfg, {"num_envs", "seed"}, "test")
+    _unknown(dyn_cfg, _DYNAMIC_KEYS, "dynamic")
+    if "beta" not in optimizer or not float(optimizer["beta"]) > 0:
+        raise ValueError(f"optimizer.beta must be > 0, got {optimizer.get('beta')}")
+    alpha = float(gp_cfg.get("alpha", 1e-3))
+    if not alpha > 0:
+        raise ValueError(f"gp.alpha must be > 0, got {gp_cfg.get('alpha')}")
+    var_floor = float(gp_cfg.get("var_floor", 1e-4))
+    if not var_floor >= 0:
+        raise ValueError(f"gp.var_floor must be >= 0, got {var_floor}")
+    backend = gp_cfg.get("backend", "torch")
+    map_options = {} if gp_cfg.get("nearest_k") is None else {"nearest_k": gp_cfg["nearest_k"]}
+    num_envs = _int(loop_cfg.get("num_envs", 1000), "loop.num_envs", 0)
+    batch_size = _int(loop_cfg.get("batch_size", 100), "loop.batch_size", 1)
+    checkpoint_every = _int(loop_cfg.get("checkpoint_every", 1), "loop.checkpoint_every", 1)
+    add_only = loop_cfg.get("add_only", "success")
+    choice = loop_cfg.get("choice", "random")
+    if add_only not in ADD_ONLY:
+        raise ValueError(f"loop.add_only must be one of {list(ADD_ONLY)}, got {add_only!r}")
+    if choice not in CHOICES:
+        raise ValueError(f"loop.choice must be one of {list(CHOICES)}, got {choice!r}")
+    eval_dtype = resolve_dtype(loop_cfg.get("eval_dtype", "float32"))
+    min_var = float(loop_cfg.get("min_var", 0.0))
+    if not min_var >= 0:
+        raise ValueError(f"loop.min_var must be >= 0, got {min_var}")
+    test_n = _int(test_cfg.get("num_envs", 200), "test.num_envs", 1)
+    test_seed = int(test_cfg.get("seed", TEST_SEED))
+    if test_seed in (int(seed), int(seed) + _DEMO_SEED_OFFSET):
+        raise ValueError(f"test.seed ({test_seed}) must differ from the training seeds (seed={seed})")
+    episodes = _int(dyn_cfg.pop("episodes", 100), "dynamic.episodes", 0)
+    for k, lo in (("max_iter", 1), ("num_samples", 2)):
+        if k in optimizer:
+            _int(optimizer[k], f"optimizer.{k}", lo)
+    from ..gp import make_env_map
+
+    make_env_map(backend, alpha, **map_options)  # refuses a bad backend or option now
+    point = PointParticleTask(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in task_cfg.items()
+                                 if k in ("objectives", "fixed_start", "infinite_wall")})
+    source = str(task_cfg.get("demos", "synthetic"))
+    demo_envs_n = _int(task_cfg.get("demo_envs", 30), "task.demo_envs", 1)
+    per_env = _int(task_cfg.get("demos_per_env", 3), "task.demos_per_env", 2)
+    if source == "synthetic":
+        gen = torch.Generator().manual_seed(int(seed) + _DEMO_SEED_OFFSET)
+        demos, demo_envs = point.demonstrations(demo_envs_n, per_env, gen)
+    else:
+        folder = Path(source).expanduser()
+        if not folder.is_dir():
+            raise FileNotFoundError(
+                f"task.demos={source!r}: no such folder (resolved to {folder.resolve()}); give "
+                "'synthetic' or a folder of trajK.out / envK.out files"
+            )
+        if point.fixed_start is not None:
+            raise ValueError("the human demonstrations have 6-D environments: leave task.fixed_start unset")
+        demos, demo_envs = load_human_demos(folder)
+    model0 = ProMP(2, **{"num_basis": 10, "num_steps": 100, **dict(promp or {})}, dtype=dtype, device=device)
+
+    def env_map():
+        return make_env_map(backend, alpha, dtype=dtype, device=device, **map_options)
+
+    def solved(traj, env):  # the authors' acceptance margins, looser on the end points
+        return point.success(traj, env, tol=0.05) & (point.clearance(traj, env) >= 0.1)
+
+    loop_kwargs = dict(num_envs=num_envs, batch_size=batch_size, add_only=add_only, choice=choice,
+                       solved=solved if loop_cfg.get("stop_when_solved", False) else None, seed=int(seed),
+                       min_var=min_var, var_floor=var_floor, eval_dtype=eval_dtype,
+                       checkpoint_every=checkpoint_every)
+    test_envs = point.sample_envs(test_n, torch.Generator().manual_seed(test_seed), dtype=dtype).to(device)
+    loop_kwargs["eval_envs"] = test_envs
+    return Setup(
+        task=point, promp=model0, demos=demos, demo_envs=demo_envs, source=source, seed=int(seed),
+        test_envs=test_envs, test_seed=test_seed,
+        dyn_env0=point.sample_envs(episodes, torch.Generator().manual_seed(DYNAMIC_SEED), dtype=dtype).to(device),
+        dyn_cfg=dyn_cfg,
+        optimizers={"pro": (PRO, optimizer_kwargs(optimizer, optimizer.get("pro"))),
+                    "rwr": (RWR, optimizer_kwargs(optimizer, optimizer.get("rwr")))},
+        loop_kwargs=loop_kwargs, env_map=env_map, var_floor=var_floor,
+    )
+
+
+def run(
+    out_dir: Path,
+    *,
+    seed: int = 0,
+    device: str | torch.device = "cpu",
+    dtype: torch.dtype = torch.float64,
+    optimizer: dict,
+    plot: bool = True,
+    task: dict | None = None,
+    gp: dict | None = None,
+    promp: dict | None = None,
+    loop: dict | None = None,
+    test: dict | None = None,
+    dynamic: dict | None = None,
+    baselines: Sequence[str] = _BASELINES,
+    resume: bool = False,
+    progress: bool = True,
+) -> dict:
+    """Run the experiment into ``out_dir``; return the metrics (see the module docstring).
+
+    ``task``: ``objectives`` ("clearance" / "hole"), ``fixed_start``, ``infinite_wall``,
+    ``demos`` ("synthetic" or a folder of ``trajK.out`` / ``envK.out``), ``demo_envs`` and
+    ``demos_per_env`` (synthetic only). ``gp``: ``backend``, ``alpha``, ``var_floor``,
+    ``nearest_k``. ``loop``: ``num_envs``, ``batch_size``, ``add_only``, ``choice``,
+    ``checkpoint_every``, ``eval_dtype``, ``min_var``, ``stop_when_solved`` (see
+    :func:`~protorch.loop.self_improve`). ``test``: ``num_envs``, ``seed``. ``dynamic``:
+    ``episodes`` plus :func:`~protorch.online.run_episodes` options. ``baselines``: any of
+    ``demos_only``, ``rwr``. ``resume``: continue the loops from the checkpoints in ``out_dir``.
+    Every setting is validated before any work starts.
+    """
+    t0 = time.perf_counter()
+    out_dir = Path(out_dir)
+    baselines = list(baselines or [])
+    bad = sorted(set(baselines) - set(_BASELINES))
+    if bad:
+        raise ValueError(f"unknown baseline(s) {bad}; choose from {list(_BASELINES)}")
+    setup = prepare(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp, promp=promp,
+                    loop=loop, test=test, dynamic=dynamic)
+    rwr_dir = out_dir / "baselines" / "rwr"
+    if not resume:
+        for d in [out_dir] + ([rwr_dir] if "rwr" in baselines else []):
+            if checkpoint_path(d).is_file():
+                raise FileExistsError(
+                    f"{checkpoint_path(d)} already exists: add resume=true to continue that run, or choose "
+                    "another hydra.run.dir"
+                )
+    point = setup.task
+    lk = setup.loop_kwargs
+    metrics: dict = {
+        "demos": {"source": setup.source, "count": len(setup.demos), "envs": len(setup.initial_data())},
+        "settings": {"num_envs": lk["num_envs"], "batch_size": lk["batch_size"], "add_only": lk["add_only"],
+                     "choice": lk["choice"], "alpha": float((gp or {}).get("alpha", 1e-3)),
+                     "beta": float(optimizer["beta"]), "var_floor": setup.var_floor,
+                     "objectives": point.objectives},
+        "baselines": {},
+    }
+    # ------------------------------------------------------------------ baseline: demonstrations only
+    if "demos_only" in baselines:
+        data0 = setup.initial_data()
+        gp0 = setup.env_map().fit(data0.env, data0.mean, data0.var, data0.label)
+        test_m, dyn_m, _ = setup.evaluate(EnvToProMP(setup.promp, gp0, point.name))
+        metrics["baselines"]["demos_only"] = {"test": test_m, "dynamic": dyn_m}
+    # ------------------------------------------------------------------ PRO loop (the method)
+    pro = setup.run_loop("pro", run_dir=out_dir, resume=resume, progress=progress, desc="PRO loop")
+    model = load(out_dir, device=device, dtype=dtype)  # the checkpoint is what gets evaluated
+    test_m, dyn_m, episode = setup.evaluate(model)
+    metrics.update(test=test_m, dynamic=dyn_m, loop=_loop_metrics(pro))
+    # ------------------------------------------------------------------ baseline: RWR in the loop
+    rwr = None
+    if "rwr" in baselines:
+        rwr = setup.run_loop("rwr", run_dir=rwr_dir, resume=resume, progress=progress, desc="RWR loop")
+        test_r, dyn_r, _ = setup.evaluate(load(rwr_dir, device=device, dtype=dtype))
+        metrics["baselines"]["rwr"] = {"test": test_r, "dynamic": dyn_r, "loop": _loop_metrics(rwr)}
+    # ------------------------------------------------------------------ figures
+    if plot:
+        _figures(out_dir, point, model, setup.test_envs, pro, rwr, metrics, episode, seed)
+    metrics["seconds"] = round(time.perf_counter() - t0, 3)
+    return metrics
+
+
+# ----------------------------------------------------------------------------- evaluation
+def _test(task, model, envs, seed: int) -> dict:
+    """Success of the map's mean trajectories on the held-out environments."""
+    with torch.no_grad():
+        traj = model.mean_trajectory(envs)  # (Q, T, 2)
+        ok = task.success(traj, envs)  # (Q,)
+        c = task.costs(traj, envs)  # (Q, 3)
+    return {"success_rate": float(ok.double().mean()), "num_envs": int(envs.shape[0]),
+            "seed": int(seed), "collision_rate": float(task.collides(traj, envs).double().mean()),
+            "start_error_median": float(c[:, 0].median()), "goal_error_median": float(c[:, 2].median())}
+
+
+def _dynamic(task, model, env0, cfg) -> tuple[dict, object]:
+    """The moving-environment episodes (the teammate's :mod:`protorch.online`)."""
+    if env0.shape[0] == 0:
+        return {"success_rate": float("nan"), "episodes": 0}, None
+    from ..online import run_episodes
+
+    res = run_episodes(model, task, env0, generator=torch.Generator().manual_seed(DYNAMIC_SEED), **cfg)
+    return {**res.summary(), "seed": DYNAMIC_SEED}, res
+
+
+def _loop_metrics(res: LoopResult) -> dict:
+    last = res.metrics[-1]
+    added = sum(int(r.get("added") or 0) for r in res.metrics)
+    return {"seconds": round(res.seconds, 3), "envs_tried": len(res.tried), "added": added,
+            "dataset_size": len(res.dataset), "success_rate": res.success_rate,
+            "final_eval_success": last.get("eval_success"), "steps": int(last["step"]),
+            "resumed_from": res.resumed_from}
+
+
+# ----------------------------------------------------------------------------- figures
+def _figures(out_dir, task, model, test_envs, pro, rwr, metrics, episode, seed) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..plots import plot_point_particle, plot_trajectories, save_figure
+
+    # success rate vs loop iteration, on the held-out environments
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for name, res, color in (("PRO loop", pro, "tab:blue"), ("RWR loop", rwr, "tab:red")):
+        if res is None:
+            continue
+        x = [r["envs_done"] for r in res.metrics]
+        y = [r["eval_success"] for r in res.metrics]
+        ax.plot(x, y, "-o", ms=3, color=color, label=f"{name}: held-out test")
+        xs = [r["envs_done"] for r in res.metrics[1:]]
+        ys = [r["initial_success"] / r["batch"] for r in res.metrics[1:]]
+        ax.plot(xs, ys, ":", color=color, lw=1, label=f"{name}: GP guess on the next batch")
+    demo = metrics["baselines"].get("demos_only")
+    if demo is not None:
+        ax.axhline(demo["test"]["success_rate"], color="0.4", ls="--", label="demonstrations only")
+    ax.set_xlabel("environments tried (loop iterations x B)")
+    ax.set_ylabel("success rate of the map's mean")
+    ax.set_ylim(-0.02, 1.02)
+    ax.legend(fontsize=7)
+    ax.set_title("self-improvement: success rate vs loop iteration", fontsize=10)
+    save_figure(fig, Path(out_dir) / "success_vs_iteration.png")
+
+    # a grid of test environments: sampled and mean trajectories of the trained map
+    n = min(12, test_envs.shape[0])
+    cols = min(4, n)
+    rows = (n + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(3 * cols, 3 * rows), squeeze=False)
+    gen = torch.Generator().manual_seed(int(seed))
+    with torch.no_grad():
+        mu, var = model(test_envs[:n])  # (n, N), (n, N)
+        w = mu[:, None] + var.sqrt()[:, None] * torch.randn(n, 10, mu.shape[-1], generator=gen, dtype=mu.dtype)
+        samples, means = model.promp.trajectory(w), model.promp.trajectory(mu)  # (n, 10, T, 2), (n, T, 2)
+        ok = task.success(means, test_envs[:n])
+    for i, ax in enumerate(axes.flat):
+        if i >= n:
+            ax.axis("off")
+            continue
+        plot_point_particle(ax, task, test_envs[i])
+        plot_trajectories(ax, samples[i], color="tab:blue", lw=0.6, alpha=0.35)
+        plot_trajectories(ax, means[i], color="k", lw=1.8, label="mean")
+        ax.set_title(f"test env {i}: {'success' if ok[i] else 'failure'}", fontsize=8)
+    fig.suptitle(f"held-out environments: 10 samples (blue) and the mean (black); test success "
+                 f"{metrics['test']['success_rate']:.3f}", fontsize=10)
+    save_figure(fig, Path(out_dir) / "test_grid.png")
+
+    # one moving episode (Fig. 6): frames and a GIF (the teammate's protorch.plots_online)
+    if episode is not None:
+        from ..plots_online import plot_episode_frames, write_episode_gif
+
+        ep = episode.episode(0)
+        kw = {k: ep[k] for k in ("positions", "envs", "means", "markers")}
+        title = "moving hole and goal, PD tracking the GP's mean"
+        plot_episode_frames(Path(out_dir) / "online_frames.png", **kw, dt=ep["dt"], success=ep["success"],
+                            title=title)
+        write_episode_gif(Path(out_dir) / "online_episode.gif", **kw, dt=ep["dt"], success=ep["success"],
+                          title=title)

@@ -1,0 +1,141 @@
+"""The point-particle experiment (Sec. IV-B) end to end at tiny budgets: metrics, checkpoint,
+figures, both demonstration sources, validation, and resume after a SIGKILL of the app."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+import protorch
+from protorch.__main__ import config_dir
+from protorch.dataset import TrajectoryDataset
+from protorch.experiments import run_experiment
+from protorch.io import checkpoint_path
+
+ROOT = Path(__file__).resolve().parents[2]
+HUMAN = ROOT.parent / "shared" / "data" / "point_particle_human_demos"
+TINY = [
+    "settings.loop.num_envs=20", "settings.loop.batch_size=10", "optimizer.max_iter=10", "optimizer.num_samples=20",
+    "optimizer.pro.relevance_samples=20", "settings.test.num_envs=10", "settings.dynamic.episodes=3",
+    "settings.progress=false",
+]
+
+
+def cfg(*overrides: str) -> dict:
+    with initialize_config_dir(config_dir=str(config_dir()), version_base=None):
+        c = compose(config_name="config", overrides=["experiment=point_particle", *TINY, *overrides])
+    plain = OmegaConf.to_container(c, resolve=False)
+    plain.pop("hydra", None)
+    return plain
+
+
+def run_cli(args, check=True, **kw):
+    proc = subprocess.run([sys.executable, "-m", "protorch", *args], cwd=ROOT, capture_output=True, text=True,
+                          timeout=300, **kw)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"exit {proc.returncode}\nstdout:\n{proc.stdout}\nstderr:\n{proc.stderr}")
+    return proc
+
+
+def test_config_holds_the_papers_settings():
+    c = cfg()
+    with initialize_config_dir(config_dir=str(config_dir()), version_base=None):
+        full = compose(config_name="config", overrides=["experiment=point_particle"])
+    assert full.optimizer.beta == 20 and full.gp.alpha == 1e-3
+    assert full.optimizer.max_iter == 200 and full.optimizer.num_samples == 100
+    assert full.settings.loop.num_envs == 1000 and full.task.demos == "synthetic"
+    assert full.task.demo_envs == 30 and full.task.demos_per_env == 3
+    assert full.settings.test.num_envs == 200 and full.settings.dynamic.episodes == 100
+    assert c["resume"] is False
+
+
+def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
+    m = run_experiment(cfg("plot=false"), tmp_path)
+    for path in (("test", "success_rate"), ("dynamic", "success_rate"), ("loop", "seconds"),
+                 ("baselines", "demos_only", "test", "success_rate"),
+                 ("baselines", "demos_only", "dynamic", "success_rate"),
+                 ("baselines", "rwr", "test", "success_rate"), ("baselines", "rwr", "dynamic", "success_rate")):
+        v = m
+        for k in path:
+            v = v[k]
+        assert isinstance(v, float) and v >= 0, path
+    assert m["test"]["num_envs"] == 10 and m["dynamic"]["episodes"] == 3 and m["loop"]["envs_tried"] == 20
+    assert m["demos"] == {"source": "synthetic", "count": 90, "envs": 30}
+    assert json.loads((tmp_path / "metrics.json").read_text())["test"] == m["test"]
+    model = protorch.load(tmp_path)  # the trained map, without Hydra
+    assert model.env_map.num_points == m["loop"]["dataset_size"] and model.task_name == "point_particle"
+    rows = list(csv.DictReader((tmp_path / "loop_metrics.csv").open()))
+    assert [int(r["step"]) for r in rows] == [0, 1, 2]
+    assert checkpoint_path(tmp_path / "baselines" / "rwr").is_file()
+    # the same directory again without resume is refused, with resume it finishes at once
+    with pytest.raises(FileExistsError, match="resume=true"):
+        run_experiment(cfg("plot=false"), tmp_path)
+    again = run_experiment(cfg("plot=false", "resume=true"), tmp_path)
+    assert again["loop"]["resumed_from"] == 2 and again["test"] == m["test"]
+
+
+@pytest.mark.skipif(not HUMAN.is_dir(), reason="the authors' human demonstrations are not in ../shared/data")
+def test_cli_with_the_human_demonstrations_and_figures(tmp_path):
+    run_cli(["experiment=point_particle", *TINY, f"task.demos={HUMAN}", f"hydra.run.dir={tmp_path}"])
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["demos"] == {"source": str(HUMAN), "count": 90, "envs": 30}
+    for name in ("success_vs_iteration.png", "test_grid.png", "online_frames.png"):
+        assert (tmp_path / name).stat().st_size > 10_000, name
+    gif = (tmp_path / "online_episode.gif").read_bytes()
+    assert gif[:6] in (b"GIF87a", b"GIF89a") and len(gif) > 10_000
+    assert protorch.load(tmp_path).env_map.num_points == m["loop"]["dataset_size"]
+
+
+@pytest.mark.parametrize("override, error, message", [
+    ("gp.alpha=-1", ValueError, "alpha must be > 0"),
+    ("optimizer.beta=0", ValueError, "beta must be > 0"),
+    ("settings.loop.batch_size=0", ValueError, "batch_size must be an int >= 1"),
+    ("task.demos=/no/such/folder", FileNotFoundError, "no such folder"),
+    ("settings.loop.add_only=best", ValueError, "add_only"),
+    ("+gp.lengthscale=2", ValueError, "unknown gp setting"),
+])
+def test_bad_settings_are_refused_before_any_work(tmp_path, override, error, message):
+    with pytest.raises(error, match=message):
+        run_experiment(cfg(override), tmp_path)
+    assert not checkpoint_path(tmp_path).exists() and not (tmp_path / "metrics.json").exists()
+
+
+def test_sigkill_mid_loop_then_resume_completes_with_every_finished_environment(tmp_path):
+    run = tmp_path / "run"
+    args = ["experiment=point_particle", "settings.loop.num_envs=200", "settings.loop.batch_size=2",
+            "optimizer.max_iter=15", "optimizer.num_samples=20", "optimizer.pro.relevance_samples=20",
+            "settings.test.num_envs=10", "settings.dynamic.episodes=2", "settings.baselines=[]", "plot=false",
+            "settings.progress=false", f"hydra.run.dir={run}"]
+    proc = subprocess.Popen([sys.executable, "-m", "protorch", *args], cwd=ROOT, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE)
+    ckpt = checkpoint_path(run)
+    deadline = time.monotonic() + 50
+    while time.monotonic() < deadline and proc.poll() is None:
+        if ckpt.is_file():
+            break
+        time.sleep(0.01)
+    assert proc.poll() is None, "the run finished before it could be killed"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    killed = TrajectoryDataset.load(ckpt)
+    state = killed.metadata["loop"]
+    assert 1 <= state["step"] < 100 and not (run / "metrics.json").exists()
+    run_cli([*args, "resume=true"])
+    m = json.loads((run / "metrics.json").read_text())
+    assert m["loop"]["resumed_from"] >= state["step"] and m["loop"]["envs_tried"] == 200
+    final = TrajectoryDataset.load(ckpt)
+    assert final.metadata["loop"]["tried"][: len(state["tried"])] == state["tried"]
+    n = len(killed)
+    assert final.env[:n].equal(killed.env) and final.mean[:n].equal(killed.mean)
+    rows = list(csv.DictReader((run / "loop_metrics.csv").open()))
+    assert [int(r["step"]) for r in rows] == list(range(101))

@@ -93,7 +93,7 @@ def main() -> None:
             print(f"{'':>5} {'':>3} {'g/t':>8} " + " ".join(f"{v:>10}" for v in (
                 f"{g['mean'] / t['mean']:.1f}x", f"{g['exact'] / t['exact']:.1f}x", f"{g['approx'] / t['approx']:.1f}x",
                 "", f"{g['add'] / t['add']:.1f}x", f"{g['add_q'] / t['add_q']:.1f}x", f"{g['refit'] / t['refit']:.1f}x", "")))
-    print("~var: torch = Nystroem (var_rank 256, var_tol 1e-10), gpytorch = LOVE (rank 100); "
+    print("~var: torch = Nystroem (var_rank 256, var_tol 1e-10, float32 cache), gpytorch = LOVE (rank 100); "
           "err = max |~var - var| over 64 queries. gpytorch's add only appends and drops its caches.")
 
 

@@ -13,7 +13,7 @@ Variance: exact (one forward substitution per weight, ``O(N M^2)`` per query), o
 ``r`` pivot environments until the largest residual kernel variance is below ``var_tol`` (at most
 ``var_rank`` pivots), ``k_e ~ F f_e`` with ``F (M, r)`` the pivoted factor and
 ``f_e = R^-1 k(S, e)``; then ``k_e^T A_n^-1 k_e ~ f_e^T H_n f_e`` with ``H_n = F^T A_n^-1 F``
-``(N, r, r)``, cached. A query then costs ``O(r d + N r^2)``. The approximation is exact when
+``(N, r, r)``, cached (in float32 unless ``var_dtype="float64"``). A query then costs ``O(r d + N r^2)``. The approximation is exact when
 ``k_e`` lies in the span of the pivot columns; its error is printed by ``benchmarks/gp.py``.
 The cache is rebuilt (``O(N M^2 r)``) at the first approximate query after a change.
 
@@ -29,6 +29,8 @@ from torch import Tensor, nn
 from .base import EnvMap, posdef_cholesky, rbf
 
 __all__ = ["TorchEnvMap"]
+
+_VAR_DTYPES = {"float32": torch.float32, "float64": torch.float64}
 
 
 def _solve_lower(L: Tensor, m: int, b: Tensor, block: int) -> Tensor:
@@ -61,10 +63,10 @@ class _CholGroup(nn.Module):
     """Exact GPs (one per weight) of one label group, with factors extended in place."""
 
     def __init__(self, alpha: float, d: int, n: int, *, capacity: int, block: int, growth: float,
-                 var_rank: int, var_tol: float, dtype, device) -> None:
+                 var_rank: int, var_tol: float, var_dtype, dtype, device) -> None:
         super().__init__()
         self.alpha, self.block, self.growth = alpha, block, growth
-        self.var_rank, self.var_tol = var_rank, var_tol
+        self.var_rank, self.var_tol, self.var_dtype = var_rank, var_tol, var_dtype
         self.m = 0
         kw = dict(dtype=dtype, device=device)
         cap = max(int(capacity), 1)
@@ -164,10 +166,10 @@ class _CholGroup(nn.Module):
         if self.nys_H is None:
             self._build_nystrom()
         kS = rbf(self.nys_S, Eq, self.alpha)  # (r, Q)
-        f = torch.linalg.solve_triangular(self.nys_R, kS, upper=False)  # (r, Q)
+        f = torch.linalg.solve_triangular(self.nys_R, kS, upper=False).to(self.nys_H.dtype)  # (r, Q)
         n, r = self.nys_H.shape[:2]
         hf = (self.nys_H.reshape(n * r, r) @ f).reshape(n, r, -1)  # (N, r, Q): one big matmul
-        quad = (hf * f).sum(1).T  # (Q, N)
+        quad = (hf * f).sum(1).T.to(Eq.dtype)  # (Q, N)
         return (1.0 - quad).clamp_min(0) + self.vbar  # (Q, N)
 
     def _build_nystrom(self) -> None:
@@ -191,7 +193,7 @@ class _CholGroup(nn.Module):
         self.nys_R = F[piv].clone()  # (r, r), lower triangular: chol(K_SS)
         self.nys_H = torch.stack(
             [(lambda w: w.T @ w)(_solve_lower(self.L[i], m, F, self.block)) for i in range(self.L.shape[0])]
-        )  # (N, r, r)
+        ).to(self.var_dtype)  # (N, r, r)
 
 
 class TorchEnvMap(EnvMap):
@@ -201,13 +203,18 @@ class TorchEnvMap(EnvMap):
         capacity: points preallocated per label group (grown by ``growth`` when exceeded).
         block: block size of the triangular solves on the capacity buffer.
         var_rank, var_tol: Nystroem rank limit and pivot tolerance of ``approx_var=True``.
+        var_dtype: ``"float32"`` (default) or ``"float64"``: dtype of the Nystroem cache ``H``
+            ``(N, r, r)``. A query reads all of it (36 MB at N = 70, r = 256 in float64), so
+            float32 halves the approximate variance's latency; its rounding (~1e-7 absolute on a
+            variance) is far below the Nystroem error itself. ``"float64"`` makes the
+            approximation exact (to round-off) whenever the pivots span the kernel columns.
     """
 
     backend = "torch"
 
     def __init__(self, alpha: float, *, nearest_k: int | None = None, capacity: int = 64,
                  growth: float = 1.5, block: int = 256, var_rank: int = 256, var_tol: float = 1e-10,
-                 dtype: torch.dtype = torch.float64, device=None) -> None:
+                 var_dtype: str = "float32", dtype: torch.dtype = torch.float64, device=None) -> None:
         super().__init__(alpha, nearest_k=nearest_k, dtype=dtype, device=device)
         for name, v in (("capacity", capacity), ("block", block), ("var_rank", var_rank)):
             if isinstance(v, bool) or int(v) != v or int(v) < 1:
@@ -217,12 +224,15 @@ class TorchEnvMap(EnvMap):
         if not float(var_tol) >= 0.0:
             raise ValueError(f"var_tol must be >= 0, got {var_tol}")
         self.capacity, self.growth, self.block = int(capacity), float(growth), int(block)
-        self.var_rank, self.var_tol = int(var_rank), float(var_tol)
+        if var_dtype not in _VAR_DTYPES:
+            raise ValueError(f"var_dtype must be one of {sorted(_VAR_DTYPES)}, got {var_dtype!r}")
+        self.var_rank, self.var_tol, self.var_dtype = int(var_rank), float(var_tol), var_dtype
         self.groups = nn.ModuleDict()
 
     def options(self) -> dict:
         return {**super().options(), "capacity": self.capacity, "growth": self.growth,
-                "block": self.block, "var_rank": self.var_rank, "var_tol": self.var_tol}
+                "block": self.block, "var_rank": self.var_rank, "var_tol": self.var_tol,
+                "var_dtype": self.var_dtype}
 
     @property
     def jitter(self) -> dict[int, Tensor]:
@@ -238,7 +248,8 @@ class TorchEnvMap(EnvMap):
     def _group_fit(self, g, E, MU, VAR) -> None:
         grp = _CholGroup(self.alpha, E.shape[1], MU.shape[1], capacity=max(self.capacity, E.shape[0]),
                          block=self.block, growth=self.growth, var_rank=self.var_rank,
-                         var_tol=self.var_tol, dtype=self.dtype, device=self.device)
+                         var_tol=self.var_tol, var_dtype=_VAR_DTYPES[self.var_dtype], dtype=self.dtype,
+                         device=self.device)
         grp.extend(E, MU, VAR)
         self.groups[str(g)] = grp
 

@@ -223,7 +223,8 @@ def test_bad_options_and_queries(backend):
 # ------------------------------------------------------------------ approximate variance
 def test_approx_variance(backend):
     E, MU, VAR = make_data(250, 4, seed=31)
-    gp = make_env_map(backend, ALPHA).fit(E, MU, VAR)
+    opts = {"var_dtype": "float64"} if backend == "torch" else {}
+    gp = make_env_map(backend, ALPHA, **opts).fit(E, MU, VAR)
     Q = make_data(20, 1, seed=32)[0]
     mu, var = gp.predict(Q)
     mu_a, var_a = gp.predict(Q, approx_var=True)
@@ -235,6 +236,11 @@ def test_approx_variance(backend):
     else:  # Nystroem: exact once the pivots span every kernel column
         _close(var_a, var, 1e-9)
         assert gp.groups["0"].nys_S.shape[0] <= 256
+        # the default float32 cache only adds its rounding, well below the Nystroem error
+        gp32 = make_env_map(backend, ALPHA).fit(E, MU, VAR)
+        assert gp32.groups["0"].var_approx(Q).dtype == torch.float64
+        _close(gp32.predict(Q, approx_var=True)[1], var, 1e-6)
+        assert gp32.groups["0"].nys_H.dtype == torch.float32
 
 
 def test_torch_nystrom_variance_on_smooth_data():
@@ -275,3 +281,13 @@ def test_float32_and_module_to(backend):
     _close(gp32.predict(Q)[0].double(), gp64.predict(Q)[0], 1e-3)
     gp64.to("cpu")  # buffers move with the module
     assert gp64.E.device.type == "cpu"
+
+
+@pytest.mark.parametrize(
+    "kw, match",
+    [({"capacity": 0}, "capacity"), ({"block": 1.5}, "block"), ({"var_rank": 0}, "var_rank"),
+     ({"growth": 1.0}, "growth"), ({"var_tol": -1.0}, "var_tol"), ({"var_dtype": "float16"}, "var_dtype")],
+)
+def test_torch_backend_refuses_bad_options(kw, match):
+    with pytest.raises(ValueError, match=match):
+        make_env_map("torch", ALPHA, **kw)

@@ -48,6 +48,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse
 import math
+import shlex
 import statistics
 import sys
 import time
@@ -259,7 +260,7 @@ def main(argv=None) -> None:
     tasks = [t for t in args.tasks.split(",") if t]
     if set(tasks) - set(builders):
         ap.error(f"unknown task(s) {sorted(set(tasks) - set(builders))}; choose from {list(builders)}")
-    command = "python benchmarks/peers.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    command = shlex.join(["python", "benchmarks/peers.py", *(sys.argv[1:] if argv is None else argv)])
     results: dict = {}
     for t in tasks:
         problems = builders[t](args.repeats)
@@ -269,7 +270,7 @@ def main(argv=None) -> None:
             t0 = time.perf_counter()
             results[(problems[0].task, name)] = [run_one(name, p, args.budget) for p in problems]
             print(f"{problems[0].task:>14} {name:<17} {time.perf_counter() - t0:7.1f} s", file=sys.stderr, flush=True)
-    text = table(results, args.repeats, args.budget, command.strip(), args.note)
+    text = table(results, args.repeats, args.budget, command, args.note)
     print(text)
     if args.out:
         atomic_write_bytes(Path(args.out), text.encode())

@@ -32,11 +32,11 @@ GRID = ["optimizer.beta=10,20,40", "gp.alpha=1e-3,1e-2"]
 PAIRS = {(b, a) for b in (10.0, 20.0, 40.0) for a in (1e-3, 1e-2)}
 
 
-def run_cli(args, **kw):
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}  # several runs share 2 cores: one thread each
+def run_cli(args, check=True, env=None, **kw):
+    env = {**os.environ, "OMP_NUM_THREADS": "1", **(env or {})}  # several runs share 2 cores: one thread each
     proc = subprocess.run([sys.executable, "-m", "protorch", *args], cwd=ROOT, env=env, capture_output=True,
                           text=True, timeout=300, check=False, **kw)
-    if proc.returncode != 0:
+    if check and proc.returncode != 0:
         raise AssertionError(f"exit {proc.returncode}\nstdout:\n{proc.stdout}\nstderr:\n{proc.stderr}")
     return proc
 
@@ -142,6 +142,25 @@ def test_slurm_preset_composes_onto_the_submitit_launcher():
     assert launcher.partition == "gpu" and launcher.gpus_per_node == 1
     assert launcher.cpus_per_task == 2 and launcher.timeout_min == 60 and launcher.array_parallelism == 64
     assert launcher.submitit_folder.endswith("/.submitit/%j")  # inside the sweep directory
+
+
+def test_slurm_preset_submits_an_array_job_with_its_resources(tmp_path):
+    """A fake ``sbatch`` on PATH keeps the script submitit hands to SLURM (then refuses it)."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    (bin_dir / "sbatch").write_text(f'#!/bin/sh\ncp "$1" {tmp_path}/submitted.sh\necho "no cluster here" >&2\nexit 1\n')
+    (bin_dir / "srun").write_text("#!/bin/sh\nexit 0\n")  # submitit checks that srun exists
+    for f in bin_dir.iterdir():
+        f.chmod(0o755)
+    proc = run_cli(["-m", "experiment=point_particle", "optimizer.beta=10,20,40", *MICRO, "hydra/launcher=slurm",
+                    "hydra.launcher.partition=gpu", "hydra.launcher.timeout_min=30", f"hydra.sweep.dir={tmp_path / 's'}"],
+                   check=False, env={"PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"})
+    assert proc.returncode != 0 and "no cluster here" in proc.stderr
+    lines = set((tmp_path / "submitted.sh").read_text().splitlines())
+    for expected in ("#SBATCH --array=0-2%3", "#SBATCH --partition=gpu", "#SBATCH --cpus-per-task=2",
+                     "#SBATCH --mem=8GB", "#SBATCH --time=30", "#SBATCH --job-name=protorch-point_particle"):
+        assert expected in lines, expected
+    assert any(line.startswith("srun ") and "submitit.core._submit" in line for line in lines)
 
 
 def test_tune_preset_is_optuna_maximising_held_out_success():

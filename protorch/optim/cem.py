@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 from typing import Generator
 
-import torch
 from torch import Tensor
 
 from .base import BaseOptimizer
@@ -57,18 +56,13 @@ class CEM(BaseOptimizer):
             raise ValueError(f"{self.num_elites} elites need num_samples >= {self.num_elites}")
         self.smoothing = float(smoothing)
         self.extra_var = float(extra_var)
-        self.objective_weights = None if objective_weights is None else torch.as_tensor(
-            objective_weights, dtype=self.mean.dtype, device=self.mean.device
-        )
+        self._set_objective_weights(objective_weights)
 
     def _iteration(self) -> Generator[Tensor, Tensor, None]:
         w = self._sample(self.var, self.num_samples)  # (B, S, N)
         costs = yield w  # (B, S, O)
         self._record_cost(slice(None), costs)
-        c = self.objective_weights
-        if c is not None and c.shape != (self.num_objectives,):
-            raise ValueError(f"objective_weights must be ({self.num_objectives},), got {tuple(c.shape)}")
-        total = costs.sum(-1) if c is None else costs @ c  # (B, S)
+        total = self._total_cost(costs)  # (B, S)
         idx = total.topk(self.num_elites, dim=-1, largest=False).indices  # (B, E)
         elites = w.gather(1, idx[..., None].expand(-1, -1, self.num_weights))  # (B, E, N)
         elite_mean = elites.mean(1)  # (B, N)

@@ -63,9 +63,7 @@ class CMAES(BaseOptimizer):
             raise ImportError('CMAES needs pycma: pip install "protorch[peers]" (or pip install cma)') from exc
         if bool((self.var <= 0).any()):
             raise ValueError("CMA-ES needs var > 0 in every weight (a zero std cannot be adapted)")
-        self.objective_weights = None if objective_weights is None else torch.as_tensor(
-            objective_weights, dtype=self.mean.dtype, device=self.mean.device
-        )
+        self._set_objective_weights(objective_weights)
         options = dict(cma_options or {})
         reserved = {"CMA_stds", "popsize", "randn", "seed"} & set(options)
         if reserved:
@@ -96,10 +94,7 @@ class CMAES(BaseOptimizer):
         w = torch.as_tensor(x, device=self.mean.device).to(self.mean.dtype)  # (B, S, N)
         costs = yield w  # (B, S, O)
         self._record_cost(slice(None), costs)
-        c = self.objective_weights
-        if c is not None and c.shape != (self.num_objectives,):
-            raise ValueError(f"objective_weights must be ({self.num_objectives},), got {tuple(c.shape)}")
-        total = (costs.sum(-1) if c is None else costs @ c).double().cpu().numpy()  # (B, S)
+        total = self._total_cost(costs).double().cpu().numpy()  # (B, S)
         new_mean = np.empty((b_count, n))
         new_var = np.empty((b_count, n))
         for b, es in enumerate(self.strategies):

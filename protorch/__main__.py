@@ -2,6 +2,8 @@
 
 A thin edge: it composes the config, resolves it to a plain dict and calls
 :func:`protorch.experiments.run_experiment`. Nothing else in the package imports Hydra.
+It returns the number named by the config's ``objective`` key (e.g. ``test.success_rate`` for
+``experiment=point_particle``), which is what a sweeper such as Optuna optimises.
 """
 
 from __future__ import annotations
@@ -25,7 +27,6 @@ def config_dir() -> Path:
 @hydra.main(version_base=None, config_path=str(config_dir()), config_name="config")
 def main(cfg: DictConfig) -> float | None:
     from protorch.experiments import run_experiment
-    from protorch.experiments.common import write_json  # noqa: F401  (keeps imports lazy)
 
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     plain = OmegaConf.to_container(cfg, resolve=True)
@@ -33,8 +34,8 @@ def main(cfg: DictConfig) -> float | None:
     OmegaConf.save(OmegaConf.create(plain), out_dir / "config.yaml")
     metrics = run_experiment(plain, out_dir)
     print(f"[protorch] {plain['name']}: results in {out_dir}")
-    value = metrics.get("objective")
-    return float(value) if value is not None else None
+    objective = metrics.get("objective")
+    return None if objective is None else objective["value"]
 
 
 if __name__ == "__main__":

@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from protorch import PRO, RWPO, RWR, ProMP
+from protorch.optim import CEM, CMAES
 from protorch.tasks import WindowTask
 
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
@@ -13,7 +14,7 @@ DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 
 @pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-@pytest.mark.parametrize("cls", [PRO, RWR, RWPO])
+@pytest.mark.parametrize("cls", [PRO, RWR, RWPO, CEM, CMAES])
 def test_window_task_improves_on_device(device, dtype, cls):
     task = WindowTask()
     demos = [d.to(device=device, dtype=dtype) for d in task.demonstrations(5, generator=torch.Generator().manual_seed(0))]
@@ -22,7 +23,9 @@ def test_window_task_improves_on_device(device, dtype, cls):
     mean = torch.stack([promp.mean, promp.mean])  # two problems at once
     var = torch.stack([promp.var, promp.var])
     extra = dict(num_objectives=3, num_basis=10, relevance_iters=3, theta_samples=16, trajectory_samples=8) if cls is RWPO else {}
-    opt = cls(mean, var, beta=20.0, num_samples=64, max_iter=40, seed=0, **extra)
+    if cls not in (CEM, CMAES):  # rank-based: no beta
+        extra["beta"] = 20.0
+    opt = cls(mean, var, num_samples=64, max_iter=40, seed=0, **extra)
     res = opt.minimize(lambda w: task.costs(promp.trajectory(w)))
     assert res.mean.device.type == device and res.mean.dtype == dtype
     assert torch.isfinite(res.mean).all() and torch.isfinite(res.var).all() and (res.var >= 0).all()

@@ -8,11 +8,15 @@ into ``out_dir``.
 from __future__ import annotations
 
 import inspect
+import os
+import re
+import socket
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
 from . import fig3_toy, fig4_window, point_particle
-from .common import resolve_device, resolve_dtype, write_json
+from .common import metric_value, resolve_device, resolve_dtype, write_json
 
 EXPERIMENTS: dict[str, Callable[..., dict]] = {
     "fig3_toy": fig3_toy.run,
@@ -20,16 +24,27 @@ EXPERIMENTS: dict[str, Callable[..., dict]] = {
     "point_particle": point_particle.run,
 }
 
-__all__ = ["EXPERIMENTS", "run_experiment"]
+_DOTTED = re.compile(r"[A-Za-z_][\w-]*(\.[\w-]+)*")
+
+__all__ = ["EXPERIMENTS", "run_experiment", "metric_value"]
 
 
 def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
     """Run ``cfg["name"]`` with the settings of ``cfg["settings"]`` plus the shared ``seed``,
     ``device``, ``dtype`` and ``optimizer`` entries (and the top-level ``task``, ``gp`` and
-    ``resume`` where the experiment takes them); write ``metrics.json``; return the metrics."""
+    ``resume`` where the experiment takes them); write ``metrics.json``; return the metrics.
+
+    ``cfg["objective"]``, a dotted metrics key such as ``"test.success_rate"`` (or ``None``), names
+    the number a hyperparameter sweeper optimises: it is stored as
+    ``metrics["objective"] = {"metric": key, "value": float}`` and the Hydra app returns it.
+    """
     name = cfg.get("name")
     if name not in EXPERIMENTS:
         raise ValueError(f"unknown experiment {name!r}; choose one of {sorted(EXPERIMENTS)}")
+    objective = cfg.get("objective")
+    if objective is not None and not (isinstance(objective, str) and _DOTTED.fullmatch(objective)):
+        raise ValueError(f"objective must be a dotted metrics key such as 'test.success_rate' or null, "
+                         f"got {objective!r}")
     opt = dict(cfg.get("optimizer") or {})
     if "beta" not in opt or not float(opt["beta"]) > 0:
         raise ValueError(f"optimizer.beta must be > 0, got {opt.get('beta')}")
@@ -50,6 +65,9 @@ def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
         settings["resume"] = True
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    # provenance, so a sweep's report can tell where and when each run ran (host, process)
+    run_info = {"host": socket.gethostname(), "pid": os.getpid(),
+                "started": datetime.now(timezone.utc).isoformat(timespec="seconds")}
     metrics = fn(
         out_dir,
         seed=int(cfg.get("seed", 0)),
@@ -59,6 +77,11 @@ def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
         plot=bool(cfg.get("plot", True)),
         **settings,
     )
-    metrics = {"experiment": name, **metrics}
-    write_json(out_dir / "metrics.json", metrics)
+    run_info["finished"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    metrics = {"experiment": name, **metrics, "run": run_info}
+    try:
+        if objective is not None:
+            metrics["objective"] = {"metric": objective, "value": metric_value(metrics, objective)}
+    finally:  # the run's results are kept even when the objective key is wrong
+        write_json(out_dir / "metrics.json", metrics)
     return metrics

@@ -43,6 +43,34 @@ def write_json(path: Path, data: dict) -> None:
         raise
 
 
+def flatten_metrics(data: dict, prefix: str = "") -> dict:
+    """Nested dicts -> ``{"a.b.c": leaf}``; lists and other leaves are kept as they are."""
+    out: dict = {}
+    for key, value in data.items():
+        path = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(flatten_metrics(value, path + "."))
+        else:
+            out[path] = value
+    return out
+
+
+def metric_value(metrics: dict, key: str) -> float:
+    """The number at the dotted ``key`` of a (nested) metrics dict, e.g. ``"test.success_rate"``;
+    a bool counts as 0 / 1. A missing or non-numeric entry raises an error listing the numeric keys."""
+    node = metrics
+    for part in key.split("."):
+        if not isinstance(node, dict) or part not in node:
+            node = None
+            break
+        node = node[part]
+    if isinstance(node, (bool, int, float)) and not isinstance(node, str):
+        return float(node)
+    numeric = sorted(k for k, v in flatten_metrics(metrics).items() if isinstance(v, (bool, int, float)))
+    what = "no such metric" if node is None else f"not a number ({type(node).__name__})"
+    raise ValueError(f"objective {key!r}: {what}; numeric metrics of this run: {', '.join(numeric)}")
+
+
 def optimizer_kwargs(common: dict, specific: dict | None) -> dict:
     """The shared optimiser settings (beta, num_samples, ...) overlaid with a method's own."""
     out = {k: v for k, v in common.items() if not isinstance(v, dict)}

@@ -158,6 +158,21 @@ class BaseOptimizer(nn.Module):
             )
         self._iter_cost[:, objective] = costs.mean(1)
 
+    def _set_objective_weights(self, objective_weights) -> None:
+        """``objective_weights (O,)`` for optimisers that score one total cost (``None``: all ones)."""
+        self.objective_weights = None if objective_weights is None else torch.as_tensor(
+            objective_weights, dtype=self.mean.dtype, device=self.mean.device
+        )
+
+    def _total_cost(self, costs: Tensor) -> Tensor:
+        """``costs (B, S, O)`` -> ``(B, S)``: the objectives combined with ``objective_weights``."""
+        c = self.objective_weights
+        if c is None:
+            return costs.sum(-1)
+        if c.shape != (self.num_objectives,):
+            raise ValueError(f"objective_weights must be ({self.num_objectives},), got {tuple(c.shape)}")
+        return costs @ c
+
     def _apply(self, new_mean: Tensor, new_var: Tensor) -> None:
         """Commit an update to the problems that have not converged."""
         active = ~self.converged[:, None]  # (B, 1)

@@ -29,18 +29,13 @@ class RWR(BaseOptimizer):
         if center not in ("new", "old"):
             raise ValueError(f"center must be 'new' or 'old', got {center!r}")
         self.center = center
-        self.objective_weights = None if objective_weights is None else torch.as_tensor(
-            objective_weights, dtype=self.mean.dtype, device=self.mean.device
-        )
+        self._set_objective_weights(objective_weights)
 
     def _iteration(self) -> Generator[Tensor, Tensor, None]:
         w = self._sample(self.var, self.num_samples)  # (B, S, N)
         costs = yield w  # (B, S, O)
         self._record_cost(slice(None), costs)
-        c = self.objective_weights
-        if c is not None and c.shape != (self.num_objectives,):
-            raise ValueError(f"objective_weights must be ({self.num_objectives},), got {tuple(c.shape)}")
-        total = costs.sum(-1) if c is None else costs @ c  # (B, S)
+        total = self._total_cost(costs)  # (B, S)
         ones = torch.ones_like(self.var)  # (B, N)
         new_mean, new_var = pro_update(self.mean, self.var, w, total, ones, self.beta)
         if self.center == "new":  # weighted ML: E_R[(w - mean')^2] = E_R[(w - mean)^2] - (mean' - mean)^2

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -220,9 +221,9 @@ class PointParticleTask(Task):
         dtype = torch.promote_types(traj.dtype, env.dtype)
         if not dtype.is_floating_point:
             dtype = torch.get_default_dtype()
-        try:
-            batch = torch.broadcast_shapes(traj.shape[:-2], env.shape[:-1])
-        except RuntimeError:
+        try:  # numpy's rule; torch.broadcast_shapes imports sympy on first use (~2 s per process)
+            batch = np.broadcast_shapes(tuple(traj.shape[:-2]), tuple(env.shape[:-1]))
+        except ValueError:
             raise ValueError(
                 f"leading dimensions of traj {tuple(traj.shape)} (..., T, 2) and env "
                 f"{tuple(env.shape)} (..., E) do not broadcast"

@@ -1,12 +1,14 @@
 """One contract suite for every optimiser: ask / tell / stop / result over B problems at once.
 
-Each test runs for PRO, RWR and RWPO (the latter with a tiny relevance-learning budget).
+Each test runs for PRO, RWR and RWPO (the latter with a tiny relevance-learning budget), and for
+the peers CEM and CMA-ES (pycma behind the same contract).
 """
 
 import pytest
 import torch
 
 from protorch import PRO, RWPO, RWR, OptimizeResult
+from protorch.optim import CEM, CMAES
 
 F64 = torch.float64
 
@@ -14,16 +16,22 @@ SMALL = {
     PRO: {"relevance_samples": 50},
     RWR: {},
     RWPO: {"relevance_iters": 3, "theta_samples": 8, "trajectory_samples": 4},
+    CEM: {"extra_var": 1e-2},  # the noisy CEM: plain CEM collapses within the 12 iterations a test watches
+    CMAES: {"pycma_stop": False},  # the contract's stopping rule alone (test_peers.py checks pycma's)
 }
+RANK_BASED = (CEM, CMAES)  # no reward temperature: only the order of the costs matters
 
 
-@pytest.fixture(params=[PRO, RWR, RWPO], ids=lambda c: c.__name__)
+@pytest.fixture(params=[PRO, RWR, RWPO, CEM, CMAES], ids=lambda c: c.__name__)
 def make(request):
     """``make(mean, var=1.0, **kw)`` builds the optimiser under test with small settings."""
     cls = request.param
 
     def build(mean, var=1.0, **kw):
-        kw.setdefault("beta", 1.0)
+        if cls in RANK_BASED:
+            kw.pop("beta", None)
+        else:
+            kw.setdefault("beta", 1.0)
         kw.setdefault("num_samples", 20)
         kw.setdefault("num_objectives", 2)
         kw.setdefault("seed", 0)
@@ -124,11 +132,23 @@ def test_non_finite_costs_raise(make, bad, word):
 # -------------------------------------------------------------------- construction
 @pytest.mark.parametrize("beta", [0.0, -1.0, float("nan"), float("inf"), torch.tensor([1.0, -1.0])])
 def test_bad_beta_raises(make, beta):
+    if make.cls in RANK_BASED:
+        with pytest.raises(TypeError, match="rank-based and takes no beta"):
+            make.cls(torch.zeros(2, 4, dtype=F64), torch.ones(4, dtype=F64), beta=beta)
+        return
     with pytest.raises(ValueError, match="beta must be finite and > 0"):
         make(torch.zeros(2, 4, dtype=F64), beta=beta)
 
 
 def test_per_problem_beta(make):
+    if make.cls in RANK_BASED:
+        # no temperature to set per problem: scaling each problem's costs by its own positive
+        # factor (what a per-problem beta would do to exp(-beta c)) leaves the run unchanged
+        scale = torch.tensor([0.5, 1.0, 20.0], dtype=F64)[:, None, None]
+        a = make(torch.zeros(3, 4, dtype=F64), max_iter=4, tol=0.0).minimize(two_objectives)
+        b = make(torch.zeros(3, 4, dtype=F64), max_iter=4, tol=0.0).minimize(lambda w: scale * two_objectives(w))
+        assert torch.equal(a.mean, b.mean) and torch.equal(a.var, b.var)
+        return
     opt = make(torch.zeros(3, 4, dtype=F64), beta=torch.tensor([0.5, 1.0, 2.0]))
     assert opt.beta.tolist() == [0.5, 1.0, 2.0]
     one_iteration(opt, two_objectives)
@@ -334,7 +354,7 @@ def test_result_and_history_shapes_batched(make):
     assert torch.equal(res.history["mean"][-1], res.mean) and torch.equal(
         res.history["var"][-1], res.var
     )
-    if make.cls is not RWR:
+    if issubclass(make.cls, PRO):
         assert res.history["relevance"].shape == (iters, b, o, n)
     assert bool(torch.isfinite(res.history["cost"]).all())
     # the result is a copy: stepping on does not change it
@@ -350,7 +370,7 @@ def test_result_and_history_shapes_unbatched(make):
     assert res.mean.shape == res.var.shape == (n,) and res.converged.shape == ()
     assert res.history["cost"].shape == (iters, o)
     assert res.history["mean"].shape == res.history["var"].shape == (iters, n)
-    if make.cls is not RWR:
+    if issubclass(make.cls, PRO):
         assert res.history["relevance"].shape == (iters, o, n)
 
 

@@ -1,0 +1,280 @@
+"""PRO side by side with the optimisers users would pick instead, in one run and one table
+(run on demand: ``python benchmarks/peers.py --out benchmarks/results/peers.md``).
+
+Problems (each optimiser starts from the same mean and stds and gets the same rollout budget):
+
+- ``window``: the Fig. 4 task, the ProMP of 5 imperfect demonstrations (one demonstration draw
+  and optimiser seed per repeat);
+- ``point particle``: single environments of Sec. IV-B (one per repeat, random, fixed seed),
+  started from the GP map of the 30 x 3 synthetic demonstrations (Eq. 7, 8): the guess the
+  self-improvement loop has to improve (it fails in every environment here).
+
+Weights that do not matter, by construction: every problem gets a third DoF (10 more weights)
+that no objective reads, like the height of a pen over the table or a wrist angle the task
+leaves free; its mean is 0 and its initial std the median initial std of the task's own weights.
+The benchmark checks that changing those weights leaves every cost unchanged. "std kept" is the
+median over those weights of final std / initial std (1 = kept, PRO's claim; 0 = collapsed).
+
+Optimisers: PRO with the relevance noise floor (z = 3, the window experiment's) and as written
+(``noise_floor=None``); RWPO with a relevance learning the budget affords (10 iterations x 20
+theta samples x 10 trajectories per objective: 6,000 rollouts, once) and with the authors'
+50 x 200 x 50 (1.5 M rollouts, 30 times the default budget: it cannot finish); RWR; CEM
+(elite 10 %); CMA-ES (pycma behind the same ask / tell contract, ``CMA_stds`` = the initial stds,
+pycma's default population for the dimension). PRO, RWPO and RWR use beta = 20 (the paper's);
+RWR, CEM and CMA-ES rank or weight the sum of the objectives. Every optimiser runs until it
+stops by the experiments' rule (every objective's mean sample cost within 1e-3 over 5
+iterations; CMA-ES also by pycma's own ``stop()``) or its next ask would exceed the budget; after
+every ``tell`` the current mean is checked against the task's success criterion (a check of the
+mean, not counted as a rollout). Each optimiser asks ``S = 100`` samples per update except
+CMA-ES, which uses pycma's default population ``4 + 3 ln N`` (14 for N = 30).
+
+Columns: rollouts until the mean first meets the success criterion (median over the repeats that
+reached it, and how many did) and the wall time until then, rollouts used until the optimiser
+stopped (median), success of the final mean, the final mean's total cost (sum of the
+objectives, median), std kept in the weights that do not matter (median), wall time per
+iteration (median; ask + rollouts + tell) and rollouts per iteration. Success of the window
+task also asks the path to cross the wall inside the window (``WindowTask.success``), which no
+objective encodes: a final mean can have a near-zero cost and still fail.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    # one thread everywhere, before numpy and torch load: pycma's numpy (OpenBLAS) and torch's
+    # thread pools otherwise fight over the cores and small iterations get 10-30x slower
+    os.environ.setdefault(_var, "1")
+
+import argparse
+import math
+import shlex
+import statistics
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import torch
+
+from protorch import PRO, RWPO, RWR, ProMP
+from protorch.experiments.point_particle import prepare
+from protorch.io import atomic_write_bytes
+from protorch.optim import CEM, CMAES
+from protorch.tasks import WindowTask
+
+NUISANCE = 10  # weights of the DoF no objective reads
+BETA = 20.0
+F64 = torch.float64
+
+
+@dataclass
+class Problem:
+    """One start distribution and its task: weights ``(N_task + NUISANCE,)``."""
+
+    task: str
+    repeat: int
+    mean: torch.Tensor  # (N,)
+    var: torch.Tensor  # (N,)
+    n_task: int
+    costs: Callable[[torch.Tensor], torch.Tensor]  # (..., N) -> (..., O)
+    success: Callable[[torch.Tensor], bool]  # (N,) mean -> solved?
+    num_basis: int
+
+
+def with_nuisance(mean: torch.Tensor, var: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Append ``NUISANCE`` weights of mean 0 and the median task variance."""
+    v = var.median()
+    return torch.cat([mean, mean.new_zeros(NUISANCE)]), torch.cat([var, v.expand(NUISANCE)])
+
+
+def window_problems(repeats: int) -> list[Problem]:
+    task = WindowTask()
+    out = []
+    for r in range(repeats):
+        demos = task.demonstrations(5, generator=torch.Generator().manual_seed(r), dtype=F64)
+        promp = ProMP(2, 10, 100, dtype=F64).fit(demos)
+        mean, var = with_nuisance(promp.mean, promp.var)
+        n = promp.mean.shape[-1]
+
+        def costs(w, promp=promp, n=n):  # (..., N) -> (..., 3)
+            return task.costs(promp.trajectory(w[..., :n]))
+
+        def success(w, promp=promp, n=n):
+            return bool(task.success(promp.trajectory(w[..., :n])))
+
+        out.append(Problem("window", r, mean, var, n, costs, success, 10))
+    return out
+
+
+def point_particle_problems(repeats: int) -> list[Problem]:
+    setup = prepare(optimizer={"beta": BETA}, task={"objectives": "clearance"}, loop={"num_envs": 0},
+                    test={"num_envs": 1}, dynamic={"episodes": 0})
+    data = setup.initial_data()
+    gp = setup.env_map().fit(data.env, data.mean, data.var, data.label)
+    envs = setup.task.sample_envs(repeats, torch.Generator().manual_seed(12345), dtype=F64)  # (R, 6)
+    mu, var = gp.predict(envs)  # (R, N), (R, N)
+    promp, task = setup.promp, setup.task
+    n = mu.shape[-1]
+    out = []
+    for r in range(repeats):
+        env = envs[r]
+        mean, v = with_nuisance(mu[r], var[r])
+
+        def costs(w, env=env):  # (..., N) -> (..., 3)
+            return task.costs(promp.trajectory(w[..., :n]), env)
+
+        def success(w, env=env):
+            return bool(task.success(promp.trajectory(w[..., :n]), env))
+
+        out.append(Problem("point particle", r, mean, v, n, costs, success, 10))
+    return out
+
+
+def check_nuisance(p: Problem) -> None:
+    """The weights that do not matter: changing them by 10 stds changes no cost at all."""
+    g = torch.Generator().manual_seed(0)
+    w = p.mean + p.var.sqrt() * torch.randn(64, p.mean.shape[0], generator=g, dtype=F64)  # (64, N)
+    w2 = w.clone()
+    w2[:, p.n_task:] += 10 * p.var[p.n_task:].sqrt() * torch.randn(64, NUISANCE, generator=g, dtype=F64)
+    if not torch.equal(p.costs(w), p.costs(w2)):
+        raise AssertionError("the nuisance weights change a cost: they are not irrelevant")
+
+
+def make_optimizer(name: str, p: Problem, seed: int):
+    common = dict(num_samples=100, max_iter=10**9, tol=1e-3, window=5, seed=seed)
+    if name == "PRO":
+        return PRO(p.mean, p.var, beta=BETA, relevance_samples=200, noise_floor=3.0, **common)
+    if name == "PRO (as written)":
+        return PRO(p.mean, p.var, beta=BETA, relevance_samples=200, noise_floor=None, **common)
+    if name == "RWPO":  # a relevance learning the budget affords: 10 x 20 x 10 x 3 objectives = 6,000 rollouts
+        return RWPO(p.mean, p.var, beta=BETA, num_objectives=3, num_basis=p.num_basis, relevance_iters=10,
+                    theta_samples=20, trajectory_samples=10, **common)
+    if name == "RWPO (authors')":  # 50 x 200 x 50 x 3 = 1.5 M rollouts for the relevance alone
+        return RWPO(p.mean, p.var, beta=BETA, num_objectives=3, num_basis=p.num_basis, **common)
+    if name == "RWR":
+        return RWR(p.mean, p.var, beta=BETA, **common)
+    if name == "CEM":
+        return CEM(p.mean, p.var, elite_frac=0.1, **common)
+    if name == "CMA-ES":
+        import cma
+
+        popsize = int(cma.CMAOptions().eval("popsize", loc={"N": p.mean.shape[0]}))  # pycma's default, 4 + 3 ln N
+        return CMAES(p.mean, p.var, **{**common, "num_samples": popsize})
+    raise ValueError(name)
+
+
+METHODS = ("PRO", "PRO (as written)", "RWPO", "RWPO (authors')", "RWR", "CEM", "CMA-ES")
+
+
+def run_one(name: str, p: Problem, budget: int) -> dict:
+    opt = make_optimizer(name, p, seed=1000 + p.repeat)
+    used, first = 0, (0 if p.success(opt.mean[0]) else None)
+    first_s = 0.0 if first == 0 else None
+    iter_times, spent, total, it = [], 0.0, 0.0, opt.iteration
+    while not opt.stop():
+        t0 = time.perf_counter()
+        w = opt.ask()  # (S, N)
+        if used + w.shape[-2] > budget:
+            break
+        opt.tell(p.costs(w))
+        dt = time.perf_counter() - t0
+        spent, total, used = spent + dt, total + dt, used + w.shape[-2]
+        if opt.iteration != it:
+            iter_times.append(spent)
+            spent, it = 0.0, opt.iteration
+        if first is None and p.success(opt.mean[0]):
+            first, first_s = used, total
+    mean, var = opt.mean[0], opt.var[0]
+    std_kept = (var[p.n_task:].sqrt() / p.var[p.n_task:].sqrt()).median().item()
+    return {
+        "first": first,
+        "first_s": first_s,
+        "final_success": p.success(mean),
+        "final_cost": float(p.costs(mean).sum()),
+        "std_kept": std_kept,
+        "iter_ms": 1000 * statistics.median(iter_times) if iter_times else float("nan"),
+        "iterations": opt.iteration,
+        "rollouts": used,
+        "seconds": total,
+    }
+
+
+def _std_kept(runs: list[dict]) -> str:
+    updated = [r["std_kept"] for r in runs if r["iterations"] > 0]  # an untouched start keeps it trivially
+    return f"{statistics.median(updated):.3f}" if updated else "- (no update)"
+
+
+def _ms(v: float) -> str:
+    return "-" if math.isnan(v) else f"{v:.2f}"
+
+
+def table(results: dict, repeats: int, budget: int, command: str, note: str = "") -> str:
+    lines = [
+        "# PRO and its peers",
+        "",
+        f"Command: `{command}`",
+        "",
+        f"torch {torch.__version__}, {torch.get_num_threads()} thread (torch and numpy), CPU; {repeats} repeats per task, a budget "
+        f"of {budget:,} rollouts per run, medians over the repeats. See the docstring of benchmarks/peers.py."
+        + (f" {note}" if note else ""),
+        "",
+        "| task | optimiser | rollouts to success | s to success | rollouts used | final mean succeeds "
+        "| final cost | std kept (irrelevant weights) | ms / iteration | rollouts / iteration |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for (task, name), runs in results.items():
+        reached = [r["first"] for r in runs if r["first"] is not None]
+        first = f"{statistics.median(reached):,.0f} ({len(reached)}/{len(runs)})" if reached else f"- (0/{len(runs)})"
+        secs = [r["first_s"] for r in runs if r["first_s"] is not None]
+        first_s = f"{statistics.median(secs):.3f}" if secs else "-"
+        ok = sum(r["final_success"] for r in runs)
+        done = [r["rollouts"] / r["iterations"] for r in runs if r["iterations"] > 0]
+        per_iter = f"{statistics.median(done):,.0f}" if done else "-"
+        lines.append(
+            f"| {task} | {name} | {first} | {first_s} | {statistics.median(r['rollouts'] for r in runs):,.0f} "
+            f"| {ok}/{len(runs)} "
+            f"| {statistics.median(r['final_cost'] for r in runs):.4f} "
+            f"| {_std_kept(runs)} "
+            f"| {_ms(statistics.median(r['iter_ms'] for r in runs))} | {per_iter} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--repeats", type=int, default=5, help="window seeds and point-particle environments")
+    ap.add_argument("--budget", type=int, default=50_000, help="rollouts per run")
+    ap.add_argument("--tasks", default="window,point_particle")
+    ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--note", default="", help="a sentence about the machine, added to the table's header")
+    ap.add_argument("--out", default=None, help="also write the table here (atomically), e.g. benchmarks/results/peers.md")
+    args = ap.parse_args(argv)
+    torch.set_num_threads(1)
+    methods = [m for m in args.methods.split(",") if m]
+    bad = sorted(set(methods) - set(METHODS))
+    if bad:
+        ap.error(f"unknown method(s) {bad}; choose from {list(METHODS)}")
+    builders = {"window": window_problems, "point_particle": point_particle_problems}
+    tasks = [t for t in args.tasks.split(",") if t]
+    if set(tasks) - set(builders):
+        ap.error(f"unknown task(s) {sorted(set(tasks) - set(builders))}; choose from {list(builders)}")
+    command = shlex.join(["python", "benchmarks/peers.py", *(sys.argv[1:] if argv is None else argv)])
+    results: dict = {}
+    for t in tasks:
+        problems = builders[t](args.repeats)
+        for p in problems:
+            check_nuisance(p)
+        for name in methods:
+            t0 = time.perf_counter()
+            results[(problems[0].task, name)] = [run_one(name, p, args.budget) for p in problems]
+            print(f"{problems[0].task:>14} {name:<17} {time.perf_counter() - t0:7.1f} s", file=sys.stderr, flush=True)
+    text = table(results, args.repeats, args.budget, command, args.note)
+    print(text)
+    if args.out:
+        atomic_write_bytes(Path(args.out), text.encode())
+
+
+if __name__ == "__main__":
+    main()

@@ -21,8 +21,11 @@ def _np(x):
     return x.detach().cpu().double().numpy() if hasattr(x, "detach") else np.asarray(x, dtype=float)
 
 
-def plot_wall_3d(ax, task, *, margin: float = 0.35, color: str = "0.6", alpha: float = 0.35):
-    """The wall around the window (a ``margin`` wide frame of it), start and end positions."""
+def plot_wall_3d(ax, task, *, margin: float = 0.35, color: str = "0.6", alpha: float = 0.35,
+                 view: tuple[float, float] | None = (22.0, -130.0)):
+    """The wall around the window (a ``margin`` wide frame of it), start and end positions; the
+    camera (``view = (elevation, azimuth)`` in degrees, ``None``: matplotlib's) looks at the
+    window from the start's side at an angle, so both the opening and the path show."""
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     c = np.asarray(task.wall_position)
@@ -51,6 +54,8 @@ def plot_wall_3d(ax, task, *, margin: float = 0.35, color: str = "0.6", alpha: f
     for setter, c0 in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
         setter(c0 - half, c0 + half)
     ax.set_box_aspect((1, 1, 1))
+    if view is not None:
+        ax.view_init(elev=view[0], azim=view[1])
     return ax
 
 

@@ -20,6 +20,7 @@
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import torch
@@ -53,6 +54,20 @@ def _int(v, name: str, lo: int) -> int:
 
 def _tuples(cfg: dict) -> dict:
     return {k: tuple(v) if isinstance(v, (list, tuple)) else v for k, v in cfg.items()}
+
+
+@contextmanager
+def _num_threads(n: int | None):
+    """torch's intra-op threads set to ``n`` inside the block (``None``: left alone)."""
+    if n is None:
+        yield
+        return
+    old = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
 
 
 def optimize_pose_promp(
@@ -113,6 +128,7 @@ def run(
     eval_samples: int = 1000,
     guidance: dict | None = None,
     teleop: dict | None = None,
+    num_threads: int | None = None,
     progress: bool = False,
 ) -> dict:
     """Run the experiment into ``out_dir`` and return its metrics (see the module docstring).
@@ -121,9 +137,22 @@ def run(
     end poses, weights); ``operator``: :class:`~protorch.tasks.SimulatedOperator` fields;
     ``promp``: ``num_basis``, ``num_steps``, ``width``, ``ridge``; ``guidance``:
     :class:`~protorch.guidance.HapticGuidance` gains; ``teleop``: ``trials`` and the hand's
-    stiffness ``human_position_stiffness`` (N/m), ``human_rotation_stiffness``. Every setting is
-    validated before any work starts.
+    stiffness ``human_position_stiffness`` (N/m), ``human_rotation_stiffness``. ``num_threads``:
+    torch's intra-op threads during the run (``None``: torch's default). The tensors are small
+    (200 x 250 x 4), so on a machine whose cores are busy with other jobs one thread is several
+    times faster than two that wait on each other. Every setting is validated before any work
+    starts.
     """
+    if num_threads is not None:
+        num_threads = _int(num_threads, "num_threads", 1)
+    with _num_threads(num_threads):
+        return _run(out_dir, seed=seed, device=device, dtype=dtype, optimizer=optimizer, plot=plot, task=task,
+                    operator=operator, num_demos=num_demos, promp=promp, eval_dtype=eval_dtype,
+                    eval_samples=eval_samples, guidance=guidance, teleop=teleop, progress=progress)
+
+
+def _run(out_dir, *, seed, device, dtype, optimizer, plot, task, operator, num_demos, promp, eval_dtype,
+         eval_samples, guidance, teleop, progress) -> dict:
     t_start = time.perf_counter()
     out_dir = Path(out_dir)
     promp_cfg, guide_cfg, tele_cfg = dict(promp or {}), dict(guidance or {}), dict(teleop or {})

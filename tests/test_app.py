@@ -24,6 +24,10 @@ TINY = {
         "optimizer.max_iter=3", "optimizer.num_samples=20", "optimizer.pro.relevance_samples=20",
         "optimizer.rwpo.relevance_iters=2", "optimizer.rwpo.theta_samples=4", "optimizer.rwpo.trajectory_samples=3",
     ],
+    "beam_window": [
+        "optimizer.max_iter=3", "optimizer.num_samples=20", "optimizer.pro.relevance_samples=20",
+        "settings.num_demos=4", "settings.eval_samples=50", "settings.teleop.trials=5",
+    ],
     "point_particle": [
         "settings.loop.num_envs=20", "settings.loop.batch_size=10", "optimizer.max_iter=10",
         "optimizer.num_samples=20", "optimizer.pro.relevance_samples=20", "settings.test.num_envs=10",

@@ -15,13 +15,14 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
-from . import fig3_toy, fig4_window, point_particle
+from . import beam_window, fig3_toy, fig4_window, point_particle
 from .common import metric_value, resolve_device, resolve_dtype, write_json
 
 EXPERIMENTS: dict[str, Callable[..., dict]] = {
     "fig3_toy": fig3_toy.run,
     "fig4_window": fig4_window.run,
     "point_particle": point_particle.run,
+    "beam_window": beam_window.run,
 }
 
 _DOTTED = re.compile(r"[A-Za-z_][\w-]*(\.[\w-]+)*")

@@ -22,6 +22,8 @@ from torch import Tensor
 
 from .._checks import check_tensor
 from .base import Task
+from .curves import catmull_rom as _catmull_rom
+from .curves import smooth_noise as _smooth_noise
 
 __all__ = [
     "PointParticleTask",
@@ -380,36 +382,3 @@ class PointParticleTask(Task):
         demos = [p[:t].clone() for p, t in zip(path, length[:, 0].tolist())]  # (T_i, 2) each
         return demos, envs.repeat_interleave(int(per_env), 0)  # list of (T_i, 2), (n, E)
 
-
-def _catmull_rom(via: Tensor, s: Tensor) -> Tensor:
-    """Cubic Hermite curves through ``via (n, P, 2)`` with Catmull-Rom tangents on a chord-length
-    parameter, evaluated at ``s (n, T)`` in ``[0, 1]``: ``(n, T, 2)``."""
-    chord = (via[:, 1:] - via[:, :-1]).norm(dim=-1).clamp_min(1e-9)  # (n, P-1)
-    knots = torch.cat([chord.new_zeros(len(via), 1), chord.cumsum(-1)], -1)  # (n, P)
-    knots = knots / knots[:, -1:]  # (n, P)
-    # reflected ghost points at both ends, so the end tangents are the end chords
-    pad = torch.cat([2 * via[:, :1] - via[:, 1:2], via, 2 * via[:, -1:] - via[:, -2:-1]], 1)  # (n, P+2, 2)
-    kpad = torch.cat([2 * knots[:, :1] - knots[:, 1:2], knots, 2 * knots[:, -1:] - knots[:, -2:-1]], 1)  # (n, P+2)
-    tangent = (pad[:, 2:] - pad[:, :-2]) / (kpad[:, 2:] - kpad[:, :-2])[..., None]  # (n, P, 2) d via / d s
-    s = s.clamp(0, 1).contiguous()  # (n, T)
-    i = torch.searchsorted(knots.contiguous(), s, right=True).clamp(1, via.shape[1] - 1) - 1  # (n, T)
-    k0, k1 = knots.gather(1, i), knots.gather(1, i + 1)  # (n, T)
-    h = (k1 - k0)[..., None]  # (n, T, 1)
-    x = ((s - k0)[..., None] / h).clamp(0, 1)  # (n, T, 1)
-    idx = i[..., None].expand(*i.shape, 2)  # (n, T, 2)
-    p0, p1 = via.gather(1, idx), via.gather(1, idx + 1)  # (n, T, 2)
-    m0, m1 = tangent.gather(1, idx), tangent.gather(1, idx + 1)  # (n, T, 2)
-    h00, h10 = 2 * x**3 - 3 * x**2 + 1, x**3 - 2 * x**2 + x  # (n, T, 1)
-    h01, h11 = -2 * x**3 + 3 * x**2, x**3 - x**2  # (n, T, 1)
-    return h00 * p0 + h10 * h * m0 + h01 * p1 + h11 * h * m1  # (n, T, 2)
-
-
-def _smooth_noise(u: Tensor, scale: float, generator: torch.Generator | None) -> Tensor:
-    """Low-frequency 2-D noise of std about ``scale`` at times ``u (n, T)`` in ``[0, 1]``: a smooth
-    blend of 8 random knots per row (a few wiggles per path), ``(n, T, 2)``."""
-    knots = scale * torch.randn(u.shape[0], 8, 2, generator=generator, dtype=u.dtype)  # (n, 8, 2)
-    pos = 7 * u  # (n, T)
-    lo = pos.floor().long().clamp(max=6)  # (n, T)
-    w = (0.5 - 0.5 * torch.cos(torch.pi * (pos - lo)))[..., None]  # (n, T, 1) smooth blend
-    idx = lo[..., None].expand(*lo.shape, 2)  # (n, T, 2)
-    return knots.gather(1, idx) * (1 - w) + knots.gather(1, idx + 1) * w  # (n, T, 2)

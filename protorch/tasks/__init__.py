@@ -1,14 +1,15 @@
 """Experiment tasks: small classes with their geometry, objectives and success checks."""
 
+from .arm_reach import ArmReachTask
 from .base import Task
 from .demos import load_human_demos
 from .point_particle import PointParticleTask, signed_distance_to_wall, wall_collision
 from .toy import LineToy
 from .window import WindowTask
 
-TASKS = {"line_toy": LineToy, "window": WindowTask, "point_particle": PointParticleTask}
+TASKS = {"line_toy": LineToy, "window": WindowTask, "point_particle": PointParticleTask, "arm_reach": ArmReachTask}
 
 __all__ = [
     "Task", "LineToy", "WindowTask", "PointParticleTask", "load_human_demos",
-    "signed_distance_to_wall", "wall_collision", "TASKS",
+    "signed_distance_to_wall", "wall_collision", "TASKS", "ArmReachTask",
 ]

@@ -381,8 +381,8 @@ class PointParticleTask(Task):
 
 
 def _catmull_rom(via: Tensor, s: Tensor) -> Tensor:
-    """Cubic Hermite curves through ``via (n, P, 2)`` with Catmull-Rom tangents on a chord-length
-    parameter, evaluated at ``s (n, T)`` in ``[0, 1]``: ``(n, T, 2)``."""
+    """Cubic Hermite curves through ``via (n, P, D)`` with Catmull-Rom tangents on a chord-length
+    parameter, evaluated at ``s (n, T)`` in ``[0, 1]``: ``(n, T, D)`` (the arm task uses D = 3)."""
     chord = (via[:, 1:] - via[:, :-1]).norm(dim=-1).clamp_min(1e-9)  # (n, P-1)
     knots = torch.cat([chord.new_zeros(len(via), 1), chord.cumsum(-1)], -1)  # (n, P)
     knots = knots / knots[:, -1:]  # (n, P)
@@ -395,7 +395,7 @@ def _catmull_rom(via: Tensor, s: Tensor) -> Tensor:
     k0, k1 = knots.gather(1, i), knots.gather(1, i + 1)  # (n, T)
     h = (k1 - k0)[..., None]  # (n, T, 1)
     x = ((s - k0)[..., None] / h).clamp(0, 1)  # (n, T, 1)
-    idx = i[..., None].expand(*i.shape, 2)  # (n, T, 2)
+    idx = i[..., None].expand(*i.shape, via.shape[-1])  # (n, T, D)
     p0, p1 = via.gather(1, idx), via.gather(1, idx + 1)  # (n, T, 2)
     m0, m1 = tangent.gather(1, idx), tangent.gather(1, idx + 1)  # (n, T, 2)
     h00, h10 = 2 * x**3 - 3 * x**2 + 1, x**3 - 2 * x**2 + x  # (n, T, 1)
@@ -403,12 +403,12 @@ def _catmull_rom(via: Tensor, s: Tensor) -> Tensor:
     return h00 * p0 + h10 * h * m0 + h01 * p1 + h11 * h * m1  # (n, T, 2)
 
 
-def _smooth_noise(u: Tensor, scale: float, generator: torch.Generator | None) -> Tensor:
-    """Low-frequency 2-D noise of std about ``scale`` at times ``u (n, T)`` in ``[0, 1]``: a smooth
-    blend of 8 random knots per row (a few wiggles per path), ``(n, T, 2)``."""
-    knots = scale * torch.randn(u.shape[0], 8, 2, generator=generator, dtype=u.dtype)  # (n, 8, 2)
+def _smooth_noise(u: Tensor, scale: float, generator: torch.Generator | None, dim: int = 2) -> Tensor:
+    """Low-frequency ``dim``-D noise of std about ``scale`` at times ``u (n, T)`` in ``[0, 1]``: a
+    smooth blend of 8 random knots per row (a few wiggles per path), ``(n, T, dim)``."""
+    knots = scale * torch.randn(u.shape[0], 8, dim, generator=generator, dtype=u.dtype)  # (n, 8, dim)
     pos = 7 * u  # (n, T)
     lo = pos.floor().long().clamp(max=6)  # (n, T)
     w = (0.5 - 0.5 * torch.cos(torch.pi * (pos - lo)))[..., None]  # (n, T, 1) smooth blend
-    idx = lo[..., None].expand(*lo.shape, 2)  # (n, T, 2)
+    idx = lo[..., None].expand(*lo.shape, dim)  # (n, T, dim)
     return knots.gather(1, idx) * (1 - w) + knots.gather(1, idx + 1) * w  # (n, T, 2)

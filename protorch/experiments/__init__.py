@@ -11,13 +11,14 @@ import inspect
 from pathlib import Path
 from typing import Callable
 
-from . import fig3_toy, fig4_window, point_particle
+from . import arm_reach, fig3_toy, fig4_window, point_particle
 from .common import resolve_device, resolve_dtype, write_json
 
 EXPERIMENTS: dict[str, Callable[..., dict]] = {
     "fig3_toy": fig3_toy.run,
     "fig4_window": fig4_window.run,
     "point_particle": point_particle.run,
+    "arm_reach": arm_reach.run,
 }
 
 __all__ = ["EXPERIMENTS", "run_experiment"]

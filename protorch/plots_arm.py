@@ -68,8 +68,8 @@ def plot_arm_3d(ax, task, q, env, *, instants: int = 7):
         links = _np(task.kinematics.link_positions(q.to(task.kinematics.lower)))  # (T, F, 3)
     e = _np(env)
     # table and can
-    (tx0, tx1), (ty0, ty1) = task.table
-    xx, yy = np.meshgrid([tx0, tx1], [ty0, ty1])
+    (_, tx1), (ty0, ty1) = task.table
+    xx, yy = np.meshgrid([-0.1, tx1], [ty0, ty1])  # the table top, the robot's base on it
     ax.plot_surface(xx, yy, np.zeros_like(xx), color="burlywood", alpha=0.25, zorder=0)
     th, zz = np.meshgrid(np.linspace(0, 2 * np.pi, 30), [0.0, task.can_height])
     ax.plot_surface(e[0] + task.can_radius * np.cos(th), e[1] + task.can_radius * np.sin(th), zz, color="0.5",
@@ -81,7 +81,7 @@ def plot_arm_3d(ax, task, q, env, *, instants: int = 7):
         ax.plot(links[i, :, 0], links[i, :, 1], links[i, :, 2], "-o", color=c, ms=2.5, lw=2)
     ax.plot(links[:, -1, 0], links[:, -1, 1], links[:, -1, 2], "-", color="k", lw=1.2, label="end effector")
     ax.scatter([e[2]], [e[3]], [task.ee_height], color="r", marker="x", s=40)
-    ax.set_xlim(-0.05, 0.85)
+    ax.set_xlim(-0.1, 0.9)
     ax.set_ylim(-0.45, 0.45)
     ax.set_zlim(0.0, 0.9)
     ax.set_box_aspect((0.9, 0.9, 0.9))

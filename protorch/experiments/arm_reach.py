@@ -339,12 +339,13 @@ def _test(task: ArmReachTask, model, envs: torch.Tensor) -> dict:
         clear = task.can_distance(traj, envs) > task.can_radius + task.margin
         ee = task.ee_path(traj[:, -1])
         goal_err = (ee - task.goal_point(envs)).norm(dim=-1)
+        side = task.side(traj, envs)  # (Q,) the side the chosen mean actually passes on
     return {"success_rate": float(ok.double().mean()), "num_envs": int(envs.shape[0]), "seed": TEST_SEED,
             "collision_rate": float((~clear).double().mean()),
             "limit_violation_rate": float((~task.kinematics.within_limits(traj).all(-1)).double().mean()),
             "goal_error_median": float(goal_err.median()), "goal_reached_rate": float((goal_err <= task.goal_tol)
                                                                                      .double().mean()),
-            "left": int((best.label == LEFT).sum()), "right": int((best.label == RIGHT).sum()),
+            "left": int((side == LEFT).sum()), "right": int((side == RIGHT).sum()),
             "cost_median": float(c.sum(-1).median())}
 
 

@@ -280,7 +280,7 @@ def run_arm_episodes(
 
         # ------------------------------------------------------------ outcome
         links = kin.link_positions(q)  # (E, T+1, F, 3)
-        dist = task._skeleton_distance(links[:, :, None], envs)  # (E, T+1)
+        dist = task.skeleton_distance(links[:, :, None], envs)  # (E, T+1)
         min_dist = dist.amin(-1)
         collided = min_dist <= task.can_radius + task.margin
         limits = kin.within_limits(q).all(-1)
@@ -321,7 +321,7 @@ def _apply_moves(task, envs: Tensor, q_now: Tensor, episodes: list[int], t: int,
     new = torch.where(which.to(envs.device)[:, None, None], torch.cat([cand[..., :2], old[..., 2:]], -1),
                       torch.cat([old[..., :2], cand[..., 2:]], -1))  # (n, tries, 4)
     links = task.kinematics.link_positions(q_now[idx])[:, None, None]  # (n, 1, 1, F, 3)
-    clear = task._skeleton_distance(links, new) > task.can_radius + place_clearance  # (n, tries)
+    clear = task.skeleton_distance(links, new) > task.can_radius + place_clearance  # (n, tries)
     ok = task.valid_envs(new) & clear  # (n, tries)
     for i, e in enumerate(episodes):
         good = torch.nonzero(ok[i]).flatten()

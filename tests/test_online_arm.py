@@ -105,7 +105,7 @@ def test_random_moves_never_put_the_can_onto_the_arm(task, switching, gen):
     # move is skipped when both fall on the same step or no place is clear of the arm
     for e, t in torch.nonzero(changed).tolist():  # the instant after each move: can clear of the arm
         links = task.kinematics.link_positions(res.q[e, t + 1])
-        d = task._skeleton_distance(links[None], res.envs[e, t + 1])
+        d = task.skeleton_distance(links[None], res.envs[e, t + 1])
         assert float(d) > task.can_radius + 0.05
     assert bool(task.valid_envs(res.envs).all())
     s = res.summary()

@@ -330,9 +330,11 @@ class ArmReachTask(Task):
         steps and segments: ``(...)`` (success needs ``> can_radius + margin``)."""
         traj, env = self._prepare(traj, env)
         links = self.kinematics.link_positions(traj)  # (..., T, F, 3)
-        return self._skeleton_distance(links, env)
+        return self.skeleton_distance(links, env)
 
-    def _skeleton_distance(self, links: Tensor, env: Tensor) -> Tensor:
+    def skeleton_distance(self, links: Tensor, env: Tensor) -> Tensor:
+        """Smallest distance between skeletons ``links (..., T, F, 3)`` (frame origins, e.g.
+        ``kinematics.link_positions``) and the can's axis segment of ``env (..., 4)``: ``(...)``."""
         a, b = links[..., :-1, :], links[..., 1:, :]  # (..., T, F-1, 3)
         axis = env[..., None, None, 0:2]  # (..., 1, 1, 2)
         d = segment_axis_distance(a, b, axis, 0.0, self.can_height)  # (..., T, F-1)
@@ -371,7 +373,7 @@ class ArmReachTask(Task):
         ee = links[..., -1, :]  # (..., T, 3)
         ok_start = (ee[..., 0, :] - self.start_position(ee.dtype, ee.device)).norm(dim=-1) <= self.start_tol
         ok_goal = (ee[..., -1, :] - self.goal_point(env)).norm(dim=-1) <= self.goal_tol
-        clear = self._skeleton_distance(links, env) > self.can_radius + self.margin
+        clear = self.skeleton_distance(links, env) > self.can_radius + self.margin
         limits = self.kinematics.within_limits(traj).all(-1)
         table = (links[..., 1:, 2] >= 0).flatten(-2).all(-1)
         return ok_start & ok_goal & clear & limits & table

@@ -144,6 +144,11 @@ def test_environments_off_the_table_are_refused(task, straight):
         task.costs(q[0], torch.zeros(6, dtype=F64))
     with pytest.raises(ValueError, match="NaN"):
         task.costs(q[0], torch.tensor([math.nan, 0, 0.7, 0], dtype=F64))
+    bad = q[0].clone()
+    bad[5, 2] = math.nan
+    for fn in (task.costs, task.success):
+        with pytest.raises(ValueError, match="NaN"):
+            fn(bad, torch.tensor([0.55, 0.0, 0.7, 0.0], dtype=F64))
     with pytest.raises(ValueError, match="off the table"):
         task.demonstrations(torch.tensor([[0.55, 0.0, 0.95, 0.0]], dtype=F64), 2)
     with pytest.raises(ValueError, match="must lie on the table"):

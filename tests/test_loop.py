@@ -187,6 +187,26 @@ def test_labeler_stores_each_solution_with_its_class(tmp_path):
         loop(task, promp, setup()[2], num_envs=12, add_only="all", run_dir=tmp_path, resume=True)
 
 
+def test_each_label_optimises_every_class_and_keeps_one_solution_per_class(tmp_path):
+    task, promp, ds = setup()
+
+    def labeler(traj, env):
+        mid = traj[:, traj.shape[1] // 2]
+        return (mid[:, 1] > mid[:, 0]).long()
+
+    ds.label[:] = torch.tensor([0, 1, 0, 1])  # both classes known from the start
+    res = loop(task, promp, ds, num_envs=8, add_only="all", labeler=labeler, each_label=True, sample_steps=7)
+    new = learned(res.dataset)
+    # two problems per environment, at most one stored solution per (environment, final class)
+    pairs = {(tuple(e.tolist()), int(l)) for e, l in zip(res.dataset.env[new], res.dataset.label[new])}
+    assert len(pairs) == int(new.sum()) and 8 <= int(new.sum()) <= 16
+    assert all(r["converged"] <= 2 * r["batch"] and r["success"] <= r["batch"] for r in res.metrics[1:])
+    with pytest.raises(ValueError, match="needs a labeler"):
+        loop(task, promp, setup()[2], each_label=True)
+    with pytest.raises(ValueError, match="sample_steps"):
+        loop(task, promp, setup()[2], sample_steps=1)
+
+
 def test_rwr_in_place_of_pro():
     task, promp, ds = setup()
     res = loop(task, promp, ds, optimizer=RWR, add_only="all")

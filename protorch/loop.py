@@ -17,6 +17,12 @@ The task needs ``costs(traj (..., T, D), env (..., E)) -> (..., O)``, ``success(
 (...)`` bool and ``sample_envs(n, generator, dtype=...) -> (n, E)``. Trajectories of ``B``
 problems' samples are ``(B, S, T, D)``; the loop passes ``env[:, None]`` so they broadcast.
 
+Multimodal tasks (``labeler=``): a solution is stored with the label the labeller gives its
+mean trajectory (e.g. the side it passes an obstacle on, its homotopy class), the map keeps the
+labels apart, and a new environment starts from the label whose predicted mean has the lowest
+summed task costs (:meth:`~protorch.gp.EnvMap.predict_best`); the held-out check uses the same
+label-aware inference. Without a labeller everything is label 0, as before.
+
 Checkpoints (every ``checkpoint_every`` steps and at the end, atomic): the data set in
 ``<run_dir>/checkpoint/dataset.safetensors`` via :func:`protorch.io.save_model` (so
 :func:`protorch.load` rebuilds the map), with the loop's state (step, environments tried, metrics
@@ -71,10 +77,10 @@ def group_by_env(envs: Tensor) -> list[Tensor]:
 
 def demonstration_dataset(
     promp, demos: Sequence[Tensor], demo_envs: Tensor, *, task_name: str = "", var_floor: float = 0.0,
-    dtype: torch.dtype = torch.float64,
+    dtype: torch.dtype = torch.float64, labels: Tensor | None = None,
 ) -> TrajectoryDataset:
-    """One entry per demonstrated environment: the maximum-likelihood diagonal weight Gaussian of
-    its demonstrations (``origin="demonstration"``, ``converged=True``).
+    """One entry per demonstrated environment (and label): the maximum-likelihood diagonal weight
+    Gaussian of its demonstrations (``origin="demonstration"``, ``converged=True``).
 
     Args:
         promp: the :class:`~protorch.ProMP` whose basis the weights use.
@@ -83,23 +89,32 @@ def demonstration_dataset(
             form one environment (each needs at least 2 demonstrations for a variance).
         var_floor: lower bound on every variance (the GP noise of the entry), so a weight on
             which the demonstrations agree exactly still has a positive noise.
+        labels: ``(n,)`` integer class of each demonstration (e.g. the side it passes an
+            obstacle on); demonstrations of one environment with different labels form
+            separate entries, never averaged. ``None``: every entry has label 0.
     """
     demo_envs = torch.as_tensor(demo_envs)
     if demo_envs.ndim != 2 or demo_envs.shape[0] != len(demos):
         raise ValueError(f"demo_envs must be ({len(demos)}, E), got {tuple(demo_envs.shape)}")
     if not var_floor >= 0:
         raise ValueError(f"var_floor must be >= 0, got {var_floor}")
+    lab = torch.zeros(len(demos), dtype=torch.long) if labels is None else torch.as_tensor(labels).cpu()
+    if lab.shape != (len(demos),) or lab.is_floating_point() or lab.dtype == torch.bool:
+        raise ValueError(f"labels must be ({len(demos)},) integers, got {labels!r}")
     w = promp.weights(demos).to(dtype).cpu()  # (n, N)
     demo_envs = demo_envs.cpu()
     ds = TrajectoryDataset(promp, demo_envs.shape[1], task_name=task_name, dtype=dtype)
-    for idx in group_by_env(demo_envs):
+    keyed = demo_envs if labels is None else torch.cat([demo_envs.to(dtype), lab[:, None].to(dtype)], 1)
+    for idx in group_by_env(keyed):
         if idx.numel() < 2:
             raise ValueError(
-                f"environment {demo_envs[idx[0]].tolist()} has 1 demonstration; a weight variance needs >= 2"
+                f"environment {demo_envs[idx[0]].tolist()} (label {int(lab[idx[0]])}) has 1 demonstration; "
+                "a weight variance needs >= 2"
             )
         wg = w[idx]  # (n_g, N)
         var = (wg - wg.mean(0)).pow(2).mean(0).clamp_min(var_floor)  # (N,)
-        ds.append(demo_envs[idx[0]].to(dtype), wg.mean(0), var, origin="demonstration", converged=True)
+        ds.append(demo_envs[idx[0]].to(dtype), wg.mean(0), var, label=int(lab[idx[0]]), origin="demonstration",
+                  converged=True)
     return ds
 
 
@@ -165,6 +180,9 @@ def self_improve(
     add_only: str = "success",
     choice: str = "random",
     solved: Callable[[Tensor, Tensor], Tensor] | None = None,
+    labeler: Callable[[Tensor, Tensor], Tensor] | None = None,
+    each_label: bool = False,
+    sample_steps: int | None = None,
     seed: int = 0,
     eval_envs: Tensor | None = None,
     min_var: float = 0.0,
@@ -200,6 +218,20 @@ def self_improve(
         solved: ``(traj (b, T, D), env (b, E)) -> (b,)`` bool, checked on every active problem's
             mean before the first and after every iteration; a solved problem stops there
             (converged). ``None``: run each problem until the optimiser's own rule stops it.
+        labeler: ``(traj (b, T, D), env (b, E)) -> (b,)`` integer label of a solution (module
+            docstring). With it, inference (the optimiser's start and ``eval_success``) predicts
+            every label's mean and takes the one with the lowest summed ``task.costs``.
+        each_label: with a labeller, optimise every known label's prediction for each chosen
+            environment (``K b`` problems in one batched optimiser) and add every accepted
+            solution (one per environment and final label: two problems that ended in the same
+            class keep the cheaper), so each class is learned everywhere, not only where it is
+            the better one.
+            The metrics rows then count problems in ``added``, ``converged`` and the iterations,
+            and environments in ``initial_success`` / ``success`` (the lowest-cost class's mean,
+            as the label-aware inference would choose it).
+        sample_steps: evaluate the optimiser's sampled trajectories at this many evenly spaced
+            phases instead of the ProMP's ``T`` (a task whose costs use fewer steps than ``T``
+            pays for those only); the final solutions are always checked on all ``T`` steps.
         seed: fixes the pool of environments and every step's optimiser seed.
         eval_envs: ``(Q, E)`` held-out environments; after every step the map's mean
             trajectories on them are checked with ``task.success`` (``eval_success``).
@@ -223,6 +255,11 @@ def self_improve(
     for name, v in (("min_var", min_var), ("var_floor", var_floor)):
         if not float(v) >= 0:
             raise ValueError(f"{name} must be >= 0, got {v}")
+    if each_label and labeler is None:
+        raise ValueError("each_label=True needs a labeler")
+    if sample_steps is not None and (isinstance(sample_steps, bool) or int(sample_steps) != sample_steps
+                                     or int(sample_steps) < 2):
+        raise ValueError(f"sample_steps must be None or an int >= 2, got {sample_steps!r}")
     if "seed" in optimizer_kwargs:
         raise ValueError("optimizer_kwargs must not hold 'seed': the loop seeds every step from (seed, step)")
     if len(dataset) == 0:
@@ -233,9 +270,16 @@ def self_improve(
     dtype, device = dataset.dtype, promp.basis.device
     eval_dtype = eval_dtype or promp.basis.dtype
     promp_eval = copy.deepcopy(promp).to(eval_dtype)
+    promp_sample = promp_eval if sample_steps is None else type(promp)(
+        promp.num_dof, promp.num_basis, int(sample_steps), width=promp.width, ridge=promp.ridge, dtype=eval_dtype,
+        device=device)  # the same basis functions on a coarser time grid
     one_cost = getattr(task, "objective_cost", None)  # optional: one objective alone, (...)
     signature = {"num_envs": num_envs, "batch_size": batch_size, "seed": int(seed), "choice": choice,
                  "add_only": add_only, "optimizer": optimizer.__name__}
+    if labeler is not None:
+        signature["labels"] = True
+    if each_label:
+        signature["each_label"] = True
 
     # the pool of environments, fixed by the seed (drawn on the CPU)
     pool = task.sample_envs(num_envs, torch.Generator().manual_seed(int(seed)), dtype=dtype)  # (num_envs, E)
@@ -257,8 +301,8 @@ def self_improve(
         if not state or state.get("version") != LOOP_STATE_VERSION:
             raise ValueError(f"{ckpt} holds no loop state this protorch can resume from")
         if state["signature"] != signature:
-            diff = {k: (state["signature"].get(k), v) for k, v in signature.items()
-                    if state["signature"].get(k) != v}
+            diff = {k: (state["signature"].get(k), signature.get(k)) for k in {**state["signature"], **signature}
+                    if state["signature"].get(k) != signature.get(k)}
             raise ValueError(f"cannot resume {ckpt}: it was started with other settings, (saved, now): {diff}")
         dataset = loaded
         tried, rows = list(state["tried"]), list(state["rows"])
@@ -285,10 +329,23 @@ def self_improve(
     else:
         gp.fit(dataset.env, dataset.mean, dataset.var, dataset.label)
 
+    def score(mu_k: Tensor, env_k: Tensor) -> Tensor:  # (K b, N), (K b, E) -> (K b,) summed costs of the means
+        traj = promp_eval.trajectory(mu_k.to(dtype=eval_dtype, device=device))  # (K b, T, D)
+        return task.costs(traj, env_k.to(dtype=eval_dtype, device=device)).sum(-1)
+
+    def infer(env_q: Tensor, need_var: bool = True) -> tuple[Tensor, Tensor | None]:
+        """Eq. 7, 8 at ``env_q (b, E)``; with a labeller, the best label's prediction."""
+        if labeler is not None:
+            best = gp.predict_best(env_q, score, need_var=need_var)
+            return best.mean, best.var
+        if need_var:
+            return gp.predict(env_q)
+        return gp.predict_mean(env_q), None
+
     def eval_success() -> float | None:
         if eval_envs is None:
             return None
-        mu_q = gp.predict_mean(eval_envs).to(dtype=eval_dtype, device=device)  # (Q, N)
+        mu_q = infer(eval_envs, need_var=False)[0].to(dtype=eval_dtype, device=device)  # (Q, N)
         return round(float(task.success(promp_eval.trajectory(mu_q), eval_envs).double().mean()), 6)
 
     def elapsed() -> float:
@@ -328,13 +385,23 @@ def self_improve(
         else:
             pick = cand[:b]
         env = pool[pick]  # (b, E) CPU, the data set's dtype
-        env_e = env.to(dtype=eval_dtype, device=device)  # (b, E)
-        # ---- 2. infer their ProMPs with the GPs (Eq. 7, 8)
-        mu, var = gp.predict(env)  # (b, N), (b, N)
-        mu = mu.to(dtype=eval_dtype, device=device)
-        var = var.to(dtype=eval_dtype, device=device).clamp_min(min_var)
-        mean_traj = promp_eval.trajectory(mu)  # (b, T, D)
-        initial_success = task.success(mean_traj, env_e)  # (b,)
+        # ---- 2. infer their ProMPs with the GPs (Eq. 7, 8): one problem per environment, or with
+        # each_label one per (label, environment), label-major
+        if each_label:
+            labs = torch.unique(gp.labels).cpu()  # (K,)
+            k = labs.numel()
+            env = env.repeat(k, 1)  # (P, E), P = K b
+            mu, var = gp.predict(env, labels=labs.repeat_interleave(b).to(gp.labels.device))
+        else:
+            k = 1
+            mu, var = infer(env)  # (b, N), (b, N)
+        env_e = env.to(dtype=eval_dtype, device=device)  # (P, E)
+        mu = mu.to(dtype=eval_dtype, device=device)  # (P, N)
+        var = var.to(dtype=eval_dtype, device=device).clamp_min(min_var)  # (P, N)
+        mean_traj = promp_eval.trajectory(mu)  # (P, T, D)
+        initial_success = task.success(mean_traj, env_e)  # (P,)
+        if k > 1:  # per environment: the class the label-aware inference would start from
+            initial_success = _per_env(initial_success, task.costs(mean_traj, env_e).sum(-1), k)
         # ---- 3. improve them: one batched optimiser over the b problems
         opt = optimizer(mu, var, seed=_step_seed(seed, step), **optimizer_kwargs)
         if solved is not None:
@@ -345,7 +412,7 @@ def self_improve(
             active = opt.active  # (b,) only these are evaluated; the others' costs are never read
             o = getattr(opt, "asked_objective", None)
             if bool(active.any()):
-                traj = promp_eval.trajectory(w[active])  # (a, S, T, D)
+                traj = promp_sample.trajectory(w[active])  # (a, S, T, D)
                 if o is not None and one_cost is not None:  # the update reads objective o only
                     costs = w.new_zeros(*w.shape[:2], opt.num_objectives)  # (b, S, O)
                     costs[active, :, o] = one_cost(traj, env_e[active][:, None], o).to(w.dtype)
@@ -368,13 +435,19 @@ def self_improve(
         cost = task.costs(final_traj, env_e).sum(-1).to(device="cpu", dtype=dtype)  # (b,)
         # ---- 4. add the accepted solutions to the data set and the map
         accept = {"converged": converged, "success": success, "all": torch.ones_like(success)}[add_only]
-        new_mean = res.mean.to(device="cpu", dtype=dtype)  # (b, N)
-        new_var = res.var.to(device="cpu", dtype=dtype).clamp_min(var_floor)  # (b, N) GP noise
+        new_mean = res.mean.to(device="cpu", dtype=dtype)  # (P, N)
+        new_var = res.var.to(device="cpu", dtype=dtype).clamp_min(var_floor)  # (P, N) GP noise
+        label = (torch.zeros(accept.shape[0], dtype=torch.long) if labeler is None
+                 else torch.as_tensor(labeler(final_traj, env_e)).to(device="cpu", dtype=torch.long))  # (P,)
+        if k > 1:  # two problems of one environment that ended in the same class: keep the cheaper
+            accept = _one_per_class(accept, label, cost, k)
         if bool(accept.any()):
-            dataset.append(env[accept], new_mean[accept], new_var[accept], origin="learned",
+            dataset.append(env[accept], new_mean[accept], new_var[accept], label=label[accept], origin="learned",
                            converged=converged[accept], cost=cost[accept])
-            gp.add(env[accept], new_mean[accept], new_var[accept])
+            gp.add(env[accept], new_mean[accept], new_var[accept], label[accept])
         tried.extend(pick.tolist())
+        if k > 1:
+            success = _per_env(success, cost, k)  # (b,) the lowest-cost class's solution
         successes += int(success.sum())
         iters = _iterations_per_problem(res, mu)
         rows.append({
@@ -401,6 +474,28 @@ def self_improve(
         checkpoint()
     return LoopResult(dataset=dataset, env_map=gp, metrics=rows, seconds=elapsed(), tried=tried, pool=pool,
                       resumed_from=resumed_from)
+
+
+def _one_per_class(accept: Tensor, label: Tensor, cost: Tensor, k: int) -> Tensor:
+    """``accept (K b,)`` of label-major problems, keeping at most one accepted solution per
+    environment and final label (the lowest-cost one; ``label``, ``cost (K b,)``)."""
+    b = accept.shape[0] // k
+    acc, lab, c = accept.reshape(k, b).clone(), label.reshape(k, b), cost.reshape(k, b)
+    for i in range(k):
+        for j in range(i + 1, k):
+            dup = acc[i] & acc[j] & (lab[i] == lab[j])  # (b,)
+            drop_j = dup & (c[j] >= c[i])
+            acc[j] &= ~drop_j
+            acc[i] &= ~(dup & ~drop_j)
+    return acc.reshape(-1)
+
+
+def _per_env(flag: Tensor, cost: Tensor, k: int) -> Tensor:
+    """``flag (K b,)`` of label-major problems -> ``(b,)``: the flag of each environment's
+    lowest-cost problem (``cost (K b,)``)."""
+    b = flag.shape[0] // k
+    best = cost.reshape(k, b).argmin(0).to(flag.device)  # (b,)
+    return flag.reshape(k, b)[best, torch.arange(b, device=flag.device)]
 
 
 def _iterations_per_problem(res, mean0: Tensor) -> Tensor:

@@ -33,6 +33,12 @@ TINY = {
         "optimizer.num_samples=20", "optimizer.pro.relevance_samples=20", "settings.test.num_envs=10",
         "settings.dynamic.episodes=3", "settings.progress=false",
     ],
+    "arm_reach": [
+        "settings.loop.num_envs=10", "settings.loop.batch_size=10", "optimizer.max_iter=3", "optimizer.num_samples=20",
+        "optimizer.pro.relevance_samples=20", "task.priors=20", "task.demo_envs=2", "settings.test.num_envs=6",
+        "settings.dynamic.episodes=2", "settings.dynamic.duration=1.0", "settings.dynamic.hold=0.2",
+        "settings.baselines=[labels_off]", "settings.progress=false",
+    ],
 }
 
 
@@ -104,9 +110,12 @@ def test_app_runs_from_a_built_wheel_outside_the_source_tree(tmp_path):
     work.mkdir()
     env = {**os.environ, "PYTHONPATH": str(site)}
     where = subprocess.run(
-        [sys.executable, "-c", "import protorch, protorch.__main__ as m; print(protorch.__file__); print(m.config_dir())"],
+        [sys.executable, "-c", "import protorch, protorch.__main__ as m; print(protorch.__file__); print(m.config_dir()); "
+         "from protorch.robots import PANDA_URDF; from protorch.kinematics import ArmKinematics; "
+         "assert ArmKinematics().num_joints == 7; print(PANDA_URDF)"],
         cwd=work, env=env, capture_output=True, text=True, check=True,
     ).stdout.split()
+    assert len(where) == 3 and where[2].endswith("panda.urdf")  # the URDF ships inside the wheel
     assert all(Path(p).is_relative_to(site) for p in where), where  # the wheel's copy, configs inside it
     run_cli(["experiment=fig3_toy", *TINY["fig3_toy"], "hydra.run.dir=out"], cwd=work, env=env)
     assert json.loads((work / "out" / "metrics.json").read_text())["experiment"] == "fig3_toy"

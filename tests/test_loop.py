@@ -154,6 +154,59 @@ def test_nearest_choice_takes_the_closest_untried_environment_first():
     assert random.tried == list(range(6))
 
 
+def test_demonstrations_with_labels_form_one_entry_per_environment_and_label():
+    task, promp, _ = setup()
+    envs = torch.tensor([[0.6, 0.7]] * 4 + [[0.9, 0.8]] * 2, dtype=F64)
+    demos = [torch.rand(12, 2, dtype=F64) for _ in range(6)]
+    ds = demonstration_dataset(promp, demos, envs, labels=torch.tensor([0, 1, 0, 1, 1, 1]))
+    assert ds.label.tolist() == [0, 1, 1] and torch.equal(ds.env[0], ds.env[1])
+    torch.testing.assert_close(ds.mean[0], promp.weights(demos)[[0, 2]].mean(0))  # never across labels
+    with pytest.raises(ValueError, match="label 1.*1 demonstration"):
+        demonstration_dataset(promp, demos[:3], envs[:3], labels=torch.tensor([0, 1, 0]))
+    with pytest.raises(ValueError, match="labels must be"):
+        demonstration_dataset(promp, demos, envs, labels=torch.zeros(6))
+
+
+def test_labeler_stores_each_solution_with_its_class(tmp_path):
+    task, promp, ds = setup()
+
+    def labeler(traj, env):  # (b, T, 2), (b, 2): which side of the diagonal the path's middle lies
+        mid = traj[:, traj.shape[1] // 2]
+        return (mid[:, 1] > mid[:, 0]).long()
+
+    res = loop(task, promp, ds, num_envs=12, add_only="all", labeler=labeler, run_dir=tmp_path,
+               eval_envs=task.sample_envs(6))
+    new = learned(res.dataset)
+    assert int(new.sum()) == 12
+    want = labeler(promp.trajectory(res.dataset.mean[new]), res.dataset.env[new])
+    assert torch.equal(res.dataset.label[new], want)
+    assert torch.equal(res.env_map.labels, res.dataset.label)  # the map keeps the classes apart
+    assert all(r["eval_success"] is not None for r in res.metrics)  # label-aware held-out check
+    # a checkpoint written with labels cannot be resumed without them (and the reverse)
+    with pytest.raises(ValueError, match="labels"):
+        loop(task, promp, setup()[2], num_envs=12, add_only="all", run_dir=tmp_path, resume=True)
+
+
+def test_each_label_optimises_every_class_and_keeps_one_solution_per_class(tmp_path):
+    task, promp, ds = setup()
+
+    def labeler(traj, env):
+        mid = traj[:, traj.shape[1] // 2]
+        return (mid[:, 1] > mid[:, 0]).long()
+
+    ds.label[:] = torch.tensor([0, 1, 0, 1])  # both classes known from the start
+    res = loop(task, promp, ds, num_envs=8, add_only="all", labeler=labeler, each_label=True, sample_steps=7)
+    new = learned(res.dataset)
+    # two problems per environment, at most one stored solution per (environment, final class)
+    pairs = {(tuple(e.tolist()), int(l)) for e, l in zip(res.dataset.env[new], res.dataset.label[new])}
+    assert len(pairs) == int(new.sum()) and 8 <= int(new.sum()) <= 16
+    assert all(r["converged"] <= 2 * r["batch"] and r["success"] <= r["batch"] for r in res.metrics[1:])
+    with pytest.raises(ValueError, match="needs a labeler"):
+        loop(task, promp, setup()[2], each_label=True)
+    with pytest.raises(ValueError, match="sample_steps"):
+        loop(task, promp, setup()[2], sample_steps=1)
+
+
 def test_rwr_in_place_of_pro():
     task, promp, ds = setup()
     res = loop(task, promp, ds, optimizer=RWR, add_only="all")

@@ -15,7 +15,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
-from . import beam_window, fig3_toy, fig4_window, point_particle
+from . import arm_reach, beam_window, fig3_toy, fig4_window, point_particle
 from .common import metric_value, resolve_device, resolve_dtype, write_json
 
 EXPERIMENTS: dict[str, Callable[..., dict]] = {
@@ -23,6 +23,7 @@ EXPERIMENTS: dict[str, Callable[..., dict]] = {
     "fig4_window": fig4_window.run,
     "point_particle": point_particle.run,
     "beam_window": beam_window.run,
+    "arm_reach": arm_reach.run,
 }
 
 _DOTTED = re.compile(r"[A-Za-z_][\w-]*(\.[\w-]+)*")

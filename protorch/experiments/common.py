@@ -76,3 +76,70 @@ def optimizer_kwargs(common: dict, specific: dict | None) -> dict:
     out = {k: v for k, v in common.items() if not isinstance(v, dict)}
     out.update(specific or {})
     return out
+
+
+# ----------------------------------------------------------------------------- settings checks
+def check_keys(given: dict, allowed: set, where: str) -> None:
+    """Refuse setting names outside ``allowed`` (a typo must not pass silently)."""
+    extra = sorted(set(given) - set(allowed))
+    if extra:
+        raise ValueError(f"unknown {where} setting(s) {extra}; allowed: {sorted(allowed)}")
+
+
+def check_int(v, name: str, lo: int) -> int:
+    if isinstance(v, bool) or int(v) != v or int(v) < lo:
+        raise ValueError(f"{name} must be an int >= {lo}, got {v!r}")
+    return int(v)
+
+
+def check_optimizer(optimizer: dict) -> None:
+    """``beta > 0``; ``max_iter >= 1`` and ``num_samples >= 2`` where given."""
+    if "beta" not in optimizer or not float(optimizer["beta"]) > 0:
+        raise ValueError(f"optimizer.beta must be > 0, got {optimizer.get('beta')}")
+    for k, lo in (("max_iter", 1), ("num_samples", 2)):
+        if k in optimizer:
+            check_int(optimizer[k], f"optimizer.{k}", lo)
+
+
+def gp_settings(gp_cfg: dict, *, alpha: float, var_floor: float, nearest_k: int | None) -> tuple[str, float, float, dict]:
+    """``(backend, alpha, var_floor, map options)`` of an experiment's ``gp`` group, with defaults."""
+    a = float(gp_cfg.get("alpha", alpha))
+    if not a > 0:
+        raise ValueError(f"gp.alpha must be > 0, got {gp_cfg.get('alpha')}")
+    vf = float(gp_cfg.get("var_floor", var_floor))
+    if not vf >= 0:
+        raise ValueError(f"gp.var_floor must be >= 0, got {vf}")
+    k = gp_cfg.get("nearest_k", nearest_k)
+    return gp_cfg.get("backend", "torch"), a, vf, ({} if k is None else {"nearest_k": k})
+
+
+def loop_settings(loop_cfg: dict, *, num_envs: int) -> dict:
+    """The :func:`~protorch.loop.self_improve` options of an experiment's ``loop`` group,
+    validated, with the defaults (``num_envs`` the experiment's)."""
+    from ..loop import ADD_ONLY, CHOICES
+
+    out = dict(
+        num_envs=check_int(loop_cfg.get("num_envs", num_envs), "loop.num_envs", 0),
+        batch_size=check_int(loop_cfg.get("batch_size", 100), "loop.batch_size", 1),
+        checkpoint_every=check_int(loop_cfg.get("checkpoint_every", 1), "loop.checkpoint_every", 1),
+        add_only=loop_cfg.get("add_only", "success"),
+        choice=loop_cfg.get("choice", "random"),
+        eval_dtype=resolve_dtype(loop_cfg.get("eval_dtype", "float32")),
+        min_var=float(loop_cfg.get("min_var", 0.0)),
+    )
+    if out["add_only"] not in ADD_ONLY:
+        raise ValueError(f"loop.add_only must be one of {list(ADD_ONLY)}, got {out['add_only']!r}")
+    if out["choice"] not in CHOICES:
+        raise ValueError(f"loop.choice must be one of {list(CHOICES)}, got {out['choice']!r}")
+    if not out["min_var"] >= 0:
+        raise ValueError(f"loop.min_var must be >= 0, got {out['min_var']}")
+    return out
+
+
+def test_settings(test_cfg: dict, *, seed: int, training_seeds: tuple[int, ...], default_seed: int) -> tuple[int, int]:
+    """``(number of held-out environments, their seed)``; the seed must not be a training seed."""
+    n = check_int(test_cfg.get("num_envs", 200), "test.num_envs", 1)
+    test_seed = int(test_cfg.get("seed", default_seed))
+    if test_seed in training_seeds:
+        raise ValueError(f"test.seed ({test_seed}) must differ from the training seeds (seed={seed})")
+    return n, test_seed

@@ -24,11 +24,11 @@ from typing import Callable, Sequence
 import torch
 
 from ..io import EnvToProMP, checkpoint_path, load
-from ..loop import ADD_ONLY, CHOICES, LoopResult, demonstration_dataset, self_improve
+from ..loop import LoopResult, demonstration_dataset, self_improve
 from ..optim import PRO, RWR
 from ..promp import ProMP
 from ..tasks import PointParticleTask, load_human_demos
-from .common import optimizer_kwargs, resolve_dtype
+from .common import check_int, check_keys, check_optimizer, gp_settings, loop_settings, optimizer_kwargs, test_settings
 
 __all__ = ["run", "prepare", "Setup", "TEST_SEED", "DYNAMIC_SEED"]
 
@@ -41,18 +41,6 @@ _GP_KEYS = {"backend", "alpha", "var_floor", "nearest_k"}
 _LOOP_KEYS = {"num_envs", "batch_size", "add_only", "choice", "checkpoint_every", "eval_dtype", "min_var",
               "stop_when_solved"}
 _DYNAMIC_KEYS = {"episodes", "duration", "hold", "dt", "kp", "kd", "step_std", "start", "goal_tol"}
-
-
-def _unknown(given: dict, allowed: set, where: str) -> None:
-    extra = sorted(set(given) - allowed)
-    if extra:
-        raise ValueError(f"unknown {where} setting(s) {extra}; allowed: {sorted(allowed)}")
-
-
-def _int(v, name: str, lo: int) -> int:
-    if isinstance(v, bool) or int(v) != v or int(v) < lo:
-        raise ValueError(f"{name} must be an int >= {lo}, got {v!r}")
-    return int(v)
 
 
 @dataclass
@@ -112,50 +100,23 @@ def prepare(
     demonstrations and draw the test environments; see :func:`run` for the settings."""
     task_cfg, gp_cfg = dict(task or {}), dict(gp or {})
     loop_cfg, test_cfg, dyn_cfg = dict(loop or {}), dict(test or {}), dict(dynamic or {})
-    _unknown(task_cfg, _TASK_KEYS, "task")
-    _unknown(gp_cfg, _GP_KEYS, "gp")
-    _unknown(loop_cfg, _LOOP_KEYS, "loop")
-    _unknown(test_cfg, {"num_envs", "seed"}, "test")
-    _unknown(dyn_cfg, _DYNAMIC_KEYS, "dynamic")
-    if "beta" not in optimizer or not float(optimizer["beta"]) > 0:
-        raise ValueError(f"optimizer.beta must be > 0, got {optimizer.get('beta')}")
-    alpha = float(gp_cfg.get("alpha", 1e-3))
-    if not alpha > 0:
-        raise ValueError(f"gp.alpha must be > 0, got {gp_cfg.get('alpha')}")
-    var_floor = float(gp_cfg.get("var_floor", 1e-4))
-    if not var_floor >= 0:
-        raise ValueError(f"gp.var_floor must be >= 0, got {var_floor}")
-    backend = gp_cfg.get("backend", "torch")
-    map_options = {} if gp_cfg.get("nearest_k") is None else {"nearest_k": gp_cfg["nearest_k"]}
-    num_envs = _int(loop_cfg.get("num_envs", 1000), "loop.num_envs", 0)
-    batch_size = _int(loop_cfg.get("batch_size", 100), "loop.batch_size", 1)
-    checkpoint_every = _int(loop_cfg.get("checkpoint_every", 1), "loop.checkpoint_every", 1)
-    add_only = loop_cfg.get("add_only", "success")
-    choice = loop_cfg.get("choice", "random")
-    if add_only not in ADD_ONLY:
-        raise ValueError(f"loop.add_only must be one of {list(ADD_ONLY)}, got {add_only!r}")
-    if choice not in CHOICES:
-        raise ValueError(f"loop.choice must be one of {list(CHOICES)}, got {choice!r}")
-    eval_dtype = resolve_dtype(loop_cfg.get("eval_dtype", "float32"))
-    min_var = float(loop_cfg.get("min_var", 0.0))
-    if not min_var >= 0:
-        raise ValueError(f"loop.min_var must be >= 0, got {min_var}")
-    test_n = _int(test_cfg.get("num_envs", 200), "test.num_envs", 1)
-    test_seed = int(test_cfg.get("seed", TEST_SEED))
-    if test_seed in (int(seed), int(seed) + _DEMO_SEED_OFFSET):
-        raise ValueError(f"test.seed ({test_seed}) must differ from the training seeds (seed={seed})")
-    episodes = _int(dyn_cfg.pop("episodes", 100), "dynamic.episodes", 0)
-    for k, lo in (("max_iter", 1), ("num_samples", 2)):
-        if k in optimizer:
-            _int(optimizer[k], f"optimizer.{k}", lo)
+    for cfg, keys, where in ((task_cfg, _TASK_KEYS, "task"), (gp_cfg, _GP_KEYS, "gp"), (loop_cfg, _LOOP_KEYS, "loop"),
+                             (test_cfg, {"num_envs", "seed"}, "test"), (dyn_cfg, _DYNAMIC_KEYS, "dynamic")):
+        check_keys(cfg, keys, where)
+    check_optimizer(optimizer)
+    backend, alpha, var_floor, map_options = gp_settings(gp_cfg, alpha=1e-3, var_floor=1e-4, nearest_k=None)
+    lk = loop_settings(loop_cfg, num_envs=1000)
+    test_n, test_seed = test_settings(test_cfg, seed=seed, training_seeds=(int(seed), int(seed) + _DEMO_SEED_OFFSET),
+                                      default_seed=TEST_SEED)
+    episodes = check_int(dyn_cfg.pop("episodes", 100), "dynamic.episodes", 0)
     from ..gp import make_env_map
 
     make_env_map(backend, alpha, **map_options)  # refuses a bad backend or option now
     point = PointParticleTask(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in task_cfg.items()
                                  if k in ("objectives", "fixed_start", "infinite_wall")})
     source = str(task_cfg.get("demos", "synthetic"))
-    demo_envs_n = _int(task_cfg.get("demo_envs", 30), "task.demo_envs", 1)
-    per_env = _int(task_cfg.get("demos_per_env", 3), "task.demos_per_env", 2)
+    demo_envs_n = check_int(task_cfg.get("demo_envs", 30), "task.demo_envs", 1)
+    per_env = check_int(task_cfg.get("demos_per_env", 3), "task.demos_per_env", 2)
     if source == "synthetic":
         gen = torch.Generator().manual_seed(int(seed) + _DEMO_SEED_OFFSET)
         demos, demo_envs = point.demonstrations(demo_envs_n, per_env, gen)
@@ -177,10 +138,8 @@ def prepare(
     def solved(traj, env):  # the authors' acceptance margins, looser on the end points
         return point.success(traj, env, tol=0.05) & (point.clearance(traj, env) >= 0.1)
 
-    loop_kwargs = dict(num_envs=num_envs, batch_size=batch_size, add_only=add_only, choice=choice,
-                       solved=solved if loop_cfg.get("stop_when_solved", False) else None, seed=int(seed),
-                       min_var=min_var, var_floor=var_floor, eval_dtype=eval_dtype,
-                       checkpoint_every=checkpoint_every)
+    loop_kwargs = dict(**lk, solved=solved if loop_cfg.get("stop_when_solved", False) else None, seed=int(seed),
+                       var_floor=var_floor)
     test_envs = point.sample_envs(test_n, torch.Generator().manual_seed(test_seed), dtype=dtype).to(device)
     loop_kwargs["eval_envs"] = test_envs
     return Setup(

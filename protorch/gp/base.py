@@ -20,13 +20,14 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from pathlib import Path
+from typing import Callable, NamedTuple
 
 import torch
 from torch import Tensor, nn
 
 from .._checks import check_nonnegative, check_positive, check_tensor
 
-__all__ = ["EnvMap", "rbf", "sq_dist", "posdef_cholesky", "ENV_MAP_FORMAT", "ENV_MAP_SCHEMA"]
+__all__ = ["EnvMap", "BestPrediction", "rbf", "sq_dist", "posdef_cholesky", "ENV_MAP_FORMAT", "ENV_MAP_SCHEMA"]
 
 ENV_MAP_FORMAT = "protorch.env_map"
 ENV_MAP_SCHEMA = 1
@@ -90,6 +91,16 @@ def _as_labels(labels, m: int, device) -> Tensor:
     elif lab.dtype == torch.bool or lab.is_complex():
         raise ValueError(f"labels must be integers, got dtype {lab.dtype}")
     return lab.to(torch.long)
+
+
+class BestPrediction(NamedTuple):
+    """What :meth:`EnvMap.predict_best` returns for ``Q`` queries and ``K`` candidate labels."""
+
+    mean: Tensor  # (Q, N) the chosen label's mean
+    var: Tensor | None  # (Q, N) its variance (None with need_var=False)
+    label: Tensor  # (Q,) long, the chosen label
+    scores: Tensor  # (Q, K) every candidate's score (inf where the score was not finite)
+    candidates: Tensor  # (K,) long, the labels tried, in the order of the scores' columns
 
 
 class EnvMap(nn.Module, ABC):
@@ -273,6 +284,40 @@ class EnvMap(nn.Module, ABC):
 
     def forward(self, E: Tensor, labels=None) -> tuple[Tensor, Tensor]:
         return self.predict(E, labels)
+
+    def predict_best(self, E: Tensor, score: Callable[[Tensor, Tensor], Tensor], *, candidates=None,
+                     need_var: bool = True, approx_var: bool = False) -> BestPrediction:
+        """Predict every candidate label's Gaussian at each query and keep, per query, the label
+        whose mean scores lowest: the label-aware inference for multimodal data (each label a
+        homotopy class, say; their means are compared, never averaged).
+
+        Args:
+            E: ``(Q, d)`` queries.
+            score: ``(mu (K Q, N), E (K Q, d)) -> (K Q,)``, lower is better (e.g. the task's
+                summed objectives of the mean trajectory); called once, on all ``K`` labels'
+                means stacked label-major. A non-finite score counts as ``inf``.
+            candidates: the labels to try (default: every label in the data).
+        """
+        if candidates is None:
+            if self._m == 0:
+                raise RuntimeError("the environment map has no data: call fit() first")
+            cand = torch.unique(self.labels)  # (K,)
+        else:
+            cand = torch.as_tensor(candidates, device=self.device).reshape(-1)
+            cand = torch.unique(_as_labels(cand, cand.numel(), self.device))  # (K,)
+            if cand.numel() == 0:
+                raise ValueError("candidates is empty: give at least one label")
+        E = check_tensor(E, "E", ndim=2)
+        q, k = E.shape[0], cand.numel()
+        e_rep = E.repeat(k, 1)  # (K Q, d) label-major
+        mu, var = self._predict(e_rep, cand.repeat_interleave(q), need_var=need_var, approx_var=approx_var)
+        s = torch.as_tensor(score(mu, e_rep))
+        if tuple(s.shape) != (k * q,):
+            raise ValueError(f"score must return ({k * q},) values for {k} labels x {q} queries, got {tuple(s.shape)}")
+        s = torch.where(torch.isfinite(s), s, torch.full_like(s, float("inf"))).reshape(k, q).T  # (Q, K)
+        best = s.argmin(-1).to(self.device)  # (Q,)
+        rows = best * q + torch.arange(q, device=self.device)  # (Q,)
+        return BestPrediction(mu[rows], None if var is None else var[rows], cand[best], s, cand)
 
     def _predict(self, E, labels, *, need_var: bool, approx_var: bool):
         E, lab = self._validate_query(E, labels)

@@ -1,5 +1,6 @@
 """Experiment tasks: small classes with their geometry, objectives and success checks."""
 
+from .arm_reach import ArmReachTask
 from .base import Task
 from .beam_window import BeamWindowTask, SimulatedOperator
 from .demos import load_human_demos
@@ -7,9 +8,12 @@ from .point_particle import PointParticleTask, signed_distance_to_wall, wall_col
 from .toy import LineToy
 from .window import WindowTask
 
-TASKS = {"line_toy": LineToy, "window": WindowTask, "point_particle": PointParticleTask, "beam_window": BeamWindowTask}
+TASKS = {
+    "line_toy": LineToy, "window": WindowTask, "point_particle": PointParticleTask, "beam_window": BeamWindowTask,
+    "arm_reach": ArmReachTask,
+}
 
 __all__ = [
     "Task", "LineToy", "WindowTask", "PointParticleTask", "load_human_demos",
-    "signed_distance_to_wall", "wall_collision", "TASKS", "BeamWindowTask", "SimulatedOperator",
+    "signed_distance_to_wall", "wall_collision", "TASKS", "BeamWindowTask", "SimulatedOperator", "ArmReachTask",
 ]

@@ -1,0 +1,96 @@
+"""Arm experiment speed, side by side in one run (on demand: ``python benchmarks/arm.py``).
+
+1. Forward kinematics throughput (configurations per second) of the Panda for 10^4 and 10^5
+   random configurations: all link frames through ``pytorch_kinematics`` (``ArmKinematics.frames``)
+   and the compiled end-effector path (``ArmKinematics.ee_position``, what the costs use), in
+   float64 and float32, on the CPU and, where ``torch.cuda.is_available()``, on CUDA.
+2. The self-improvement loop with the experiment's settings (``conf/experiment/arm_reach.yaml``:
+   labels, both classes per environment, PRO <= 50 x 100, beta = 200) on ``--envs`` environments
+   (default 200), its time per environment and the extrapolation to the paper's 2024; on CUDA too
+   where available.
+
+``--threads`` sets torch's intra-op threads (default 1, the experiment's setting).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import torch
+from omegaconf import OmegaConf
+
+from protorch.experiments.arm_reach import prepare
+from protorch.kinematics import ArmKinematics
+
+CONF = Path(__file__).resolve().parents[1] / "conf" / "experiment" / "arm_reach.yaml"
+
+
+def _sync(device: str) -> None:
+    if device == "cuda":
+        torch.cuda.synchronize()
+
+
+def _rate(fn, q, device: str, repeats: int = 3) -> float:
+    fn(q[:100])  # warm-up
+    _sync(device)
+    best = float("inf")
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn(q)
+        _sync(device)
+        best = min(best, time.perf_counter() - t)
+    return q.shape[0] / best
+
+
+def fk_table(devices: list[str]) -> None:
+    print("forward kinematics, configurations per second (best of 3)")
+    cols = [f"{d} {dt}" for d in devices for dt in ("float64", "float32")]
+    print(f"{'':<46}" + "".join(f"{c:>17}" for c in cols))
+    gen = torch.Generator().manual_seed(0)
+    for n in (10**4, 10**5):
+        q0 = torch.rand(n, 7, generator=gen, dtype=torch.float64) * 2 - 1
+        for name, method in (("all 11 frames (pytorch_kinematics)", "frames"), ("end effector (compiled)", "ee_position")):
+            row = []
+            for d in devices:
+                for dt in (torch.float64, torch.float32):
+                    kin = ArmKinematics(dtype=dt, device=d)
+                    row.append(_rate(getattr(kin, method), q0.to(device=d, dtype=dt), d))
+            label = f"{name}, n = {n:.0e}"
+            print(f"{label:<46}" + "".join(f"{r:>17.3g}" for r in row))
+
+
+def loop_table(devices: list[str], envs: int) -> None:
+    cfg = OmegaConf.to_container(OmegaConf.load(CONF), resolve=True)
+    st = cfg["settings"]
+    print(f"\nself-improvement loop, {envs} environments, PRO <= {cfg['optimizer']['max_iter']} x "
+          f"{cfg['optimizer']['num_samples']}, B = {st['loop']['batch_size']}, labels on, both classes per environment")
+    print(f"{'device':<8}{'loop s':>10}{'s / env':>10}{'2024 envs (extrap.)':>22}{'tried success':>15}{'held-out success':>18}")
+    for d in devices:
+        setup = prepare(seed=0, device=d, optimizer=cfg["optimizer"], task=cfg["task"], gp=cfg["gp"],
+                        promp=st["promp"], loop={**st["loop"], "num_envs": envs}, test=st["test"],
+                        dynamic={"episodes": 0})
+        res = setup.run_loop()
+        per = res.seconds / max(len(res.tried), 1)
+        print(f"{d:<8}{res.seconds:>10.1f}{per:>10.3f}{2024 * per:>20.0f} s{res.success_rate:>15.3f}"
+              f"{res.metrics[-1]['eval_success']:>18.3f}")
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--envs", type=int, default=200, help="environments for the loop timing (default 200)")
+    p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
+    p.add_argument("--skip-loop", action="store_true", help="only the forward-kinematics table")
+    args = p.parse_args()
+    torch.set_num_threads(args.threads)
+    devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} thread(s), devices: {devices}"
+          + ("" if "cuda" in devices else " (no CUDA here: the CUDA columns are skipped)"))
+    fk_table(devices)
+    if not args.skip_loop:
+        loop_table(devices, args.envs)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,479 @@
+"""The robot experiment of the paper's Sec. IV-C: a 7-DoF arm reaches a target on a table while
+avoiding a can, the ProMP in joint space, the objectives on the end-effector path.
+
+Geometry (metres, the robot's base frame: the table top is ``z = 0``, the arm faces ``+x``):
+
+* the arm: the Franka Emika Panda shipped with protorch (:data:`protorch.robots.PANDA_URDF`),
+  end effector the hand's tool centre point; fixed start configuration :data:`START_Q`, whose
+  end effector ``s`` is 10 cm above the table at ``(0.40, 0.00)``, hand pointing down;
+* the can: a vertical cylinder of Pringles size (radius 3.75 cm, height 23 cm) standing on the
+  table at ``(can_x, can_y)``;
+* the target: the point ``(goal_x, goal_y)`` at the start's height above the table;
+* environment ``e = (can_x, can_y, goal_x, goal_y)``, sampled uniformly over the rectangles
+  ``can in [0.50, 0.62] x [-0.12, 0.12]`` and ``goal in [0.66, 0.74] x [-0.24, 0.24]`` (can and
+  target at least 12 cm from each other and from the start); anything off the table
+  ``[0.2, 0.9] x [-0.5, 0.5]`` is refused.
+
+Objectives (the paper's, on the end-effector path ``p(t)`` of a joint trajectory ``(..., T, 7)``,
+evaluated on ``cost_steps`` evenly spaced steps; ``d`` is the mean distance of ``p(t)`` to the
+straight segment from ``s`` to the target ``g``)::
+
+    start  ||p(0) - s|| + d
+    can    max(-min_t ||p_xy(t) - can||, -0.2) + 0.2 + d      (shifted by 0.2 to be >= 0)
+    goal   ||p(T) - g|| + d
+
+Success (:meth:`ArmReachTask.success`, every step of the trajectory): the end effector starts within
+2 cm of ``s`` and ends within 2 cm of ``g``; no segment of the arm's skeleton (the segments
+between consecutive frame origins, base to tool centre point) comes closer to the can's axis
+segment than its radius plus ``margin`` (2 cm); every joint stays inside its limits; no frame
+goes below the table.
+
+Homotopy class (:meth:`ArmReachTask.side`): the signed angle the vector from the can's axis to
+the end effector sweeps along the path; negative (clockwise seen from above) is
+:data:`LEFT` (the path passes the can on its ``+y`` side for a motion along ``+x``), positive
+:data:`RIGHT`. Averaging a left and a right solution drives through the can; the experiment keeps
+the two classes apart in the GP map.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor
+
+from .._checks import check_tensor
+from ..kinematics import ArmKinematics
+from ..robots import PANDA_END_LINK
+from .base import Task
+from .curves import catmull_rom, smooth_noise
+
+__all__ = ["ArmReachTask", "START_Q", "LEFT", "RIGHT", "SIDES", "segment_axis_distance", "down_rotation"]
+
+# the start configuration: hand pointing down, tool centre point 10 cm above the table at (0.40, 0)
+START_Q = (0.0, 0.0654, 0.0, -2.7266, 0.0, 2.7921, 0.7854)
+LEFT, RIGHT = 0, 1
+SIDES = {LEFT: "left", RIGHT: "right"}
+
+
+def down_rotation(dtype=torch.float64, device=None) -> Tensor:
+    """The hand's orientation at the start: tool ``z`` down, tool ``x`` along ``+x``: ``(3, 3)``."""
+    return torch.tensor([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]], dtype=dtype, device=device)
+
+
+def segment_axis_distance(a: Tensor, b: Tensor, axis_xy: Tensor, z0: float, z1: float) -> Tensor:
+    """Exact distance between the segments ``a -> b`` (``(..., 3)``) and the vertical axis segment
+    ``{(axis_x, axis_y, z): z0 <= z <= z1}`` (``axis_xy (..., 2)``): ``(...)``.
+
+    Along the segment ``p(u) = a + u (b - a)`` the squared distance is
+    ``h(u)^2 + v(u)^2`` with ``h`` the horizontal distance and ``v = max(0, z(u) - z1, z0 - z(u))``,
+    a convex piecewise quadratic; its minimum over ``[0, 1]`` is at an end, a breakpoint
+    (``z(u) = z0`` or ``z1``) or a stationary point of a piece, so evaluating it at those seven
+    candidates is exact.
+    """
+    shape = torch.broadcast_shapes(a.shape[:-1], b.shape[:-1], axis_xy.shape[:-1])
+    a, b = a.expand(*shape, 3), b.expand(*shape, 3)
+    P = a[..., :2] - axis_xy  # (..., 2)
+    Q = b[..., :2] - a[..., :2]  # (..., 2)
+    za, dz = a[..., 2], b[..., 2] - a[..., 2]  # (...)
+    pq, qq = (P * Q).sum(-1), (Q * Q).sum(-1)  # (...)
+    tiny = torch.finfo(a.dtype).tiny
+
+    def ratio(num, den):
+        return torch.where(den > tiny, num / den.clamp_min(tiny), torch.zeros_like(num))
+
+    cands = [
+        torch.zeros_like(za), torch.ones_like(za), ratio(-pq, qq),
+        ratio(-(pq + dz * (za - z1)), qq + dz * dz), ratio(-(pq + dz * (za - z0)), qq + dz * dz),
+        ratio(z0 - za, dz), ratio(z1 - za, dz),
+    ]
+    u = torch.stack(cands, -1).clamp(0.0, 1.0)  # (..., 7)
+    h = P[..., None, :] + u[..., None] * Q[..., None, :]  # (..., 7, 2)
+    z = za[..., None] + u * dz[..., None]  # (..., 7)
+    v = torch.clamp(torch.maximum(z - z1, z0 - z), min=0.0)  # (..., 7)
+    return (h.square().sum(-1) + v.square()).amin(-1).sqrt()  # (...)
+
+
+def _point_segment_distance(p: Tensor, s: Tensor, g: Tensor) -> Tensor:
+    """Distance of points ``p (..., T, 3)`` to the segments ``s -> g`` (``(..., 3)``): ``(..., T)``."""
+    d = (g - s)[..., None, :]  # (..., 1, 3)
+    u = ((p - s[..., None, :]) * d).sum(-1) / d.square().sum(-1).clamp_min(1e-12)  # (..., T)
+    return (p - s[..., None, :] - u.clamp(0, 1)[..., None] * d).norm(dim=-1)
+
+
+def _box(name: str, box) -> tuple[tuple[float, float], tuple[float, float]]:
+    try:
+        (x0, x1), (y0, y1) = box
+        x0, x1, y0, y1 = float(x0), float(x1), float(y0), float(y1)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be ((x_min, x_max), (y_min, y_max)), got {box!r}") from None
+    if not (x0 < x1 and y0 < y1) or not all(map(math.isfinite, (x0, x1, y0, y1))):
+        raise ValueError(f"{name} must have x_min < x_max and y_min < y_max, got {box!r}")
+    return (x0, x1), (y0, y1)
+
+
+@dataclass
+class ArmReachTask(Task):
+    """The arm-reaching task (module docstring). Every method is batched: joint trajectories
+    ``(..., T, 7)`` and environments ``(..., 4)`` broadcast over their leading dimensions (for
+    samples ``(B, S, T, 7)`` of ``B`` environments ``(B, 4)`` pass ``env[:, None]``).
+
+    Args:
+        can_radius, can_height: the can (a Pringles can: 3.75 cm, 23 cm).
+        margin: extra clearance of the arm's skeleton to the can's surface for success.
+        clearance: the ``0.2`` of the paper's can objective ``max(-min_t ||p - can||, -0.2)``.
+        goal_tol, start_tol: success radii of the end effector at the end and at the start.
+        cost_steps: time steps the objectives are evaluated on (evenly spaced, first and last
+            included; ``None``: all). Success always uses every step.
+        can_box, goal_box: the sampler's rectangles; ``table``: the table top, outside which an
+            environment is refused; ``min_separation``: between can, target and start.
+        start_q: the fixed start configuration (7 joint angles).
+        urdf, end_link: the arm (default the Panda shipped with protorch).
+    """
+
+    can_radius: float = 0.0375
+    can_height: float = 0.23
+    margin: float = 0.02
+    clearance: float = 0.2
+    goal_tol: float = 0.02
+    start_tol: float = 0.02
+    cost_steps: int | None = 25
+    can_box: tuple = ((0.50, 0.62), (-0.12, 0.12))
+    goal_box: tuple = ((0.66, 0.74), (-0.24, 0.24))
+    table: tuple = ((0.2, 0.9), (-0.5, 0.5))
+    min_separation: float = 0.12
+    start_q: tuple = START_Q
+    urdf: str | None = None
+    end_link: str = PANDA_END_LINK
+    name: str = "arm_reach"
+    objective_names: tuple[str, ...] = field(default=("start", "can", "goal"), init=False)
+    env_names: tuple[str, ...] = field(default=("can_x", "can_y", "goal_x", "goal_y"), init=False)
+
+    def __post_init__(self) -> None:
+        for name in ("can_radius", "can_height", "clearance", "goal_tol", "start_tol"):
+            v = float(getattr(self, name))
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be finite and > 0, got {getattr(self, name)!r}")
+        if not (math.isfinite(float(self.margin)) and float(self.margin) >= 0):
+            raise ValueError(f"margin must be >= 0, got {self.margin!r}")
+        if self.cost_steps is not None and (isinstance(self.cost_steps, bool) or int(self.cost_steps) < 2):
+            raise ValueError(f"cost_steps must be None or an int >= 2, got {self.cost_steps!r}")
+        self.can_box, self.goal_box = _box("can_box", self.can_box), _box("goal_box", self.goal_box)
+        self.table = _box("table", self.table)
+        for name, box in (("can_box", self.can_box), ("goal_box", self.goal_box)):
+            if not all(t[0] <= b[0] and b[1] <= t[1] for b, t in zip(box, self.table)):
+                raise ValueError(f"{name} {box} must lie on the table {self.table}")
+        self.kinematics = ArmKinematics(self.urdf, end_link=self.end_link)
+        q0 = torch.tensor(self.start_q, dtype=torch.float64)
+        if q0.shape != (self.kinematics.num_joints,):
+            raise ValueError(f"start_q must have {self.kinematics.num_joints} joint angles, got {len(self.start_q)}")
+        if not bool(self.kinematics.within_limits(q0)):
+            raise ValueError(f"start_q {self.start_q} is outside the joint limits")
+        self.start_q = tuple(float(v) for v in self.start_q)
+        self.start = tuple(self.kinematics.ee_position(q0).tolist())  # s, (3,)
+        if self.start[2] <= 0:
+            raise ValueError(f"start_q puts the end effector below the table (z = {self.start[2]:.3f})")
+
+    # ---------------------------------------------------------------- sizes
+    @property
+    def env_dim(self) -> int:
+        return 4
+
+    @property
+    def num_dof(self) -> int:
+        return self.kinematics.num_joints
+
+    @property
+    def ee_height(self) -> float:
+        """Height of the start and of the target point above the table."""
+        return self.start[2]
+
+    def to(self, device=None) -> "ArmReachTask":
+        """Move the kinematic chain (the task's only tensors) to ``device``; returns ``self``."""
+        self.kinematics.to(device=device)
+        return self
+
+    def start_config(self, dtype=torch.float64, device=None) -> Tensor:
+        """The start configuration ``(7,)``."""
+        return torch.tensor(self.start_q, dtype=dtype, device=device)
+
+    def start_position(self, dtype=torch.float64, device=None) -> Tensor:
+        """``s``, the end effector at the start configuration: ``(3,)``."""
+        return torch.tensor(self.start, dtype=dtype, device=device)
+
+    def goal_point(self, env: Tensor) -> Tensor:
+        """The target ``g`` of environments ``(..., 4)``: ``(..., 3)``."""
+        return torch.cat([env[..., 2:4], torch.full_like(env[..., :1], self.ee_height)], -1)
+
+    # ---------------------------------------------------------- environments
+    def check_envs(self, env, name: str = "env") -> Tensor:
+        """``env (..., 4)`` as a floating tensor; refuses NaN, the wrong width and anything off
+        the table (naming the environment and the coordinate)."""
+        env = check_tensor(env, name, ndim_min=1)
+        if env.shape[-1] != 4:
+            raise ValueError(f"{name} must be (..., 4) = (can_x, can_y, goal_x, goal_y), got shape {tuple(env.shape)}")
+        if not env.is_floating_point():
+            env = env.to(torch.float64)
+        (x0, x1), (y0, y1) = self.table
+        lo = env.new_tensor([x0, y0, x0, y0])
+        hi = env.new_tensor([x1, y1, x1, y1])
+        off = (env < lo) | (env > hi)  # (..., 4)
+        if bool(off.any()):
+            idx = [int(i) for i in off.nonzero()[0]]
+            k = idx[-1]
+            raise ValueError(
+                f"{name}{list(idx[:-1])} has {self.env_names[k]} = {float(env[tuple(idx)]):.4g}, off the table "
+                f"x in [{x0}, {x1}], y in [{y0}, {y1}]"
+            )
+        return env
+
+    def sample_envs(self, n: int, generator: torch.Generator | None = None, *, dtype: torch.dtype = torch.float64,
+                    device=None) -> Tensor:
+        """``n`` environments ``(n, 4)``: can and target uniform in their rectangles, redrawn
+        until both are ``min_separation`` from each other and from the start. Drawn in float64
+        on the CPU (``generator`` a CPU generator), then moved."""
+        if isinstance(n, bool) or int(n) != n or int(n) < 0:
+            raise ValueError(f"n must be an int >= 0, got {n!r}")
+        n = int(n)
+        out = torch.empty(0, 4, dtype=torch.float64)
+        lo = torch.tensor([self.can_box[0][0], self.can_box[1][0], self.goal_box[0][0], self.goal_box[1][0]],
+                          dtype=torch.float64)
+        hi = torch.tensor([self.can_box[0][1], self.can_box[1][1], self.goal_box[0][1], self.goal_box[1][1]],
+                          dtype=torch.float64)
+        for _ in range(1000):
+            if out.shape[0] >= n:
+                break
+            e = lo + (hi - lo) * torch.rand(max(2 * (n - out.shape[0]), 16), 4, generator=generator,
+                                            dtype=torch.float64)
+            out = torch.cat([out, e[self.valid_envs(e)]])
+        else:
+            raise RuntimeError("the sampler's rectangles leave (almost) no room for min_separation")
+        return out[:n].to(dtype=dtype, device=device)
+
+    def valid_envs(self, env: Tensor) -> Tensor:
+        """Whether can, target and start are ``min_separation`` apart: ``(...)`` bool."""
+        s = env.new_tensor(self.start[:2])
+        sep = self.min_separation
+        return (((env[..., :2] - env[..., 2:]).norm(dim=-1) >= sep) & ((env[..., :2] - s).norm(dim=-1) >= sep)
+                & ((env[..., 2:] - s).norm(dim=-1) >= sep))
+
+    def prior_grid(self, n: int = 2004) -> Tensor:
+        """``n`` environments on a regular grid over the sampler's rectangles ``(n, 4)``: the
+        smallest ``k^4`` grid with at least ``n`` valid nodes, of which ``n`` evenly spaced ones
+        (lexicographic order) are kept."""
+        if isinstance(n, bool) or int(n) != n or int(n) < 1:
+            raise ValueError(f"n must be an int >= 1, got {n!r}")
+        for k in range(2, 64):
+            axes = [torch.linspace(*b, k, dtype=torch.float64) for b in (*self.can_box, *self.goal_box)]
+            grid = torch.cartesian_prod(*axes)  # (k^4, 4)
+            grid = grid[self.valid_envs(grid)]
+            if grid.shape[0] >= n:
+                idx = torch.linspace(0, grid.shape[0] - 1, int(n), dtype=torch.float64).round().long()
+                return grid[idx]
+        raise RuntimeError(f"no grid up to 63^4 has {n} valid environments")
+
+    # ---------------------------------------------------------------- inputs
+    def _prepare(self, traj, env, *, finite: bool = True) -> tuple[Tensor, Tensor]:
+        """Check ``traj (..., T, J)`` and ``env (..., 4)``; broadcast their leading dims.
+        ``finite=False`` skips the pass over ``traj`` for NaN (the caller checks its result)."""
+        if finite or not isinstance(traj, Tensor):
+            traj = check_tensor(traj, "traj", ndim_min=2)
+        elif traj.ndim < 2:
+            raise ValueError(f"traj must have at least 2 dimensions, got shape {tuple(traj.shape)}")
+        if traj.shape[-1] != self.num_dof:
+            raise ValueError(
+                f"traj must be (..., T, {self.num_dof}) joint trajectories of the {self.num_dof}-joint arm, "
+                f"got shape {tuple(traj.shape)}"
+            )
+        env = self.check_envs(env)
+        if traj.device != env.device:
+            raise ValueError(f"traj is on {traj.device} but env is on {env.device}")
+        dtype = torch.promote_types(traj.dtype, env.dtype)
+        if not dtype.is_floating_point:
+            dtype = torch.get_default_dtype()
+        try:
+            batch = torch.broadcast_shapes(traj.shape[:-2], env.shape[:-1])
+        except RuntimeError:
+            raise ValueError(f"leading dimensions of traj {tuple(traj.shape)} (..., T, J) and env "
+                             f"{tuple(env.shape)} (..., 4) do not broadcast") from None
+        return traj.to(dtype).expand(*batch, *traj.shape[-2:]), env.to(dtype).expand(*batch, 4)
+
+    def cost_indices(self, num_steps: int) -> Tensor:
+        """The time steps the objectives use: ``(T',)`` long."""
+        if self.cost_steps is None or self.cost_steps >= num_steps:
+            return torch.arange(num_steps)
+        return torch.linspace(0, num_steps - 1, int(self.cost_steps)).round().long().unique()
+
+    # ------------------------------------------------------------- geometry
+    def ee_path(self, traj: Tensor) -> Tensor:
+        """End-effector positions of ``traj (..., T, J)``: ``(..., T, 3)`` (compiled FK)."""
+        return self.kinematics.ee_position(traj)
+
+    def side(self, traj: Tensor, env: Tensor) -> Tensor:
+        """Homotopy class of the end-effector path around the can: :data:`LEFT` (0) or
+        :data:`RIGHT` (1), ``(...)`` long; every step is used (module docstring)."""
+        traj, env = self._prepare(traj, env)
+        return self.side_of_path(self.ee_path(traj), env)
+
+    def side_of_path(self, path: Tensor, env: Tensor) -> Tensor:
+        """:meth:`side` from end-effector paths ``(..., T, 3)`` (or ``(..., T, 2)``)."""
+        v = path[..., :2] - env[..., None, 0:2]  # (..., T, 2)
+        a, b = v[..., :-1, :], v[..., 1:, :]  # (..., T-1, 2)
+        cross = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+        dot = (a * b).sum(-1)
+        swept = torch.atan2(cross, dot).sum(-1)  # (...) signed angle around the can
+        return (swept > 0).long()
+
+    def can_distance(self, traj: Tensor, env: Tensor) -> Tensor:
+        """Smallest distance between the arm's skeleton and the can's axis segment over all
+        steps and segments: ``(...)`` (success needs ``> can_radius + margin``)."""
+        traj, env = self._prepare(traj, env)
+        links = self.kinematics.link_positions(traj)  # (..., T, F, 3)
+        return self.skeleton_distance(links, env)
+
+    def skeleton_distance(self, links: Tensor, env: Tensor) -> Tensor:
+        """Smallest distance between skeletons ``links (..., T, F, 3)`` (frame origins, e.g.
+        ``kinematics.link_positions``) and the can's axis segment of ``env (..., 4)``: ``(...)``."""
+        a, b = links[..., :-1, :], links[..., 1:, :]  # (..., T, F-1, 3)
+        axis = env[..., None, None, 0:2]  # (..., 1, 1, 2)
+        d = segment_axis_distance(a, b, axis, 0.0, self.can_height)  # (..., T, F-1)
+        return d.flatten(-2).amin(-1)
+
+    # ------------------------------------------------------------- objectives
+    def costs(self, traj: Tensor, env: Tensor) -> Tensor:
+        """``traj (..., T, 7)``, ``env (..., 4)`` -> ``(..., 3)`` costs, each >= 0 (module docstring)."""
+        traj, env = self._prepare(traj, env, finite=False)  # the hot path: NaN is caught on the costs
+        idx = self.cost_indices(traj.shape[-2]).to(traj.device)
+        if idx.numel() < traj.shape[-2]:
+            traj = traj.index_select(-2, idx)
+        c = self.path_costs(self.ee_path(traj), env)  # (..., 3)
+        if not bool(torch.isfinite(c).all()):
+            raise ValueError("traj contains NaN or inf values (its costs are not finite)")
+        return c
+
+    def path_costs(self, path: Tensor, env: Tensor, start: Tensor | None = None) -> Tensor:
+        """The objectives of end-effector paths ``(..., T, 3)``: ``(..., 3)``. ``start (..., 3)``
+        replaces ``s`` (the online test scores the rest of a motion from where the arm is)."""
+        s = self.start_position(path.dtype, path.device) if start is None else start  # (..., 3)
+        s = s.expand(*path.shape[:-2], 3)
+        g = self.goal_point(env)  # (..., 3)
+        d = _point_segment_distance(path, s, g).mean(-1)  # (...)
+        d_start = (path[..., 0, :] - s).norm(dim=-1)
+        d_goal = (path[..., -1, :] - g).norm(dim=-1)
+        near = (path[..., :2] - env[..., None, 0:2]).norm(dim=-1).amin(-1)  # (...)
+        can = self.clearance - near.clamp(max=self.clearance)
+        return torch.stack([d_start + d, can + d, d_goal + d], -1)
+
+    def success(self, traj: Tensor, env: Tensor) -> Tensor:
+        """Start and end within tolerance, no skeleton segment within ``can_radius + margin`` of
+        the can's axis, joint limits respected, nothing below the table; every step: ``(...)``."""
+        traj, env = self._prepare(traj, env)
+        links = self.kinematics.link_positions(traj)  # (..., T, F, 3)
+        ee = links[..., -1, :]  # (..., T, 3)
+        ok_start = (ee[..., 0, :] - self.start_position(ee.dtype, ee.device)).norm(dim=-1) <= self.start_tol
+        ok_goal = (ee[..., -1, :] - self.goal_point(env)).norm(dim=-1) <= self.goal_tol
+        clear = self.skeleton_distance(links, env) > self.can_radius + self.margin
+        limits = self.kinematics.within_limits(traj).all(-1)
+        table = (links[..., 1:, 2] >= 0).flatten(-2).all(-1)
+        return ok_start & ok_goal & clear & limits & table
+
+    # ---------------------------------------------------------------- demonstrations
+    def ik_path(self, path: Tensor, *, iters: int = 8, first_iters: int = 60) -> tuple[Tensor, Tensor]:
+        """Joint trajectories following end-effector paths ``(n, T, 3)`` with the hand pointing
+        down (the start configuration's orientation), from the start configuration: damped least squares at every step, warm-started
+        from the step before, with a null-space pull to the start posture. Returns
+        ``(q (n, T, 7), position error (n, T))``."""
+        path = check_tensor(path, "path", ndim=3)
+        kin = self.kinematics
+        dtype, device = kin.lower.dtype, kin.lower.device
+        path = path.to(dtype=dtype, device=device)
+        n, t_len = path.shape[:2]
+        rest = self.start_config(dtype, device)
+        rot = kin.ee_pose(rest)[:3, :3].expand(n, 3, 3)  # the hand keeps its start orientation (pointing down)
+        q = rest.expand(n, -1).clone()  # (n, J)
+        out = torch.empty(n, t_len, kin.num_joints, dtype=dtype, device=device)
+        err = torch.empty(n, t_len, dtype=dtype, device=device)
+        for t in range(t_len):
+            q, err[:, t] = kin.inverse(path[:, t], q, rotation=rot, rest=rest, iters=first_iters if t == 0 else iters)
+            out[:, t] = q
+        return out, err
+
+    def straight_paths(self, env: Tensor, num_steps: int = 100) -> Tensor:
+        """The straight end-effector path from ``s`` to the target of each environment, with a
+        minimum-jerk time profile: ``(n, num_steps, 3)``."""
+        env = self.check_envs(env).to(torch.float64)
+        u = torch.linspace(0, 1, int(num_steps), dtype=torch.float64)
+        prog = u**3 * (10 - 15 * u + 6 * u**2)  # (T,)
+        s = self.start_position()
+        g = self.goal_point(env.reshape(-1, 4))  # (n, 3)
+        return s + prog[None, :, None] * (g - s)[:, None, :]  # (n, T, 3)
+
+    def demonstrations(
+        self,
+        envs: Tensor | int,
+        per_env: int = 3,
+        generator: torch.Generator | None = None,
+        *,
+        sides: Tensor | None = None,
+        lengths: tuple[int, int] = (150, 250),
+        pass_distance: tuple[float, float] = (0.17, 0.27),
+        goal_noise: float = 0.01,
+        tremor: float = 0.008,
+    ) -> tuple[list[Tensor], Tensor, Tensor]:
+        """Imperfect, hand-guided-like demonstrations by inverse kinematics: ``per_env`` per
+        environment, all passing the can on the side ``sides[i]`` (default: alternating
+        :data:`LEFT`, :data:`RIGHT` over the environments).
+
+        Each end-effector path is a Catmull-Rom curve through ``s``, a point beside the can at a
+        random ``pass_distance`` from its axis (perpendicular to the start-target line), and the
+        target missed by ``goal_noise`` (std per horizontal coordinate); it rises a little in the
+        middle, gets a smooth hand tremor of std ``tremor``, a minimum-jerk speed profile with a
+        random skew and a random number of samples in ``lengths``; the joint trajectory follows
+        it by :meth:`ik_path`.
+
+        Returns ``(demos, demo_envs, labels)``: ``M * per_env`` joint trajectories ``(T_i, 7)``,
+        their environments ``(M * per_env, 4)`` and the homotopy class of each (measured on
+        the joint trajectory with :meth:`side`, not assumed).
+        """
+        if isinstance(envs, int):
+            envs = self.sample_envs(envs, generator)
+        envs = self.check_envs(check_tensor(envs, "envs", ndim=2)).to(torch.float64)
+        if int(per_env) < 1:
+            raise ValueError(f"per_env must be >= 1, got {per_env}")
+        m = envs.shape[0]
+        sides = torch.arange(m) % 2 if sides is None else torch.as_tensor(sides).long().reshape(-1)
+        if sides.shape[0] != m or not bool(((sides == LEFT) | (sides == RIGHT)).all()):
+            raise ValueError(f"sides must hold {m} entries of {LEFT} (left) or {RIGHT} (right)")
+        t_min, t_max = int(lengths[0]), int(lengths[1])
+        if not 2 <= t_min <= t_max:
+            raise ValueError(f"lengths must be (lo, hi) with 2 <= lo <= hi, got {lengths}")
+        g_, f64 = generator, torch.float64
+        e = envs.repeat_interleave(int(per_env), 0)  # (n, 4)
+        side = sides.repeat_interleave(int(per_env))  # (n,)
+        n = e.shape[0]
+        s = self.start_position()  # (3,)
+        goal = self.goal_point(e)  # (n, 3)
+        line = goal[:, :2] - s[:2]  # (n, 2)
+        line = line / line.norm(dim=-1, keepdim=True)
+        normal = torch.stack([-line[:, 1], line[:, 0]], -1)  # (n, 2) to the left of the line
+        sign = torch.where(side == LEFT, 1.0, -1.0).to(f64)[:, None]  # (n, 1)
+        dist = pass_distance[0] + (pass_distance[1] - pass_distance[0]) * torch.rand(n, 1, generator=g_, dtype=f64)
+        beside = e[:, :2] + sign * dist * normal  # (n, 2) beside the can, perpendicular to the line
+        lift = 0.03 * torch.rand(n, 1, generator=g_, dtype=f64)  # (n, 1)
+        h = self.ee_height
+        end = goal + torch.cat([goal_noise * torch.randn(n, 2, generator=g_, dtype=f64), torch.zeros(n, 1, dtype=f64)], -1)
+        via = torch.stack([s.expand(n, 3), torch.cat([beside, h + lift], -1), end], 1)  # (n, 3, 3)
+        length = torch.randint(t_min, t_max + 1, (n, 1), generator=g_)  # (n, 1)
+        skew = 0.8 + 0.45 * torch.rand(n, 1, generator=g_, dtype=f64)  # (n, 1)
+        u = (torch.arange(t_max, dtype=f64) / (length - 1)).clamp(max=1)  # (n, T_max)
+        v = u**skew
+        prog = v**3 * (10 - 15 * v + 6 * v**2)  # (n, T_max) minimum-jerk progress along the path
+        path = catmull_rom(via, prog)  # (n, T_max, 3)
+        wobble = smooth_noise(u, tremor, g_, dim=3) * torch.sin(torch.pi * prog)[..., None]  # (n, T_max, 3)
+        path = path + wobble
+        q, _ = self.ik_path(path)  # (n, T_max, 7)
+        q = q.to(torch.float64).cpu()
+        demos = [qi[:t].clone() for qi, t in zip(q, length[:, 0].tolist())]
+        labels = torch.stack([self.side(d, ei) for d, ei in zip(demos, e)])  # (n,)
+        return demos, e, labels

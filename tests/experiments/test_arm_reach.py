@@ -1,0 +1,104 @@
+"""The arm experiment (Sec. IV-C) end to end at a tiny budget: the paper's settings in the config,
+metrics, checkpoint with both classes, both labels-off baselines, resume, and bad settings."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+import protorch
+from protorch.__main__ import config_dir
+from protorch.experiments import run_experiment
+from protorch.experiments.arm_reach import prepare
+from protorch.io import checkpoint_path
+from protorch.tasks.arm_reach import LEFT, RIGHT
+
+TINY = [
+    "settings.loop.num_envs=10", "settings.loop.batch_size=5", "optimizer.max_iter=3", "optimizer.num_samples=20",
+    "optimizer.pro.relevance_samples=20", "task.priors=30", "task.demo_envs=2", "settings.test.num_envs=6",
+    "settings.dynamic.episodes=3", "settings.dynamic.duration=1.0", "settings.dynamic.hold=0.2",
+    "settings.progress=false", "plot=false",
+]
+
+
+def cfg(*overrides: str) -> dict:
+    with initialize_config_dir(config_dir=str(config_dir()), version_base=None):
+        c = compose(config_name="config", overrides=["experiment=arm_reach", *TINY, *overrides])
+    plain = OmegaConf.to_container(c, resolve=False)
+    plain.pop("hydra", None)
+    return plain
+
+
+def test_config_holds_the_papers_settings():
+    with initialize_config_dir(config_dir=str(config_dir()), version_base=None):
+        full = compose(config_name="config", overrides=["experiment=arm_reach"])
+    assert full.optimizer.beta == 200 and full.optimizer.max_iter == 50 and full.optimizer.num_samples == 100
+    assert full.settings.loop.num_envs == 2024 and full.task.priors == 2004
+    assert full.task.demo_envs == 20 and full.task.demos_per_env == 3
+    assert full.settings.test.num_envs == 200 and full.settings.dynamic.episodes == 100
+    assert list(full.settings.dynamic.moves) == [1, 2] and full.settings.loop.labels is True
+    assert full.gp.alpha > 0 and full.gp.nearest_k == 30
+
+
+def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
+    m = run_experiment(cfg(), tmp_path)
+    for path in (("test", "success_rate"), ("dynamic", "success_rate"), ("loop", "seconds"),
+                 ("baselines", "labels_off", "test", "success_rate"),
+                 ("baselines", "labels_off", "dynamic", "success_rate"),
+                 ("baselines", "labels_off_loop", "test", "success_rate"),
+                 ("baselines", "labels_off_loop", "dynamic", "success_rate")):
+        v = m
+        for k in path:
+            v = v[k]
+        assert isinstance(v, float) and 0.0 <= v <= 1.0, path
+    assert isinstance(m["dynamic"]["switches"], int) and m["dynamic"]["episodes"] == 3
+    assert m["baselines"]["labels_off"]["dynamic"]["switches"] == 0  # one class: nothing to switch to
+    assert m["test"]["num_envs"] == 6 and m["loop"]["envs_tried"] == 10
+    assert m["demos"]["count"] == 6 and m["demos"]["left"] > 0 and m["demos"]["right"] > 0
+    assert m["priors"]["count"] == 30 and m["priors"]["left"] + m["priors"]["right"] == 30
+    assert {"demonstrations", "priors", "loop", "evaluation", "labels_off", "labels_off_loop", "total"} <= set(
+        m["seconds"])
+    assert json.loads((tmp_path / "metrics.json").read_text())["test"] == m["test"]
+    model = protorch.load(tmp_path)  # the trained map, both classes kept apart
+    assert set(torch.unique(model.env_map.labels).tolist()) == {LEFT, RIGHT}
+    assert model.task_name == "arm_reach" and model.promp.num_dof == 7
+    off = protorch.load(tmp_path / "baselines" / "labels_off_loop")
+    assert torch.unique(off.env_map.labels).tolist() == [0]
+    # a finished run resumes at once, unchanged; without resume it is refused
+    again = run_experiment(cfg("resume=true"), tmp_path)
+    assert again["loop"]["resumed_from"] == again["loop"]["steps"] and again["test"] == m["test"]
+    with pytest.raises(FileExistsError, match="resume=true"):
+        run_experiment(cfg(), tmp_path)
+
+
+@pytest.mark.parametrize("override, match", [
+    ("+task.colour=red", "unknown task setting"),
+    ("task.margin=-0.1", "margin must be >= 0"),
+    ("gp.alpha=0", "gp.alpha must be > 0"),
+    ("settings.loop.labels=maybe", "loop.labels must be true or false"),
+    ("settings.threads=0", "threads must be"),
+    ("+settings.dynamic.speed=2", "unknown dynamic setting"),
+    ("settings.baselines=[labels_of]", "unknown baseline"),
+])
+def test_bad_settings_are_refused_before_any_work(tmp_path, override, match):
+    with pytest.raises((ValueError, TypeError), match=match):
+        run_experiment(cfg(override), tmp_path)
+    assert not checkpoint_path(tmp_path).exists()
+
+
+def test_prepare_builds_labelled_demonstrations_and_priors():
+    c = cfg()
+    s = c["settings"]
+    setup = prepare(optimizer=c["optimizer"], task=c["task"], gp=c["gp"], promp=s["promp"], loop=s["loop"],
+                    test=s["test"], dynamic={"episodes": 0})
+    data = setup.initial_data()
+    assert len(data) == 2 + 30 and data.label[:2].tolist() == [LEFT, RIGHT]  # one entry per env and side
+    assert torch.equal(data.label[2:], setup.prior_labels)
+    assert torch.equal(setup.initial_data(labels=False).label, torch.zeros(32, dtype=torch.long))
+    # the prior's straight path passes the can on the side its label says
+    traj = setup.promp.trajectory(setup.prior_mean)
+    assert torch.equal(setup.task.side(traj, setup.prior_envs), setup.prior_labels)

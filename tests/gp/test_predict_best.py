@@ -1,0 +1,52 @@
+"""Label-aware inference of the environment map (EnvMap.predict_best): every label's mean is
+predicted and scored, the lowest score wins per query, labels are never averaged."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from protorch.gp import make_env_map
+
+F64 = torch.float64
+
+
+@pytest.fixture(params=["torch", "gpytorch"])
+def two_class_map(request):
+    """Label 0 maps every environment to weights ~ +1, label 1 to ~ -1 (same environments)."""
+    e = torch.linspace(0, 1, 6, dtype=F64)[:, None]  # (6, 1)
+    mu = torch.cat([torch.ones(6, 3, dtype=F64), -torch.ones(6, 3, dtype=F64)])  # (12, 3)
+    gp = make_env_map(request.param, 5.0)
+    gp.fit(torch.cat([e, e]), mu, torch.full((12, 3), 1e-4, dtype=F64), torch.tensor([0] * 6 + [1] * 6))
+    return gp
+
+
+def test_the_lowest_score_wins_per_query(two_class_map):
+    q = torch.tensor([[0.1], [0.5], [0.9]], dtype=F64)
+
+    def score(mu, env):  # prefer +1 weights for env < 0.5, -1 weights above
+        want = torch.where(env[:, 0] < 0.5, 1.0, -1.0)[:, None]
+        return (mu - want).square().sum(-1)
+
+    best = two_class_map.predict_best(q, score)
+    assert best.label.tolist() == [0, 1, 1] and best.candidates.tolist() == [0, 1]
+    assert best.scores.shape == (3, 2) and best.var.shape == (3, 3)
+    for i, k in enumerate(best.label.tolist()):  # the chosen label's own prediction, never an average
+        mu_k, var_k = two_class_map.predict(q[i : i + 1], labels=k)
+        torch.testing.assert_close(best.mean[i], mu_k[0])
+        torch.testing.assert_close(best.var[i], var_k[0])
+        torch.testing.assert_close(best.scores[i, k], score(mu_k, q[i : i + 1])[0])
+    only = two_class_map.predict_best(q, score, candidates=[1], need_var=False)
+    assert only.label.tolist() == [1, 1, 1] and only.var is None
+
+
+def test_non_finite_scores_lose_and_bad_scores_are_refused(two_class_map):
+    q = torch.tensor([[0.2], [0.7]], dtype=F64)
+    best = two_class_map.predict_best(q, lambda mu, e: torch.where(mu[:, 0] > 0, float("nan"), 1.0))
+    assert best.label.tolist() == [1, 1] and bool(torch.isinf(best.scores[:, 0]).all())
+    with pytest.raises(ValueError, match=r"score must return \(4,\)"):
+        two_class_map.predict_best(q, lambda mu, e: mu.sum())
+    with pytest.raises(ValueError, match="no known environment has label"):
+        two_class_map.predict_best(q, lambda mu, e: mu.sum(-1), candidates=[0, 7])
+    with pytest.raises(ValueError, match="E must be"):
+        two_class_map.predict_best(torch.zeros(2, 3, dtype=F64), lambda mu, e: mu.sum(-1))

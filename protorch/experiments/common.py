@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -27,14 +28,29 @@ def resolve_device(name: str | torch.device) -> torch.device:
     return dev
 
 
+def _strict_json(x):
+    """``x`` with every non-finite float (NaN, inf: not JSON) replaced by ``None`` (``null``)."""
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _strict_json(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_strict_json(v) for v in x]
+    return x
+
+
 def write_json(path: Path, data: dict) -> None:
-    """Write ``data`` as JSON atomically (temp file in the same folder, then rename)."""
+    """Write ``data`` as standard JSON atomically (temp file in the same folder, then rename).
+
+    A metric that is undefined (a rate over zero episodes, say: NaN) is written as ``null``, so
+    every JSON reader (jq, JavaScript, pandas) can parse the file."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    text = json.dumps(_strict_json(data), indent=2, sort_keys=True, allow_nan=False)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
     try:
         with os.fdopen(fd, "w") as f:
-            json.dump(data, f, indent=2, sort_keys=True)
+            f.write(text)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)

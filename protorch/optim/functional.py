@@ -79,10 +79,12 @@ def pearson_relevance(w: Tensor, costs: Tensor, *, noise_floor: float | None = N
     if not dtype.is_floating_point:
         dtype = torch.get_default_dtype()
     w, costs = w.to(dtype), costs.to(dtype)
-    # rho is shift-invariant; shifting each weight by its first sample (exact for nearby values)
-    # makes a constant weight exactly 0 and judges "constant" against the samples' spread, not
-    # the mean's magnitude (in float32, probes of std 3e-3 around |mean| >= ~400 read as constant)
+    # rho is shift-invariant; shifting each weight and each objective by its first sample (exact
+    # for nearby values) makes a constant one exactly 0 and judges "constant" against the samples'
+    # spread, not the magnitude (in float32, probes of std 3e-3 around |mean| >= ~400, or costs of
+    # spread 3e-3 around 1000, would read as constant)
     w = w - w[..., :1, :]
+    costs = costs - costs[..., :1, :]
     wc = w - w.mean(-2, keepdim=True)  # (..., S, N)
     cc = costs - costs.mean(-2, keepdim=True)  # (..., S, O)
     sw = wc.pow(2).mean(-2).sqrt()  # (..., N)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from protorch import pearson_relevance, pro_update, stable_rewards
+from protorch import PRO, pearson_relevance, pro_update, stable_rewards
 from protorch.optim import noise_floor_threshold
 
 
@@ -151,6 +151,26 @@ def test_pearson_float32_small_spread_around_a_large_mean(gen, offset):
     ref = np_relevance(w[:, :2].double().numpy(), c.double().numpy())
     np.testing.assert_allclose(plain[:, :2].numpy(), ref, atol=1e-3)
     assert plain[0, 2] == 0.0
+
+
+@pytest.mark.parametrize("offset", [1e3, 1e4])
+def test_pearson_float32_small_cost_spread_around_a_large_cost(gen, offset):
+    # the same for the objective: float32 costs offset + 2 w_0 with w_0 of std 3e-3 vary by many
+    # ulps of the offset, so w_0 is relevant; an objective that is exactly constant is not
+    w = 3e-3 * torch.randn(200, 3, generator=gen)
+    c = torch.stack([offset + 2.0 * w[:, 0], torch.full((200,), offset)], -1).float()  # (S, 2)
+    got = pearson_relevance(w.float(), c, noise_floor=4.0)
+    assert got[0, 0] == 1.0 and got[0, 1] == 0.0 and got[0, 2] == 0.0
+    assert torch.equal(got[1], torch.zeros(3))
+    ref = np_relevance(w.double().numpy(), c[:, :1].double().numpy())
+    np.testing.assert_allclose(pearson_relevance(w.float(), c)[:1].numpy(), ref, atol=1e-3)
+
+
+def test_pro_float32_moves_a_weight_whose_cost_sits_on_a_large_offset():
+    # 1000 + |w_1 - 2| in float32: the relevance must see w_1 through the offset and PRO reach w_1 = 2
+    opt = PRO(torch.zeros(2), torch.ones(2), beta=20.0, num_samples=100, max_iter=300, seed=0)
+    res = opt.minimize(lambda w: 1000.0 + (w[..., 1:] - 2.0).abs())
+    assert abs(float(res.mean[1]) - 2.0) < 0.05
 
 
 def test_pearson_integer_costs_are_promoted(rng):

@@ -40,6 +40,11 @@ def resample(y: Tensor, num_steps: int) -> Tensor:
     return y[lo] * (1 - frac) + y[hi] * frac  # (T, D)
 
 
+def _roundoff(x: Tensor) -> float:
+    """Round-off tolerance of a covariance-like tensor: 1000 ulps of its largest entry."""
+    return 1e3 * torch.finfo(x.dtype).eps * max(float(x.abs().max()) if x.numel() else 0.0, 1e-30)
+
+
 class ProMP(nn.Module):
     """A ProMP: basis functions plus a Gaussian over weights ``N(mean, cov)``.
 
@@ -182,6 +187,12 @@ class ProMP(nn.Module):
             cov = check_tensor(cov, "cov", ndim=2).to(self.basis)
             if cov.shape != (self.num_weights, self.num_weights):
                 raise ValueError(f"cov must be ({self.num_weights}, {self.num_weights}), got {tuple(cov.shape)}")
+            tol = _roundoff(cov)
+            if float((cov - cov.T).abs().max()) > tol:
+                raise ValueError("cov must be symmetric")
+            if bool((torch.diagonal(cov) < -tol).any()):
+                raise ValueError(f"cov must have variances >= 0 on its diagonal, got a minimum of "
+                                 f"{float(torch.diagonal(cov).min()):.3g}")
         self.mean.copy_(mean)
         self.cov.copy_(0.5 * (cov + cov.T))
         self.fitted.fill_(True)
@@ -265,6 +276,9 @@ class ProMP(nn.Module):
         if y_cov.shape != (v, d, d):
             raise ValueError(f"y_cov must be a float, ({d}, {d}) or ({v}, {d}, {d}), got {tuple(y_cov.shape)}")
         check_tensor(y_cov, "y_cov")
+        sym = 0.5 * (y_cov + y_cov.transpose(-1, -2))  # (V, D, D)
+        if float(torch.linalg.eigvalsh(sym).min()) < -_roundoff(y_cov):
+            raise ValueError("y_cov must be positive semi-definite (a covariance of the via points)")
         # Psi maps weights to the V*D observed positions: (V*D, N), block-diagonal per DoF.
         phi = self.basis_at(phase)  # (V, K)
         psi = torch.einsum("vk,de->vdek", phi, eye_d).reshape(v * d, self.num_weights)  # (V*D, N)

@@ -176,6 +176,11 @@ def test_set_distribution_from_var_and_cov():
         promp.set_distribution(torch.zeros(3), var=torch.tensor([1.0, -1, 1]))
     with pytest.raises(ValueError, match=r"mean must be \(3,\)"):
         promp.set_distribution(torch.zeros(4), var=torch.ones(4))
+    with pytest.raises(ValueError, match="variances >= 0 on its diagonal"):
+        promp.set_distribution(torch.zeros(3), cov=-torch.eye(3))
+    with pytest.raises(ValueError, match="cov must be symmetric"):
+        promp.set_distribution(torch.zeros(3), cov=torch.eye(3) + torch.triu(torch.ones(3, 3), 1))
+    torch.testing.assert_close(promp.cov, cov.to(F64))  # the refused calls changed nothing
 
 
 # ------------------------------------------------------------------ sample, mean, std
@@ -331,6 +336,10 @@ def test_condition_bad_input_raises(gen):
         promp.condition([0.2, 0.5], torch.zeros(2, 2), y_cov=torch.ones(3, 2, 2))
     with pytest.raises(ValueError, match="y_cov contains NaN"):
         promp.condition(0.5, torch.zeros(2), y_cov=float("nan"))
+    with pytest.raises(ValueError, match="y_cov must be positive semi-definite"):
+        promp.condition(0.5, torch.zeros(2), y_cov=-1.0)
+    with pytest.raises(ValueError, match="y_cov must be positive semi-definite"):
+        promp.condition(0.5, torch.zeros(2), y_cov=torch.tensor([[1.0, 2.0], [2.0, 1.0]]))
     # y of the wrong width is refused, not silently reshaped into other via points
     with pytest.raises(ValueError, match=r"y must be \(V, 2\) or \(2,\)"):
         promp.condition(0.5, torch.zeros(3))

@@ -246,13 +246,18 @@ class EnvMap(nn.Module, ABC):
     def fit(self, E: Tensor, MU: Tensor, VAR: Tensor, labels=None) -> "EnvMap":
         """Replace the data: ``E (M, d)``, ``MU (M, N)``, ``VAR (M, N) >= 0``, ``labels (M,)``."""
         E, MU, VAR, lab = self._validate(E, MU, VAR, labels, appending=False)
-        self._m = 0
-        self._reset_groups()
-        self._append_storage(E, MU, VAR, lab)
-        if self.nearest_k is None:
-            for g in torch.unique(lab).tolist():
-                sel = lab == g
-                self._group_fit(g, E[sel], MU[sel], VAR[sel])
+        before = None if self._m == 0 else (self.E.clone(), self.MU.clone(), self.VAR.clone(), self.labels.clone())
+        try:
+            self._m = 0
+            self._reset_groups()
+            self._append_storage(E, MU, VAR, lab)
+            if self.nearest_k is None:
+                for g in torch.unique(lab).tolist():
+                    sel = lab == g
+                    self._group_fit(g, E[sel], MU[sel], VAR[sel])
+        except BaseException:
+            self._restore(before)
+            raise
         return self
 
     def add(self, E: Tensor, MU: Tensor, VAR: Tensor, labels=None) -> "EnvMap":
@@ -260,15 +265,29 @@ class EnvMap(nn.Module, ABC):
         if self._m == 0:
             return self.fit(E, MU, VAR, labels)
         E, MU, VAR, lab = self._validate(E, MU, VAR, labels, appending=True)
-        self._append_storage(E, MU, VAR, lab)
-        if self.nearest_k is None:
-            for g in torch.unique(lab).tolist():
-                sel = lab == g
-                if self._has_group(g):
-                    self._group_add(g, E[sel], MU[sel], VAR[sel])
-                else:
-                    self._group_fit(g, E[sel], MU[sel], VAR[sel])
+        m = self._m
+        try:
+            self._append_storage(E, MU, VAR, lab)
+            if self.nearest_k is None:
+                for g in torch.unique(lab).tolist():
+                    sel = lab == g
+                    if self._has_group(g):
+                        self._group_add(g, E[sel], MU[sel], VAR[sel])
+                    else:
+                        self._group_fit(g, E[sel], MU[sel], VAR[sel])
+        except BaseException:  # e.g. a factorisation that failed half-way: back to the m points
+            self._restore((self._E[:m].clone(), self._MU[:m].clone(), self._VAR[:m].clone(),
+                           self._labels[:m].clone()))
+            raise
         return self
+
+    def _restore(self, data: tuple[Tensor, Tensor, Tensor, Tensor] | None) -> None:
+        """Back to the map of ``data`` (``None``: empty) after a fit or add that failed part-way;
+        refits, which is paid only on that rare path."""
+        self._m = 0
+        self._reset_groups()
+        if data is not None:
+            self.fit(*data)
 
     def predict(self, E: Tensor, labels=None, *, approx_var: bool = False) -> tuple[Tensor, Tensor]:
         """``E (Q, d)`` -> ``(mu (Q, N), var (Q, N))`` by Eq. 7 and 8, per label.

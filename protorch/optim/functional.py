@@ -32,6 +32,12 @@ def stable_rewards(costs: Tensor, beta, dim: int = -1) -> Tensor:
     costs = check_tensor(costs, "costs")
     beta_t = _beta_tensor(beta, costs)
     if beta_t.ndim > 0:
+        per_problem = costs.shape[:dim % costs.ndim] + costs.shape[dim % costs.ndim + 1:]
+        try:
+            torch.broadcast_shapes(beta_t.shape, per_problem)
+        except RuntimeError:
+            raise ValueError(f"beta of shape {tuple(beta_t.shape)} does not broadcast against the costs' problems "
+                             f"{tuple(per_problem)} (costs {tuple(costs.shape)} without the sample dim)") from None
         beta_t = beta_t.unsqueeze(dim)
     shifted = costs - costs.amin(dim, keepdim=True)
     return torch.exp(-beta_t * shifted)

@@ -44,6 +44,17 @@ def test_matches_eq7_eq8_at_2024(backend):
     _close(var, rvar, 1e-8)
 
 
+def test_tiny_variances_are_not_floored(backend):
+    """Variances of 1e-9 are the GP's noise as given: GPyTorch would floor them at 1e-6 (float64)
+    unless told otherwise, which moves the predictive variance by 1e-6 here."""
+    E, MU, VAR = make_data(12, 3, seed=5, var_lo=1e-9, var_hi=2e-9)
+    E, Q = 3 * E, 3 * make_data(6, 1, seed=6)[0]  # spread out: K is well conditioned
+    mu, var = make_env_map(backend, ALPHA).fit(E, MU, VAR).predict(Q)
+    rmu, rvar = reference_eq78(E, MU, VAR, Q, ALPHA)
+    _close(mu, rmu, 1e-10)
+    _close(var, rvar, 1e-10)
+
+
 def test_prior_mean_and_variance_far_away(backend):
     """Far from every known environment k_e = 0: mu = average mean, var = 1 + average var."""
     E, MU, VAR = make_data(20, 3)
@@ -195,6 +206,36 @@ def test_bad_input_raises_before_state_changes(backend, name):
         after = gp.predict(Q)
         _close(after[0], before[0], 0.0)
         _close(after[1], before[1], 0.0)
+
+
+@pytest.mark.parametrize("step", ["fit", "add"])
+def test_a_failed_factorisation_leaves_the_previous_map(backend, step, monkeypatch):
+    """A fit or add whose factorisation fails part-way (here: the second label's) leaves the map
+    exactly as it was: the same points, the same predictions."""
+    E, MU, VAR = make_data(30, 3)
+    labels = torch.arange(30) % 2
+    gp = make_env_map(backend, ALPHA).fit(E[:20], MU[:20], VAR[:20], labels[:20])
+    Q = make_data(5, 1, seed=4)[0]
+    ql = torch.tensor([0, 1, 0, 1, 0])
+    before = gp.predict(Q, ql)
+    method = "_group_add" if step == "add" else "_group_fit"
+    real, calls = getattr(gp, method), []
+
+    def failing(g, *args):
+        calls.append(g)
+        if len(calls) == 2:
+            raise torch.linalg.LinAlgError("factorisation failed")
+        return real(g, *args)
+
+    monkeypatch.setattr(gp, method, failing)
+    with pytest.raises(torch.linalg.LinAlgError):
+        getattr(gp, step)(E[20:], MU[20:], VAR[20:], labels[20:])
+    monkeypatch.undo()
+    assert calls[:2] == [0, 1] and gp.E.shape[0] == 20  # the second label failed; then the restore
+    _close(gp.E, E[:20], 0.0)
+    after = gp.predict(Q, ql)
+    _close(after[0], before[0], 1e-12)
+    _close(after[1], before[1], 1e-12)
 
 
 @pytest.mark.parametrize("alpha", [0.0, -1.0, float("nan"), float("inf")])

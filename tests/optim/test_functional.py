@@ -310,6 +310,14 @@ def test_stable_rewards_bad_beta_raises(beta):
         stable_rewards(torch.zeros(2, 3), beta)
 
 
+def test_beta_of_the_wrong_shape_is_named():
+    costs = torch.zeros(2, 3)  # (B=2, S=3)
+    with pytest.raises(ValueError, match=r"beta of shape \(3,\) does not broadcast against the costs' problems \(2,\)"):
+        stable_rewards(costs, torch.ones(3))
+    with pytest.raises(ValueError, match=r"beta of shape \(4,\)"):
+        pro_update(torch.zeros(2, 1), torch.ones(2, 1), torch.zeros(2, 3, 1), costs, torch.ones(2, 1), torch.ones(4))
+
+
 @pytest.mark.parametrize("bad, word", [(float("nan"), "NaN"), (float("inf"), "inf")])
 def test_stable_rewards_non_finite_costs_raise(bad, word):
     with pytest.raises(ValueError, match=f"costs contains {word}"):

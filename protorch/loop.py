@@ -167,6 +167,30 @@ def _check_options(num_envs, batch_size, add_only, choice, checkpoint_every) -> 
         raise ValueError(f"choice must be one of {CHOICES}, got {choice!r}")
 
 
+def _jsonable(x):
+    """Settings as the JSON of the checkpoint holds them (tuples as lists, other objects by repr)."""
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in sorted(x.items())}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if x is None or isinstance(x, (bool, int, str)):
+        return x
+    if isinstance(x, float):
+        return x if math.isfinite(x) else repr(x)
+    if isinstance(x, Tensor) and x.numel() == 1:
+        return _jsonable(x.item())
+    return repr(x)
+
+
+def _same_data(given: TrajectoryDataset, saved: TrajectoryDataset, n: int) -> bool:
+    """Whether ``given`` is the first ``n`` entries of ``saved`` (up to round-off)."""
+    if len(given) != n or len(saved) < n:
+        return False
+    pairs = ((given.env, saved.env[:n]), (given.mean, saved.mean[:n]), (given.var, saved.var[:n]))
+    return all(a.shape == b.shape and torch.allclose(a, b.to(a), rtol=1e-6, atol=1e-9) for a, b in pairs) \
+        and torch.equal(given.label, saved.label[:n].to(given.label))
+
+
 def self_improve(
     task,
     promp,
@@ -244,8 +268,11 @@ def self_improve(
             keep their own dtype.
         run_dir: where the checkpoint and ``loop_metrics.csv`` go (``None``: no files).
         checkpoint_every: write the checkpoint every k steps (and after the last).
-        resume: continue from ``run_dir``'s checkpoint if there is one (with the same
-            ``num_envs``, ``batch_size``, ``seed``, ``choice``, ``add_only`` and optimiser).
+        resume: continue from ``run_dir``'s checkpoint if there is one. It must be the same run:
+            the same initial data set and every setting that changes what the loop computes
+            (``num_envs``, ``batch_size``, ``seed``, ``choice``, ``add_only``, the optimiser and
+            its kwargs, the map's backend, alpha and options, ``min_var``, ``var_floor``,
+            ``sample_steps``, ``eval_dtype``, labels); otherwise an error names what differs.
             Without ``resume`` an existing checkpoint there is an error (never overwritten).
         progress: show a tqdm bar with the live success rate.
         on_step: called with each new metrics row (after the step's checkpoint, if any).
@@ -274,8 +301,14 @@ def self_improve(
         promp.num_dof, promp.num_basis, int(sample_steps), width=promp.width, ridge=promp.ridge, dtype=eval_dtype,
         device=device)  # the same basis functions on a coarser time grid
     one_cost = getattr(task, "objective_cost", None)  # optional: one objective alone, (...)
+    gp = env_map()
+    # every setting that changes what the loop computes: a resumed run must be the same run
     signature = {"num_envs": num_envs, "batch_size": batch_size, "seed": int(seed), "choice": choice,
-                 "add_only": add_only, "optimizer": optimizer.__name__}
+                 "add_only": add_only, "optimizer": optimizer.__name__,
+                 "optimizer_kwargs": _jsonable(optimizer_kwargs),
+                 "env_map": _jsonable({"backend": gp.backend, "alpha": gp.alpha, **gp.options()}),
+                 "min_var": float(min_var), "var_floor": float(var_floor), "sample_steps": sample_steps,
+                 "eval_dtype": str(eval_dtype), "solved": solved is not None}
     if labeler is not None:
         signature["labels"] = True
     if each_label:
@@ -304,13 +337,18 @@ def self_improve(
             diff = {k: (state["signature"].get(k), signature.get(k)) for k in {**state["signature"], **signature}
                     if state["signature"].get(k) != signature.get(k)}
             raise ValueError(f"cannot resume {ckpt}: it was started with other settings, (saved, now): {diff}")
+        initial = int(state["rows"][0]["dataset_size"]) if state["rows"] else 0
+        if not _same_data(dataset, loaded, initial):
+            raise ValueError(
+                f"cannot resume {ckpt}: its initial data set ({initial} entries) is not the one given now "
+                f"({len(dataset)} entries); were the demonstrations or priors changed?"
+            )
         dataset = loaded
         tried, rows = list(state["tried"]), list(state["rows"])
         seconds_before, step = float(state["seconds"]), int(state["step"])
         resumed_from = step
 
     t_start = time.perf_counter()
-    gp = env_map()
     if rows:  # resumed: replay the fit and the per-step adds, so the map is bit-identical to the
         # one the killed run had (a single refit differs in round-off, and PRO amplifies that)
         sizes = [int(rows[0]["dataset_size"])] + [int(r.get("added") or 0) for r in rows[1:]]

@@ -275,6 +275,20 @@ def test_resume_after_a_crash_equals_an_uninterrupted_run(tmp_path):
         loop(task, promp, setup()[2], num_envs=12, batch_size=3, run_dir=run, on_step=crash_at_2)
     with pytest.raises(ValueError, match="other settings"):
         loop(task, promp, setup()[2], num_envs=12, batch_size=4, run_dir=run, resume=True)
+    # the optimiser's, the map's and the loop's own settings are part of the run, too
+    for change, name in ((dict(optimizer_kwargs={**KW, "beta": 50.0}), "optimizer_kwargs"),
+                         (dict(env_map=lambda: make_env_map("torch", 2.0)), "env_map"),
+                         (dict(env_map=lambda: make_env_map("torch", 1.0, nearest_k=3)), "env_map"),
+                         (dict(var_floor=1e-3), "var_floor"), (dict(eval_dtype=torch.float32), "eval_dtype")):
+        with pytest.raises(ValueError, match=f"other settings.*'{name}'"):
+            loop(task, promp, setup()[2], num_envs=12, batch_size=3, run_dir=run, resume=True, **change)
+    # and so is the initial data (other demonstrations)
+    with pytest.raises(ValueError, match="initial data set .* is not the one given now"):
+        loop(task, promp, setup(5)[2], num_envs=12, batch_size=3, run_dir=run, resume=True)
+    other = setup()[2]
+    other.mean[0] += 0.1
+    with pytest.raises(ValueError, match="initial data set"):
+        loop(task, promp, other, num_envs=12, batch_size=3, run_dir=run, resume=True)
     res = loop(task, promp, setup()[2], num_envs=12, batch_size=3, run_dir=run, resume=True)
     assert res.resumed_from == 2 and res.tried == whole.tried
     assert [r["step"] for r in res.metrics] == list(range(5))

@@ -39,8 +39,8 @@ from ..loop import LoopResult, demonstration_dataset, self_improve
 from ..optim import PRO
 from ..promp import ProMP
 from ..tasks.arm_reach import LEFT, RIGHT, ArmReachTask
-from .common import (check_int, check_keys, check_optimizer, gp_settings, loop_settings, optimizer_kwargs,
-                     test_settings)
+from .common import (check_int, check_keys, check_optimizer, gp_settings, held_out_seed, loop_settings,
+                     optimizer_kwargs, test_settings)
 
 __all__ = ["run", "prepare", "Setup", "TEST_SEED", "DYNAMIC_SEED", "label_aware_mean"]
 
@@ -53,7 +53,7 @@ _TASK_KEYS = {"demo_envs", "demos_per_env", "priors", "cost_steps", "margin", "g
 _GP_KEYS = {"backend", "alpha", "var_floor", "nearest_k"}
 _LOOP_KEYS = {"num_envs", "batch_size", "add_only", "choice", "checkpoint_every", "eval_dtype", "min_var", "labels",
               "each_label"}
-_DYNAMIC_KEYS = {"episodes", "duration", "hold", "dt", "kp", "moves", "move_window", "place_clearance",
+_DYNAMIC_KEYS = {"seed", "episodes", "duration", "hold", "dt", "kp", "moves", "move_window", "place_clearance",
                  "switch_margin"}
 
 
@@ -84,8 +84,10 @@ class Setup:
     prior_labels: torch.Tensor  # (P,)
     seed: int
     test_envs: torch.Tensor  # (Q, 4)
+    test_seed: int
     dyn_env0: torch.Tensor  # (episodes, 4)
     dyn_cfg: dict
+    dyn_seed: int
     optimizer: tuple  # (class, kwargs)
     loop_kwargs: dict  # self_improve keyword arguments (no optimizer, labeler, run_dir, resume, progress)
     env_map: Callable
@@ -121,7 +123,8 @@ class Setup:
     def evaluate(self, model) -> tuple[dict, dict, object]:
         """``(test metrics, dynamic metrics, the episodes)`` of a map (an EnvToProMP) with the
         label-aware inference (a map with one label: its plain prediction)."""
-        return _test(self.task, model, self.test_envs), *_dynamic(self.task, model, self.dyn_env0, self.dyn_cfg)
+        return _test(self.task, model, self.test_envs, self.test_seed), *_dynamic(self.task, model, self.dyn_env0,
+                                                                                 self.dyn_cfg, self.dyn_seed)
 
 
 def prepare(
@@ -154,6 +157,9 @@ def prepare(
     test_n, test_seed = test_settings(test_cfg, seed=seed, training_seeds=(int(seed), int(seed) + _DEMO_SEED_OFFSET),
                                       default_seed=TEST_SEED)
     episodes = check_int(dyn_cfg.pop("episodes", 100), "dynamic.episodes", 0)
+    dyn_seed = held_out_seed(dyn_cfg, "dynamic", seed=seed, training_seeds=(int(seed), int(seed) + _DEMO_SEED_OFFSET),
+                             default=DYNAMIC_SEED)
+    dyn_cfg.pop("seed", None)
     demo_envs_n = check_int(task_cfg.pop("demo_envs", 20), "task.demo_envs", 1)
     per_env = check_int(task_cfg.pop("demos_per_env", 3), "task.demos_per_env", 2)
     n_priors = check_int(task_cfg.pop("priors", 2004), "task.priors", 0)
@@ -178,8 +184,9 @@ def prepare(
     loop_kwargs["eval_envs"] = test_envs
     return Setup(
         task=arm, promp=model0, demos=demos, demo_envs=demo_envs, demo_labels=demo_labels, prior_envs=prior_envs,
-        prior_mean=prior_mean, prior_labels=prior_labels, seed=int(seed), test_envs=test_envs,
-        dyn_env0=arm.sample_envs(episodes, torch.Generator().manual_seed(DYNAMIC_SEED), dtype=dtype).to(device),
+        prior_mean=prior_mean, prior_labels=prior_labels, seed=int(seed), test_envs=test_envs, test_seed=test_seed,
+        dyn_env0=arm.sample_envs(episodes, torch.Generator().manual_seed(dyn_seed), dtype=dtype).to(device),
+        dyn_seed=dyn_seed,
         dyn_cfg=dyn_cfg, optimizer=(PRO, optimizer_kwargs(optimizer, optimizer.get("pro"))),
         loop_kwargs=loop_kwargs, env_map=env_map, var_floor=var_floor, labels=labels, each_label=each_label,
         alpha=alpha, nearest_k=map_options.get("nearest_k"), seconds=seconds,
@@ -329,7 +336,7 @@ def _demo_success(setup: Setup) -> float:
     return float(setup.task.success(traj, setup.demo_envs.to(traj)).double().mean())
 
 
-def _test(task: ArmReachTask, model, envs: torch.Tensor) -> dict:
+def _test(task: ArmReachTask, model, envs: torch.Tensor, seed: int) -> dict:
     """Success of the label-aware mean trajectories on the held-out environments."""
     with torch.no_grad():
         best = label_aware_mean(model.env_map, model.promp, task, envs, dtype=model.promp.basis.dtype)
@@ -340,7 +347,7 @@ def _test(task: ArmReachTask, model, envs: torch.Tensor) -> dict:
         ee = task.ee_path(traj[:, -1])
         goal_err = (ee - task.goal_point(envs)).norm(dim=-1)
         side = task.side(traj, envs)  # (Q,) the side the chosen mean actually passes on
-    return {"success_rate": float(ok.double().mean()), "num_envs": int(envs.shape[0]), "seed": TEST_SEED,
+    return {"success_rate": float(ok.double().mean()), "num_envs": int(envs.shape[0]), "seed": int(seed),
             "collision_rate": float((~clear).double().mean()),
             "limit_violation_rate": float((~task.kinematics.within_limits(traj).all(-1)).double().mean()),
             "goal_error_median": float(goal_err.median()), "goal_reached_rate": float((goal_err <= task.goal_tol)
@@ -349,13 +356,13 @@ def _test(task: ArmReachTask, model, envs: torch.Tensor) -> dict:
             "cost_median": float(c.sum(-1).median())}
 
 
-def _dynamic(task: ArmReachTask, model, env0: torch.Tensor, cfg: dict) -> tuple[dict, object]:
+def _dynamic(task: ArmReachTask, model, env0: torch.Tensor, cfg: dict, seed: int) -> tuple[dict, object]:
     if env0.shape[0] == 0:
         return {"success_rate": float("nan"), "episodes": 0, "switches": 0}, None
     from ..online_arm import run_arm_episodes
 
-    res = run_arm_episodes(model, task, env0, generator=torch.Generator().manual_seed(DYNAMIC_SEED), **cfg)
-    return {**res.summary(), "seed": DYNAMIC_SEED}, res
+    res = run_arm_episodes(model, task, env0, generator=torch.Generator().manual_seed(seed), **cfg)
+    return {**res.summary(), "seed": int(seed)}, res
 
 
 def _loop_metrics(res: LoopResult, task: ArmReachTask) -> dict:

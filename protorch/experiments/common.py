@@ -155,7 +155,14 @@ def loop_settings(loop_cfg: dict, *, num_envs: int) -> dict:
 def test_settings(test_cfg: dict, *, seed: int, training_seeds: tuple[int, ...], default_seed: int) -> tuple[int, int]:
     """``(number of held-out environments, their seed)``; the seed must not be a training seed."""
     n = check_int(test_cfg.get("num_envs", 200), "test.num_envs", 1)
-    test_seed = int(test_cfg.get("seed", default_seed))
-    if test_seed in training_seeds:
-        raise ValueError(f"test.seed ({test_seed}) must differ from the training seeds (seed={seed})")
-    return n, test_seed
+    return n, held_out_seed(test_cfg, "test", seed=seed, training_seeds=training_seeds, default=default_seed)
+
+
+def held_out_seed(cfg: dict, where: str, *, seed: int, training_seeds: tuple[int, ...], default: int) -> int:
+    """``cfg["seed"]`` (``default`` if absent) of an evaluation set; it must not be a training seed."""
+    value = cfg.get("seed", default)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"{where}.seed must be an integer, got {value!r}")
+    if value in training_seeds:
+        raise ValueError(f"{where}.seed ({value}) must differ from the training seeds (seed={seed})")
+    return int(value)

@@ -28,7 +28,8 @@ from ..loop import LoopResult, demonstration_dataset, self_improve
 from ..optim import PRO, RWR
 from ..promp import ProMP
 from ..tasks import PointParticleTask, load_human_demos
-from .common import check_int, check_keys, check_optimizer, gp_settings, loop_settings, optimizer_kwargs, test_settings
+from .common import (check_int, check_keys, check_optimizer, gp_settings, held_out_seed, loop_settings,
+                     optimizer_kwargs, test_settings)
 
 __all__ = ["run", "prepare", "Setup", "TEST_SEED", "DYNAMIC_SEED"]
 
@@ -40,7 +41,7 @@ _TASK_KEYS = {"objectives", "fixed_start", "infinite_wall", "demos", "demo_envs"
 _GP_KEYS = {"backend", "alpha", "var_floor", "nearest_k"}
 _LOOP_KEYS = {"num_envs", "batch_size", "add_only", "choice", "checkpoint_every", "eval_dtype", "min_var",
               "stop_when_solved"}
-_DYNAMIC_KEYS = {"episodes", "duration", "hold", "dt", "kp", "kd", "step_std", "start", "goal_tol"}
+_DYNAMIC_KEYS = {"seed", "episodes", "duration", "hold", "dt", "kp", "kd", "step_std", "start", "goal_tol"}
 
 
 @dataclass
@@ -59,6 +60,7 @@ class Setup:
     test_seed: int
     dyn_env0: torch.Tensor  # (episodes, E)
     dyn_cfg: dict
+    dyn_seed: int
     optimizers: dict  # name -> (class, kwargs)
     loop_kwargs: dict  # self_improve keyword arguments (no optimizer, run_dir, resume, progress)
     env_map: Callable
@@ -80,7 +82,7 @@ class Setup:
     def evaluate(self, model) -> tuple[dict, dict, object]:
         """``(test metrics, dynamic metrics, the episodes)`` of a map (an EnvToProMP)."""
         return _test(self.task, model, self.test_envs, self.test_seed), *_dynamic(
-            self.task, model, self.dyn_env0, self.dyn_cfg)
+            self.task, model, self.dyn_env0, self.dyn_cfg, self.dyn_seed)
 
 
 def prepare(
@@ -109,6 +111,9 @@ def prepare(
     test_n, test_seed = test_settings(test_cfg, seed=seed, training_seeds=(int(seed), int(seed) + _DEMO_SEED_OFFSET),
                                       default_seed=TEST_SEED)
     episodes = check_int(dyn_cfg.pop("episodes", 100), "dynamic.episodes", 0)
+    dyn_seed = held_out_seed(dyn_cfg, "dynamic", seed=seed, training_seeds=(int(seed), int(seed) + _DEMO_SEED_OFFSET),
+                             default=DYNAMIC_SEED)
+    dyn_cfg.pop("seed", None)
     from ..gp import make_env_map
 
     make_env_map(backend, alpha, **map_options)  # refuses a bad backend or option now
@@ -145,7 +150,8 @@ def prepare(
     return Setup(
         task=point, promp=model0, demos=demos, demo_envs=demo_envs, source=source, seed=int(seed),
         test_envs=test_envs, test_seed=test_seed,
-        dyn_env0=point.sample_envs(episodes, torch.Generator().manual_seed(DYNAMIC_SEED), dtype=dtype).to(device),
+        dyn_env0=point.sample_envs(episodes, torch.Generator().manual_seed(dyn_seed), dtype=dtype).to(device),
+        dyn_seed=dyn_seed,
         dyn_cfg=dyn_cfg,
         optimizers={"pro": (PRO, optimizer_kwargs(optimizer, optimizer.get("pro"))),
                     "rwr": (RWR, optimizer_kwargs(optimizer, optimizer.get("rwr")))},
@@ -245,14 +251,14 @@ def _test(task, model, envs, seed: int) -> dict:
             "start_error_median": float(c[:, 0].median()), "goal_error_median": float(c[:, 2].median())}
 
 
-def _dynamic(task, model, env0, cfg) -> tuple[dict, object]:
+def _dynamic(task, model, env0, cfg, seed: int) -> tuple[dict, object]:
     """The moving-environment episodes (the teammate's :mod:`protorch.online`)."""
     if env0.shape[0] == 0:
         return {"success_rate": float("nan"), "episodes": 0}, None
     from ..online import run_episodes
 
-    res = run_episodes(model, task, env0, generator=torch.Generator().manual_seed(DYNAMIC_SEED), **cfg)
-    return {**res.summary(), "seed": DYNAMIC_SEED}, res
+    res = run_episodes(model, task, env0, generator=torch.Generator().manual_seed(seed), **cfg)
+    return {**res.summary(), "seed": int(seed)}, res
 
 
 def _loop_metrics(res: LoopResult) -> dict:

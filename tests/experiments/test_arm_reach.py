@@ -73,6 +73,11 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     assert again["loop"]["resumed_from"] == again["loop"]["steps"] and again["test"] == m["test"]
     with pytest.raises(FileExistsError, match="resume=true"):
         run_experiment(cfg(), tmp_path)
+    # the trained map scored on other held-out environments and episodes (fresh evaluation seeds)
+    other = run_experiment(cfg("resume=true", "+settings.test.seed=12345", "+settings.dynamic.seed=54321"), tmp_path)
+    assert other["loop"]["resumed_from"] == other["loop"]["steps"]
+    assert other["test"]["seed"] == 12345 and other["dynamic"]["seed"] == 54321
+    assert m["test"]["seed"] != 12345 and m["dynamic"]["seed"] != 54321
 
 
 @pytest.mark.parametrize("override, match", [
@@ -83,6 +88,9 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     ("settings.threads=0", "threads must be"),
     ("+settings.dynamic.speed=2", "unknown dynamic setting"),
     ("settings.baselines=[labels_of]", "unknown baseline"),
+    ("+settings.test.seed=0", r"test.seed \(0\) must differ from the training seeds"),
+    ("+settings.dynamic.seed=0", r"dynamic.seed \(0\) must differ from the training seeds"),
+    ("+settings.dynamic.seed=abc", "dynamic.seed must be an integer"),
 ])
 def test_bad_settings_are_refused_before_any_work(tmp_path, override, match):
     with pytest.raises((ValueError, TypeError), match=match):

@@ -103,6 +103,7 @@ def test_cli_with_the_human_demonstrations_and_figures(tmp_path):
     ("task.demos=/no/such/folder", FileNotFoundError, "no such folder"),
     ("settings.loop.add_only=best", ValueError, "add_only"),
     ("+gp.lengthscale=2", ValueError, "unknown gp setting"),
+    ("+settings.dynamic.seed=0", ValueError, r"dynamic.seed \(0\) must differ from the training seeds"),
 ])
 def test_bad_settings_are_refused_before_any_work(tmp_path, override, error, message):
     with pytest.raises(error, match=message):

@@ -27,11 +27,12 @@ def config_dir() -> Path:
 @hydra.main(version_base=None, config_path=str(config_dir()), config_name="config")
 def main(cfg: DictConfig) -> float | None:
     from protorch.experiments import run_experiment
+    from protorch.io import atomic_write_bytes
 
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     plain = OmegaConf.to_container(cfg, resolve=True)
     out_dir.mkdir(parents=True, exist_ok=True)
-    OmegaConf.save(OmegaConf.create(plain), out_dir / "config.yaml")
+    atomic_write_bytes(out_dir / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(plain)).encode())
     metrics = run_experiment(plain, out_dir)
     print(f"[protorch] {plain['name']}: results in {out_dir}")
     objective = metrics.get("objective")

@@ -85,14 +85,18 @@ def plot_beam_3d(ax, task, poses, *, cmap: str = "viridis", lw: float = 2.5):
 def plot_quaternion_components(ax, phase, quaternions, *, components=(0, 1, 2), via_phases=None, via=None,
                                style: str = "-", label_prefix: str = "", lw: float = 1.8):
     """Quaternion components ``(T, 4)`` over the phase ``(T,)`` (the first three by default, as
-    Fig. 5), with via quaternions ``(V, 4)`` at ``via_phases (V,)`` as markers."""
+    Fig. 5), with via quaternions ``(V, 4)`` at ``via_phases (V,)`` as markers, each drawn with the
+    sign of the curve at its phase (``q`` and ``-q`` are the same orientation)."""
     z, q = _np(phase), _np(quaternions)
     colors = ("tab:blue", "tab:orange", "tab:green", "tab:purple")
+    if via is not None:
+        vz, v = _np(via_phases), _np(via)  # (V,), (V, 4)
+        at = q[np.abs(z[None, :] - vz[:, None]).argmin(1)]  # (V, 4) the curve at the via phases
+        v = np.where(((v * at).sum(-1) < 0)[:, None], -v, v)
     for k in components:
         ax.plot(z, q[:, k], style, color=colors[k], lw=lw, label=f"{label_prefix}{_QUAT_NAMES[k]}")
         if via is not None:
-            v = _np(via)
-            ax.plot(_np(via_phases), v[:, k], "o", color=colors[k], ms=7, mfc="none", mew=2)
+            ax.plot(vz, v[:, k], "o", color=colors[k], ms=7, mfc="none", mew=2)
     ax.set_xlabel("phase")
     ax.set_ylabel("quaternion component")
     return ax

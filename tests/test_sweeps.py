@@ -12,7 +12,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import optuna
 import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
@@ -20,6 +19,8 @@ from omegaconf import OmegaConf
 from protorch import report as rep
 from protorch.__main__ import config_dir
 from protorch.experiments import run_experiment
+
+optuna = pytest.importorskip("optuna", reason="the sweep extra: pip install -e '.[sweep]'")
 
 ROOT = Path(__file__).resolve().parents[1]
 # smaller than the app tests' TINY: six runs must fit in seconds on 2 cores

@@ -10,6 +10,7 @@ import json
 import os
 import subprocess
 import sys
+from datetime import datetime
 from pathlib import Path
 
 import pytest
@@ -86,16 +87,25 @@ def check_report(root: Path, tmp_path: Path) -> None:
     assert paths["png"].stat().st_size > 10_000
 
 
+def overlapping(metrics: list[dict]) -> bool:
+    """Whether two runs were running at the same time (their started..finished intervals meet)."""
+    spans = sorted((datetime.fromisoformat(m["run"]["started"]), datetime.fromisoformat(m["run"]["finished"]))
+                   for m in metrics)
+    return any(b[0] < a[1] for a, b in zip(spans, spans[1:]))
+
+
 def test_joblib_runs_the_grid_in_parallel_processes(joblib_sweep):
     metrics = check_grid(joblib_sweep)
     pids = {m["run"]["pid"] for m in metrics}
     assert len(pids) >= 2, pids  # the runs were shared out between worker processes
     assert os.getpid() not in pids
+    assert overlapping(metrics)  # ... which ran at the same time
 
 
 def test_submitit_runs_the_grid_as_separate_jobs(submitit_sweep):
     metrics = check_grid(submitit_sweep)
     assert len({m["run"]["pid"] for m in metrics}) == 6  # one process per job, as on SLURM
+    assert overlapping(metrics)
     logs = list((submitit_sweep / ".submitit").glob("*/*_log.out"))
     assert len(logs) == 6
 

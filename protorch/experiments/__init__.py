@@ -69,7 +69,7 @@ def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
     out_dir.mkdir(parents=True, exist_ok=True)
     # provenance, so a sweep's report can tell where and when each run ran (host, process)
     run_info = {"host": socket.gethostname(), "pid": os.getpid(),
-                "started": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+                "started": datetime.now(timezone.utc).isoformat(timespec="milliseconds")}
     metrics = fn(
         out_dir,
         seed=int(cfg.get("seed", 0)),
@@ -79,7 +79,7 @@ def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
         plot=bool(cfg.get("plot", True)),
         **settings,
     )
-    run_info["finished"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    run_info["finished"] = datetime.now(timezone.utc).isoformat(timespec="milliseconds")
     metrics = {"experiment": name, **metrics, "run": run_info}
     try:
         if objective is not None:

@@ -39,8 +39,8 @@ from ..loop import LoopResult, demonstration_dataset, self_improve
 from ..optim import PRO
 from ..promp import ProMP
 from ..tasks.arm_reach import LEFT, RIGHT, ArmReachTask
-from .common import (check_int, check_keys, check_optimizer, gp_settings, held_out_seed, loop_settings,
-                     optimizer_kwargs, test_settings)
+from .common import (check_int, check_keys, check_optimizer, evaluation_settings, gp_settings, loop_settings,
+                     optimizer_kwargs)
 
 __all__ = ["run", "prepare", "Setup", "TEST_SEED", "DYNAMIC_SEED", "label_aware_mean"]
 
@@ -154,12 +154,10 @@ def prepare(
     for name, v in (("labels", labels), ("each_label", each_label)):
         if not isinstance(v, bool):
             raise ValueError(f"loop.{name} must be true or false, got {v!r}")
-    test_n, test_seed = test_settings(test_cfg, seed=seed, training_seeds=(int(seed), int(seed) + _DEMO_SEED_OFFSET),
-                                      default_seed=TEST_SEED)
+    test_n, test_seed, dyn_seed = evaluation_settings(
+        test_cfg, dyn_cfg, seed=seed, demo_seed=int(seed) + _DEMO_SEED_OFFSET, test_seed=TEST_SEED,
+        dynamic_seed=DYNAMIC_SEED)
     episodes = check_int(dyn_cfg.pop("episodes", 100), "dynamic.episodes", 0)
-    dyn_seed = held_out_seed(dyn_cfg, "dynamic", seed=seed, training_seeds=(int(seed), int(seed) + _DEMO_SEED_OFFSET),
-                             default=DYNAMIC_SEED)
-    dyn_cfg.pop("seed", None)
     demo_envs_n = check_int(task_cfg.pop("demo_envs", 20), "task.demo_envs", 1)
     per_env = check_int(task_cfg.pop("demos_per_env", 3), "task.demos_per_env", 2)
     n_priors = check_int(task_cfg.pop("priors", 2004), "task.priors", 0)

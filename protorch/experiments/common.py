@@ -152,15 +152,21 @@ def loop_settings(loop_cfg: dict, *, num_envs: int) -> dict:
     return out
 
 
-def test_settings(test_cfg: dict, *, seed: int, training_seeds: tuple[int, ...], default_seed: int) -> tuple[int, int]:
-    """``(number of held-out environments, their seed)``; the seed must not be a training seed."""
+def evaluation_settings(test_cfg: dict, dyn_cfg: dict, *, seed: int, demo_seed: int, test_seed: int,
+                        dynamic_seed: int) -> tuple[int, int, int]:
+    """``(number of held-out environments, their seed, the moving episodes' seed)`` from
+    ``test.{num_envs, seed}`` and ``dynamic.seed`` (popped from ``dyn_cfg``, the rest of which
+    goes to the episodes); the defaults are ``test_seed`` and ``dynamic_seed``, and neither seed
+    may be a training seed (``seed`` and the demonstrations' ``demo_seed``)."""
     n = check_int(test_cfg.get("num_envs", 200), "test.num_envs", 1)
-    return n, held_out_seed(test_cfg, "test", seed=seed, training_seeds=training_seeds, default=default_seed)
+    training = (int(seed), int(demo_seed))
+    seeds = [_held_out_seed(cfg.get("seed", default), where, seed=seed, training_seeds=training)
+             for cfg, where, default in ((test_cfg, "test", test_seed), (dyn_cfg, "dynamic", dynamic_seed))]
+    dyn_cfg.pop("seed", None)
+    return n, seeds[0], seeds[1]
 
 
-def held_out_seed(cfg: dict, where: str, *, seed: int, training_seeds: tuple[int, ...], default: int) -> int:
-    """``cfg["seed"]`` (``default`` if absent) of an evaluation set; it must not be a training seed."""
-    value = cfg.get("seed", default)
+def _held_out_seed(value, where: str, *, seed: int, training_seeds: tuple[int, ...]) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise ValueError(f"{where}.seed must be an integer, got {value!r}")
     if value in training_seeds:

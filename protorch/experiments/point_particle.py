@@ -28,8 +28,8 @@ from ..loop import LoopResult, demonstration_dataset, self_improve
 from ..optim import PRO, RWR
 from ..promp import ProMP
 from ..tasks import PointParticleTask, load_human_demos
-from .common import (check_int, check_keys, check_optimizer, gp_settings, held_out_seed, loop_settings,
-                     optimizer_kwargs, test_settings)
+from .common import (check_int, check_keys, check_optimizer, evaluation_settings, gp_settings, loop_settings,
+                     optimizer_kwargs)
 
 __all__ = ["run", "prepare", "Setup", "TEST_SEED", "DYNAMIC_SEED"]
 
@@ -108,12 +108,10 @@ def prepare(
     check_optimizer(optimizer)
     backend, alpha, var_floor, map_options = gp_settings(gp_cfg, alpha=1e-3, var_floor=1e-4, nearest_k=None)
     lk = loop_settings(loop_cfg, num_envs=1000)
-    test_n, test_seed = test_settings(test_cfg, seed=seed, training_seeds=(int(seed), int(seed) + _DEMO_SEED_OFFSET),
-                                      default_seed=TEST_SEED)
+    test_n, test_seed, dyn_seed = evaluation_settings(
+        test_cfg, dyn_cfg, seed=seed, demo_seed=int(seed) + _DEMO_SEED_OFFSET, test_seed=TEST_SEED,
+        dynamic_seed=DYNAMIC_SEED)
     episodes = check_int(dyn_cfg.pop("episodes", 100), "dynamic.episodes", 0)
-    dyn_seed = held_out_seed(dyn_cfg, "dynamic", seed=seed, training_seeds=(int(seed), int(seed) + _DEMO_SEED_OFFSET),
-                             default=DYNAMIC_SEED)
-    dyn_cfg.pop("seed", None)
     from ..gp import make_env_map
 
     make_env_map(backend, alpha, **map_options)  # refuses a bad backend or option now

@@ -22,7 +22,7 @@ import torch
 from omegaconf import OmegaConf
 
 from protorch.experiments.arm_reach import prepare
-from protorch.kinematics import ArmKinematics
+from protorch.robots.kinematics import ArmKinematics
 
 CONF = Path(__file__).resolve().parents[1] / "conf" / "experiment" / "arm_reach.yaml"
 

@@ -15,9 +15,9 @@ import time
 
 import torch
 
+from protorch.control.guidance import HapticGuidance
 from protorch.experiments.beam_window import optimize_pose_promp
-from protorch.guidance import HapticGuidance
-from protorch.pose import PoseProMP
+from protorch.primitives.pose import PoseProMP
 from protorch.tasks.beam_window import BeamWindowTask, SimulatedOperator
 
 

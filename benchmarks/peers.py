@@ -59,8 +59,8 @@ from typing import Callable
 import torch
 
 from protorch import PRO, RWPO, RWR, ProMP
+from protorch.data.files import atomic_write_bytes
 from protorch.experiments.point_particle import prepare
-from protorch.io import atomic_write_bytes
 from protorch.optim import CEM, CMAES
 from protorch.tasks import WindowTask
 

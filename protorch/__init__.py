@@ -7,6 +7,12 @@ core (:func:`pearson_relevance`, :func:`pro_update`) and the optimisers :class:`
 (:func:`self_improve`).
 """
 
+from .data.checkpoint import load, save_model
+from .data.dataset import TrajectoryDataset
+from .data.files import CheckpointError
+from .gp import load_env_map, make_env_map
+from .gp.model import EnvToProMP
+from .loop import LoopResult, demonstration_dataset, self_improve
 from .optim import (
     PRO,
     RWPO,
@@ -17,11 +23,7 @@ from .optim import (
     pro_update,
     stable_rewards,
 )
-from .dataset import TrajectoryDataset
-from .gp import load_env_map, make_env_map
-from .io import CheckpointError, EnvToProMP, load, save_model
-from .loop import LoopResult, demonstration_dataset, self_improve
-from .promp import ProMP
+from .primitives.promp import ProMP
 
 __version__ = "0.1.0"
 

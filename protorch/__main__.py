@@ -1,43 +1,6 @@
-"""The Hydra command line: ``python -m protorch experiment=fig4_window [key=value ...]``.
+"""``python -m protorch experiment=<name> [key=value ...]``: the Hydra app (:mod:`protorch.app.main`)."""
 
-A thin edge: it composes the config, resolves it to a plain dict and calls
-:func:`protorch.experiments.run_experiment`. Nothing else in the package imports Hydra.
-It returns the number named by the config's ``objective`` key (e.g. ``test.success_rate`` for
-``experiment=point_particle``), which is what a sweeper such as Optuna optimises.
-"""
-
-from __future__ import annotations
-
-from pathlib import Path
-
-import hydra
-from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig, OmegaConf
-
-
-def config_dir() -> Path:
-    """``conf/`` beside the package in a source checkout, ``protorch/conf`` in an installed wheel."""
-    here = Path(__file__).resolve().parent
-    for candidate in (here / "conf", here.parent / "conf"):
-        if (candidate / "config.yaml").is_file():
-            return candidate
-    raise FileNotFoundError(f"protorch's Hydra configs were not found beside {here}")
-
-
-@hydra.main(version_base=None, config_path=str(config_dir()), config_name="config")
-def main(cfg: DictConfig) -> float | None:
-    from protorch.experiments import run_experiment
-    from protorch.io import atomic_write_bytes
-
-    out_dir = Path(HydraConfig.get().runtime.output_dir)
-    plain = OmegaConf.to_container(cfg, resolve=True)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(out_dir / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(plain)).encode())
-    metrics = run_experiment(plain, out_dir)
-    print(f"[protorch] {plain['name']}: results in {out_dir}")
-    objective = metrics.get("objective")
-    return None if objective is None else objective["value"]
-
+from protorch.app.main import main
 
 if __name__ == "__main__":
     main()

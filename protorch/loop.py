@@ -24,7 +24,7 @@ summed task costs (:meth:`~protorch.gp.EnvMap.predict_best`); the held-out check
 label-aware inference. Without a labeller everything is label 0, as before.
 
 Checkpoints (every ``checkpoint_every`` steps and at the end, atomic): the data set in
-``<run_dir>/checkpoint/dataset.safetensors`` via :func:`protorch.io.save_model` (so
+``<run_dir>/checkpoint/dataset.safetensors`` via :func:`protorch.data.checkpoint.save_model` (so
 :func:`protorch.load` rebuilds the map), with the loop's state (step, environments tried, metrics
 rows, elapsed seconds) in the same file's metadata, so data set and state can never disagree;
 ``<run_dir>/loop_metrics.csv`` is rewritten atomically from those rows at the same moment.
@@ -47,8 +47,9 @@ from typing import Callable, Sequence
 import torch
 from torch import Tensor
 
-from .dataset import TrajectoryDataset
-from .io import atomic_write_bytes, checkpoint_path, save_model
+from .data.checkpoint import checkpoint_path, save_model
+from .data.dataset import TrajectoryDataset
+from .data.files import atomic_write_bytes
 
 __all__ = ["LoopResult", "self_improve", "demonstration_dataset", "group_by_env", "ADD_ONLY", "CHOICES",
            "METRIC_FIELDS", "LOOP_STATE_VERSION"]

@@ -13,7 +13,7 @@ table around a can, and switches between passing it on the left and on the right
    resumable.
 3. Evaluation with the same label-aware inference on 200 held-out environments, and on 100
    episodes in which the can or the target is moved once or twice while the arm moves
-   (:func:`protorch.online_arm.run_arm_episodes`: the map queried every control step, the arm
+   (:func:`protorch.control.arm.run_arm_episodes`: the map queried every control step, the arm
    switching classes when the objectives of the rest of the motion say so). Baselines in the
    same run: ``labels_off``, the same learned data with the labels dropped (the GP averages
    neighbouring left and right solutions, as the paper's single map would), and
@@ -25,7 +25,6 @@ table around a can, and switches between passing it on the left and on the right
 
 from __future__ import annotations
 
-import copy
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,16 +32,25 @@ from typing import Callable, Sequence
 
 import torch
 
+from ..checks import check_int, check_keys
+from ..control.arm import run_arm_episodes
+from ..data.checkpoint import checkpoint_path, load
 from ..gp import make_env_map
-from ..io import checkpoint_path, load
+from ..gp.model import label_aware_mean
 from ..loop import LoopResult, demonstration_dataset, self_improve
 from ..optim import PRO
-from ..promp import ProMP
+from ..primitives.promp import ProMP, resample
 from ..tasks.arm_reach import LEFT, RIGHT, ArmReachTask
-from .common import (check_int, check_keys, check_optimizer, evaluation_settings, gp_settings, loop_settings,
-                     optimizer_kwargs)
+from ..viz.arm import experiment_figures
+from .common import (
+    check_optimizer,
+    evaluation_settings,
+    gp_settings,
+    loop_settings,
+    optimizer_kwargs,
+)
 
-__all__ = ["run", "prepare", "Setup", "TEST_SEED", "DYNAMIC_SEED", "label_aware_mean"]
+__all__ = ["run", "prepare", "Setup", "TEST_SEED", "DYNAMIC_SEED"]
 
 TEST_SEED = 2_000_003  # the held-out environments: fixed, never a training seed
 DYNAMIC_SEED = 3_000_017  # the moving episodes (start environments and moves)
@@ -55,18 +63,6 @@ _LOOP_KEYS = {"num_envs", "batch_size", "add_only", "choice", "checkpoint_every"
               "each_label"}
 _DYNAMIC_KEYS = {"seed", "episodes", "duration", "hold", "dt", "kp", "moves", "move_window", "place_clearance",
                  "switch_margin"}
-
-
-def label_aware_mean(env_map, promp, task, env: torch.Tensor, dtype=torch.float32):
-    """The label-aware inference: every label's predicted mean, scored by the summed task
-    objectives of its mean trajectory, the best kept. Returns the
-    :class:`~protorch.gp.BestPrediction` (``mean (Q, N)``, ``label (Q,)``, ``scores (Q, K)``)."""
-    p = copy.deepcopy(promp).to(dtype) if promp.basis.dtype != dtype else promp
-
-    def score(mu, e):
-        return task.costs(p.trajectory(mu.to(dtype)), e.to(dtype)).sum(-1)
-
-    return env_map.predict_best(env, score, need_var=False)
 
 
 @dataclass
@@ -233,7 +229,7 @@ def run(
     ``gp``: ``backend``, ``alpha``, ``var_floor``, ``nearest_k``. ``loop``: ``num_envs``,
     ``batch_size``, ``add_only``, ``choice``, ``checkpoint_every``, ``eval_dtype``, ``min_var``,
     ``labels`` (the label-aware map; false runs the paper's single map). ``test``: ``num_envs``,
-    ``seed``. ``dynamic``: ``episodes`` plus :func:`~protorch.online_arm.run_arm_episodes`
+    ``seed``. ``dynamic``: ``episodes`` plus :func:`~protorch.control.arm.run_arm_episodes`
     options. ``baselines``: any of ``labels_off``, ``labels_off_loop``. ``resume``: continue the
     loops from the checkpoints in ``out_dir``. ``threads``: torch's intra-op threads for the run
     (restored afterwards; ``None`` keeps torch's setting). One is the default: the work is many
@@ -317,7 +313,6 @@ def _run(out_dir, *, seed, device, dtype, optimizer, plot, task, gp, promp, loop
     # ------------------------------------------------------------------ figures
     if plot:
         t1 = time.perf_counter()
-        from ..plots_arm import experiment_figures
 
         experiment_figures(out_dir, arm, model, off_model, setup.test_envs, res, off_loop, episodes, metrics)
         seconds["figures"] = round(time.perf_counter() - t1, 3)
@@ -328,7 +323,6 @@ def _run(out_dir, *, seed, device, dtype, optimizer, plot, task, gp, promp, loop
 
 # ----------------------------------------------------------------------------- evaluation
 def _demo_success(setup: Setup) -> float:
-    from ..promp import resample
 
     traj = torch.stack([resample(d, setup.promp.num_steps) for d in setup.demos]).to(setup.promp.basis)
     return float(setup.task.success(traj, setup.demo_envs.to(traj)).double().mean())
@@ -357,7 +351,6 @@ def _test(task: ArmReachTask, model, envs: torch.Tensor, seed: int) -> dict:
 def _dynamic(task: ArmReachTask, model, env0: torch.Tensor, cfg: dict, seed: int) -> tuple[dict, object]:
     if env0.shape[0] == 0:
         return {"success_rate": float("nan"), "episodes": 0, "switches": 0}, None
-    from ..online_arm import run_arm_episodes
 
     res = run_arm_episodes(model, task, env0, generator=torch.Generator().manual_seed(seed), **cfg)
     return {**res.summary(), "seed": int(seed)}, res

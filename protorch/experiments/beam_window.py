@@ -2,7 +2,7 @@
 
 1. **Demonstrations**: 10 trials of a :class:`~protorch.tasks.SimulatedOperator` (depth
    misjudged, orientation off, jitter), most of which hit the wall.
-2. **Pose ProMP** (:class:`~protorch.pose.PoseProMP`) fitted to them: a position and a
+2. **Pose ProMP** (:class:`~protorch.primitives.pose.PoseProMP`) fitted to them: a position and a
    quaternion ProMP (quaternions renormalised and sign-aligned).
 3. **Two-stage PRO** as in the paper: four via points (start, two at the window computed from
    its pose, end), reward ``exp(-beta (obj + 0.1 len + 1e5 jerk))``, ``beta = 200``, 150
@@ -11,7 +11,7 @@
    points.
 4. **Evaluation**: the optimised mean and 1000 samples (position and orientation weights drawn
    independently) checked for collisions along the densely resampled trajectory.
-5. **Haptic guidance** (:class:`~protorch.guidance.HapticGuidance`): ``F = K(z) (mu(z) - x)``,
+5. **Haptic guidance** (:class:`~protorch.control.guidance.HapticGuidance`): ``F = K(z) (mu(z) - x)``,
    ``K`` inversely proportional to the optimised ProMP's std (clipped); 100 simulated operator
    trials without and the same 100 with guidance (paired: the same intentions).
 6. **Figures** (``fig5_beam_window.png``, ``teleop.png``).
@@ -25,10 +25,12 @@ from pathlib import Path
 
 import torch
 
-from ..guidance import HapticGuidance
+from ..checks import check_int, check_keys
+from ..control.guidance import HapticGuidance
 from ..optim import PRO
-from ..pose import PoseProMP
+from ..primitives.pose import PoseProMP
 from ..tasks.beam_window import BeamWindowTask, SimulatedOperator
+from ..viz.beam import fig5_figure, teleop_figure
 from .common import optimizer_kwargs, resolve_dtype
 
 __all__ = ["run", "optimize_pose_promp"]
@@ -38,18 +40,6 @@ _EVAL_SEED = 202  # the optimised distribution's samples
 _TELEOP_SEED = 303  # the simulated teleoperation trials (never the demonstrations' stream)
 _TELEOP_KEYS = {"trials", "human_position_stiffness", "human_rotation_stiffness"}
 _PROMP_KEYS = {"num_basis", "num_steps", "width", "ridge"}
-
-
-def _unknown(given: dict, allowed: set, where: str) -> None:
-    extra = sorted(set(given) - allowed)
-    if extra:
-        raise ValueError(f"unknown {where} setting(s) {extra}; allowed: {sorted(allowed)}")
-
-
-def _int(v, name: str, lo: int) -> int:
-    if isinstance(v, bool) or int(v) != v or int(v) < lo:
-        raise ValueError(f"{name} must be an int >= {lo}, got {v!r}")
-    return int(v)
 
 
 def _tuples(cfg: dict) -> dict:
@@ -136,7 +126,7 @@ def run(
     ``task``: :class:`~protorch.tasks.BeamWindowTask` fields (wall pose, window, beam, start and
     end poses, weights); ``operator``: :class:`~protorch.tasks.SimulatedOperator` fields;
     ``promp``: ``num_basis``, ``num_steps``, ``width``, ``ridge``; ``guidance``:
-    :class:`~protorch.guidance.HapticGuidance` gains; ``teleop``: ``trials`` and the hand's
+    :class:`~protorch.control.guidance.HapticGuidance` gains; ``teleop``: ``trials`` and the hand's
     stiffness ``human_position_stiffness`` (N/m), ``human_rotation_stiffness``. ``num_threads``:
     torch's intra-op threads during the run (``None``: torch's default). The tensors are small
     (200 x 250 x 4), so on a machine whose cores are busy with other jobs one thread is several
@@ -144,7 +134,7 @@ def run(
     starts.
     """
     if num_threads is not None:
-        num_threads = _int(num_threads, "num_threads", 1)
+        num_threads = check_int(num_threads, "num_threads", 1)
     with _num_threads(num_threads):
         return _run(out_dir, seed=seed, device=device, dtype=dtype, optimizer=optimizer, plot=plot, task=task,
                     operator=operator, num_demos=num_demos, promp=promp, eval_dtype=eval_dtype,
@@ -156,16 +146,16 @@ def _run(out_dir, *, seed, device, dtype, optimizer, plot, task, operator, num_d
     t_start = time.perf_counter()
     out_dir = Path(out_dir)
     promp_cfg, guide_cfg, tele_cfg = dict(promp or {}), dict(guidance or {}), dict(teleop or {})
-    _unknown(promp_cfg, _PROMP_KEYS, "promp")
-    _unknown(tele_cfg, _TELEOP_KEYS, "teleop")
+    check_keys(promp_cfg, _PROMP_KEYS, "promp")
+    check_keys(tele_cfg, _TELEOP_KEYS, "teleop")
     if "beta" not in optimizer or not float(optimizer["beta"]) > 0:
         raise ValueError(f"optimizer.beta must be > 0, got {optimizer.get('beta')}")
     for k, lo in (("max_iter", 1), ("num_samples", 2)):
         if k in optimizer:
-            _int(optimizer[k], f"optimizer.{k}", lo)
-    num_demos = _int(num_demos, "num_demos", 2)
-    eval_samples = _int(eval_samples, "eval_samples", 1)
-    trials = _int(tele_cfg.pop("trials", 100), "teleop.trials", 1)
+            check_int(optimizer[k], f"optimizer.{k}", lo)
+    num_demos = check_int(num_demos, "num_demos", 2)
+    eval_samples = check_int(eval_samples, "eval_samples", 1)
+    trials = check_int(tele_cfg.pop("trials", 100), "teleop.trials", 1)
     ev_dtype = resolve_dtype(eval_dtype)
     beam = BeamWindowTask(**_tuples(dict(task or {})))
     person = SimulatedOperator(**_tuples(dict(operator or {})))
@@ -253,7 +243,6 @@ def _run(out_dir, *, seed, device, dtype, optimizer, plot, task, operator, num_d
         "seconds": round(assist_seconds, 3),
     }
     if plot:
-        from ..plots_beam import fig5_figure, teleop_figure
 
         fig5_figure(out_dir / "fig5_beam_window.png", beam, demos, demo_hits, demo_model, model, samples[:30],
                     stages["phases"])

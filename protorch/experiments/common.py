@@ -10,6 +10,9 @@ from pathlib import Path
 
 import torch
 
+from ..checks import check_int
+from ..loop import ADD_ONLY, CHOICES
+
 DTYPES = {"float32": torch.float32, "float64": torch.float64}
 
 
@@ -95,19 +98,6 @@ def optimizer_kwargs(common: dict, specific: dict | None) -> dict:
 
 
 # ----------------------------------------------------------------------------- settings checks
-def check_keys(given: dict, allowed: set, where: str) -> None:
-    """Refuse setting names outside ``allowed`` (a typo must not pass silently)."""
-    extra = sorted(set(given) - set(allowed))
-    if extra:
-        raise ValueError(f"unknown {where} setting(s) {extra}; allowed: {sorted(allowed)}")
-
-
-def check_int(v, name: str, lo: int) -> int:
-    if isinstance(v, bool) or int(v) != v or int(v) < lo:
-        raise ValueError(f"{name} must be an int >= {lo}, got {v!r}")
-    return int(v)
-
-
 def check_optimizer(optimizer: dict) -> None:
     """``beta > 0``; ``max_iter >= 1`` and ``num_samples >= 2`` where given."""
     if "beta" not in optimizer or not float(optimizer["beta"]) > 0:
@@ -132,7 +122,6 @@ def gp_settings(gp_cfg: dict, *, alpha: float, var_floor: float, nearest_k: int 
 def loop_settings(loop_cfg: dict, *, num_envs: int) -> dict:
     """The :func:`~protorch.loop.self_improve` options of an experiment's ``loop`` group,
     validated, with the defaults (``num_envs`` the experiment's)."""
-    from ..loop import ADD_ONLY, CHOICES
 
     out = dict(
         num_envs=check_int(loop_cfg.get("num_envs", num_envs), "loop.num_envs", 0),

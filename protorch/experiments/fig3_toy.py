@@ -13,6 +13,7 @@ import torch
 
 from ..optim import PRO, RWR
 from ..tasks import LineToy
+from ..viz.paper import plot_cloud, plot_curves, save_figure
 from .common import optimizer_kwargs
 
 __all__ = ["run"]
@@ -77,7 +78,6 @@ def _figure(path, task, results, finals, beta, std) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..plots import plot_cloud, plot_curves, save_figure
 
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
     ax = axes[0]

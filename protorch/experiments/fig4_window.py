@@ -14,8 +14,9 @@ from pathlib import Path
 import torch
 
 from ..optim import PRO, RWPO
-from ..promp import ProMP
+from ..primitives.promp import ProMP
 from ..tasks import WindowTask
+from ..viz.paper import plot_relevance, plot_trajectories, plot_window, save_figure
 from .common import optimizer_kwargs
 
 __all__ = ["run"]
@@ -84,7 +85,6 @@ def _figure(path, task, model, demos, results, opts) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..plots import plot_relevance, plot_trajectories, plot_window, save_figure
 
     fig, axes = plt.subplots(1, 4, figsize=(18, 4.2))
     ax = axes[0]

@@ -6,7 +6,7 @@
    environments, ``B`` at a time; the data set is checkpointed in ``<out_dir>/checkpoint``
    (``protorch.load(out_dir)`` gives the trained map) and can be resumed.
 3. Evaluation of the map's mean trajectories on 200 held-out random environments (a fixed seed
-   of their own) and on 100 moving-environment episodes (:func:`protorch.online.run_episodes`,
+   of their own) and on 100 moving-environment episodes (:func:`protorch.control.particle.run_episodes`,
    the paper's Fig. 6 test), for the trained map and for two baselines in the same run: the GP
    on the demonstrations only, and the same loop with RWR in place of PRO
    (``<out_dir>/baselines/rwr``).
@@ -23,13 +23,24 @@ from typing import Callable, Sequence
 
 import torch
 
-from ..io import EnvToProMP, checkpoint_path, load
+from ..checks import check_int, check_keys
+from ..control.particle import run_episodes
+from ..data.checkpoint import checkpoint_path, load
+from ..gp import make_env_map
+from ..gp.model import EnvToProMP
 from ..loop import LoopResult, demonstration_dataset, self_improve
 from ..optim import PRO, RWR
-from ..promp import ProMP
+from ..primitives.promp import ProMP
 from ..tasks import PointParticleTask, load_human_demos
-from .common import (check_int, check_keys, check_optimizer, evaluation_settings, gp_settings, loop_settings,
-                     optimizer_kwargs)
+from ..viz.online import plot_episode_frames, write_episode_gif
+from ..viz.paper import plot_point_particle, plot_trajectories, save_figure
+from .common import (
+    check_optimizer,
+    evaluation_settings,
+    gp_settings,
+    loop_settings,
+    optimizer_kwargs,
+)
 
 __all__ = ["run", "prepare", "Setup", "TEST_SEED", "DYNAMIC_SEED"]
 
@@ -112,7 +123,6 @@ def prepare(
         test_cfg, dyn_cfg, seed=seed, demo_seed=int(seed) + _DEMO_SEED_OFFSET, test_seed=TEST_SEED,
         dynamic_seed=DYNAMIC_SEED)
     episodes = check_int(dyn_cfg.pop("episodes", 100), "dynamic.episodes", 0)
-    from ..gp import make_env_map
 
     make_env_map(backend, alpha, **map_options)  # refuses a bad backend or option now
     point = PointParticleTask(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in task_cfg.items()
@@ -183,7 +193,7 @@ def run(
     ``nearest_k``. ``loop``: ``num_envs``, ``batch_size``, ``add_only``, ``choice``,
     ``checkpoint_every``, ``eval_dtype``, ``min_var``, ``stop_when_solved`` (see
     :func:`~protorch.loop.self_improve`). ``test``: ``num_envs``, ``seed``. ``dynamic``:
-    ``episodes`` plus :func:`~protorch.online.run_episodes` options. ``baselines``: any of
+    ``episodes`` plus :func:`~protorch.control.particle.run_episodes` options. ``baselines``: any of
     ``demos_only``, ``rwr``. ``resume``: continue the loops from the checkpoints in ``out_dir``.
     Every setting is validated before any work starts.
     """
@@ -250,10 +260,9 @@ def _test(task, model, envs, seed: int) -> dict:
 
 
 def _dynamic(task, model, env0, cfg, seed: int) -> tuple[dict, object]:
-    """The moving-environment episodes (the teammate's :mod:`protorch.online`)."""
+    """The moving-environment episodes (the teammate's :mod:`protorch.control.particle`)."""
     if env0.shape[0] == 0:
         return {"success_rate": float("nan"), "episodes": 0}, None
-    from ..online import run_episodes
 
     res = run_episodes(model, task, env0, generator=torch.Generator().manual_seed(seed), **cfg)
     return {**res.summary(), "seed": int(seed)}, res
@@ -275,7 +284,6 @@ def _figures(out_dir, task, model, test_envs, pro, rwr, metrics, episode, seed) 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..plots import plot_point_particle, plot_trajectories, save_figure
 
     # success rate vs loop iteration, on the held-out environments
     fig, ax = plt.subplots(figsize=(6, 4))
@@ -321,9 +329,8 @@ def _figures(out_dir, task, model, test_envs, pro, rwr, metrics, episode, seed) 
                  f"{metrics['test']['success_rate']:.3f}", fontsize=10)
     save_figure(fig, Path(out_dir) / "test_grid.png")
 
-    # one moving episode (Fig. 6): frames and a GIF (the teammate's protorch.plots_online)
+    # one moving episode (Fig. 6): frames and a GIF (the teammate's protorch.viz.online)
     if episode is not None:
-        from ..plots_online import plot_episode_frames, write_episode_gif
 
         ep = episode.episode(0)
         kw = {k: ep[k] for k in ("positions", "envs", "means", "markers")}

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..data.files import read_safetensors
 from .base import ENV_MAP_FORMAT, ENV_MAP_SCHEMA, BestPrediction, EnvMap, rbf
 from .closed_form import TorchEnvMap
 from .gpytorch_exact import GPyTorchEnvMap
@@ -34,7 +35,6 @@ def load_env_map(path: str | Path, *, backend: str | None = None, **options) -> 
 
     ``backend`` and ``options`` override the saved ones (e.g. ``device="cuda"``).
     """
-    from ..io import read_safetensors
 
     tensors, meta = read_safetensors(
         path, fmt=ENV_MAP_FORMAT, schema_version=ENV_MAP_SCHEMA, keys=("E", "MU", "VAR", "labels")

@@ -25,7 +25,8 @@ from typing import Callable, NamedTuple
 import torch
 from torch import Tensor, nn
 
-from .._checks import check_nonnegative, check_positive, check_tensor
+from ..checks import check_nonnegative, check_positive, check_tensor
+from ..data.files import atomic_write_safetensors
 
 __all__ = ["EnvMap", "BestPrediction", "rbf", "sq_dist", "posdef_cholesky", "ENV_MAP_FORMAT", "ENV_MAP_SCHEMA"]
 
@@ -384,7 +385,6 @@ class EnvMap(nn.Module, ABC):
     # --------------------------------------------------------- persistence
     def save(self, path: str | Path) -> Path:
         """Write the data and settings to one safetensors file, atomically."""
-        from ..io import atomic_write_safetensors
 
         tensors = {"E": self.E, "MU": self.MU, "VAR": self.VAR, "labels": self.labels}
         meta = {

@@ -26,7 +26,7 @@ from typing import Callable, Generator
 import torch
 from torch import Tensor, nn
 
-from .._checks import check_positive, check_tensor
+from ..checks import check_positive, check_tensor
 
 __all__ = ["BaseOptimizer", "OptimizeResult"]
 

@@ -11,7 +11,7 @@ import math
 import torch
 from torch import Tensor
 
-from .._checks import check_positive, check_tensor
+from ..checks import check_positive, check_tensor
 
 __all__ = ["stable_rewards", "pearson_relevance", "pro_update", "noise_floor_threshold"]
 

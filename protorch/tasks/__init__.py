@@ -1,9 +1,9 @@
 """Experiment tasks: small classes with their geometry, objectives and success checks."""
 
+from ..data.demos import load_human_demos
 from .arm_reach import ArmReachTask
 from .base import Task
 from .beam_window import BeamWindowTask, SimulatedOperator
-from .demos import load_human_demos
 from .point_particle import PointParticleTask, signed_distance_to_wall, wall_collision
 from .toy import LineToy
 from .window import WindowTask

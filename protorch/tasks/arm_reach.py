@@ -43,9 +43,9 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor
 
-from .._checks import check_tensor
-from ..kinematics import ArmKinematics
-from ..robots import PANDA_END_LINK
+from ..checks import check_tensor
+from ..robots.kinematics import ArmKinematics
+from ..robots.panda import PANDA_END_LINK
 from .base import Task
 from .curves import catmull_rom, smooth_noise
 

@@ -46,10 +46,17 @@ import torch
 from pytorch_kinematics.transforms import axis_angle_to_quaternion, quaternion_raw_multiply
 from torch import Tensor
 
-from .._checks import check_tensor
-from ..pose import (
-    align_quaternions, check_unit_quaternion, normalize_poses, normalize_quaternion, quaternion_distance,
-    quaternion_path_length, quaternion_slerp, resample_poses, rotation_matrix,
+from ..checks import check_tensor
+from ..primitives.pose import (
+    align_quaternions,
+    check_unit_quaternion,
+    normalize_poses,
+    normalize_quaternion,
+    quaternion_distance,
+    quaternion_path_length,
+    quaternion_slerp,
+    resample_poses,
+    rotation_matrix,
 )
 from .base import Task
 from .curves import catmull_rom, smooth_noise

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .._checks import check_tensor
+from ..checks import check_tensor
 from .base import Task
 from .curves import catmull_rom as _catmull_rom
 from .curves import smooth_noise as _smooth_noise

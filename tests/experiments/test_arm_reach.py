@@ -11,10 +11,10 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 import protorch
-from protorch.__main__ import config_dir
+from protorch.app.main import config_dir
+from protorch.data.checkpoint import checkpoint_path
 from protorch.experiments import run_experiment
 from protorch.experiments.arm_reach import prepare
-from protorch.io import checkpoint_path
 from protorch.tasks.arm_reach import LEFT, RIGHT
 
 TINY = [

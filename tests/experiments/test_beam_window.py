@@ -8,7 +8,7 @@ import torch
 
 from protorch.experiments import run_experiment
 from protorch.experiments.beam_window import optimize_pose_promp, run
-from protorch.pose import PoseProMP
+from protorch.primitives.pose import PoseProMP
 from protorch.tasks.beam_window import BeamWindowTask, SimulatedOperator
 
 F64 = torch.float64
@@ -20,7 +20,7 @@ def _cfg(**optimizer):
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from protorch.__main__ import config_dir
+    from protorch.app.main import config_dir
 
     with initialize_config_dir(config_dir=str(config_dir()), version_base=None):
         cfg = compose(config_name="config", overrides=["experiment=beam_window", "plot=false"])

@@ -11,7 +11,7 @@ def _cfg(name, **optimizer):
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from protorch.__main__ import config_dir
+    from protorch.app.main import config_dir
 
     with initialize_config_dir(config_dir=str(config_dir()), version_base=None):
         cfg = compose(config_name="config", overrides=[f"experiment={name}", "plot=false"])

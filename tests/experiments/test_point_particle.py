@@ -17,10 +17,10 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 import protorch
-from protorch.__main__ import config_dir
-from protorch.dataset import TrajectoryDataset
+from protorch.app.main import config_dir
+from protorch.data.checkpoint import checkpoint_path
+from protorch.data.dataset import TrajectoryDataset
 from protorch.experiments import run_experiment
-from protorch.io import checkpoint_path
 
 ROOT = Path(__file__).resolve().parents[2]
 HUMAN = ROOT.parent / "shared" / "data" / "point_particle_human_demos"

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import torch
 
+from protorch.data.files import CheckpointError
 from protorch.gp import load_env_map, make_env_map
-from protorch.io import CheckpointError
 
 from .reference import make_data, reference_eq78
 

@@ -9,7 +9,7 @@ import math
 import pytest
 import torch
 
-from protorch.promp import resample
+from protorch.primitives.promp import resample
 from protorch.tasks import ArmReachTask
 from protorch.tasks.arm_reach import LEFT, RIGHT, segment_axis_distance
 

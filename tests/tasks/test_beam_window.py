@@ -10,7 +10,7 @@ import pytest
 import torch
 from pytorch_kinematics.transforms import quaternion_raw_multiply, quaternion_to_matrix
 
-from protorch.pose import quaternion_distance
+from protorch.primitives.pose import quaternion_distance
 from protorch.tasks.beam_window import BeamWindowTask, SimulatedOperator, _jerk, quaternion_about
 
 F64 = torch.float64

@@ -1,0 +1,59 @@
+"""A trained run as a plain torch module, and label-aware inference.
+
+:class:`EnvToProMP` wraps a ProMP and an environment map: environments ``(B, E)`` -> weight
+Gaussians. :func:`label_aware_mean` picks, per environment, the class (homotopy label) whose
+predicted mean trajectory has the lowest summed cost.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import torch
+from torch import Tensor, nn
+
+__all__ = ["EnvToProMP", "label_aware_mean"]
+
+
+class EnvToProMP(nn.Module):
+    """A trained run: environments ``(B, d)`` -> ProMP weight Gaussians ``(mu (B, N), var (B, N))``.
+
+    ``model.promp.trajectory(mu)`` gives the mean trajectories ``(B, T, D)``;
+    ``model.task_name`` names the task the run solved.
+    """
+
+    def __init__(self, promp, env_map, task_name: str = "") -> None:
+        super().__init__()
+        if promp.num_weights != env_map.num_weights:
+            raise ValueError(
+                f"the ProMP has {promp.num_weights} weights but the environment map predicts {env_map.num_weights}"
+            )
+        self.promp = promp
+        self.env_map = env_map
+        self.task_name = str(task_name)
+
+    @property
+    def env_dim(self) -> int:
+        return self.env_map.env_dim
+
+    def forward(self, env: Tensor, labels=None) -> tuple[Tensor, Tensor]:
+        return self.env_map.predict(env, labels)
+
+    def mean_trajectory(self, env: Tensor, labels=None) -> Tensor:
+        """``(B, d)`` -> mean trajectories ``(B, T, D)``."""
+        return self.promp.trajectory(self.env_map.predict_mean(env, labels))
+
+    def extra_repr(self) -> str:
+        return f"task_name={self.task_name!r}, env_dim={self.env_dim}"
+
+
+def label_aware_mean(env_map, promp, task, env: torch.Tensor, dtype=torch.float32):
+    """The label-aware inference: every label's predicted mean, scored by the summed task
+    objectives of its mean trajectory, the best kept. Returns the
+    :class:`~protorch.gp.BestPrediction` (``mean (Q, N)``, ``label (Q,)``, ``scores (Q, K)``)."""
+    p = copy.deepcopy(promp).to(dtype) if promp.basis.dtype != dtype else promp
+
+    def score(mu, e):
+        return task.costs(p.trajectory(mu.to(dtype)), e.to(dtype)).sum(-1)
+
+    return env_map.predict_best(env, score, need_var=False)

@@ -1,0 +1,121 @@
+"""The Hydra app: configs compose, every experiment runs end to end, sweeps and the wheel work."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+from protorch.app.main import config_dir
+
+ROOT = Path(__file__).resolve().parents[2]
+EXPERIMENTS = sorted(p.stem for p in (ROOT / "conf" / "experiment").glob("*.yaml"))
+
+# Tiny budgets, so every experiment runs end to end in seconds.
+TINY = {
+    "fig3_toy": ["optimizer.max_iter=5", "optimizer.num_samples=20", "settings.eval_samples=100"],
+    "fig4_window": [
+        "optimizer.max_iter=3", "optimizer.num_samples=20", "optimizer.pro.relevance_samples=20",
+        "optimizer.rwpo.relevance_iters=2", "optimizer.rwpo.theta_samples=4", "optimizer.rwpo.trajectory_samples=3",
+    ],
+    "beam_window": [
+        "optimizer.max_iter=3", "optimizer.num_samples=20", "optimizer.pro.relevance_samples=20",
+        "settings.num_demos=4", "settings.eval_samples=50", "settings.teleop.trials=5",
+    ],
+    "point_particle": [
+        "settings.loop.num_envs=20", "settings.loop.batch_size=10", "optimizer.max_iter=10",
+        "optimizer.num_samples=20", "optimizer.pro.relevance_samples=20", "settings.test.num_envs=10",
+        "settings.dynamic.episodes=3", "settings.progress=false",
+    ],
+    "arm_reach": [
+        "settings.loop.num_envs=10", "settings.loop.batch_size=10", "optimizer.max_iter=3", "optimizer.num_samples=20",
+        "optimizer.pro.relevance_samples=20", "task.priors=20", "task.demo_envs=2", "settings.test.num_envs=6",
+        "settings.dynamic.episodes=2", "settings.dynamic.duration=1.0", "settings.dynamic.hold=0.2",
+        "settings.baselines=[labels_off]", "settings.progress=false",
+    ],
+}
+
+
+def run_cli(args, cwd=ROOT, env=None, check=True):
+    proc = subprocess.run(
+        [sys.executable, "-m", "protorch", *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600
+    )
+    if check and proc.returncode != 0:
+        raise AssertionError(f"exit {proc.returncode}\nstdout:\n{proc.stdout}\nstderr:\n{proc.stderr}")
+    return proc
+
+
+def test_every_experiment_has_a_tiny_budget_here():
+    assert EXPERIMENTS and set(EXPERIMENTS) == set(TINY)
+
+
+@pytest.mark.parametrize("name", EXPERIMENTS)
+def test_experiment_config_composes(name):
+    with initialize_config_dir(config_dir=str(config_dir()), version_base=None):
+        cfg = compose(config_name="config", overrides=[f"experiment={name}"])
+    assert cfg.name == name
+    assert float(cfg.optimizer.beta) > 0
+    assert cfg.seed == 0 and cfg.dtype in ("float32", "float64")
+
+
+@pytest.mark.parametrize("name", EXPERIMENTS)
+def test_experiment_runs_end_to_end_at_a_tiny_budget(name, tmp_path):
+    run_cli([f"experiment={name}", *TINY[name], f"hydra.run.dir={tmp_path}"])
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["experiment"] == name
+    assert (tmp_path / "config.yaml").is_file()
+    pngs = list(tmp_path.glob("*.png"))
+    assert pngs and all(p.stat().st_size > 10_000 for p in pngs)
+
+
+def test_bad_beta_is_refused_with_a_clear_error(tmp_path):
+    proc = run_cli(["experiment=fig3_toy", "optimizer.beta=-1", f"hydra.run.dir={tmp_path}"], check=False)
+    assert proc.returncode != 0
+    assert "beta must be" in proc.stderr
+    assert not (tmp_path / "metrics.json").exists()
+
+
+@pytest.mark.parametrize("launcher", ["basic", "joblib"])
+def test_beta_sweep(launcher, tmp_path):
+    args = ["-m", "experiment=fig4_window", "optimizer.beta=1,10,20", *TINY["fig4_window"], "plot=false",
+            f"hydra.sweep.dir={tmp_path}"]
+    if launcher == "joblib":
+        args += ["hydra/launcher=joblib", "hydra.launcher.n_jobs=2"]
+    run_cli(args)
+    runs = sorted(tmp_path.glob("*/metrics.json"))
+    assert len(runs) == 3
+    betas = sorted(float(OmegaConf.load(p.parent / "config.yaml").optimizer.beta) for p in runs)
+    assert betas == [1.0, 10.0, 20.0]
+
+
+def test_app_runs_from_a_built_wheel_outside_the_source_tree(tmp_path):
+    wheels = tmp_path / "wheels"
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(ROOT)],
+        check=True, capture_output=True, timeout=600,
+    )
+    (wheel,) = wheels.glob("protorch-*.whl")
+    site = tmp_path / "site"
+    subprocess.run(
+        [sys.executable, "-m", "pip", "install", "--no-deps", "--target", str(site), str(wheel)],
+        check=True, capture_output=True, timeout=600,
+    )
+    work = tmp_path / "elsewhere"
+    work.mkdir()
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    where = subprocess.run(
+        [sys.executable, "-c", "import protorch, protorch.app.main as m; print(protorch.__file__); print(m.config_dir()); "
+         "from protorch.robots import PANDA_URDF; from protorch.robots.kinematics import ArmKinematics; "
+         "assert ArmKinematics().num_joints == 7; print(PANDA_URDF)"],
+        cwd=work, env=env, capture_output=True, text=True, check=True,
+    ).stdout.split()
+    assert len(where) == 3 and where[2].endswith("panda.urdf")  # the URDF ships inside the wheel
+    assert all(Path(p).is_relative_to(site) for p in where), where  # the wheel's copy, configs inside it
+    run_cli(["experiment=fig3_toy", *TINY["fig3_toy"], "hydra.run.dir=out"], cwd=work, env=env)
+    assert json.loads((work / "out" / "metrics.json").read_text())["experiment"] == "fig3_toy"

@@ -1,0 +1,63 @@
+"""benchmarks/peers.py at a tiny budget: its irrelevant weights really are irrelevant, PRO keeps
+their std while the peers collapse it, and the table has a row per (task, optimiser)."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def peers():
+    spec = importlib.util.spec_from_file_location("peers_bench", ROOT / "benchmarks" / "peers.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # dataclasses look their module up there
+    env = dict(os.environ)
+    try:
+        spec.loader.exec_module(mod)  # main() is not called: it would set this process's threads
+    finally:  # the module sets OMP_NUM_THREADS & co. for itself, not for later tests' subprocesses
+        os.environ.clear()
+        os.environ.update(env)
+    yield mod
+    sys.modules.pop(spec.name, None)
+
+
+def test_nuisance_weights_change_no_cost(peers):
+    problems = peers.window_problems(1) + peers.point_particle_problems(1)
+    for p in problems:
+        assert p.mean.shape[0] == p.n_task + peers.NUISANCE
+        peers.check_nuisance(p)  # raises if a cost moves
+        assert not p.success(p.mean)  # every start needs improving
+    bad = problems[0]
+    bad.costs = lambda w, f=bad.costs: f(w) + w[..., -1:].abs()  # a cost that reads a nuisance weight
+    with pytest.raises(AssertionError, match="not irrelevant"):
+        peers.check_nuisance(bad)
+
+
+@pytest.fixture
+def one_thread():
+    """As the benchmark runs: torch's and pycma's (numpy's) thread pools otherwise fight."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def test_pro_keeps_the_std_the_peers_collapse(peers, one_thread):
+    (p,) = peers.window_problems(1)
+    budget = 3000
+    results = {name: [peers.run_one(name, p, budget)] for name in ("PRO", "RWR", "CEM", "CMA-ES")}
+    kept = {name: r[0]["std_kept"] for name, r in results.items()}
+    # at this budget (seeded, so exact): PRO 1.0, RWR 0.63, CEM 0.05, CMA-ES 0.07
+    assert kept["PRO"] > 0.99 and kept["RWR"] < 0.8 and kept["CEM"] < 0.25 and kept["CMA-ES"] < 0.25, kept
+    assert all(r[0]["first"] is not None and r[0]["rollouts"] <= budget for r in results.values())
+    text = peers.table({("window", k): v for k, v in results.items()}, 1, budget, "python benchmarks/peers.py")
+    rows = [line for line in text.splitlines() if line.startswith("| window")]
+    assert [r.split(" | ")[1] for r in rows] == ["PRO", "RWR", "CEM", "CMA-ES"]

@@ -1,0 +1,126 @@
+"""The loader of the authors' demonstration format, on the real human data (read in place from
+../shared beside the repository, never copied) and on small hand-made folders."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from protorch.data.demos import load_human_demos
+from protorch.tasks.point_particle import PointParticleTask
+
+HUMAN = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "point_particle_human_demos"
+needs_human = pytest.mark.skipif(
+    not HUMAN.is_dir(), reason=f"human demonstrations not found at {HUMAN} (../shared beside the repo)"
+)
+
+
+@pytest.fixture(scope="module")
+def human():
+    return load_human_demos(HUMAN)
+
+
+# ------------------------------------------------------------------ the real data
+@needs_human
+def test_human_data_shape_and_pairing(human):
+    demos, envs = human
+    assert len(demos) == 90 and envs.shape == (90, 6) and envs.dtype == torch.float64
+    assert all(d.ndim == 2 and d.shape[1] == 2 and d.dtype == torch.float64 for d in demos)
+    lengths = torch.tensor([len(d) for d in demos])
+    assert 100 <= int(lengths.min()) and int(lengths.max()) <= 400
+    # 30 environments, demonstrations 3i, 3i+1, 3i+2 share environment i
+    torch.testing.assert_close(envs[0::3], envs[1::3], rtol=0, atol=0)
+    torch.testing.assert_close(envs[0::3], envs[2::3], rtol=0, atol=0)
+    assert torch.unique(envs, dim=0).shape[0] == 30
+    # the first file, read independently
+    first = [float(v) for v in (HUMAN / "env0.out").read_text().split()]
+    torch.testing.assert_close(envs[0], torch.tensor(first, dtype=torch.float64))
+    rows = (HUMAN / "traj0.out").read_text().strip().splitlines()
+    assert len(demos[0]) == len(rows)
+    assert demos[0][-1].tolist() == [float(v) for v in rows[-1].split(",")]
+
+
+@needs_human
+def test_human_envs_follow_the_sampler_constraints(human):
+    _, envs = human
+    sx, sy, wx, hy, gx, gy = envs.unbind(-1)
+    assert bool(((wx >= 2) & (wx <= 8) & (hy >= 1) & (hy <= 9)).all())
+    assert bool(((sx >= 0) & (sx <= wx - 1.5) & (gx >= wx + 1.5) & (gx <= 10)).all())
+    assert bool(((sy >= 0) & (sy <= 10) & (gy >= 0) & (gy <= 10)).all())
+
+
+@needs_human
+def test_human_demos_against_the_task(human):
+    """Measured: 89 of 90 succeed (98.9 %); none enters the wall (smallest clearance 0.49); the
+    one failure ends 0.207 from its goal; starts are 0.02 to 0.15 off."""
+    demos, envs = human
+    task = PointParticleTask()
+    ok = torch.stack([task.success(d, e) for d, e in zip(demos, envs)])
+    collide = torch.stack([task.collides(d, e) for d, e in zip(demos, envs)])
+    c = torch.stack([task.costs(d, e) for d, e in zip(demos, envs)])  # (90, 3)
+    assert float(ok.double().mean()) >= 0.9
+    assert int(collide.sum()) <= 3
+    assert float((c[:, 0] <= 0.5).double().mean()) >= 0.95  # starts near the start
+    assert float((c[:, 2] <= 0.5).double().mean()) >= 0.95  # ends near the goal
+    assert float(c[:, 1].median()) < 0.5  # the hole is passed near its centre
+    assert bool((c > 0).all())  # but nothing is exact: the data is imperfect
+
+
+# ------------------------------------------------------------------ the format and its errors
+def _write(folder: Path, k: int, traj: str | None, env: str | None) -> None:
+    if traj is not None:
+        (folder / f"traj{k}.out").write_text(traj)
+    if env is not None:
+        (folder / f"env{k}.out").write_text(env)
+
+
+ENV_TEXT = "1\n5\n5\n5\n9\n5\n"
+
+
+def test_small_folder_is_read_in_numeric_order(tmp_path):
+    _write(tmp_path, 10, "3,3\n4,4\n", "2\n5\n5\n5\n9\n5\n")
+    _write(tmp_path, 2, "1.0e+00,5.0e+00\n2,5\n\n", ENV_TEXT)  # a blank line is fine
+    (tmp_path / "README.md").write_text("ignored")
+    demos, envs = load_human_demos(tmp_path, dtype=torch.float32)
+    assert [d.tolist() for d in demos] == [[[1, 5], [2, 5]], [[3, 3], [4, 4]]]
+    assert envs.dtype == torch.float32 and envs[:, 0].tolist() == [1.0, 2.0]
+
+
+def test_missing_folder(tmp_path):
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        load_human_demos(tmp_path / "nowhere")
+
+
+def test_empty_folder(tmp_path):
+    with pytest.raises(ValueError, match="no trajK.out"):
+        load_human_demos(tmp_path)
+
+
+@pytest.mark.parametrize("which, message", [("traj", r"traj files without env file for K = \[1\]"),
+                                             ("env", r"env files without traj file for K = \[1\]")])
+def test_unpaired_files(tmp_path, which, message):
+    _write(tmp_path, 0, "1,5\n2,5\n", ENV_TEXT)
+    _write(tmp_path, 1, "1,5\n2,5\n" if which == "traj" else None, ENV_TEXT if which == "env" else None)
+    with pytest.raises(ValueError, match=message):
+        load_human_demos(tmp_path)
+
+
+@pytest.mark.parametrize(
+    "traj, env, message",
+    [
+        ("1,5\n2,5,3\n", ENV_TEXT, r"traj0\.out:2: expected 2 value"),
+        ("1,5\n2;5\n", ENV_TEXT, r"traj0\.out:2: expected 2 value"),
+        ("1,5\nx,5\n", ENV_TEXT, r"traj0\.out:2: not a number"),
+        ("1,5\nnan,5\n", ENV_TEXT, r"traj0\.out:2: NaN"),
+        ("1,5\n2,inf\n", ENV_TEXT, r"traj0\.out:2: NaN or infinite"),
+        ("1,5\n", ENV_TEXT, "at least 2 samples"),
+        ("1,5\n2,5\n", "1\n5\n5\n5\n9\n", r"env0\.out: expected 6 numbers"),
+        ("1,5\n2,5\n", "1\n5\nnan\n5\n9\n5\n", r"env0\.out:3: NaN"),
+    ],
+)
+def test_bad_content(tmp_path, traj, env, message):
+    _write(tmp_path, 0, traj, env)
+    with pytest.raises(ValueError, match=message):
+        load_human_demos(tmp_path)

@@ -6,7 +6,7 @@ a ProMP, an optimiser and the environment map together. No Hydra, no particular 
 2. Repeat until ``num_envs`` environments were tried: choose ``B`` new environments, infer their
    ProMPs with the GP map (Eq. 7, 8), improve them with the optimiser (``B`` problems in one
    batched PRO; ``B = 1`` is the paper's sequential algorithm), add the accepted solutions to the
-   data set and to the map.
+   data set and to the map. The data set grown is a copy: the caller's is left unchanged.
 
 The environments come from a pool of ``num_envs`` draws of ``task.sample_envs`` fixed by the seed;
 ``choice="random"`` takes them in draw order, ``choice="nearest"`` takes the untried ones closest

@@ -1,0 +1,266 @@
+"""The self-improvement loop (Ewerton et al. 2019, Sec. III): the only place that wires a task,
+a ProMP, an optimiser and the environment map together. No Hydra, no particular task.
+
+1. The initial data set holds one weight Gaussian per demonstrated environment
+   (:func:`demonstration_dataset`), optionally plus prior-knowledge ProMPs (``origin="prior"``).
+2. Repeat until ``num_envs`` environments were tried: choose ``B`` new environments, infer their
+   ProMPs with the GP map (Eq. 7, 8), improve them with the optimiser (``B`` problems in one
+   batched PRO; ``B = 1`` is the paper's sequential algorithm), add the accepted solutions to the
+   data set and to the map. The data set grown is a copy: the caller's is left unchanged.
+
+The environments come from a pool of ``num_envs`` draws of ``task.sample_envs`` fixed by the seed;
+``choice="random"`` takes them in draw order, ``choice="nearest"`` takes the untried ones closest
+to the known environments first (the authors' curriculum). Every step's optimiser seed is a
+function of ``(seed, step)``, so a resumed run repeats exactly what an uninterrupted run does.
+
+The task needs ``costs(traj (..., T, D), env (..., E)) -> (..., O)``, ``success(traj, env) ->
+(...)`` bool and ``sample_envs(n, generator, dtype=...) -> (n, E)``. Trajectories of ``B``
+problems' samples are ``(B, S, T, D)``; the loop passes ``env[:, None]`` so they broadcast.
+
+Multimodal tasks (``labeler=``): a solution is stored with the label the labeller gives its
+mean trajectory (e.g. the side it passes an obstacle on, its homotopy class), the map keeps the
+labels apart, and a new environment starts from the label whose predicted mean has the lowest
+summed task costs (:meth:`~protorch.gp.EnvMap.predict_best`); the held-out check uses the same
+label-aware inference. Without a labeller every entry has label 0.
+
+Checkpoints (every ``checkpoint_every`` steps and at the end, atomic): the data set in
+``<run_dir>/checkpoint/dataset.safetensors`` via :func:`protorch.data.checkpoint.save_model` (so
+:func:`protorch.load` rebuilds the map), with the loop's state (step, environments tried, metrics
+rows, elapsed seconds) in the same file's metadata, so data set and state can never disagree;
+``<run_dir>/loop_metrics.csv`` is rewritten atomically from those rows at the same moment.
+``resume=True`` reloads that file, rebuilds the map by replaying the same fit and adds (so it is
+bit-identical to the killed run's) and continues with the next step: a resumed run ends with the
+same data set as an uninterrupted one. ``run_dir`` is checked to be writable before any work.
+
+The package: :mod:`.settings` (:class:`LoopSettings`, validated), :mod:`.state` (:class:`RunState`:
+signature, checkpoint, resume), :mod:`.phases` (choose, infer, optimise, accept) and
+:mod:`.initial` (the demonstrations' data set); :func:`self_improve` reads as the algorithm above.
+"""
+
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from ..data.checkpoint import save_model
+from ..data.dataset import TrajectoryDataset
+from .initial import demonstration_dataset, group_by_env
+from .phases import Evaluator, accept, add, choose, infer, optimise, step_row
+from .settings import ADD_ONLY, CHOICES, LoopSettings
+from .state import (
+    LOOP_STATE_VERSION,
+    METRIC_FIELDS,
+    METRICS_FILE,
+    RunState,
+    run_signature,
+    writable_folder,
+)
+
+__all__ = [
+    "ADD_ONLY",
+    "CHOICES",
+    "LOOP_STATE_VERSION",
+    "METRICS_FILE",
+    "METRIC_FIELDS",
+    "LoopResult",
+    "LoopSettings",
+    "RunState",
+    "demonstration_dataset",
+    "group_by_env",
+    "self_improve",
+]
+
+
+@dataclass
+class LoopResult:
+    """What :func:`self_improve` returns.
+
+    ``metrics`` holds one dict per step (keys :data:`METRIC_FIELDS`; row 0 is the initial data
+    set); ``seconds`` the loop's wall time, earlier (resumed) processes included; ``tried`` the
+    pool indices of every environment tried, in order; ``resumed_from`` the step the run
+    continued after (``None`` for a fresh run).
+    """
+
+    dataset: TrajectoryDataset
+    env_map: object
+    metrics: list[dict]
+    seconds: float
+    tried: list[int]
+    pool: Tensor
+    resumed_from: int | None = None
+
+    @property
+    def success_rate(self) -> float:
+        """Success of the optimised mean trajectories over every environment tried."""
+        return float(self.metrics[-1]["success_rate"]) if len(self.metrics) > 1 else float("nan")
+
+
+def self_improve(
+    task,
+    promp,
+    dataset: TrajectoryDataset,
+    *,
+    optimizer: type,
+    optimizer_kwargs: dict,
+    env_map: Callable[[], object],
+    num_envs: int,
+    batch_size: int = 1,
+    add_only: str = "success",
+    choice: str = "random",
+    solved: Callable[[Tensor, Tensor], Tensor] | None = None,
+    labeler: Callable[[Tensor, Tensor], Tensor] | None = None,
+    each_label: bool = False,
+    sample_steps: int | None = None,
+    seed: int = 0,
+    eval_envs: Tensor | None = None,
+    min_var: float = 0.0,
+    var_floor: float = 0.0,
+    eval_dtype: torch.dtype | None = None,
+    run_dir: str | Path | None = None,
+    checkpoint_every: int = 1,
+    resume: bool = False,
+    progress: bool = False,
+    desc: str = "self-improvement",
+    on_step: Callable[[dict], None] | None = None,
+) -> LoopResult:
+    """Run the self-improvement loop; see the module docstring.
+
+    Args:
+        task: costs / success / sample_envs (module docstring); ``task.name`` is recorded. If it
+            has ``objective_cost(traj, env, o) -> (...)``, PRO's per-objective steps compute
+            only the objective they read.
+        promp: the :class:`~protorch.ProMP` of the data set's weights (its basis and device are
+            used).
+        dataset: the initial data (demonstrations, priors), left unchanged: the loop grows a copy
+            (``LoopResult.dataset``). On ``resume`` the checkpoint's data set replaces it.
+        optimizer, optimizer_kwargs: the optimiser class (``PRO``, ``RWR``, ...) and its keyword
+            arguments (``beta``, ``num_samples``, ``max_iter``, ``tol``, ...; not ``seed``).
+        env_map: a factory returning an empty :class:`~protorch.gp.EnvMap` (its ``backend``,
+            ``alpha`` and ``options()`` are saved with the checkpoint).
+        num_envs: environments to try; ``batch_size``: ``B`` tried (inferred and optimised) at
+            once; the last step may be smaller.
+        add_only: which solutions join the data set: ``"converged"`` (the optimiser's flag, the
+            authors' rule; a ``solved`` stop counts as converged), ``"success"`` (the optimised
+            mean trajectory passes ``task.success``) or ``"all"``.
+        choice: ``"random"`` or ``"nearest"`` (module docstring).
+        solved: ``(traj (b, T, D), env (b, E)) -> (b,)`` bool, checked on every active problem's
+            mean before the first and after every iteration; a solved problem stops there
+            (converged). ``None``: run each problem until the optimiser's own rule stops it.
+        labeler: ``(traj (b, T, D), env (b, E)) -> (b,)`` integer label of a solution (module
+            docstring). With it, inference (the optimiser's start and ``eval_success``) predicts
+            every label's mean and takes the one with the lowest summed ``task.costs``.
+        each_label: with a labeller, optimise every known label's prediction for each chosen
+            environment (``K b`` problems in one batched optimiser) and add every accepted
+            solution (one per environment and final label: two problems that ended in the same
+            class keep the cheaper), so each class is learned everywhere, not only where it is
+            the better one.
+            The metrics rows then count problems in ``added``, ``converged`` and the iterations,
+            and environments in ``initial_success`` / ``success`` (the lowest-cost class's mean,
+            as the label-aware inference would choose it).
+        sample_steps: evaluate the optimiser's sampled trajectories at this many evenly spaced
+            phases instead of the ProMP's ``T`` (a task whose costs use fewer steps than ``T``
+            pays for those only); the final solutions are always checked on all ``T`` steps.
+        seed: fixes the pool of environments and every step's optimiser seed.
+        eval_envs: ``(Q, E)`` held-out environments; after every step the map's mean
+            trajectories on them are checked with ``task.success`` (``eval_success``).
+        min_var: floor on the inferred variance the optimiser starts from.
+        var_floor: floor on the variance stored with a new entry, i.e. on its GP noise. PRO can
+            shrink variances to ~1e-7; the GP then treats solutions as exact and, with a flat
+            kernel, fits their small inconsistencies with wild functions (see the README).
+        eval_dtype: dtype of the optimiser's search distribution, the trajectories and the costs
+            (float32 is about 3x faster on a CPU); default the ProMP's. The data set and the map
+            keep their own dtype.
+        run_dir: where the checkpoint and ``loop_metrics.csv`` go (``None``: no files); created if
+            missing and checked to be writable before any work (``PermissionError`` otherwise).
+        checkpoint_every: write the checkpoint every k steps (and after the last).
+        resume: continue from ``run_dir``'s checkpoint if there is one. It must be the same run:
+            the same initial data set and every setting that changes what the loop computes
+            (``num_envs``, ``batch_size``, ``seed``, ``choice``, ``add_only``, the optimiser and
+            its kwargs, the map's backend, alpha and options, ``min_var``, ``var_floor``,
+            ``sample_steps``, ``eval_dtype``, labels); otherwise an error names what differs.
+            Without ``resume`` an existing checkpoint there is an error (never overwritten).
+        progress: show a tqdm bar with the live success rate.
+        on_step: called with each new metrics row (after the step's checkpoint, if any).
+    """
+    settings = LoopSettings(num_envs=num_envs, batch_size=batch_size, add_only=add_only, choice=choice,
+                            each_label=each_label, sample_steps=sample_steps, seed=seed, min_var=min_var,
+                            var_floor=var_floor, checkpoint_every=checkpoint_every)
+    _check_inputs(dataset, optimizer_kwargs, labeler, each_label, run_dir, resume)
+    run_dir = None if run_dir is None else writable_folder(run_dir)
+    ev = Evaluator.build(task, promp, eval_dtype=eval_dtype, sample_steps=settings.sample_steps, labeler=labeler,
+                         dtype=dataset.dtype)
+    gp = env_map()
+    state = RunState(run_signature(settings, optimizer, optimizer_kwargs, gp, ev.eval_dtype, solved=solved is not None,
+                                   labels=labeler is not None), run_dir, save=save_model)
+    # the pool of environments, fixed by the seed (drawn on the CPU)
+    pool = task.sample_envs(settings.num_envs, torch.Generator().manual_seed(int(seed)), dtype=dataset.dtype)  # (n, E)
+    if eval_envs is not None:
+        eval_envs = ev.here(torch.as_tensor(eval_envs))  # (Q, E)
+    data = state.start(dataset, promp, resume=resume)  # a copy of dataset, or the checkpoint's
+    state.fit(gp, data)
+    if not state.rows:
+        state.rows.append({"step": 0, "envs_done": 0, "dataset_size": len(data),
+                           "eval_success": ev.eval_success(gp, eval_envs), "seconds": 0.0})
+    bar = _progress_bar(progress, settings.num_envs, len(state.tried), desc)
+    while state.step < settings.num_steps:
+        state.step += 1
+        pick = choose(pool, state.tried, data.env, settings.batch_size, settings.choice)  # (b,)
+        problems = infer(ev, gp, pool[pick], each_label=settings.each_label, min_var=settings.min_var)
+        opt = optimizer(problems.mu, problems.var, seed=settings.step_seed(state.step), **optimizer_kwargs)
+        res = optimise(ev, problems, opt, solved)
+        solutions = accept(ev, problems, res, settings)
+        add(data, gp, problems.env, solutions)
+        state.tried.extend(pick.tolist())
+        row = step_row(state.step, len(state.tried), len(data), problems, res, solutions)
+        row.update(eval_success=ev.eval_success(gp, eval_envs),
+                   success_rate=round((state.successes + row["success"]) / len(state.tried), 6),
+                   seconds=round(state.elapsed(), 3))
+        state.rows.append(row)
+        if settings.is_checkpoint_step(state.step):
+            state.checkpoint(data, gp)
+        _show(bar, row, state.successes / len(state.tried), len(data))
+        if on_step is not None:
+            on_step(row)
+    if bar is not None:
+        bar.close()
+    if run_dir is not None and not state.checkpoint_file.is_file():  # num_envs = 0: still a loadable checkpoint
+        state.checkpoint(data, gp)
+    return LoopResult(dataset=data, env_map=gp, metrics=state.rows, seconds=state.elapsed(), tried=state.tried,
+                      pool=pool, resumed_from=state.resumed_from)
+
+
+def _check_inputs(dataset, optimizer_kwargs: dict, labeler, each_label: bool, run_dir, resume: bool) -> None:
+    """Refuse, before any work, what :class:`LoopSettings` cannot see."""
+    if each_label and labeler is None:
+        raise ValueError("each_label=True needs a labeler")
+    if "seed" in optimizer_kwargs:
+        raise ValueError("optimizer_kwargs must not hold 'seed': the loop seeds every step from (seed, step)")
+    if len(dataset) == 0:
+        raise ValueError("the initial data set is empty: add demonstrations or priors first")
+    if resume and run_dir is None:
+        raise ValueError("resume=True needs a run_dir")
+
+
+def _progress_bar(enabled: bool, total: int, initial: int, desc: str):
+    """A tqdm bar over the environments (``None`` unless ``enabled``)."""
+    if not enabled:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, initial=initial, desc=desc, unit="env", dynamic_ncols=True)
+
+
+def _show(bar, row: dict, success_rate: float, dataset_size: int) -> None:
+    """Advance the bar by the step's environments, with the live success rate."""
+    if bar is None:
+        return
+    bar.update(row["batch"])
+    post = {"success": f"{success_rate:.3f}", "data": dataset_size}
+    if row["eval_success"] is not None:
+        post["eval"] = f"{row['eval_success']:.3f}"
+    bar.set_postfix(post)

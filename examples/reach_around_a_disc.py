@@ -53,7 +53,7 @@ class ReachAroundADisc:
         s = torch.linspace(0, 1, 100, dtype=torch.float64)[:, None]  # (T, 1)
         demos = []
         for env in envs:
-            clear = self.radius + 0.04 + self.clearance_std * torch.randn((), generator=generator, dtype=torch.float64)
+            clear = self.radius + 0.02 + self.clearance_std * torch.randn((), generator=generator, dtype=torch.float64)
             mid = env[:2] + torch.tensor([0.0, 1.0], dtype=torch.float64) * clear  # where the curve crosses the disc
             start, goal = torch.zeros(2, dtype=torch.float64), env[2:]
             ctrl = 2 * mid - 0.5 * (start + goal)  # the curve passes `mid` at s = 0.5

@@ -39,6 +39,11 @@ TINY = {
         "settings.dynamic.episodes=2", "settings.dynamic.duration=1.0", "settings.dynamic.hold=0.2",
         "settings.baselines=[labels_off]", "settings.progress=false",
     ],
+    "self_improve": [
+        "task._target_=examples.reach_around_a_disc.ReachAroundADisc", "settings.loop.num_envs=6",
+        "settings.loop.batch_size=3", "optimizer.max_iter=4", "optimizer.num_samples=12", "optimizer.relevance_samples=12",
+        "settings.test.num_envs=8", "task.demo_envs=4",
+    ],
 }
 
 

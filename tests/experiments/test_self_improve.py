@@ -24,7 +24,7 @@ TINY = ["settings.loop.num_envs=6", "settings.loop.batch_size=3", "optimizer.max
 
 
 def cli(args, tmp_path, check=True):
-    env = {**os.environ, "PYTHONPATH": str(tmp_path), "OMP_NUM_THREADS": "1"}
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(ROOT)]), "OMP_NUM_THREADS": "1"}
     proc = subprocess.run([sys.executable, "-m", "protorch", *args], cwd=tmp_path, env=env, capture_output=True,
                           text=True, timeout=120)
     if check and proc.returncode != 0:
@@ -35,7 +35,7 @@ def cli(args, tmp_path, check=True):
 def test_a_task_outside_protorch_runs_the_whole_pipeline(tmp_path):
     (tmp_path / "my_disc_task.py").write_text(EXAMPLE.read_text())  # a module protorch has never seen
     run = tmp_path / "run"
-    cli(["experiment=self_improve", "task._target_=my_disc_task.ReachAroundADisc", "task.radius=0.12",
+    cli(["experiment=self_improve", "task._target_=my_disc_task.ReachAroundADisc", "+task.radius=0.12",
          "gp.alpha=5", "optimizer.beta=50", *TINY, f"hydra.run.dir={run}"], tmp_path)
     m = json.loads((run / "metrics.json").read_text())
     assert m["task"] == "my_disc_task.ReachAroundADisc"

@@ -30,7 +30,7 @@ def cfg(*overrides: str) -> dict:
         c = compose(config_name="config", overrides=["experiment=arm_reach", *TINY, *overrides])
     plain = OmegaConf.to_container(c, resolve=False)
     plain.pop("hydra", None)
-    return plain
+    return OmegaConf.to_container(OmegaConf.create(plain), resolve=True)  # baseline_optimizer: ${optimizer.*}
 
 
 def test_config_holds_the_papers_settings():

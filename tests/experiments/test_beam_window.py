@@ -27,7 +27,7 @@ def _cfg(**optimizer):
     plain = OmegaConf.to_container(cfg, resolve=False)
     plain.pop("hydra", None)
     plain["optimizer"].update(optimizer)
-    return plain
+    return OmegaConf.to_container(OmegaConf.create(plain), resolve=True)  # baseline_optimizer: ${optimizer.*}
 
 
 def test_config_holds_the_papers_settings():

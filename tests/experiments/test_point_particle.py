@@ -36,7 +36,7 @@ def cfg(*overrides: str) -> dict:
         c = compose(config_name="config", overrides=["experiment=point_particle", *TINY, *overrides])
     plain = OmegaConf.to_container(c, resolve=False)
     plain.pop("hydra", None)
-    return plain
+    return OmegaConf.to_container(OmegaConf.create(plain), resolve=True)  # baseline_optimizer: ${optimizer.*}
 
 
 def run_cli(args, check=True, **kw):

@@ -8,6 +8,8 @@ It returns the number named by the config's ``objective`` key (e.g. ``test.succe
 
 from __future__ import annotations
 
+import os
+import sys
 from pathlib import Path
 
 import hydra
@@ -15,7 +17,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from ..data.files import atomic_write_bytes
-from ..experiments import run_experiment
+from ..experiments import SettingsError, check_config, run_experiment
 
 
 def config_dir() -> Path:
@@ -31,6 +33,13 @@ def config_dir() -> Path:
 def main(cfg: DictConfig) -> float | None:
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     plain = OmegaConf.to_container(cfg, resolve=True)
+    try:
+        check_config(plain)  # every setting, before any file is written
+    except SettingsError as exc:
+        if os.environ.get("HYDRA_FULL_ERROR") == "1":
+            raise
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(2)
     out_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(out_dir / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(plain)).encode())
     metrics = run_experiment(plain, out_dir)

@@ -1,8 +1,9 @@
 """Experiments as plain functions ``run(out_dir, **settings) -> metrics``; no Hydra here.
 
 :func:`run_experiment` takes a plain dict (the resolved Hydra config, or one built by hand),
-runs the named experiment and writes ``metrics.json`` and ``config.yaml``-independent outputs
-into ``out_dir``.
+checks every setting against its typed schema (:mod:`protorch.experiments.settings`; a bad one
+raises :class:`SettingsError` with one line, before any work), runs the named experiment and
+writes ``metrics.json`` into ``out_dir``.
 """
 
 from __future__ import annotations
@@ -15,8 +16,12 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
-from . import arm_reach, beam_window, fig3_toy, fig4_window, point_particle
-from .common import metric_value, resolve_device, resolve_dtype, write_json
+from ..gp import BACKENDS
+from ..optim import OPTIMIZERS, BaseOptimizer
+from ..tasks import TASKS, task_class
+from . import arm_reach, beam_window, fig3_toy, fig4_window, point_particle, self_improve
+from .common import metric_value, per_method_form, resolve_device, resolve_dtype, write_json
+from .settings import GP, OPTIMIZER_SCHEMAS, SETTINGS_SCHEMAS, TASK_SCHEMAS, SettingsError, validate
 
 EXPERIMENTS: dict[str, Callable[..., dict]] = {
     "fig3_toy": fig3_toy.run,
@@ -24,61 +29,125 @@ EXPERIMENTS: dict[str, Callable[..., dict]] = {
     "point_particle": point_particle.run,
     "beam_window": beam_window.run,
     "arm_reach": arm_reach.run,
+    "self_improve": self_improve.run,
 }
+# the task each fixed experiment runs (its conf/task group); self_improve takes any
+EXPERIMENT_TASKS = {"fig3_toy": "line_toy", "fig4_window": "window", "point_particle": "point_particle",
+                    "beam_window": "beam_window", "arm_reach": "arm_reach"}
+# experiments taking the optimizer group as it is ({"name": ..., keys}); the others take the
+# per-method form {shared keys, "<name>": {...}} (common.per_method_form)
+GROUP_OPTIMIZER = {"point_particle", "arm_reach", "self_improve"}
 
 _DOTTED = re.compile(r"[A-Za-z_][\w-]*(\.[\w-]+)*")
 
-__all__ = ["EXPERIMENTS", "run_experiment", "metric_value"]
+__all__ = ["EXPERIMENTS", "run_experiment", "check_config", "metric_value", "SettingsError"]
+
+
+def _check_optimizer_group(group: dict, where: str) -> dict:
+    name = group.get("name")
+    if name not in OPTIMIZERS:
+        raise SettingsError(f"{where}.name={name!r} must be one of {', '.join(sorted(OPTIMIZERS))}")
+    if name in OPTIMIZER_SCHEMAS:
+        return validate(OPTIMIZER_SCHEMAS[name], group, where)
+    cls = OPTIMIZERS[name]  # a registered optimiser without a schema: its keyword arguments
+    known = {p for c in (cls, BaseOptimizer) for p in inspect.signature(c.__init__).parameters} - {"self", "mean", "var"}
+    unknown = sorted(set(group) - known - {"name"})
+    if unknown:
+        raise SettingsError(f"{where}.{unknown[0]} is not a setting of optimizer {name!r}")
+    return group
+
+
+def _check_task(name: str, task: dict) -> dict:
+    target = task.pop("_target_", None)
+    if name in EXPERIMENT_TASKS:
+        expected = TASKS[EXPERIMENT_TASKS[name]]
+        if target is not None:
+            try:
+                cls = task_class(target)
+            except ValueError as exc:
+                raise SettingsError(str(exc)) from None
+            if cls is not expected:
+                raise SettingsError(f"task._target_={target!r}: experiment {name!r} runs "
+                                    f"{expected.__module__}.{expected.__name__}; run your own task with "
+                                    "experiment=self_improve")
+        return validate(TASK_SCHEMAS[name], task, "task") if name in TASK_SCHEMAS else task
+    if target in (None, "???"):
+        raise SettingsError("task._target_ must name the task class, e.g. task._target_=my_module.MyTask")
+    return {"_target_": target, **task}
+
+
+def check_config(cfg: dict) -> dict:
+    """Every setting of ``cfg`` checked (types, ranges, names) before any work: the keyword
+    arguments of the experiment function (``out_dir`` aside). Raises :class:`SettingsError`."""
+    name = cfg.get("name")
+    if name not in EXPERIMENTS:
+        raise SettingsError(f"experiment={name!r} must be one of {', '.join(sorted(EXPERIMENTS))}")
+    objective = cfg.get("objective")
+    if objective is not None and not (isinstance(objective, str) and _DOTTED.fullmatch(objective)):
+        raise SettingsError(f"objective={objective!r} must be a dotted metrics key such as 'test.success_rate' or null")
+    seed = cfg.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise SettingsError(f"seed={seed!r} must be an int >= 0")
+    for key in ("plot", "resume"):
+        if not isinstance(cfg.get(key, key == "plot"), bool):
+            raise SettingsError(f"{key}={cfg.get(key)!r} must be true or false")
+    try:
+        device, dtype = resolve_device(cfg.get("device", "cpu")), resolve_dtype(cfg.get("dtype", "float64"))
+    except (ValueError, RuntimeError) as exc:
+        raise SettingsError(f"device / dtype: {exc}") from None
+    fn = EXPERIMENTS[name]
+    accepted = inspect.signature(fn).parameters
+    opt = _check_optimizer_group(dict(cfg.get("optimizer") or {"name": "pro"}), "optimizer")
+    base = cfg.get("baseline_optimizer")
+    base = None if base is None else _check_optimizer_group(dict(base), "baseline_optimizer")
+    settings = dict(cfg.get("settings") or {})
+    if name in SETTINGS_SCHEMAS:
+        validate(SETTINGS_SCHEMAS[name], settings, "settings")
+    gp = dict(cfg.get("gp") or {})
+    if gp:
+        validate(GP, gp, "gp")
+        if gp.get("backend", "torch") not in BACKENDS:
+            raise SettingsError(f"gp.backend={gp['backend']!r} must be one of {', '.join(sorted(BACKENDS))}")
+    task = _check_task(name, dict(cfg.get("task") or {}))
+    # top-level groups (``task.demos=...``, ``gp.alpha=...``) overlay the experiment's own settings
+    for key, top in (("task", task), ("gp", gp)):
+        if top:
+            if key not in accepted:
+                raise SettingsError(f"experiment {name!r} takes no {key}.* settings, got {', '.join(sorted(top))}")
+            settings[key] = {**dict(settings.get(key) or {}), **top}
+    if cfg.get("resume", False):
+        if "resume" not in accepted:
+            raise SettingsError(f"resume=true: experiment {name!r} cannot resume; run it again instead")
+        settings["resume"] = True
+    if name in GROUP_OPTIMIZER:
+        settings["optimizer"] = opt
+        if base is not None and "baseline_optimizer" in accepted:
+            settings["baseline_optimizer"] = base
+    else:
+        settings["optimizer"] = per_method_form(opt, base)
+    return dict(seed=int(seed), device=device, dtype=dtype, plot=bool(cfg.get("plot", True)), **settings)
 
 
 def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
-    """Run ``cfg["name"]`` with the settings of ``cfg["settings"]`` plus the shared ``seed``,
-    ``device``, ``dtype`` and ``optimizer`` entries (and the top-level ``task``, ``gp`` and
-    ``resume`` where the experiment takes them); write ``metrics.json``; return the metrics.
+    """Check ``cfg`` (:func:`check_config`), run ``cfg["name"]`` into ``out_dir``, write
+    ``metrics.json``; return the metrics.
 
+    ``cfg``: ``name``, ``seed``, ``device``, ``dtype``, ``plot``, ``resume``, the ``optimizer``
+    group (``{"name": "pro", "beta": ..., ...}``, conf/optimizer/), ``baseline_optimizer`` (the
+    comparison some experiments run), ``gp`` and ``task`` (overlaid on the experiment's settings
+    of the same name) and ``settings`` (the experiment function's own keyword arguments).
     ``cfg["objective"]``, a dotted metrics key such as ``"test.success_rate"`` (or ``None``), names
     the number a hyperparameter sweeper optimises: it is stored as
     ``metrics["objective"] = {"metric": key, "value": float}`` and the Hydra app returns it.
     """
-    name = cfg.get("name")
-    if name not in EXPERIMENTS:
-        raise ValueError(f"unknown experiment {name!r}; choose one of {sorted(EXPERIMENTS)}")
-    objective = cfg.get("objective")
-    if objective is not None and not (isinstance(objective, str) and _DOTTED.fullmatch(objective)):
-        raise ValueError(f"objective must be a dotted metrics key such as 'test.success_rate' or null, "
-                         f"got {objective!r}")
-    opt = dict(cfg.get("optimizer") or {})
-    if "beta" not in opt or not float(opt["beta"]) > 0:
-        raise ValueError(f"optimizer.beta must be > 0, got {opt.get('beta')}")
-    fn = EXPERIMENTS[name]
-    accepted = inspect.signature(fn).parameters
-    settings = dict(cfg.get("settings") or {})
-    # top-level groups (``task.demos=...``, ``gp.alpha=...`` on the command line) overlay the
-    # experiment's own settings of the same name; empty ones are not passed at all
-    for key in ("task", "gp"):
-        top = dict(cfg.get(key) or {})
-        if top:
-            if key not in accepted:
-                raise ValueError(f"experiment {name!r} takes no {key}.* settings, got {sorted(top)}")
-            settings[key] = {**dict(settings.get(key) or {}), **top}
-    if cfg.get("resume", False):
-        if "resume" not in accepted:
-            raise ValueError(f"experiment {name!r} cannot resume (resume=true); run it again instead")
-        settings["resume"] = True
+    kwargs = check_config(cfg)
+    name, objective = cfg["name"], cfg.get("objective")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     # provenance, so a sweep's report can tell where and when each run ran (host, process)
     run_info = {"host": socket.gethostname(), "pid": os.getpid(),
                 "started": datetime.now(timezone.utc).isoformat(timespec="milliseconds")}
-    metrics = fn(
-        out_dir,
-        seed=int(cfg.get("seed", 0)),
-        device=resolve_device(cfg.get("device", "cpu")),
-        dtype=resolve_dtype(cfg.get("dtype", "float64")),
-        optimizer=opt,
-        plot=bool(cfg.get("plot", True)),
-        **settings,
-    )
+    metrics = EXPERIMENTS[name](out_dir, **kwargs)
     run_info["finished"] = datetime.now(timezone.utc).isoformat(timespec="milliseconds")
     metrics = {"experiment": name, **metrics, "run": run_info}
     try:

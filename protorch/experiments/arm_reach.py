@@ -38,17 +38,10 @@ from ..data.checkpoint import checkpoint_path, load
 from ..gp import make_env_map
 from ..gp.model import label_aware_mean
 from ..loop import LoopResult, demonstration_dataset, self_improve
-from ..optim import PRO
 from ..primitives.promp import ProMP, resample
 from ..tasks.arm_reach import LEFT, RIGHT, ArmReachTask
 from ..viz.arm import experiment_figures
-from .common import (
-    check_optimizer,
-    evaluation_settings,
-    gp_settings,
-    loop_settings,
-    optimizer_kwargs,
-)
+from .common import check_optimizer, evaluation_settings, gp_settings, loop_settings, optimizer_spec
 
 __all__ = ["run", "prepare", "Setup", "TEST_SEED", "DYNAMIC_SEED"]
 
@@ -56,7 +49,7 @@ TEST_SEED = 2_000_003  # the held-out environments: fixed, never a training seed
 DYNAMIC_SEED = 3_000_017  # the moving episodes (start environments and moves)
 _DEMO_SEED_OFFSET = 10_007  # demonstrations: seed + offset (the loop's pool uses seed)
 _BASELINES = ("labels_off", "labels_off_loop")
-_TASK_KEYS = {"demo_envs", "demos_per_env", "priors", "cost_steps", "margin", "goal_tol", "start_tol", "can_radius",
+_TASK_KEYS = {"_target_", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin", "goal_tol", "start_tol", "can_radius",
               "can_height", "clearance", "urdf"}
 _GP_KEYS = {"backend", "alpha", "var_floor", "nearest_k"}
 _LOOP_KEYS = {"num_envs", "batch_size", "add_only", "choice", "checkpoint_every", "eval_dtype", "min_var", "labels",
@@ -158,6 +151,7 @@ def prepare(
     per_env = check_int(task_cfg.pop("demos_per_env", 3), "task.demos_per_env", 2)
     n_priors = check_int(task_cfg.pop("priors", 2004), "task.priors", 0)
     make_env_map(backend, alpha, **map_options)  # refuses a bad backend or option now
+    task_cfg.pop("_target_", None)
     arm = ArmReachTask(**task_cfg).to(device)
     model0 = ProMP(arm.num_dof, **{"num_basis": 10, "num_steps": 100, **dict(promp or {})}, dtype=dtype, device=device)
     seconds = {}
@@ -181,7 +175,7 @@ def prepare(
         prior_mean=prior_mean, prior_labels=prior_labels, seed=int(seed), test_envs=test_envs, test_seed=test_seed,
         dyn_env0=arm.sample_envs(episodes, torch.Generator().manual_seed(dyn_seed), dtype=dtype).to(device),
         dyn_seed=dyn_seed,
-        dyn_cfg=dyn_cfg, optimizer=(PRO, optimizer_kwargs(optimizer, optimizer.get("pro"))),
+        dyn_cfg=dyn_cfg, optimizer=optimizer_spec(optimizer),
         loop_kwargs=loop_kwargs, env_map=env_map, var_floor=var_floor, labels=labels, each_label=each_label,
         alpha=alpha, nearest_k=map_options.get("nearest_k"), seconds=seconds,
     )
@@ -278,7 +272,7 @@ def _run(out_dir, *, seed, device, dtype, optimizer, plot, task, gp, promp, loop
         "priors": {"count": int(setup.prior_envs.shape[0]),
                    "left": int((setup.prior_labels == LEFT).sum()), "right": int((setup.prior_labels == RIGHT).sum())},
         "settings": {"num_envs": lk["num_envs"], "batch_size": lk["batch_size"], "add_only": lk["add_only"],
-                     "choice": lk["choice"], "alpha": setup.alpha, "nearest_k": setup.nearest_k, "beta": float(optimizer["beta"]),
+                     "choice": lk["choice"], "alpha": setup.alpha, "nearest_k": setup.nearest_k, "beta": float(optimizer.get("beta", float("nan"))),
                      "var_floor": setup.var_floor, "labels": setup.labels, "each_label": setup.each_label, "max_iter": optimizer.get("max_iter"),
                      "num_samples": optimizer.get("num_samples"), "threads": torch.get_num_threads()},
         "baselines": {},

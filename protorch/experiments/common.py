@@ -12,6 +12,7 @@ import torch
 
 from ..checks import check_int
 from ..loop import ADD_ONLY, CHOICES
+from ..optim import PRO, RWR, optimizer_class
 
 DTYPES = {"float32": torch.float32, "float64": torch.float64}
 
@@ -97,10 +98,48 @@ def optimizer_kwargs(common: dict, specific: dict | None) -> dict:
     return out
 
 
+SHARED_OPTIMIZER_KEYS = ("beta", "num_samples", "max_iter", "tol", "window")
+
+
+def optimizer_spec(optimizer: dict, default: type = PRO) -> tuple[type, dict]:
+    """``(class, keyword arguments)`` of an optimizer group: ``{"name": <registered name>, ...}``
+    (``conf/optimizer/<name>.yaml``), or the per-method form ``{shared keys, "pro": {...}, ...}``
+    for ``default`` (PRO)."""
+    if "name" in optimizer:
+        return optimizer_class(optimizer["name"]), {k: v for k, v in optimizer.items() if k != "name"}
+    return default, optimizer_kwargs(optimizer, optimizer.get(default.__name__.lower()))
+
+
+def baseline_spec(optimizer: dict, baseline: dict | None, default: type = RWR) -> tuple[type, dict]:
+    """The comparison optimiser: the ``baseline_optimizer`` group, or (without one) ``default``
+    with ``optimizer``'s shared settings and its per-method section."""
+    if baseline:
+        return optimizer_spec(baseline, default)
+    shared = {k: v for k, v in optimizer.items() if k in SHARED_OPTIMIZER_KEYS or not isinstance(v, dict)}
+    shared.pop("name", None)
+    if "name" in optimizer:
+        shared = {k: v for k, v in shared.items() if k in SHARED_OPTIMIZER_KEYS}
+    return default, {**shared, **(optimizer.get(default.__name__.lower()) or {})}
+
+
+def per_method_form(optimizer: dict, baseline: dict | None) -> dict:
+    """An optimizer group (and the comparison's) as ``{shared keys, "<name>": {its own keys}}``,
+    the form of the paper-figure experiments' ``optimizer`` argument."""
+    out = {k: v for k, v in optimizer.items() if k in SHARED_OPTIMIZER_KEYS}
+    for group in (optimizer, baseline or {}):
+        if "name" in group:  # its own keys, and the shared ones where they differ from the optimizer's
+            own = {k: v for k, v in group.items()
+                   if k != "name" and (k not in SHARED_OPTIMIZER_KEYS or out.get(k, object()) != v)}
+            out[group["name"]] = {**out.get(group["name"], {}), **own}
+    return out
+
+
 # ----------------------------------------------------------------------------- settings checks
 def check_optimizer(optimizer: dict) -> None:
-    """``beta > 0``; ``max_iter >= 1`` and ``num_samples >= 2`` where given."""
-    if "beta" not in optimizer or not float(optimizer["beta"]) > 0:
+    """``beta > 0`` (reward-weighted optimisers); ``max_iter >= 1`` and ``num_samples >= 2`` where given."""
+    if "name" in optimizer and "beta" not in optimizer:
+        pass
+    elif "beta" not in optimizer or not float(optimizer["beta"]) > 0:
         raise ValueError(f"optimizer.beta must be > 0, got {optimizer.get('beta')}")
     for k, lo in (("max_iter", 1), ("num_samples", 2)):
         if k in optimizer:

@@ -29,18 +29,11 @@ from ..data.checkpoint import checkpoint_path, load
 from ..gp import make_env_map
 from ..gp.model import EnvToProMP
 from ..loop import LoopResult, demonstration_dataset, self_improve
-from ..optim import PRO, RWR
 from ..primitives.promp import ProMP
 from ..tasks import PointParticleTask, load_human_demos
 from ..viz.online import plot_episode_frames, write_episode_gif
 from ..viz.paper import plot_point_particle, plot_trajectories, save_figure
-from .common import (
-    check_optimizer,
-    evaluation_settings,
-    gp_settings,
-    loop_settings,
-    optimizer_kwargs,
-)
+from .common import baseline_spec, check_optimizer, evaluation_settings, gp_settings, loop_settings, optimizer_spec
 
 __all__ = ["run", "prepare", "Setup", "TEST_SEED", "DYNAMIC_SEED"]
 
@@ -48,7 +41,7 @@ TEST_SEED = 2_000_003  # the held-out test environments: fixed, never a training
 DYNAMIC_SEED = 3_000_017  # the moving-environment episodes (start environments and walks)
 _DEMO_SEED_OFFSET = 10_007  # synthetic demonstrations: seed + offset (the loop's pool uses seed)
 _BASELINES = ("demos_only", "rwr")
-_TASK_KEYS = {"objectives", "fixed_start", "infinite_wall", "demos", "demo_envs", "demos_per_env"}
+_TASK_KEYS = {"_target_", "objectives", "fixed_start", "infinite_wall", "demos", "demo_envs", "demos_per_env"}
 _GP_KEYS = {"backend", "alpha", "var_floor", "nearest_k"}
 _LOOP_KEYS = {"num_envs", "batch_size", "add_only", "choice", "checkpoint_every", "eval_dtype", "min_var",
               "stop_when_solved"}
@@ -108,6 +101,7 @@ def prepare(
     loop: dict | None = None,
     test: dict | None = None,
     dynamic: dict | None = None,
+    baseline_optimizer: dict | None = None,
 ) -> Setup:
     """Validate every setting (clear errors, before any work), load or synthesise the
     demonstrations and draw the test environments; see :func:`run` for the settings."""
@@ -161,8 +155,7 @@ def prepare(
         dyn_env0=point.sample_envs(episodes, torch.Generator().manual_seed(dyn_seed), dtype=dtype).to(device),
         dyn_seed=dyn_seed,
         dyn_cfg=dyn_cfg,
-        optimizers={"pro": (PRO, optimizer_kwargs(optimizer, optimizer.get("pro"))),
-                    "rwr": (RWR, optimizer_kwargs(optimizer, optimizer.get("rwr")))},
+        optimizers={"pro": optimizer_spec(optimizer), "rwr": baseline_spec(optimizer, baseline_optimizer)},
         loop_kwargs=loop_kwargs, env_map=env_map, var_floor=var_floor,
     )
 
@@ -184,6 +177,7 @@ def run(
     baselines: Sequence[str] = _BASELINES,
     resume: bool = False,
     progress: bool = True,
+    baseline_optimizer: dict | None = None,
 ) -> dict:
     """Run the experiment into ``out_dir``; return the metrics (see the module docstring).
 
@@ -194,7 +188,9 @@ def run(
     ``checkpoint_every``, ``eval_dtype``, ``min_var``, ``stop_when_solved`` (see
     :func:`~protorch.loop.self_improve`). ``test``: ``num_envs``, ``seed``. ``dynamic``:
     ``episodes`` plus :func:`~protorch.control.particle.run_episodes` options. ``baselines``: any of
-    ``demos_only``, ``rwr``. ``resume``: continue the loops from the checkpoints in ``out_dir``.
+    ``demos_only``, ``rwr`` (the loop with ``baseline_optimizer``, an optimizer group; RWR by
+    default). ``optimizer``: an optimizer group (``{"name": "pro", ...}``) or PRO's settings with
+    per-method sections. ``resume``: continue the loops from the checkpoints in ``out_dir``.
     Every setting is validated before any work starts.
     """
     t0 = time.perf_counter()
@@ -204,7 +200,7 @@ def run(
     if bad:
         raise ValueError(f"unknown baseline(s) {bad}; choose from {list(_BASELINES)}")
     setup = prepare(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp, promp=promp,
-                    loop=loop, test=test, dynamic=dynamic)
+                    loop=loop, test=test, dynamic=dynamic, baseline_optimizer=baseline_optimizer)
     rwr_dir = out_dir / "baselines" / "rwr"
     if not resume:
         for d in [out_dir] + ([rwr_dir] if "rwr" in baselines else []):
@@ -219,7 +215,7 @@ def run(
         "demos": {"source": setup.source, "count": len(setup.demos), "envs": len(setup.initial_data())},
         "settings": {"num_envs": lk["num_envs"], "batch_size": lk["batch_size"], "add_only": lk["add_only"],
                      "choice": lk["choice"], "alpha": float((gp or {}).get("alpha", 1e-3)),
-                     "beta": float(optimizer["beta"]), "var_floor": setup.var_floor,
+                     "beta": float(optimizer.get("beta", float("nan"))), "var_floor": setup.var_floor,
                      "objectives": point.objectives},
         "baselines": {},
     }
@@ -260,7 +256,7 @@ def _test(task, model, envs, seed: int) -> dict:
 
 
 def _dynamic(task, model, env0, cfg, seed: int) -> tuple[dict, object]:
-    """The moving-environment episodes (the teammate's :mod:`protorch.control.particle`)."""
+    """The moving-environment episodes (:mod:`protorch.control.particle`)."""
     if env0.shape[0] == 0:
         return {"success_rate": float("nan"), "episodes": 0}, None
 
@@ -329,7 +325,7 @@ def _figures(out_dir, task, model, test_envs, pro, rwr, metrics, episode, seed) 
                  f"{metrics['test']['success_rate']:.3f}", fontsize=10)
     save_figure(fig, Path(out_dir) / "test_grid.png")
 
-    # one moving episode (Fig. 6): frames and a GIF (the teammate's protorch.viz.online)
+    # one moving episode (Fig. 6): frames and a GIF (protorch.viz.online)
     if episode is not None:
 
         ep = episode.episode(0)

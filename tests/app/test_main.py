@@ -21,23 +21,28 @@ EXPERIMENTS = sorted(p.stem for p in (ROOT / "conf" / "experiment").glob("*.yaml
 TINY = {
     "fig3_toy": ["optimizer.max_iter=5", "optimizer.num_samples=20", "settings.eval_samples=100"],
     "fig4_window": [
-        "optimizer.max_iter=3", "optimizer.num_samples=20", "optimizer.pro.relevance_samples=20",
-        "optimizer.rwpo.relevance_iters=2", "optimizer.rwpo.theta_samples=4", "optimizer.rwpo.trajectory_samples=3",
+        "optimizer.max_iter=3", "optimizer.num_samples=20", "optimizer.relevance_samples=20",
+        "baseline_optimizer.relevance_iters=2", "baseline_optimizer.theta_samples=4", "baseline_optimizer.trajectory_samples=3",
     ],
     "beam_window": [
-        "optimizer.max_iter=3", "optimizer.num_samples=20", "optimizer.pro.relevance_samples=20",
+        "optimizer.max_iter=3", "optimizer.num_samples=20", "optimizer.relevance_samples=20",
         "settings.num_demos=4", "settings.eval_samples=50", "settings.teleop.trials=5",
     ],
     "point_particle": [
         "settings.loop.num_envs=20", "settings.loop.batch_size=10", "optimizer.max_iter=10",
-        "optimizer.num_samples=20", "optimizer.pro.relevance_samples=20", "settings.test.num_envs=10",
+        "optimizer.num_samples=20", "optimizer.relevance_samples=20", "settings.test.num_envs=10",
         "settings.dynamic.episodes=3", "settings.progress=false",
     ],
     "arm_reach": [
         "settings.loop.num_envs=10", "settings.loop.batch_size=10", "optimizer.max_iter=3", "optimizer.num_samples=20",
-        "optimizer.pro.relevance_samples=20", "task.priors=20", "task.demo_envs=2", "settings.test.num_envs=6",
+        "optimizer.relevance_samples=20", "task.priors=20", "task.demo_envs=2", "settings.test.num_envs=6",
         "settings.dynamic.episodes=2", "settings.dynamic.duration=1.0", "settings.dynamic.hold=0.2",
         "settings.baselines=[labels_off]", "settings.progress=false",
+    ],
+    "self_improve": [
+        "task._target_=examples.reach_around_a_disc.ReachAroundADisc", "settings.loop.num_envs=6",
+        "settings.loop.batch_size=3", "optimizer.max_iter=4", "optimizer.num_samples=12", "optimizer.relevance_samples=12",
+        "settings.test.num_envs=8", "task.demo_envs=4",
     ],
 }
 
@@ -77,7 +82,7 @@ def test_experiment_runs_end_to_end_at_a_tiny_budget(name, tmp_path):
 def test_bad_beta_is_refused_with_a_clear_error(tmp_path):
     proc = run_cli(["experiment=fig3_toy", "optimizer.beta=-1", f"hydra.run.dir={tmp_path}"], check=False)
     assert proc.returncode != 0
-    assert "beta must be" in proc.stderr
+    assert "optimizer.beta=-1 must be a number > 0" in proc.stderr
     assert not (tmp_path / "metrics.json").exists()
 
 

@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[2]
 # smaller than the app tests' TINY: six runs must fit in seconds on 2 cores
 MICRO = [
     "settings.loop.num_envs=4", "settings.loop.batch_size=2", "optimizer.max_iter=3", "optimizer.num_samples=10",
-    "optimizer.pro.relevance_samples=10", "settings.test.num_envs=4", "settings.dynamic.episodes=1",
+    "optimizer.relevance_samples=10", "settings.test.num_envs=4", "settings.dynamic.episodes=1",
     "settings.progress=false", "plot=false", "settings.baselines=[]",
 ]
 GRID = ["optimizer.beta=10,20,40", "gp.alpha=1e-3,1e-2"]

@@ -19,7 +19,7 @@ from protorch.tasks.arm_reach import LEFT, RIGHT
 
 TINY = [
     "settings.loop.num_envs=10", "settings.loop.batch_size=5", "optimizer.max_iter=3", "optimizer.num_samples=20",
-    "optimizer.pro.relevance_samples=20", "task.priors=30", "task.demo_envs=2", "settings.test.num_envs=6",
+    "optimizer.relevance_samples=20", "task.priors=30", "task.demo_envs=2", "settings.test.num_envs=6",
     "settings.dynamic.episodes=3", "settings.dynamic.duration=1.0", "settings.dynamic.hold=0.2",
     "settings.progress=false", "plot=false",
 ]
@@ -30,7 +30,7 @@ def cfg(*overrides: str) -> dict:
         c = compose(config_name="config", overrides=["experiment=arm_reach", *TINY, *overrides])
     plain = OmegaConf.to_container(c, resolve=False)
     plain.pop("hydra", None)
-    return plain
+    return OmegaConf.to_container(OmegaConf.create(plain), resolve=True)  # baseline_optimizer: ${optimizer.*}
 
 
 def test_config_holds_the_papers_settings():
@@ -83,14 +83,14 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
 @pytest.mark.parametrize("override, match", [
     ("+task.colour=red", "unknown task setting"),
     ("task.margin=-0.1", "margin must be >= 0"),
-    ("gp.alpha=0", "gp.alpha must be > 0"),
-    ("settings.loop.labels=maybe", "loop.labels must be true or false"),
-    ("settings.threads=0", "threads must be"),
-    ("+settings.dynamic.speed=2", "unknown dynamic setting"),
-    ("settings.baselines=[labels_of]", "unknown baseline"),
+    ("gp.alpha=0", "^gp.alpha=0 must be a number > 0$"),
+    ("settings.loop.labels=maybe", "^settings.loop.labels='maybe' must be true or false$"),
+    ("settings.threads=0", "^settings.threads=0 must be an int >= 1 or null$"),
+    ("+settings.dynamic.speed=2", "^settings.dynamic.speed is not a setting of settings.dynamic"),
+    ("settings.baselines=[labels_of]", r"^settings.baselines\[0\]='labels_of' must be one of labels_off, labels_off_loop$"),
     ("+settings.test.seed=0", r"test.seed \(0\) must differ from the training seeds"),
     ("+settings.dynamic.seed=0", r"dynamic.seed \(0\) must differ from the training seeds"),
-    ("+settings.dynamic.seed=abc", "dynamic.seed must be an integer"),
+    ("+settings.dynamic.seed=abc", "^settings.dynamic.seed='abc' must be an int >= 0$"),
 ])
 def test_bad_settings_are_refused_before_any_work(tmp_path, override, match):
     with pytest.raises((ValueError, TypeError), match=match):

@@ -12,8 +12,8 @@ from protorch.primitives.pose import PoseProMP
 from protorch.tasks.beam_window import BeamWindowTask, SimulatedOperator
 
 F64 = torch.float64
-TINY_PRO = dict(beta=200.0, num_samples=40, max_iter=12, tol=0.0,
-                pro=dict(relevance_samples=40, relevance_var=1e-5, noise_floor=3.0))
+TINY_PRO = dict(beta=200.0, num_samples=40, max_iter=12, tol=0.0, relevance_samples=40, relevance_var=1e-5,
+                noise_floor=3.0)
 
 
 def _cfg(**optimizer):
@@ -27,7 +27,7 @@ def _cfg(**optimizer):
     plain = OmegaConf.to_container(cfg, resolve=False)
     plain.pop("hydra", None)
     plain["optimizer"].update(optimizer)
-    return plain
+    return OmegaConf.to_container(OmegaConf.create(plain), resolve=True)  # baseline_optimizer: ${optimizer.*}
 
 
 def test_config_holds_the_papers_settings():
@@ -71,8 +71,7 @@ def test_two_stage_optimisation_at_a_tiny_budget():
 def test_the_papers_claims_at_a_reduced_budget(tmp_path):
     """80 iterations x 100 samples per stage (the paper: 150 x 200, measured in the README), 1000
     samples, 100 + 100 simulated trials: about 4 s on one free core."""
-    pro = {**_cfg()["optimizer"]["pro"], "relevance_samples": 100}
-    cfg = _cfg(max_iter=80, num_samples=100, pro=pro)
+    cfg = _cfg(max_iter=80, num_samples=100, relevance_samples=100)
     cfg["settings"]["num_threads"] = 1  # robust to a loaded machine (see run's docstring)
     threads = torch.get_num_threads()
     m = run_experiment(cfg, tmp_path)

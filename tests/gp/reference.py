@@ -3,7 +3,9 @@
 import numpy as np
 import torch
 
-BACKENDS = ["torch", "gpytorch"]
+from protorch.gp import BACKENDS as REGISTERED_BACKENDS
+
+BACKENDS = sorted(REGISTERED_BACKENDS)  # every registered backend, a new one included
 
 
 def reference_eq78(E, MU, VAR, Q, alpha):

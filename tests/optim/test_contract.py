@@ -1,14 +1,15 @@
 """One contract suite for every optimiser: ask / tell / stop / result over B problems at once.
 
-Each test runs for PRO, RWR and RWPO (the latter with a tiny relevance-learning budget), and for
-the peers CEM and CMA-ES (pycma behind the same contract).
+Each test runs for every optimiser registered in ``protorch.optim.OPTIMIZERS`` (PRO, RWR, RWPO with a
+tiny relevance-learning budget, the peers CEM and CMA-ES with pycma behind the same contract, and any
+optimiser registered later, with its default settings).
 """
 
 import pytest
 import torch
 
 from protorch import PRO, RWPO, RWR, OptimizeResult
-from protorch.optim import CEM, CMAES
+from protorch.optim import CEM, CMAES, OPTIMIZERS
 
 F64 = torch.float64
 
@@ -20,12 +21,14 @@ SMALL = {
     CMAES: {"pycma_stop": False},  # the contract's stopping rule alone (test_peers.py checks pycma's)
 }
 RANK_BASED = (CEM, CMAES)  # no reward temperature: only the order of the costs matters
+# a registered optimiser not listed in SMALL runs with its defaults; RWPO-like ones needing more
+# arguments add them to SMALL
 
 
-@pytest.fixture(params=[PRO, RWR, RWPO, CEM, CMAES], ids=lambda c: c.__name__)
+@pytest.fixture(params=sorted(OPTIMIZERS), ids=str)
 def make(request):
     """``make(mean, var=1.0, **kw)`` builds the optimiser under test with small settings."""
-    cls = request.param
+    cls = OPTIMIZERS[request.param]  # every registered optimiser, a new one included
 
     def build(mean, var=1.0, **kw):
         if cls in RANK_BASED:
@@ -35,7 +38,7 @@ def make(request):
         kw.setdefault("num_samples", 20)
         kw.setdefault("num_objectives", 2)
         kw.setdefault("seed", 0)
-        return cls(mean, torch.as_tensor(var, dtype=F64), **{**SMALL[cls], **kw})
+        return cls(mean, torch.as_tensor(var, dtype=F64), **{**SMALL.get(cls, {}), **kw})
 
     build.cls = cls
     return build

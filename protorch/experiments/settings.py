@@ -1,0 +1,290 @@
+"""Typed settings: dataclass schemas of the experiments' settings, checked before any work.
+
+Each schema field carries its one-line meaning (``help``, the source of ``--help`` text) and its
+allowed range (``ge`` / ``gt`` / ``choices``). :func:`validate` checks a plain dict against a
+schema and raises :class:`SettingsError` with ONE line naming the full key, the value and what is
+allowed, e.g. ``settings.loop.num_envs='abc' must be an int >= 1``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import typing
+from dataclasses import dataclass
+
+__all__ = ["SettingsError", "setting", "validate", "describe", "OPTIMIZER_SCHEMAS", "SETTINGS_SCHEMAS", "TASK_SCHEMAS",
+           "GP", "Loop", "Test", "ProMPSettings"]
+
+
+class SettingsError(ValueError):
+    """A setting of the wrong type or out of range; its message is one line."""
+
+
+def setting(default=dataclasses.MISSING, help: str = "", *, ge=None, gt=None, le=None, choices=None):
+    """A schema field with its meaning and allowed range."""
+    meta = {"help": help, "ge": ge, "gt": gt, "le": le, "choices": choices}
+    if isinstance(default, (list, dict)):
+        return dataclasses.field(default_factory=lambda d=default: type(d)(d), metadata=meta)
+    if dataclasses.is_dataclass(default):
+        return dataclasses.field(default_factory=lambda d=default: dataclasses.replace(d), metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def _range_text(meta: dict) -> str:
+    parts = [f"{op} {meta[k]}" for k, op in (("ge", ">="), ("gt", ">"), ("le", "<=")) if meta.get(k) is not None]
+    return " and ".join(parts)
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _check_scalar(tp, value, meta: dict) -> str | None:
+    """What ``value`` must be, or ``None`` when it is fine."""
+    rng = _range_text(meta)
+    if tp is bool:
+        return None if isinstance(value, bool) else "true or false"
+    if tp is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+        what = "an int" + (f" {rng}" if rng else "")
+    elif tp is float:
+        ok = _number(value) and not math.isnan(float(value))
+        what = "a number" + (f" {rng}" if rng else "")
+    elif tp is str:
+        choices = meta.get("choices")
+        ok = isinstance(value, str) and (choices is None or value in choices)
+        return None if ok else ("one of " + ", ".join(map(str, choices)) if choices else "a string")
+    else:
+        return None
+    if ok:
+        checks = (("ge", lambda a, b: a >= b), ("gt", lambda a, b: a > b), ("le", lambda a, b: a <= b))
+        ok = all(meta.get(k) is None or f(value, meta[k]) for k, f in checks)
+    return None if ok else what
+
+
+def _check(tp, value, meta: dict, key: str):
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is typing.Union:
+        if value is None and type(None) in args:
+            return value
+        (inner,) = [a for a in args if a is not type(None)]
+        try:
+            return _check(inner, value, meta, key)
+        except SettingsError as exc:
+            raise SettingsError(f"{str(exc)} or null") from None
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise SettingsError(f"{key}={value!r} must be a group of settings ({', '.join(f.name for f in dataclasses.fields(tp))})")
+        return validate(tp, value, key)
+    if origin in (list, tuple):
+        if not isinstance(value, (list, tuple)):
+            raise SettingsError(f"{key}={value!r} must be a list")
+        for i, v in enumerate(value):
+            _check(args[0], v, meta, f"{key}[{i}]")
+        return value
+    if origin is dict or tp is typing.Any:
+        return value
+    what = _check_scalar(tp, value, meta)
+    if what is not None:
+        raise SettingsError(f"{key}={value!r} must be {what}")
+    return value
+
+
+def validate(schema: type, data: dict | None, where: str) -> dict:
+    """``data`` checked against the dataclass ``schema``: unknown keys, types and ranges; every
+    problem raises :class:`SettingsError` naming ``where.key``. Returns ``data`` (values unchanged)."""
+    data = dict(data or {})
+    hints = typing.get_type_hints(schema)
+    fields = {f.name: f for f in dataclasses.fields(schema)}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise SettingsError(f"{where}.{unknown[0]} is not a setting of {where}; known: {', '.join(sorted(fields))}")
+    for name, value in data.items():
+        _check(hints[name], value, dict(fields[name].metadata), f"{where}.{name}")
+    return data
+
+
+def describe(schema: type, where: str) -> dict[str, str]:
+    """``{"where.key": one-line meaning}`` of every field, nested groups included."""
+    out = {}
+    hints = typing.get_type_hints(schema)
+    for f in dataclasses.fields(schema):
+        key, tp = f"{where}.{f.name}", hints[f.name]
+        out[key] = f.metadata.get("help", "")
+        if dataclasses.is_dataclass(tp):
+            out.update(describe(tp, key))
+    return out
+
+
+# ----------------------------------------------------------------------------- shared groups
+@dataclass
+class _Shared:
+    name: str = setting("pro", "the optimiser (a key of protorch.optim.OPTIMIZERS)")
+    num_samples: int = setting(100, "weight samples per iteration", ge=2)
+    max_iter: int = setting(200, "iteration limit", ge=1)
+    tol: float = setting(1e-3, "converged: every objective's mean sample cost within tol over `window` iterations; 0 = never", ge=0)
+    window: int = setting(5, "iterations the convergence rule looks back over", ge=1)
+
+
+@dataclass
+class _RewardWeighted(_Shared):
+    beta: float = setting(10.0, "reward exp(-beta * cost); larger = greedier", gt=0)
+
+
+@dataclass
+class ProSettings(_RewardWeighted):
+    relevance_samples: int = setting(100, "samples of the relevance estimate", ge=2)
+    relevance_var: float = setting(1e-5, "variance of the relevance samples' perturbation", gt=0)
+    relevance_every: int = setting(1, "recompute the relevance every k iterations", ge=1)
+    noise_floor: typing.Optional[float] = setting(None, "|rho| below noise_floor / sqrt(samples) counts as 0; null = as written", ge=0)
+
+
+@dataclass
+class RwrSettings(_RewardWeighted):
+    center: str = setting("new", "variance about the new mean (textbook RWR) or the old one", choices=("new", "old"))
+
+
+@dataclass
+class RwpoSettings(_RewardWeighted):
+    relevance_iters: int = setting(50, "iterations of the relevance search", ge=1)
+    theta_samples: int = setting(200, "relevance-parameter samples per relevance iteration", ge=2)
+    trajectory_samples: int = setting(50, "trajectory samples per relevance candidate", ge=1)
+    relevance_beta: float = setting(10.0, "reward temperature of the relevance search", gt=0)
+    relevance_every: int = setting(0, "relearn the relevance every k iterations; 0 = once", ge=0)
+
+
+@dataclass
+class CemSettings(_Shared):
+    elite_frac: float = setting(0.1, "fraction of the samples refitted", gt=0, le=1)
+    smoothing: float = setting(1.0, "step towards the elites' Gaussian", gt=0, le=1)
+    extra_var: float = setting(0.0, "variance added after each refit (the noisy CEM)", ge=0)
+
+
+@dataclass
+class CmaesSettings(_Shared):
+    pycma_stop: bool = setting(True, "also stop where pycma's termination criteria say so")
+    cma_options: typing.Optional[dict] = setting(None, "extra pycma options")
+
+
+OPTIMIZER_SCHEMAS: dict[str, type] = {"pro": ProSettings, "rwr": RwrSettings, "rwpo": RwpoSettings,
+                                      "cem": CemSettings, "cmaes": CmaesSettings}
+
+
+@dataclass
+class GP:
+    backend: str = setting("torch", "the environment map (a key of protorch.gp.BACKENDS)")
+    alpha: float = setting(1.0, "kernel exp(-alpha ||e - e'||^2)", gt=0)
+    var_floor: float = setting(0.0, "lower bound on a data-set entry's variance = its GP noise", ge=0)
+    nearest_k: typing.Optional[int] = setting(None, "condition on the k nearest known environments; null = all", ge=1)
+
+
+@dataclass
+class ProMPSettings:
+    num_basis: int = setting(10, "Gaussian basis functions per degree of freedom", ge=2)
+    num_steps: int = setting(100, "time steps of a trajectory", ge=2)
+
+
+@dataclass
+class Loop:
+    num_envs: int = setting(1000, "environments the self-improvement loop tries", ge=1)
+    batch_size: int = setting(100, "B environments inferred and optimised at once", ge=1)
+    add_only: str = setting("success", "which solutions join the data set", choices=("converged", "success", "all"))
+    choice: str = setting("random", "order of the environments: pool order or nearest known first", choices=("random", "nearest"))
+    checkpoint_every: int = setting(1, "loop steps between atomic checkpoints", ge=1)
+    eval_dtype: str = setting("float32", "dtype of the optimiser's samples and costs", choices=("float32", "float64"))
+    min_var: float = setting(0.0, "floor on the inferred variance the optimiser starts from", ge=0)
+
+
+@dataclass
+class Test:
+    num_envs: int = setting(200, "held-out random environments", ge=1)
+    seed: int = setting(2_000_003, "their seed (never a training seed)", ge=0)
+
+
+# ----------------------------------------------------------------------------- experiments
+@dataclass
+class ParticleLoop(Loop):
+    stop_when_solved: bool = setting(False, "stop a problem once its mean passes with margins")
+
+
+@dataclass
+class ParticleDynamic:
+    seed: int = setting(3_000_017, "seed of the moving episodes (never a training seed)", ge=0)
+    episodes: int = setting(100, "moving-environment episodes", ge=0)
+    duration: float = setting(2.0, "seconds of motion", gt=0)
+    hold: float = setting(0.5, "seconds held at the end", ge=0)
+    dt: float = setting(0.01, "control step (s)", gt=0)
+    kp: float = setting(1000.0, "PD stiffness", gt=0)
+    kd: float = setting(30.0, "PD damping", ge=0)
+    step_std: typing.Any = setting(None, "random-walk step of the moving hole and goal (a number or one per entry)")
+    start: str = setting("env", "where the particle starts")
+    goal_tol: float = setting(0.2, "distance to the goal that counts as reached", gt=0)
+
+
+@dataclass
+class PointParticleSettings:
+    promp: ProMPSettings = setting(ProMPSettings(), "the ProMP's basis")
+    loop: ParticleLoop = setting(ParticleLoop(), "the self-improvement loop")
+    test: Test = setting(Test(), "the held-out test")
+    dynamic: ParticleDynamic = setting(ParticleDynamic(), "the moving-environment episodes")
+    baselines: list[str] = setting(["demos_only", "rwr"], "baselines run alongside", choices=("demos_only", "rwr"))
+    progress: bool = setting(True, "show progress bars")
+
+
+@dataclass
+class ArmLoop(Loop):
+    labels: bool = setting(True, "label solutions by homotopy class; false: the paper's single map")
+    each_label: bool = setting(True, "optimise every class's prediction for each environment")
+
+
+@dataclass
+class ArmDynamic:
+    seed: int = setting(3_000_017, "seed of the moving episodes (never a training seed)", ge=0)
+    episodes: int = setting(100, "moving episodes", ge=0)
+    duration: float = setting(3.0, "seconds of motion", gt=0)
+    hold: float = setting(1.0, "seconds held at the end", ge=0)
+    dt: float = setting(0.02, "control step (s); the map is queried every step", gt=0)
+    kp: float = setting(10.0, "joint-space stiffness", gt=0)
+    moves: list[int] = setting([1, 2], "the can or the target is moved this many times per episode")
+    move_window: list[float] = setting([0.1, 0.6], "fraction of the motion in which the moves happen")
+    place_clearance: float = setting(0.05, "clearance of a moved object to the arm (m)", ge=0)
+    switch_margin: float = setting(0.02, "cost margin before the arm switches class", ge=0)
+
+
+@dataclass
+class ArmReachSettings:
+    promp: ProMPSettings = setting(ProMPSettings(), "the ProMP's basis")
+    loop: ArmLoop = setting(ArmLoop(), "the self-improvement loop")
+    test: Test = setting(Test(), "the held-out test")
+    dynamic: ArmDynamic = setting(ArmDynamic(), "the moving episodes")
+    baselines: list[str] = setting(["labels_off", "labels_off_loop"], "baselines run alongside",
+                                   choices=("labels_off", "labels_off_loop"))
+    progress: bool = setting(True, "show progress bars")
+    threads: typing.Optional[int] = setting(1, "torch threads for the run; null = torch's setting", ge=1)
+
+
+@dataclass
+class SelfImproveSettings:
+    promp: ProMPSettings = setting(ProMPSettings(), "the ProMP's basis")
+    loop: Loop = setting(Loop(), "the self-improvement loop")
+    test: Test = setting(Test(), "the held-out test")
+    baselines: list[str] = setting(["demos_only"], "baselines run alongside", choices=("demos_only",))
+    progress: bool = setting(False, "show progress bars")
+
+
+SETTINGS_SCHEMAS: dict[str, type] = {"point_particle": PointParticleSettings, "arm_reach": ArmReachSettings,
+                                     "self_improve": SelfImproveSettings}
+
+
+@dataclass
+class PointParticleTaskSettings:
+    objectives: str = setting("clearance", "the middle objective", choices=("clearance", "hole"))
+    fixed_start: typing.Optional[list[float]] = setting(None, "a fixed start point instead of a random one")
+    infinite_wall: bool = setting(True, "the wall continues beyond y = 0 and y = 10")
+    demos: str = setting("synthetic", "synthetic, or a folder of trajK.out / envK.out")
+    demo_envs: int = setting(30, "synthetic only: demonstrated environments", ge=1)
+    demos_per_env: int = setting(3, "synthetic only: demonstrations per environment", ge=2)
+
+
+TASK_SCHEMAS: dict[str, type] = {"point_particle": PointParticleTaskSettings}

@@ -8,6 +8,7 @@ It returns the number named by the config's ``objective`` key (e.g. ``test.succe
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import hydra
@@ -16,6 +17,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from ..data.files import atomic_write_bytes
 from ..experiments import run_experiment
+from ..view.__main__ import main as view_main
 
 
 def config_dir() -> Path:
@@ -37,3 +39,11 @@ def main(cfg: DictConfig) -> float | None:
     print(f"[protorch] {plain['name']}: results in {out_dir}")
     objective = metrics.get("objective")
     return None if objective is None else objective["value"]
+
+
+def cli():
+    """The ``protorch`` console command: ``protorch view [RUN_DIR] ...`` serves the live viewer
+    (:mod:`protorch.view`); anything else goes to the Hydra app (:func:`main`)."""
+    if len(sys.argv) > 1 and sys.argv[1] == "view":
+        sys.exit(view_main(sys.argv[2:]))
+    return main()

@@ -13,7 +13,7 @@ __all__ = ["polylines", "draw_particle_static", "draw_particle_env", "draw_paths
            "draw_arm_env", "draw_arm_pose", "draw_arm_ghosts", "draw_trace", "segment_quaternion", "SIDE_COLORS"]
 
 SIDE_COLORS = {"left": (31, 119, 180), "right": (230, 120, 20), None: (31, 119, 180)}
-_MEAN, _START, _GOAL, _WALL = (20, 20, 20), (40, 170, 60), (210, 40, 40), (120, 120, 130)
+_MEAN, _START, _GOAL, _WALL = (0, 0, 0), (40, 170, 60), (210, 40, 40), (70, 70, 85)
 
 
 def polylines(paths: np.ndarray) -> np.ndarray:

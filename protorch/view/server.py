@@ -75,7 +75,7 @@ class Viewer:
         scene, cam = self.server.scene, self.server.initial_camera
         if self.run.kind == "particle":
             draw.draw_particle_static(scene)
-            cam.position, cam.look_at, cam.up = (5.0, 5.0, 15.0), (5.0, 5.0, 0.0), (0.0, 1.0, 0.0)
+            cam.position, cam.look_at, cam.up = (5.0, 5.0, 11.0), (5.0, 5.0, 0.0), (0.0, 1.0, 0.0)
             handles = {"start": (0, 1), "goal": (4, 5), "hole (moves the wall)": (2, 3)}
             if self.run.task.fixed_start is not None:
                 handles = {k: (a - 2, b - 2) for k, (a, b) in handles.items() if k != "start"}

@@ -35,7 +35,7 @@ def segment_quaternion(d: np.ndarray) -> np.ndarray:
 
 def draw_paths(scene, mean: np.ndarray, samples: np.ndarray, *, width: float, color=(31, 119, 180)) -> None:
     """The mean path ``(T, 3)`` (dark, thick) and the sample paths ``(S, T, 3)`` (thin)."""
-    scene.add_line_segments("/paths/samples", polylines(samples), color, thickness=0.35 * width)
+    scene.add_line_segments("/paths/samples", polylines(samples), color, thickness=0.25 * width)
     scene.add_line_segments("/paths/mean", polylines(mean), _MEAN, thickness=width)
 
 

@@ -9,8 +9,19 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["polylines", "draw_particle_static", "draw_particle_env", "draw_paths", "draw_arm_static",
-           "draw_arm_env", "draw_arm_pose", "draw_arm_ghosts", "draw_trace", "segment_quaternion", "SIDE_COLORS"]
+__all__ = [
+    "SIDE_COLORS",
+    "ArmPose",
+    "draw_arm_env",
+    "draw_arm_ghosts",
+    "draw_arm_static",
+    "draw_particle_env",
+    "draw_particle_static",
+    "draw_paths",
+    "draw_trace",
+    "polylines",
+    "segment_quaternion",
+]
 
 SIDE_COLORS = {"left": (31, 119, 180), "right": (230, 120, 20), None: (31, 119, 180)}
 _MEAN, _START, _GOAL, _WALL = (0, 0, 0), (40, 170, 60), (210, 40, 40), (70, 70, 85)
@@ -79,22 +90,39 @@ def draw_arm_env(scene, can_xy: np.ndarray, goal: np.ndarray, radius: float, hei
     scene.add_icosphere("/env/goal", 0.015, (30, 160, 60), position=tuple(float(v) for v in goal))
 
 
-def draw_arm_pose(scene, links: np.ndarray, name: str = "/arm", *, radius: float = 0.04,
-                  color=(235, 235, 240)) -> None:
+class ArmPose:
     """The Panda at one configuration: a cylinder per link between consecutive frame origins
-    ``links (F, 3)`` (coincident frames skipped) and a sphere per joint."""
-    pts = np.asarray(links, dtype=np.float64)
-    keep = [0] + [i for i in range(1, len(pts)) if np.linalg.norm(pts[i] - pts[i - 1]) > 1e-4]
-    pts = pts[keep]
-    for i in range(len(pts) - 1):
-        a, b = pts[i], pts[i + 1]
-        r = radius * (1.0 - 0.5 * i / max(len(pts) - 2, 1))  # thinner towards the hand
-        scene.add_cylinder(f"{name}/link{i}", r, float(np.linalg.norm(b - a)), color,
-                           wxyz=segment_quaternion(b - a), position=tuple((a + b) / 2))
-        scene.add_icosphere(f"{name}/joint{i}", 1.1 * r, (90, 90, 100), position=tuple(a))
-    for i in range(len(pts) - 1, 12):  # a chain with fewer distinct frames: hide the spare nodes
-        scene.add_cylinder(f"{name}/link{i}", 0.01, 0.01, color, visible=False)
-        scene.add_icosphere(f"{name}/joint{i}", 0.01, color, visible=False)
+    (coincident frames skipped) and a sphere per joint. The nodes are made once; :meth:`update`
+    only moves them (a pose change is then a few small property messages, not new meshes)."""
+
+    def __init__(self, scene, name: str = "/arm", *, radius: float = 0.04, color=(235, 235, 240)) -> None:
+        self.scene, self.name, self.radius, self.color = scene, name, radius, color
+        self.links: list = []
+        self.joints: list = []
+
+    def _segments(self, links: np.ndarray) -> np.ndarray:
+        pts = np.asarray(links, dtype=np.float64)
+        keep = [0] + [i for i in range(1, len(pts)) if np.linalg.norm(pts[i] - pts[i - 1]) > 1e-4]
+        return pts[keep]
+
+    def update(self, links: np.ndarray) -> None:
+        """Move the arm to the frame origins ``links (F, 3)``."""
+        pts = self._segments(links)
+        n = len(pts) - 1
+        while len(self.links) < n:  # first call (or a longer chain): make the nodes
+            i = len(self.links)
+            r = self.radius * (1.0 - 0.5 * i / max(n - 1, 1))  # thinner towards the hand
+            self.links.append(self.scene.add_cylinder(f"{self.name}/link{i}", r, 1.0, self.color))
+            self.joints.append(self.scene.add_icosphere(f"{self.name}/joint{i}", 1.1 * r, (90, 90, 100)))
+        for i, (cyl, sph) in enumerate(zip(self.links, self.joints)):
+            if i >= n:
+                cyl.visible = sph.visible = False
+                continue
+            a, b = pts[i], pts[i + 1]
+            cyl.height = float(np.linalg.norm(b - a))
+            cyl.wxyz, cyl.position = segment_quaternion(b - a), tuple((a + b) / 2)
+            sph.position = tuple(a)
+            cyl.visible = sph.visible = True
 
 
 def draw_arm_ghosts(scene, links: np.ndarray, color=(150, 150, 160)) -> None:

@@ -21,7 +21,7 @@ from ..control.particle import promp_state_at
 from ..robots.panda import PANDA_MAX_ACCELERATION
 from ..tasks.arm_reach import SIDES
 
-__all__ = ["ParticlePlayer", "ArmPlayer", "make_player"]
+__all__ = ["ArmPlayer", "ParticlePlayer", "make_player"]
 
 _BRIDGE = torch.linspace(0.0, 1.0, 9, dtype=torch.float64)[:-1]  # (8,) from the arm over to a class's path
 

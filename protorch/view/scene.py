@@ -28,8 +28,22 @@ from ..gp.model import EnvToProMP
 from ..tasks.arm_reach import SIDES, ArmReachTask
 from ..tasks.point_particle import PointParticleTask
 
-__all__ = ["Param", "ViewRun", "SceneState", "KINDS", "find_runs", "run_task_name", "build_task", "open_run",
-           "weight_noise", "scene_state", "particle_state", "arm_state", "check_state", "MAKE_RUN"]
+__all__ = [
+    "KINDS",
+    "MAKE_RUN",
+    "Param",
+    "SceneState",
+    "ViewRun",
+    "arm_state",
+    "build_task",
+    "check_state",
+    "find_runs",
+    "open_run",
+    "particle_state",
+    "run_task_name",
+    "scene_state",
+    "weight_noise",
+]
 
 KINDS = {"point_particle": "particle", "arm_reach": "arm"}
 MAKE_RUN = "python -m protorch experiment=point_particle hydra.run.dir=runs/pp  (or experiment=arm_reach)"
@@ -201,7 +215,7 @@ def particle_state(run: ViewRun, env, eps: Tensor, *, check: bool = True) -> Sce
         w = mu + var.clamp_min(0).sqrt() * eps.to(mu)  # (S, N)
         mean = promp.trajectory(mu)  # (1, T, 2)
         samples = promp.trajectory(w)  # (S, T, 2)
-    flat = lambda x: torch.cat([x, torch.zeros_like(x[..., :1])], -1).cpu().numpy()  # noqa: E731 (.., T, 3)
+    flat = lambda x: torch.cat([x, torch.zeros_like(x[..., :1])], -1).cpu().numpy()
     state = SceneState(env=q[0].cpu().numpy(), mean=flat(mean[0]), samples=flat(samples), success=False,
                        costs={}, infer_ms=1e3 * (t1 - t0), total_ms=1e3 * (time.perf_counter() - t0),
                        joints=mean[0].cpu().numpy())

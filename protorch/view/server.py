@@ -87,6 +87,7 @@ class Viewer:
             draw.draw_arm_static(scene, task.table, np.asarray(task.start))
             cam.position, cam.look_at, cam.up = (1.05, -0.7, 0.6), (0.5, 0.0, 0.12), (0.0, 0.0, 1.0)
             handles, scale = {"can": (0, 1), "target": (2, 3)}, 0.15
+            self.arm_pose = draw.ArmPose(scene)
         self.handles = {}
         for name, cols in handles.items():
             h = scene.add_transform_controls(f"/handles/{name.split()[0]}", scale=scale, active_axes=(True, True, False),
@@ -176,7 +177,7 @@ class Viewer:
             draw.draw_paths(scene, state.mean, state.samples, width=0.01, color=draw.SIDE_COLORS[state.label])
             draw.draw_arm_ghosts(scene, state.links[:-1])
             if not self._playing:
-                draw.draw_arm_pose(scene, state.links[-1])
+                self.arm_pose.update(state.links[-1])
         if self.redraws == 0:
             for cols, h in self.handles.items():
                 h.position = self._handle_position(cols)
@@ -205,7 +206,7 @@ class Viewer:
                     draw.draw_trace(scene, trace, trace[-1], radius=0.15)
                 else:
                     links = self.run.task.kinematics.link_positions(out).numpy()
-                    draw.draw_arm_pose(scene, links)
+                    self.arm_pose.update(links)
                     draw.draw_trace(scene, trace, trace[-1], radius=0.02)
                 if p.t % 5 == 0 or p.done:
                     self.info.content = info_markdown(self.run, self.state, p)

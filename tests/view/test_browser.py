@@ -18,6 +18,7 @@ import torch
 
 from protorch.experiments import point_particle
 from protorch.view.scene import open_run, scene_state
+from protorch.view.server import Viewer
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 viser = pytest.importorskip("viser", reason="viser is not installed (pip install -e '.[view]')")
@@ -46,8 +47,6 @@ def _verdict(page) -> str:
 
 @pytest.mark.slow
 def test_dragging_the_hole_slider_redraws_the_mean_and_the_verdict(trained_run, tmp_path):
-    from protorch.view.server import Viewer
-
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     run = open_run(trained_run)

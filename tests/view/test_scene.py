@@ -8,9 +8,17 @@ import os
 import pytest
 import torch
 
+from protorch.gp.model import label_aware_mean
 from protorch.view.__main__ import main
-from protorch.view.live import ParticlePlayer
-from protorch.view.scene import MAKE_RUN, find_runs, open_run, run_task_name, scene_state, weight_noise
+from protorch.view.live import ArmPlayer, ParticlePlayer
+from protorch.view.scene import (
+    MAKE_RUN,
+    find_runs,
+    open_run,
+    run_task_name,
+    scene_state,
+    weight_noise,
+)
 
 
 @pytest.fixture(scope="module")
@@ -76,4 +84,24 @@ def test_live_particle_tracks_a_static_environment_to_the_goal(run):
     assert p.t == p.total == 250
     # the PD with feed-forward ends on the mean's end point (the hold settles it)
     assert abs(p.trace()[-1] - mean[-1]).max() < 1e-3
-    assert p.success == (not p.collided and bool(((p.pos - env[4:6]).norm() <= 0.2)))
+    assert p.success == (not p.collided and bool((p.pos - env[4:6]).norm() <= 0.2))
+
+
+def test_arm_state_is_the_label_aware_answer(arm_run_dir):
+    run = open_run(arm_run_dir)
+    assert run.kind == "arm" and [p.name for p in run.params] == ["can_x", "can_y", "goal_x", "goal_y"]
+    env = run.env0
+    s = scene_state(run, env, weight_noise(run.model.promp.num_weights, 4))
+    best = label_aware_mean(run.model.env_map, run.model.promp, run.task, env[None], dtype=torch.float64)
+    traj = run.model.promp.trajectory(best.mean)  # (1, T, 7)
+    assert s.label == {0: "left", 1: "right"}[int(best.label[0])]
+    assert s.scores == pytest.approx(dict(zip(["left", "right"], best.scores[0].tolist())))
+    assert torch.allclose(torch.as_tensor(s.mean), run.task.ee_path(traj)[0])
+    assert s.success == bool(run.task.success(traj, env[None])[0])
+    assert s.links.shape == (5, run.task.kinematics.num_frames, 3)
+    assert torch.allclose(torch.as_tensor(s.links[-1, -1]), torch.as_tensor(s.mean[-1]))  # the hand ends the path
+    p = ArmPlayer(run)
+    p.reset()
+    while not p.done:
+        p.step(env)
+    assert p.t == p.total == 200 and p.label in ("left", "right") and isinstance(p.success, bool)

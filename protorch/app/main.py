@@ -18,6 +18,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from ..data.files import atomic_write_bytes
 from ..experiments import SettingsError, check_config, run_experiment
+from ..view.__main__ import main as view_main
 
 
 def config_dir() -> Path:
@@ -46,3 +47,11 @@ def main(cfg: DictConfig) -> float | None:
     print(f"[protorch] {plain['name']}: results in {out_dir}")
     objective = metrics.get("objective")
     return None if objective is None else objective["value"]
+
+
+def cli():
+    """The ``protorch`` console command: ``protorch view [RUN_DIR] ...`` serves the live viewer
+    (:mod:`protorch.view`); anything else goes to the Hydra app (:func:`main`)."""
+    if len(sys.argv) > 1 and sys.argv[1] == "view":
+        sys.exit(view_main(sys.argv[2:]))
+    return main()

@@ -54,3 +54,22 @@ def test_stale_tmp_files_are_removed_at_the_next_start(tmp_path):
     (tmp_path / "keep.tmp").write_text("not ours")
     check_run_folder(tmp_path, "fig3_toy")
     assert not (tmp_path / ".metrics.json.k1ll3d.tmp").exists() and (tmp_path / "keep.tmp").exists()
+
+
+def test_atomic_writes_honour_the_umask(tmp_path):
+    import os
+
+    from protorch.data.files import atomic_write_bytes
+
+    old = os.umask(0o077)
+    try:
+        private = atomic_write_bytes(tmp_path / "private.bin", b"x")
+    finally:
+        os.umask(old)
+    os.umask(0o022)
+    try:
+        shared = atomic_write_bytes(tmp_path / "shared.bin", b"x")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(private.stat().st_mode) == 0o600
+    assert stat.S_IMODE(shared.stat().st_mode) == 0o644

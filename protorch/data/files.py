@@ -19,7 +19,7 @@ import safetensors.torch
 from torch import Tensor
 
 __all__ = ["CheckpointError", "atomic_write_bytes", "atomic_write_safetensors", "read_safetensors",
-           "tensor_checksum", "META_KEY"]
+           "tensor_checksum", "remove_stale_tmp", "file_mode", "META_KEY"]
 
 META_KEY = "protorch"
 
@@ -28,12 +28,43 @@ class CheckpointError(ValueError):
     """A file that is not a complete, uncorrupted protorch checkpoint of the expected kind."""
 
 
+def file_mode() -> int:
+    """The mode ``open()`` gives a new file: ``0o666`` less the process's umask (0644 for the
+    usual umask 022). ``mkstemp`` creates 0600 files, which colleagues could not read."""
+    try:  # Linux reports the umask without changing it
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return 0o666 & ~int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+def remove_stale_tmp(folder: str | Path) -> list[Path]:
+    """Delete the ``.<name>.*.tmp`` files that :func:`atomic_write_bytes` left in ``folder`` when
+    its process was killed mid-write; return what was removed. Call it before a run starts
+    writing there (a concurrent writer's temporary file would be removed too)."""
+    folder = Path(folder)
+    removed = []
+    if folder.is_dir():
+        for tmp in folder.glob(".*.tmp"):
+            if tmp.is_file():
+                tmp.unlink(missing_ok=True)
+                removed.append(tmp)
+    return removed
+
+
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically: temp file in the same directory, fsync, rename."""
+    """Write ``data`` to ``path`` atomically: temp file in the same directory, fsync, rename.
+
+    The file gets the mode of a plain ``open()`` (:func:`file_mode`, honouring the umask)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        os.fchmod(fd, file_mode())
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()

@@ -302,27 +302,34 @@ def _figures(out_dir, task, model, test_envs, pro, rwr, metrics, episode, seed) 
     ax.set_title("self-improvement: success rate vs loop iteration", fontsize=10)
     save_figure(fig, Path(out_dir) / "success_vs_iteration.png")
 
-    # a grid of test environments: sampled and mean trajectories of the trained map
+    # a grid of test environments, failures first: sampled and mean trajectories of the trained map
+    with torch.no_grad():
+        all_ok = task.success(model.mean_trajectory(test_envs), test_envs)  # (M,), as in the test metrics
+    order = torch.cat([torch.nonzero(~all_ok).flatten(), torch.nonzero(all_ok).flatten()])
     n = min(12, test_envs.shape[0])
+    pick = order[:n]
     cols = min(4, n)
     rows = (n + cols - 1) // cols
-    fig, axes = plt.subplots(rows, cols, figsize=(3 * cols, 3 * rows), squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(3 * cols, 3.1 * rows), squeeze=False)
     gen = torch.Generator().manual_seed(int(seed))
     with torch.no_grad():
-        mu, var = model(test_envs[:n])  # (n, N), (n, N)
+        mu, var = model(test_envs[pick])  # (n, N), (n, N)
         w = mu[:, None] + var.sqrt()[:, None] * torch.randn(n, 10, mu.shape[-1], generator=gen, dtype=mu.dtype)
         samples, means = model.promp.trajectory(w), model.promp.trajectory(mu)  # (n, 10, T, 2), (n, T, 2)
-        ok = task.success(means, test_envs[:n])
+        ok = task.success(means, test_envs[pick])
     for i, ax in enumerate(axes.flat):
         if i >= n:
             ax.axis("off")
             continue
-        plot_point_particle(ax, task, test_envs[i])
+        plot_point_particle(ax, task, test_envs[pick[i]])
         plot_trajectories(ax, samples[i], color="tab:blue", lw=0.6, alpha=0.35)
         plot_trajectories(ax, means[i], color="k", lw=1.8, label="mean")
-        ax.set_title(f"test env {i}: {'success' if ok[i] else 'failure'}", fontsize=8)
-    fig.suptitle(f"held-out environments: 10 samples (blue) and the mean (black); test success "
-                 f"{metrics['test']['success_rate']:.3f}", fontsize=10)
+        ax.set_title(f"test env {int(pick[i])}: {'success' if ok[i] else 'FAILURE'}", fontsize=8,
+                     color="k" if ok[i] else "tab:red")
+    failures = int((~all_ok).sum())
+    fig.suptitle(f"held-out environments, failures first ({failures} of {all_ok.numel()} fail): 10 samples (blue) "
+                 f"and the mean (black); test success {metrics['test']['success_rate']:.3f}", fontsize=10)
+    fig.tight_layout()
     save_figure(fig, Path(out_dir) / "test_grid.png")
 
     # one moving episode (Fig. 6): frames and a GIF (protorch.viz.online)

@@ -61,7 +61,7 @@ import torch
 from protorch import PRO, RWPO, RWR, ProMP
 from protorch.data.files import atomic_write_bytes
 from protorch.experiments.point_particle import prepare
-from protorch.optim import CEM, CMAES
+from protorch.optim import CEM, CMAES, EPRO
 from protorch.tasks import WindowTask
 
 NUISANCE = 10  # weights of the DoF no objective reads
@@ -153,6 +153,8 @@ def make_optimizer(name: str, p: Problem, seed: int):
                     theta_samples=20, trajectory_samples=10, **common)
     if name == "RWPO (authors')":  # 50 x 200 x 50 x 3 = 1.5 M rollouts for the relevance alone
         return RWPO(p.mean, p.var, beta=BETA, num_objectives=3, num_basis=p.num_basis, **common)
+    if name == "EPRO":
+        return EPRO(p.mean, p.var, **{**common, "num_samples": 20})
     if name == "RWR":
         return RWR(p.mean, p.var, beta=BETA, **common)
     if name == "CEM":
@@ -165,7 +167,7 @@ def make_optimizer(name: str, p: Problem, seed: int):
     raise ValueError(name)
 
 
-METHODS = ("PRO", "PRO (as written)", "RWPO", "RWPO (authors')", "RWR", "CEM", "CMA-ES")
+METHODS = ("PRO", "EPRO", "PRO (as written)", "RWPO", "RWPO (authors')", "RWR", "CEM", "CMA-ES")
 
 
 def run_one(name: str, p: Problem, budget: int) -> dict:

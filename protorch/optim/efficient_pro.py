@@ -42,7 +42,7 @@ from .functional import pearson_relevance, stable_rewards
 __all__ = ["EPRO", "ess_temperature", "curvature_relevance"]
 
 
-def ess_temperature(costs: Tensor, ess: float, *, steps: int = 24) -> Tensor:
+def ess_temperature(costs: Tensor, ess: float, *, steps: int = 40) -> Tensor:
     """``beta (...)`` for ``costs (..., S)`` such that ``exp(-beta (c - min c))`` has an effective
     sample size of ``ess * S`` (to bisection precision). Constant costs give ``beta = 1``
     (every reward is 1 then, whatever beta)."""

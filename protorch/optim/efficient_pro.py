@@ -88,6 +88,8 @@ class EPRO(BaseOptimizer):
         pool: the relevance reads the samples of the last ``pool`` iterations (``>= 1``).
         noise_floor: ``z`` of the relevance's noise floor (default 3); ``None`` counts every
             correlation, as the paper's formula is written.
+        curvature: also correlate ``(w_n - mean_n)^2`` with the costs (default); ``False``: the
+            linear Pearson relevance alone, as the paper's PRO.
         objective_weights: ``(O,)``, default all ones: how objectives combine into the total cost.
         Other arguments: :class:`BaseOptimizer` (``num_samples`` defaults to 20 here).
     """
@@ -101,6 +103,7 @@ class EPRO(BaseOptimizer):
         ess: float = 0.25,
         pool: int = 10,
         noise_floor: float | None = 3.0,
+        curvature: bool = True,
         objective_weights=None,
         num_samples: int = 20,
         **kwargs,
@@ -118,6 +121,7 @@ class EPRO(BaseOptimizer):
         self.ess = float(ess)
         self.pool = int(pool)
         self.noise_floor = noise_floor
+        self.curvature = bool(curvature)
         self._set_objective_weights(objective_weights)
         self._pool: deque[tuple[Tensor, Tensor]] = deque(maxlen=self.pool)
         self.relevance: Tensor | None = None  # (B, O, N)
@@ -131,7 +135,10 @@ class EPRO(BaseOptimizer):
         self._pool.append((w, costs))
         pooled_w = torch.cat([p[0] for p in self._pool], 1)  # (B, P, N)
         pooled_c = torch.cat([p[1] for p in self._pool], 1)  # (B, P, O)
-        self.relevance = curvature_relevance(pooled_w, pooled_c, self.mean, self.noise_floor)  # (B, O, N)
+        if self.curvature:
+            self.relevance = curvature_relevance(pooled_w, pooled_c, self.mean, self.noise_floor)  # (B, O, N)
+        else:
+            self.relevance = pearson_relevance(pooled_w, pooled_c, noise_floor=self.noise_floor)  # (B, O, N)
         self.history["relevance"].append(self.relevance.clone())
         f = self.relevance.amax(1)  # (B, N)
         total = self._total_cost(costs)  # (B, S)

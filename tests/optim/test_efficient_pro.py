@@ -161,3 +161,14 @@ def test_bad_costs():
         opt.tell(torch.zeros(w.shape[0] + 1, 2, dtype=F64))
     with pytest.raises(ValueError):
         opt.tell(torch.full((w.shape[0], 2), float("nan"), dtype=F64))
+
+
+def test_linear_relevance_option_is_the_papers_pearson():
+    from protorch.optim import pearson_relevance
+
+    mean, var = torch.zeros(3, dtype=F64), torch.ones(3, dtype=F64)
+    opt = EPRO(mean, var, num_samples=40, seed=2, pool=1, curvature=False)
+    w = opt.ask()
+    c = torch.stack([w[:, 0].abs(), w[:, 1]], -1)  # (S, 2)
+    opt.tell(c)
+    torch.testing.assert_close(opt.relevance[0], pearson_relevance(w, c, noise_floor=3.0))

@@ -140,14 +140,15 @@ def beam_problems(repeats: int, stage: str) -> list[Problem]:
     return out
 
 
-def arm_problems(repeats: int) -> list[Problem]:
+def arm_problems(repeats: int, **task_overrides) -> list[Problem]:
     """Single arm problems (Sec. IV-C): random environments whose start, the label-aware GP map of
-    the experiment's demonstrations and priors, fails; the first ``repeats`` of them."""
+    the experiment's demonstrations and priors, fails; the first ``repeats`` of them.
+    ``task_overrides`` replace task settings (a test uses fewer priors)."""
     from protorch.experiments.arm_reach import prepare as prepare_arm
 
     cfg = OmegaConf.to_container(OmegaConf.load(CONF / "arm_reach.yaml"), resolve=True)
     st = cfg["settings"]
-    setup = prepare_arm(optimizer=cfg["optimizer"], task=cfg["task"], gp=cfg["gp"], promp=st["promp"],
+    setup = prepare_arm(optimizer=cfg["optimizer"], task={**cfg["task"], **task_overrides}, gp=cfg["gp"], promp=st["promp"],
                         loop={"num_envs": 0}, test={"num_envs": 1}, dynamic={"episodes": 0})
     data = setup.initial_data()
     gp = setup.env_map().fit(data.env, data.mean, data.var, data.label)

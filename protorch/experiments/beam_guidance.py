@@ -4,7 +4,8 @@ the distribution each optimiser returns for the same two-stage task and rollout 
 For every optimiser (the paper's PRO, EPRO, RWR, CEM, CMA-ES) the demonstrations' pose ProMP is
 optimised as in :func:`~protorch.experiments.beam_window.optimize_pose_promp` (position, then
 orientation with its window via points where the optimised position passes them), each stage
-with at most ``budget`` rollouts and the contract's convergence rule; PRO's distribution is the
+with at most ``budget`` rollouts (the experiment passes ``min(guidance_compare.budget, PRO's
+rollouts per stage)``) and the contract's convergence rule; PRO's distribution is the
 experiment's own (its 150 iterations). The same operators (the experiment's 100 intentions) are
 then assisted by :class:`~protorch.control.guidance.HapticGuidance` from each distribution.
 
@@ -34,7 +35,7 @@ from ..optim import CEM, CMAES, EPRO, RWR
 from ..primitives.pose import PoseProMP
 from ..tasks.beam_window import BeamWindowTask
 
-__all__ = ["PEERS", "compare_settings", "free_phase_mask", "free_force", "optimize_with", "compare_guidance"]
+__all__ = ["PEERS", "compare_settings", "pro_stage_rollouts", "free_phase_mask", "free_force", "optimize_with", "compare_guidance"]
 
 PEERS = ("EPRO", "RWR", "CEM", "CMA-ES")  # optimised here; "PRO" is the experiment's distribution
 
@@ -67,6 +68,14 @@ def compare_settings(cfg: dict | None) -> dict:
     if not 0 <= float(out["margin"]) < 0.5:
         raise ValueError(f"guidance_compare.margin must be in [0, 0.5), got {out['margin']}")
     return out
+
+
+def pro_stage_rollouts(optimizer: dict, num_objectives: int = 4) -> int:
+    """Rollouts PRO may spend on one beam stage with the experiment's ``optimizer`` settings:
+    ``max_iter * (relevance_samples + O * num_samples)`` (PRO's defaults where a key is unset)."""
+    pro = dict(optimizer.get("pro") or {})
+    return int(optimizer.get("max_iter", 200)) * (int(pro.get("relevance_samples", 200))
+                                                 + num_objectives * int(optimizer.get("num_samples", 100)))
 
 
 def _make(name: str, mean: Tensor, var: Tensor, beta: float, seed: int, num_samples: int):

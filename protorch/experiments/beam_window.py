@@ -32,7 +32,7 @@ from ..primitives.pose import PoseProMP
 from ..tasks.beam_window import BeamWindowTask, SimulatedOperator
 from ..viz.beam import fig5_figure, teleop_figure
 from ..viz.guidance import guidance_figure
-from .beam_guidance import compare_guidance, compare_settings
+from .beam_guidance import compare_guidance, compare_settings, pro_stage_rollouts
 from .common import optimizer_kwargs, resolve_dtype
 
 __all__ = ["run", "optimize_pose_promp"]
@@ -248,6 +248,7 @@ def _run(out_dir, *, seed, device, dtype, optimizer, plot, task, operator, num_d
         "seconds": round(assist_seconds, 3),
     }
     if compare.pop("enabled"):  # guidance from each optimiser's distribution (protorch.experiments.beam_guidance)
+        compare["budget"] = min(compare["budget"], pro_stage_rollouts(optimizer))  # never more than PRO's
         metrics["guidance"] = compare_guidance(beam, demo_model, model, intended, lengths, guidance=guide_cfg, hand=hand,
                                                beta=float(optimizer["beta"]), seed=int(seed), eval_dtype=ev_dtype,
                                                **compare)

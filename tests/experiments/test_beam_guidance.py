@@ -80,3 +80,29 @@ def test_tiny_budget_comparison_runs_every_peer(beam):
     assert not torch.equal(changed.position.mean, before)
     with pytest.raises(ValueError, match="unknown optimiser"):
         optimize_with("SGD", task, model, beta=200.0, budget=200, seed=0)
+
+
+def test_pro_stage_rollouts_counts_probes_and_objective_batches():
+    from protorch.experiments.beam_guidance import pro_stage_rollouts
+
+    assert pro_stage_rollouts({"max_iter": 150, "num_samples": 200, "pro": {"relevance_samples": 200}}) == 150_000
+    assert pro_stage_rollouts({"max_iter": 3, "num_samples": 20, "pro": {"relevance_samples": 20}}) == 300
+
+
+def test_experiment_metrics_hold_every_optimiser(tmp_path):
+    """The experiment's hook at a tiny budget: new keys only, PRO's guidance as the teleop's."""
+    from protorch.experiments.beam_window import run
+
+    opt = dict(beta=200.0, num_samples=20, max_iter=3, tol=0.0, pro=dict(relevance_samples=20))
+    m = run(tmp_path, optimizer=opt, plot=True, num_demos=4, eval_samples=20, teleop={"trials": 5},
+            promp={"num_steps": 60})
+    assert list(m["guidance"]) == ["PRO", "EPRO", "RWR", "CEM", "CMA-ES"]
+    assert m["guidance"]["PRO"]["assisted_success_rate"] == m["teleop"]["assisted_success_rate"]
+    assert (tmp_path / "guidance.png").is_file()
+    off = run(tmp_path / "off", optimizer=opt, plot=False, num_demos=4, eval_samples=20, teleop={"trials": 5},
+              promp={"num_steps": 60}, guidance_compare={"enabled": False})
+    assert "guidance" not in off
+    def timeless(d):
+        return {k: timeless(v) if isinstance(v, dict) else v for k, v in d.items() if k not in ("seconds", "guidance")}
+
+    assert timeless(off) == timeless(m)  # the comparison only adds keys

@@ -5,22 +5,31 @@ Problems (each optimiser starts from the same mean and stds and gets the same ro
 
 - ``window``: the Fig. 4 task, the ProMP of 5 imperfect demonstrations (one demonstration draw
   and optimiser seed per repeat);
-- ``point particle``: single environments of Sec. IV-B (one per repeat, random, fixed seed),
-  started from the GP map of the 30 x 3 synthetic demonstrations (Eq. 7, 8): the guess the
-  self-improvement loop has to improve (it fails in every environment here).
+- ``point_particle``: 20 single environments of Sec. IV-B (random, fixed seed), started from
+  the GP map of the 30 x 3 synthetic demonstrations (Eq. 7, 8): the guess the self-improvement
+  loop has to improve (it fails in every environment here);
+- ``beam_position``, ``beam_orientation``: the beam's two PRO stages (Sec. IV-A) from the ProMP
+  of 10 simulated operator trials (one draw per repeat); success: the four position via points
+  within 5 mm, the four via angles within 2 degrees (at the demonstrations' window phases);
+- ``arm``: 20 single arm problems (Sec. IV-C), environments whose label-aware GP start (the
+  experiment's demonstrations and priors) fails ``ArmReachTask.success``.
+(Problem builders: benchmarks/peers_tasks.py.)
 
 Weights that do not matter, by construction: every problem gets a third DoF (10 more weights)
 that no objective reads, like the height of a pen over the table or a wrist angle the task
 leaves free; its mean is 0 and its initial std the median initial std of the task's own weights.
-The benchmark checks that changing those weights leaves every cost unchanged. "std kept" is the
-median over those weights of final std / initial std (1 = kept, PRO's claim; 0 = collapsed).
+The benchmark checks that changing those weights leaves every cost unchanged. "std kept"
+(``irrelevant_std_kept`` in peers.json) is the median over those 10 weights of final std /
+initial std (1 = kept, PRO's claim; 0 = collapsed), then the median over the problems.
 
-Optimisers: PRO with the relevance noise floor (z = 3, the window experiment's) and as written
-(``noise_floor=None``); RWPO with a relevance learning the budget affords (10 iterations x 20
+Optimisers: PRO with the relevance noise floor (z = 3, the window experiment's) and, on request,
+as written (``noise_floor=None``); EPRO (protorch.optim.EPRO, its defaults: 20 samples per
+iteration); RWPO (window only: its sigmoid relevance assumes the Fig. 4 layout) with a relevance learning the budget affords (10 iterations x 20
 theta samples x 10 trajectories per objective: 6,000 rollouts, once) and with the authors'
 50 x 200 x 50 (1.5 M rollouts, 30 times the default budget: it cannot finish); RWR; CEM
 (elite 10 %); CMA-ES (pycma behind the same ask / tell contract, ``CMA_stds`` = the initial stds,
-pycma's default population for the dimension). PRO, RWPO and RWR use beta = 20 (the paper's);
+pycma's default population for the dimension). PRO, RWPO and RWR use beta = 20 (the paper's)
+on window and point particle, 200 (the paper's) on the beam and the arm; EPRO sets its own;
 RWR, CEM and CMA-ES rank or weight the sum of the objectives. Every optimiser runs until it
 stops by the experiments' rule (every objective's mean sample cost within 1e-3 over 5
 iterations; CMA-ES also by pycma's own ``stop()``) or its next ask would exceed the budget; after
@@ -34,7 +43,10 @@ stopped (median), success of the final mean, the final mean's total cost (sum of
 objectives, median), std kept in the weights that do not matter (median), wall time per
 iteration (median; ask + rollouts + tell) and rollouts per iteration. Success of the window
 task also asks the path to cross the wall inside the window (``WindowTask.success``), which no
-objective encodes: a final mean can have a near-zero cost and still fail.
+objective encodes: a final mean can have a near-zero cost and still fail. ``--out X.md`` also
+writes ``X.json``: per task and optimiser ``problems``, ``solved`` (the mean met the criterion
+within the budget), ``median_rollouts_to_success`` (over the solved ones, or null) and
+``irrelevant_std_kept``.
 """
 
 from __future__ import annotations

@@ -31,6 +31,8 @@ from ..optim import PRO
 from ..primitives.pose import PoseProMP
 from ..tasks.beam_window import BeamWindowTask, SimulatedOperator
 from ..viz.beam import fig5_figure, teleop_figure
+from ..viz.guidance import guidance_figure
+from .beam_guidance import compare_guidance, compare_settings, pro_stage_rollouts
 from .common import optimizer_kwargs, resolve_dtype
 
 __all__ = ["run", "optimize_pose_promp"]
@@ -120,6 +122,7 @@ def run(
     teleop: dict | None = None,
     num_threads: int | None = None,
     progress: bool = False,
+    guidance_compare: dict | None = None,
 ) -> dict:
     """Run the experiment into ``out_dir`` and return its metrics (see the module docstring).
 
@@ -138,16 +141,18 @@ def run(
     with _num_threads(num_threads):
         return _run(out_dir, seed=seed, device=device, dtype=dtype, optimizer=optimizer, plot=plot, task=task,
                     operator=operator, num_demos=num_demos, promp=promp, eval_dtype=eval_dtype,
-                    eval_samples=eval_samples, guidance=guidance, teleop=teleop, progress=progress)
+                    eval_samples=eval_samples, guidance=guidance, teleop=teleop, progress=progress,
+                    guidance_compare=guidance_compare)
 
 
 def _run(out_dir, *, seed, device, dtype, optimizer, plot, task, operator, num_demos, promp, eval_dtype,
-         eval_samples, guidance, teleop, progress) -> dict:
+         eval_samples, guidance, teleop, progress, guidance_compare=None) -> dict:
     t_start = time.perf_counter()
     out_dir = Path(out_dir)
     promp_cfg, guide_cfg, tele_cfg = dict(promp or {}), dict(guidance or {}), dict(teleop or {})
     check_keys(promp_cfg, _PROMP_KEYS, "promp")
     check_keys(tele_cfg, _TELEOP_KEYS, "teleop")
+    compare = compare_settings(guidance_compare)
     if "beta" not in optimizer or not float(optimizer["beta"]) > 0:
         raise ValueError(f"optimizer.beta must be > 0, got {optimizer.get('beta')}")
     for k, lo in (("max_iter", 1), ("num_samples", 2)):
@@ -242,8 +247,14 @@ def _run(out_dir, *, seed, device, dtype, optimizer, plot, task, operator, num_d
         "max_force_position": float(assisted.force[..., :3].norm(dim=-1).max()),
         "seconds": round(assist_seconds, 3),
     }
+    if compare.pop("enabled"):  # guidance from each optimiser's distribution (protorch.experiments.beam_guidance)
+        compare["budget"] = min(compare["budget"], pro_stage_rollouts(optimizer))  # never more than PRO's
+        metrics["guidance"] = compare_guidance(beam, demo_model, model, intended, lengths, guidance=guide_cfg, hand=hand,
+                                               beta=float(optimizer["beta"]), seed=int(seed), eval_dtype=ev_dtype,
+                                               **compare)
     if plot:
-
+        if "guidance" in metrics:
+            guidance_figure(out_dir / "guidance.png", metrics["guidance"])
         fig5_figure(out_dir / "fig5_beam_window.png", beam, demos, demo_hits, demo_model, model, samples[:30],
                     stages["phases"])
         teleop_figure(out_dir / "teleop.png", beam, guide, intended, assisted.poses, free_ok, guided_ok, lengths)

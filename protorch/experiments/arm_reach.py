@@ -272,7 +272,7 @@ def _run(out_dir, *, seed, device, dtype, optimizer, plot, task, gp, promp, loop
         "priors": {"count": int(setup.prior_envs.shape[0]),
                    "left": int((setup.prior_labels == LEFT).sum()), "right": int((setup.prior_labels == RIGHT).sum())},
         "settings": {"num_envs": lk["num_envs"], "batch_size": lk["batch_size"], "add_only": lk["add_only"],
-                     "choice": lk["choice"], "alpha": setup.alpha, "nearest_k": setup.nearest_k, "beta": float(optimizer.get("beta", float("nan"))),
+                     "choice": lk["choice"], "alpha": setup.alpha, "nearest_k": setup.nearest_k, "beta": None if optimizer.get("beta") is None else float(optimizer["beta"]),
                      "var_floor": setup.var_floor, "labels": setup.labels, "each_label": setup.each_label, "max_iter": optimizer.get("max_iter"),
                      "num_samples": optimizer.get("num_samples"), "threads": torch.get_num_threads()},
         "baselines": {},

@@ -126,8 +126,9 @@ def per_method_form(optimizer: dict, baseline: dict | None) -> dict:
 
 # ----------------------------------------------------------------------------- settings checks
 def check_optimizer(optimizer: dict) -> None:
-    """``beta > 0`` (reward-weighted optimisers); ``max_iter >= 1`` and ``num_samples >= 2`` where given."""
-    if "name" in optimizer and "beta" not in optimizer:
+    """``beta > 0`` (reward-weighted optimisers; a registered optimiser may take no beta, or
+    ``None`` where it sets its own); ``max_iter >= 1`` and ``num_samples >= 2`` where given."""
+    if "name" in optimizer and optimizer.get("beta") is None:
         pass
     elif "beta" not in optimizer or not float(optimizer["beta"]) > 0:
         raise ValueError(f"optimizer.beta must be > 0, got {optimizer.get('beta')}")

@@ -215,7 +215,7 @@ def run(
         "demos": {"source": setup.source, "count": len(setup.demos), "envs": len(setup.initial_data())},
         "settings": {"num_envs": lk["num_envs"], "batch_size": lk["batch_size"], "add_only": lk["add_only"],
                      "choice": lk["choice"], "alpha": float((gp or {}).get("alpha", 1e-3)),
-                     "beta": float(optimizer.get("beta", float("nan"))), "var_floor": setup.var_floor,
+                     "beta": None if optimizer.get("beta") is None else float(optimizer["beta"]), "var_floor": setup.var_floor,
                      "objectives": point.objectives},
         "baselines": {},
     }

@@ -238,7 +238,7 @@ class BaseOptimizer(nn.Module):
     def mark_converged(self, mask) -> None:
         """Declare problems finished from outside, e.g. once their mean already solves the task
         (the self-improvement loop's ``solved`` check): they stop moving, count as converged and
-        :meth:`stop` no longer waits for them. ``mask`` is ``(B,)`` bool (unbatched: a bool)."""
+        :meth:`stop` does not wait for them. ``mask`` is ``(B,)`` bool (unbatched: a bool)."""
         m = torch.as_tensor(mask, device=self.converged.device)
         if m.dtype != torch.bool:
             raise ValueError(f"mask must be bool, got {m.dtype}")

@@ -33,7 +33,7 @@ __all__ = ["EnvMap", "BestPrediction", "EnvMapWarning", "rbf", "sq_dist", "posde
            "ENV_MAP_SCHEMA"]
 
 ENV_MAP_FORMAT = "protorch.env_map"
-ENV_MAP_SCHEMA = 1
+ENV_MAP_SCHEMA = 2  # 2: metadata digests
 
 
 def _as_labels(labels, m: int, device) -> Tensor:

@@ -3,8 +3,8 @@
 Every write goes to a temporary file in the same directory, is flushed and fsync-ed, then renamed
 over the old file (and the directory fsync-ed), so a process killed at any instant leaves either
 the previous or the new complete file. Reading never unpickles: a pickle or a ``torch.save`` zip
-is recognised and refused, as are truncated files, checksum mismatches, other formats and other
-schema versions (:class:`CheckpointError`, a ``ValueError``).
+is recognised and refused, as are truncated files, checksum mismatches, metadata that does not
+match its digests (each top-level section has one), other formats and other schema versions (:class:`CheckpointError`, a ``ValueError``).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import safetensors.torch
 from torch import Tensor
 
 __all__ = ["CheckpointError", "atomic_write_bytes", "atomic_write_safetensors", "read_safetensors",
-           "tensor_checksum", "remove_stale_tmp", "file_mode", "META_KEY"]
+           "tensor_checksum", "metadata_digests", "remove_stale_tmp", "file_mode", "META_KEY"]
 
 META_KEY = "protorch"
 
@@ -97,10 +97,25 @@ def tensor_checksum(tensors: dict[str, Tensor]) -> str:
     return h.hexdigest()
 
 
+def _section_digest(value) -> str:
+    """sha256 of a metadata section's canonical JSON (sorted keys, no spaces)."""
+    text = json.dumps(value, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def metadata_digests(meta: dict) -> dict[str, str]:
+    """One digest per top-level metadata section (the tensor ``checksum`` is one of them)."""
+    return {k: _section_digest(v) for k, v in meta.items() if k != "digests"}
+
+
 def atomic_write_safetensors(path: str | Path, tensors: dict[str, Tensor], meta: dict) -> Path:
-    """One safetensors file with ``meta`` (JSON, a checksum added) in its header; atomic."""
+    """One safetensors file with ``meta`` (JSON) in its header; atomic. Added to ``meta``: the
+    tensors' ``checksum`` and ``digests``, one per top-level section (checksum included), so an
+    edit of any setting, or of the tensors, is refused on load naming what changed."""
     cpu = {k: v.detach().to("cpu").contiguous() for k, v in tensors.items()}
-    meta = {**meta, "checksum": tensor_checksum(cpu)}
+    meta = {k: v for k, v in meta.items() if k != "digests"}
+    meta["checksum"] = tensor_checksum(cpu)
+    meta["digests"] = metadata_digests(meta)
     data = safetensors.torch.save(cpu, metadata={META_KEY: json.dumps(meta, allow_nan=False)})
     return atomic_write_bytes(path, data)
 
@@ -134,12 +149,27 @@ def _sniff(data: bytes, path: Path) -> int:
     return n
 
 
+def _verify_digests(meta: dict, path: Path) -> None:
+    """Refuse metadata whose sections do not match the digests written with them."""
+    stored, actual = meta["digests"], metadata_digests(meta)
+    for section in sorted(set(stored) | set(actual)):
+        if section not in actual:
+            raise CheckpointError(f"{path}: metadata section {section!r} is missing (its digest is recorded)")
+        if section not in stored:
+            raise CheckpointError(f"{path}: metadata section {section!r} has no digest (added after writing)")
+        if stored[section] != actual[section]:
+            raise CheckpointError(
+                f"{path}: metadata section {section!r} does not match its digest: it was edited after "
+                "writing, and loading it would change the predictions; re-create the file"
+            )
+
+
 def read_safetensors(path: str | Path, *, fmt: str, schema_version: int, keys) -> tuple[dict[str, Tensor], dict]:
     """Read and verify a file written by :func:`atomic_write_safetensors`.
 
     Checks, in order: it is a complete safetensors file (not a pickle / zip, not truncated), its
-    metadata says ``format == fmt`` and ``schema_version``, it holds exactly ``keys``, and the
-    checksum matches. Returns ``(tensors on CPU, metadata)``.
+    metadata says ``format == fmt``, carries digests and says ``schema_version``, every metadata
+    section matches its digest, it holds exactly ``keys``, and the tensor checksum matches. Returns ``(tensors on CPU, metadata)``.
     """
     path = Path(path)
     if not path.is_file():
@@ -160,11 +190,17 @@ def read_safetensors(path: str | Path, *, fmt: str, schema_version: int, keys) -
         raise CheckpointError(f"{path}: unreadable protorch metadata: {exc}") from exc
     if meta.get("format") != fmt:
         raise CheckpointError(f"{path} holds {meta.get('format')!r}, expected {fmt!r}")
+    if not isinstance(meta.get("digests"), dict):
+        raise CheckpointError(
+            f"{path} has schema version {meta.get('schema_version')!r} and no metadata digest, so its "
+            f"settings cannot be verified; this protorch reads version {schema_version} only: re-create it"
+        )
     if meta.get("schema_version") != schema_version:
         raise CheckpointError(
             f"{path} has schema version {meta.get('schema_version')!r}; this protorch reads "
             f"version {schema_version} only"
         )
+    _verify_digests(meta, path)
     if set(tensors) != set(keys):
         raise CheckpointError(f"{path} holds tensors {sorted(tensors)}, expected {sorted(keys)}")
     if tensor_checksum(tensors) != meta.get("checksum"):

@@ -26,7 +26,7 @@ from typing import Callable, Generator
 import torch
 from torch import Tensor, nn
 
-from ..checks import check_positive, check_tensor
+from ..checks import check_int, check_number, check_positive, check_tensor
 
 __all__ = ["BaseOptimizer", "OptimizeResult"]
 
@@ -99,14 +99,15 @@ class BaseOptimizer(nn.Module):
         check_positive(beta_t, "beta")
         if beta_t.ndim > 1 or (beta_t.ndim == 1 and beta_t.shape[0] not in (1, mean2.shape[0])):
             raise ValueError(f"beta must be a float or ({mean2.shape[0]},), got shape {tuple(beta_t.shape)}")
-        if int(num_samples) < 2:
-            raise ValueError(f"num_samples must be >= 2, got {num_samples}")
-        if int(max_iter) < 1:
-            raise ValueError(f"max_iter must be >= 1, got {max_iter}")
-        if tol < 0 or int(window) < 1:
+        for name, v, lo in (("num_samples", num_samples, 2), ("max_iter", max_iter, 1)):
+            if isinstance(v, (int, float)) and not isinstance(v, bool) and v < lo:
+                raise ValueError(f"{name} must be >= {lo}, got {v}")
+        num_samples, max_iter = check_int(num_samples, "num_samples", 2), check_int(max_iter, "max_iter", 1)
+        if isinstance(tol, (int, float)) and tol < 0 or isinstance(window, (int, float)) and window < 1:
             raise ValueError(f"need tol >= 0 and window >= 1, got tol={tol}, window={window}")
-        if num_objectives is not None and int(num_objectives) < 1:
-            raise ValueError(f"num_objectives must be >= 1, got {num_objectives}")
+        tol, window = check_number(tol, "tol", allow_zero=True), check_int(window, "window", 1)
+        if num_objectives is not None:
+            num_objectives = check_int(num_objectives, "num_objectives", 1)
         self.register_buffer("mean", mean2.clone())  # (B, N)
         self.register_buffer("var", var2.clone())  # (B, N)
         self.register_buffer("beta", beta_t.expand(mean2.shape[0]).clone())  # (B,)
@@ -131,6 +132,7 @@ class BaseOptimizer(nn.Module):
         self.asked_objective: int | None = None
         self._asked: Tensor | None = None
         self._iter_cost: Tensor | None = None
+        self._start: dict = {}  # the state at the start of the current iteration
 
     # -------------------------------------------------------------- sizes
     @property
@@ -160,18 +162,19 @@ class BaseOptimizer(nn.Module):
 
     def _set_objective_weights(self, objective_weights) -> None:
         """``objective_weights (O,)`` for optimisers that score one total cost (``None``: all ones)."""
-        self.objective_weights = None if objective_weights is None else torch.as_tensor(
-            objective_weights, dtype=self.mean.dtype, device=self.mean.device
-        )
+        if objective_weights is None:
+            self.objective_weights = None
+            return
+        c = check_tensor(torch.as_tensor(objective_weights, dtype=self.mean.dtype, device=self.mean.device),
+                         "objective_weights", ndim=1)
+        if self.num_objectives is not None and c.shape[0] != self.num_objectives:
+            raise ValueError(f"objective_weights must be ({self.num_objectives},), got {tuple(c.shape)}")
+        self.objective_weights = c
 
     def _total_cost(self, costs: Tensor) -> Tensor:
         """``costs (B, S, O)`` -> ``(B, S)``: the objectives combined with ``objective_weights``."""
-        c = self.objective_weights
-        if c is None:
-            return costs.sum(-1)
-        if c.shape != (self.num_objectives,):
-            raise ValueError(f"objective_weights must be ({self.num_objectives},), got {tuple(c.shape)}")
-        return costs @ c
+        c = self.objective_weights  # its shape was checked against the costs by tell()
+        return costs.sum(-1) if c is None else costs @ c
 
     def _apply(self, new_mean: Tensor, new_var: Tensor) -> None:
         """Commit an update to the problems that have not converged."""
@@ -190,6 +193,7 @@ class BaseOptimizer(nn.Module):
         if self.stop():
             raise RuntimeError(f"the optimiser has stopped ({self.stop_reason()}); read result()")
         if self._next is None:
+            self._start = self._snapshot()
             self._gen = self._iteration()
             self._next = next(self._gen)
         self._asked = self._next
@@ -199,6 +203,20 @@ class BaseOptimizer(nn.Module):
         """Costs of the last asked weights: ``(B, S, O)`` (unbatched: ``(S, O)`` or ``(S,)``)."""
         if self._asked is None:
             raise RuntimeError("tell() called without a pending ask()")
+        costs = self._checked_costs(costs)
+        self._asked = None
+        try:
+            self._next = self._gen.send(costs)
+        except StopIteration:
+            self._next = None
+            self._end_iteration()
+        except BaseException:  # an update failed half-way: back to the start of the iteration
+            self._restore(self._start)
+            raise
+
+    def _checked_costs(self, costs) -> Tensor:
+        """``costs`` as ``(B, S, O)`` in the distribution's dtype, or an error naming what is
+        wrong; nothing changes before every check passed."""
         costs = check_tensor(costs, "costs")
         if not costs.is_floating_point():
             costs = costs.to(self.mean.dtype)
@@ -211,16 +229,40 @@ class BaseOptimizer(nn.Module):
             raise ValueError(
                 f"costs must be (B, S, O) with (B, S) = {expect} (unbatched: (S, O)), got {tuple(costs.shape)}"
             )
+        if self.num_objectives is not None and costs.shape[-1] != self.num_objectives:
+            raise ValueError(f"expected {self.num_objectives} objective(s), got costs of shape {tuple(costs.shape)}")
+        c = getattr(self, "objective_weights", None)
+        if c is not None and tuple(c.shape) != (costs.shape[-1],):
+            raise ValueError(f"objective_weights must be ({costs.shape[-1]},) to match the costs' "
+                             f"{costs.shape[-1]} objective(s), got shape {tuple(c.shape)}")
+        cast = costs.to(self.mean.dtype)
+        if not bool(torch.isfinite(cast).all()):
+            raise ValueError(f"costs overflow the optimiser's {self.mean.dtype} (largest |cost| "
+                             f"{float(costs.abs().max()):.3g}): rescale them or use dtype=torch.float64")
         if self.num_objectives is None:
             self.num_objectives = costs.shape[-1]
-        elif costs.shape[-1] != self.num_objectives:
-            raise ValueError(f"expected {self.num_objectives} objective(s), got costs of shape {tuple(costs.shape)}")
-        self._asked = None
-        try:
-            self._next = self._gen.send(costs.to(self.mean.dtype))
-        except StopIteration:
-            self._next = None
-            self._end_iteration()
+        return cast
+
+    def _snapshot(self) -> dict:
+        """What an iteration may change, to undo an iteration that failed inside ``tell``."""
+        return {"mean": self.mean.clone(), "var": self.var.clone(), "converged": self.converged.clone(),
+                "rng": self.generator.get_state(), "num_objectives": self.num_objectives,
+                "history": {k: len(v) for k, v in self.history.items()},
+                "relevance_seconds": len(self.relevance_seconds), "relevance": getattr(self, "relevance", None)}
+
+    def _restore(self, snap: dict) -> None:
+        self.mean.copy_(snap["mean"])
+        self.var.copy_(snap["var"])
+        self.converged.copy_(snap["converged"])
+        self.generator.set_state(snap["rng"])
+        self.num_objectives = snap["num_objectives"]
+        for k, n in snap["history"].items():
+            del self.history[k][n:]
+        del self.relevance_seconds[snap["relevance_seconds"]:]
+        if hasattr(self, "relevance"):
+            self.relevance = snap["relevance"]
+        self._gen, self._next, self._asked, self._iter_cost = None, None, None, None
+        self.asked_objective = None
 
     def _end_iteration(self) -> None:
         self.iteration += 1
@@ -238,7 +280,7 @@ class BaseOptimizer(nn.Module):
     def mark_converged(self, mask) -> None:
         """Declare problems finished from outside, e.g. once their mean already solves the task
         (the self-improvement loop's ``solved`` check): they stop moving, count as converged and
-        :meth:`stop` no longer waits for them. ``mask`` is ``(B,)`` bool (unbatched: a bool)."""
+        :meth:`stop` does not wait for them. ``mask`` is ``(B,)`` bool (unbatched: a bool)."""
         m = torch.as_tensor(mask, device=self.converged.device)
         if m.dtype != torch.bool:
             raise ValueError(f"mask must be bool, got {m.dtype}")

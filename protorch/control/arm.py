@@ -51,7 +51,7 @@ from .episodes import (
     track,
 )
 
-__all__ = ["ArmEpisodeResult", "run_arm_episodes", "count_switches"]
+__all__ = ["ArmEpisodeResult", "run_arm_episodes", "count_switches", "rest_scores"]
 
 _BRIDGE = torch.linspace(0.0, 1.0, 9, dtype=torch.float64)[:-1]  # (8,) from the arm to a class's path
 
@@ -288,7 +288,7 @@ class _ArmTracker:
             self.queries += k * idx.numel()
         # ---- each class scored on the rest of the motion from where the arm is now
         ee = task.kinematics.ee_position(q)  # (E, 3)
-        scores = _rest_scores(task, self.promp, self.means, env_t, ee, self.grid[self.grid > z])  # (K, E)
+        scores = rest_scores(task, self.promp, self.means, env_t, ee, self.grid[self.grid > z])  # (K, E)
         if self.current is not None:  # hysteresis: every other class pays the margin
             scores = scores + self.switch_margin * (torch.arange(k, device=scores.device)[:, None] != self.current)
         self.current = scores.argmin(0)  # (E,)
@@ -300,7 +300,7 @@ class _ArmTracker:
         return torch.maximum(torch.minimum((v_cmd - qd) / self.dt, self.amax), -self.amax)  # (E, J)
 
 
-def _rest_scores(task, promp, means: Tensor, env: Tensor, ee_now: Tensor, rest: Tensor) -> Tensor:
+def rest_scores(task, promp, means: Tensor, env: Tensor, ee_now: Tensor, rest: Tensor) -> Tensor:
     """Summed objectives of the rest of the motion for every class: the way from the end effector
     now (``ee_now (E, 3)``) over to the class's mean path, then that path at the phases ``rest
     (P',)``; ``means (K, E, N)`` -> ``(K, E)``."""

@@ -17,13 +17,13 @@ import math
 import torch
 from torch import Tensor
 
+from ..control.arm import rest_scores
 from ..control.particle import promp_state_at
 from ..robots.panda import PANDA_MAX_ACCELERATION
 from ..tasks.arm_reach import SIDES
 
 __all__ = ["ArmPlayer", "ParticlePlayer", "make_player"]
 
-_BRIDGE = torch.linspace(0.0, 1.0, 9, dtype=torch.float64)[:-1]  # (8,) from the arm over to a class's path
 
 
 class _Player:
@@ -127,18 +127,11 @@ class ArmPlayer(_Player):
         return None if self.current is None else SIDES.get(int(self.cand[self.current]), str(self.current))
 
     def _scores(self, means: Tensor, e: Tensor, ee_now: Tensor) -> Tensor:
-        """Summed objectives of the rest of the motion for every class: ``means (K, N) -> (K,)``."""
-        task, promp = self.run.task, self.run.model.promp
-        k = means.shape[0]
-        start = ee_now.expand(k, 3)  # (K, 3)
+        """Summed objectives of the rest of the motion for every class (the online test's
+        :func:`~protorch.control.arm.rest_scores`): ``means (K, N) -> (K,)``."""
         rest = self.grid[self.grid > self.phase]  # (P',)
-        if rest.numel():
-            path = task.ee_path(promp.trajectory(means, phase=rest))  # (K, P', 3)
-            bridge = start[:, None] + _BRIDGE.to(path)[:, None] * (path[:, :1] - start[:, None])  # (K, 8, 3)
-            path = torch.cat([bridge, path], 1)  # (K, 8 + P', 3)
-        else:
-            path = start[:, None]  # (K, 1, 3)
-        return task.path_costs(path, e.expand(k, 4), start=start).sum(-1)  # (K,)
+        return rest_scores(self.run.task, self.run.model.promp, means[:, None], e.reshape(1, 4),
+                           ee_now.reshape(1, 3), rest)[:, 0]  # (K,)
 
     def step(self, env) -> Tensor:
         """One control step in ``env (4,)``; returns the joint angles ``(J,)``."""

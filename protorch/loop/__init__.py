@@ -49,6 +49,7 @@ from torch import Tensor
 
 from ..data.checkpoint import save_model
 from ..data.dataset import TrajectoryDataset
+from ..threads import torch_threads
 from .initial import demonstration_dataset, group_by_env
 from .phases import Evaluator, accept, add, choose, infer, optimise, step_row
 from .settings import ADD_ONLY, CHOICES, LoopSettings
@@ -127,6 +128,7 @@ def self_improve(
     progress: bool = False,
     desc: str = "self-improvement",
     on_step: Callable[[dict], None] | None = None,
+    threads: int | None = None,
 ) -> LoopResult:
     """Run the self-improvement loop; see the module docstring.
 
@@ -186,7 +188,24 @@ def self_improve(
             Without ``resume`` an existing checkpoint there is an error (never overwritten).
         progress: show a tqdm bar with the live success rate.
         on_step: called with each new metrics row (after the step's checkpoint, if any).
+        threads: torch's intra-op CPU threads for the call, restored after it
+            (:func:`~protorch.threads.torch_threads`); ``None`` leaves torch's setting. One thread
+            keeps the loop fast on a machine where another program holds a core.
     """
+    with torch_threads(threads):
+        return _improve(task, promp, dataset, optimizer=optimizer, optimizer_kwargs=optimizer_kwargs,
+                        env_map=env_map, num_envs=num_envs, batch_size=batch_size, add_only=add_only,
+                        choice=choice, solved=solved, labeler=labeler, each_label=each_label,
+                        sample_steps=sample_steps, seed=seed, eval_envs=eval_envs, min_var=min_var,
+                        var_floor=var_floor, eval_dtype=eval_dtype, run_dir=run_dir,
+                        checkpoint_every=checkpoint_every, resume=resume, progress=progress, desc=desc,
+                        on_step=on_step)
+
+
+def _improve(task, promp, dataset, *, optimizer, optimizer_kwargs, env_map, num_envs, batch_size, add_only,
+             choice, solved, labeler, each_label, sample_steps, seed, eval_envs, min_var, var_floor, eval_dtype,
+             run_dir, checkpoint_every, resume, progress, desc, on_step) -> LoopResult:
+    """The body of :func:`self_improve` (the same arguments), run inside its thread setting."""
     settings = LoopSettings(num_envs=num_envs, batch_size=batch_size, add_only=add_only, choice=choice,
                             each_label=each_label, sample_steps=sample_steps, seed=seed, min_var=min_var,
                             var_floor=var_floor, checkpoint_every=checkpoint_every)

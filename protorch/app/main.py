@@ -30,6 +30,12 @@ from ..view.__main__ import main as view_main
 from .help import help_text, wants_help
 
 
+# ``${protorch.or:${a},default}``: ``a`` unless it is null (a baseline keeps a number where the main
+# optimiser's setting is null, e.g. EPRO's self-set beta)
+if not OmegaConf.has_resolver("protorch.or"):
+    OmegaConf.register_new_resolver("protorch.or", lambda value, default: default if value is None else value)
+
+
 def config_dir() -> Path:
     """``conf/`` beside the package in a source checkout, ``protorch/conf`` in an installed wheel."""
     package = Path(__file__).resolve().parent.parent

@@ -71,7 +71,6 @@ def optimize_pose_promp(
     seed: int = 0,
     eval_dtype: torch.dtype = torch.float32,
     progress: bool = False,
-    guidance_compare: dict | None = None,
 ) -> dict:
     """The paper's two PRO problems on ``promp`` (changed in place): position, then orientation.
 
@@ -124,6 +123,7 @@ def run(
     teleop: dict | None = None,
     num_threads: int | None = None,
     progress: bool = False,
+    guidance_compare: dict | None = None,
 ) -> dict:
     """Run the experiment into ``out_dir`` and return its metrics (see the module docstring).
 

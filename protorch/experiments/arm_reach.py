@@ -34,6 +34,7 @@ import torch
 
 from ..checks import check_int, check_keys
 from ..control.arm import run_arm_episodes
+from ..control.switches import geometric_switch_summary
 from ..data.checkpoint import checkpoint_path, load
 from ..gp import make_env_map
 from ..gp.model import label_aware_mean
@@ -353,7 +354,8 @@ def _dynamic(task: ArmReachTask, model, env0: torch.Tensor, cfg: dict, seed: int
         return {"success_rate": float("nan"), "episodes": 0, "switches": 0}, None
 
     res = run_arm_episodes(model, task, env0, generator=torch.Generator().manual_seed(seed), **cfg)
-    return {**res.summary(), "seed": int(seed)}, res
+    geometric = geometric_switch_summary(res, task) if res.weights is not None else {}
+    return {**res.summary(), **geometric, "seed": int(seed)}, res
 
 
 def _loop_metrics(res: LoopResult, task: ArmReachTask) -> dict:

@@ -10,7 +10,9 @@ a ProMP, an optimiser and the environment map together. No Hydra, no particular 
 
 The environments come from a pool of ``num_envs`` draws of ``task.sample_envs`` fixed by the seed;
 ``choice="random"`` takes them in draw order, ``choice="nearest"`` takes the untried ones closest
-to the known environments first (the authors' curriculum). Every step's optimiser seed is a
+to the known environments first (the authors' curriculum); ``choice="dataset"`` makes the pool
+the initial data set's own environments (demonstrations and priors, in data-set order: the
+paper's arm loop iterates its initialisation environments). Every step's optimiser seed is a
 function of ``(seed, step)``, so a resumed run repeats exactly what an uninterrupted run does.
 
 The task needs ``costs(traj (..., T, D), env (..., E)) -> (..., O)``, ``success(traj, env) ->
@@ -55,7 +57,7 @@ __all__ = ["LoopResult", "self_improve", "demonstration_dataset", "group_by_env"
            "METRIC_FIELDS", "LOOP_STATE_VERSION"]
 
 ADD_ONLY = ("converged", "success", "all")
-CHOICES = ("random", "nearest")
+CHOICES = ("random", "nearest", "dataset")
 LOOP_STATE_VERSION = 1
 METRICS_FILE = "loop_metrics.csv"
 # one row per step (step 0: the initial data set, before any environment was tried)
@@ -239,7 +241,7 @@ def self_improve(
         add_only: which solutions join the data set: ``"converged"`` (the optimiser's flag, the
             authors' rule; a ``solved`` stop counts as converged), ``"success"`` (the optimised
             mean trajectory passes ``task.success``) or ``"all"``.
-        choice: ``"random"`` or ``"nearest"`` (module docstring).
+        choice: ``"random"``, ``"nearest"`` or ``"dataset"`` (module docstring).
         solved: ``(traj (b, T, D), env (b, E)) -> (b,)`` bool, checked on every active problem's
             mean before the first and after every iteration; a solved problem stops there
             (converged). ``None``: run each problem until the optimiser's own rule stops it.
@@ -316,7 +318,10 @@ def self_improve(
         signature["each_label"] = True
 
     # the pool of environments, fixed by the seed (drawn on the CPU)
-    pool = task.sample_envs(num_envs, torch.Generator().manual_seed(int(seed)), dtype=dtype)  # (num_envs, E)
+    if choice == "dataset":
+        pool = _dataset_pool(dataset, num_envs, dtype)  # (num_envs, E)
+    else:
+        pool = task.sample_envs(num_envs, torch.Generator().manual_seed(int(seed)), dtype=dtype)  # (num_envs, E)
     if eval_envs is not None:
         eval_envs = torch.as_tensor(eval_envs).to(dtype=eval_dtype, device=device)  # (Q, E)
 
@@ -513,6 +518,16 @@ def self_improve(
         checkpoint()
     return LoopResult(dataset=dataset, env_map=gp, metrics=rows, seconds=elapsed(), tried=tried, pool=pool,
                       resumed_from=resumed_from)
+
+
+def _dataset_pool(dataset: TrajectoryDataset, num_envs: int, dtype) -> Tensor:
+    """The first ``num_envs`` distinct environments of the data set, in order: ``(num_envs, E)``."""
+    env = dataset.env.to(dtype).cpu()  # (M, E)
+    first = torch.stack([g[0] for g in group_by_env(env)]) if env.shape[0] else torch.zeros(0, dtype=torch.long)
+    if first.numel() < num_envs:
+        raise ValueError(f"choice='dataset' needs num_envs <= the data set's {first.numel()} distinct "
+                         f"environments, got num_envs={num_envs}")
+    return env[first[:num_envs]]
 
 
 def _one_per_class(accept: Tensor, label: Tensor, cost: Tensor, k: int) -> Tensor:

@@ -41,7 +41,7 @@ from .common import (
     loop_settings,
     optimizer_kwargs,
 )
-from .particle_paper import convergence_rule, evaluate_paper, paper_figures, paper_settings
+from .particle_paper import convergence_rule, evaluate_paper, hole_failures, paper_figures, paper_settings
 
 __all__ = ["run", "prepare", "Setup", "TEST_SEED", "DYNAMIC_SEED"]
 
@@ -243,6 +243,8 @@ def run(
     test_m, dyn_m, episode = setup.evaluate(model)
     metrics.update(test=test_m, dynamic=dyn_m, loop=_loop_metrics(pro))
     metrics["dynamic_paper"], paper_ep = evaluate_paper(point, model, setup.paper_cfg, dtype=dtype, device=device)
+    if point.objectives == "hole":
+        metrics["hole_analysis"] = hole_failures(point, model.mean_trajectory(setup.test_envs), setup.test_envs)
     # ------------------------------------------------------------------ baseline: RWR in the loop
     rwr = None
     if "rwr" in baselines:

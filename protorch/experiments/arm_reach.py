@@ -58,7 +58,7 @@ DYNAMIC_SEED = 3_000_017  # the moving episodes (start environments and moves)
 _DEMO_SEED_OFFSET = 10_007  # demonstrations: seed + offset (the loop's pool uses seed)
 _BASELINES = ("labels_off", "labels_off_loop")
 _TASK_KEYS = {"demo_envs", "demos_per_env", "priors", "cost_steps", "margin", "goal_tol", "start_tol", "can_radius",
-              "can_height", "clearance", "urdf"}
+              "can_height", "clearance", "urdf", "deviation"}
 _GP_KEYS = {"backend", "alpha", "var_floor", "nearest_k"}
 _LOOP_KEYS = {"num_envs", "batch_size", "add_only", "choice", "checkpoint_every", "eval_dtype", "min_var", "labels",
               "each_label"}

@@ -46,6 +46,7 @@ from torch import Tensor
 from ..checks import check_tensor
 from ..robots.kinematics import ArmKinematics
 from ..robots.panda import PANDA_END_LINK
+from .arm_geometry import DEVIATIONS, deviation
 from .base import Task
 from .curves import catmull_rom, smooth_noise
 
@@ -95,13 +96,6 @@ def segment_axis_distance(a: Tensor, b: Tensor, axis_xy: Tensor, z0: float, z1: 
     return (h.square().sum(-1) + v.square()).amin(-1).sqrt()  # (...)
 
 
-def _point_segment_distance(p: Tensor, s: Tensor, g: Tensor) -> Tensor:
-    """Distance of points ``p (..., T, 3)`` to the segments ``s -> g`` (``(..., 3)``): ``(..., T)``."""
-    d = (g - s)[..., None, :]  # (..., 1, 3)
-    u = ((p - s[..., None, :]) * d).sum(-1) / d.square().sum(-1).clamp_min(1e-12)  # (..., T)
-    return (p - s[..., None, :] - u.clamp(0, 1)[..., None] * d).norm(dim=-1)
-
-
 def _box(name: str, box) -> tuple[tuple[float, float], tuple[float, float]]:
     try:
         (x0, x1), (y0, y1) = box
@@ -146,11 +140,14 @@ class ArmReachTask(Task):
     start_q: tuple = START_Q
     urdf: str | None = None
     end_link: str = PANDA_END_LINK
+    deviation: str = "segment"  # "time": to tau_direct(t) at the same instant (protorch.tasks.arm_geometry)
     name: str = "arm_reach"
     objective_names: tuple[str, ...] = field(default=("start", "can", "goal"), init=False)
     env_names: tuple[str, ...] = field(default=("can_x", "can_y", "goal_x", "goal_y"), init=False)
 
     def __post_init__(self) -> None:
+        if self.deviation not in DEVIATIONS:
+            raise ValueError(f"deviation must be one of {list(DEVIATIONS)}, got {self.deviation!r}")
         for name in ("can_radius", "can_height", "clearance", "goal_tol", "start_tol"):
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v > 0):
@@ -358,7 +355,7 @@ class ArmReachTask(Task):
         s = self.start_position(path.dtype, path.device) if start is None else start  # (..., 3)
         s = s.expand(*path.shape[:-2], 3)
         g = self.goal_point(env)  # (..., 3)
-        d = _point_segment_distance(path, s, g).mean(-1)  # (...)
+        d = deviation(self.deviation, path, s, g).mean(-1)  # (...)
         d_start = (path[..., 0, :] - s).norm(dim=-1)
         d_goal = (path[..., -1, :] - g).norm(dim=-1)
         near = (path[..., :2] - env[..., None, 0:2]).norm(dim=-1).amin(-1)  # (...)

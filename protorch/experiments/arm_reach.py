@@ -34,6 +34,7 @@ import torch
 
 from ..checks import check_int, check_keys
 from ..control.arm import run_arm_episodes
+from ..control.switches import geometric_switch_summary
 from ..data.checkpoint import checkpoint_path, load
 from ..gp import make_env_map
 from ..gp.model import label_aware_mean
@@ -49,8 +50,8 @@ TEST_SEED = 2_000_003  # the held-out environments: fixed, never a training seed
 DYNAMIC_SEED = 3_000_017  # the moving episodes (start environments and moves)
 _DEMO_SEED_OFFSET = 10_007  # demonstrations: seed + offset (the loop's pool uses seed)
 _BASELINES = ("labels_off", "labels_off_loop")
-_TASK_KEYS = {"_target_", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin", "goal_tol", "start_tol", "can_radius",
-              "can_height", "clearance", "urdf"}
+_TASK_KEYS = {"_target_", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin", "goal_tol", "start_tol",
+              "can_radius", "can_height", "clearance", "urdf", "deviation"}
 _GP_KEYS = {"backend", "alpha", "var_floor", "nearest_k"}
 _LOOP_KEYS = {"num_envs", "batch_size", "add_only", "choice", "checkpoint_every", "eval_dtype", "min_var", "labels",
               "each_label"}
@@ -347,7 +348,8 @@ def _dynamic(task: ArmReachTask, model, env0: torch.Tensor, cfg: dict, seed: int
         return {"success_rate": float("nan"), "episodes": 0, "switches": 0}, None
 
     res = run_arm_episodes(model, task, env0, generator=torch.Generator().manual_seed(seed), **cfg)
-    return {**res.summary(), "seed": int(seed)}, res
+    geometric = geometric_switch_summary(res, task) if res.weights is not None else {}
+    return {**res.summary(), **geometric, "seed": int(seed)}, res
 
 
 def _loop_metrics(res: LoopResult, task: ArmReachTask) -> dict:

@@ -34,6 +34,7 @@ from ..tasks import PointParticleTask, load_human_demos
 from ..viz.online import plot_episode_frames, write_episode_gif
 from ..viz.paper import plot_point_particle, plot_trajectories, save_figure
 from .common import baseline_spec, check_optimizer, evaluation_settings, gp_settings, loop_settings, optimizer_spec
+from .particle_paper import convergence_rule, evaluate_paper, hole_failures, paper_figures, paper_settings
 
 __all__ = ["run", "prepare", "Setup", "TEST_SEED", "DYNAMIC_SEED"]
 
@@ -69,6 +70,7 @@ class Setup:
     loop_kwargs: dict  # self_improve keyword arguments (no optimizer, run_dir, resume, progress)
     env_map: Callable
     var_floor: float
+    paper_cfg: dict | None = None  # the authors' moving test (protorch.experiments.particle_paper)
 
     def initial_data(self):
         """A fresh data set of the demonstrations (each loop grows its own)."""
@@ -102,6 +104,7 @@ def prepare(
     test: dict | None = None,
     dynamic: dict | None = None,
     baseline_optimizer: dict | None = None,
+    dynamic_paper: dict | None = None,
 ) -> Setup:
     """Validate every setting (clear errors, before any work), load or synthesise the
     demonstrations and draw the test environments; see :func:`run` for the settings."""
@@ -117,6 +120,7 @@ def prepare(
         test_cfg, dyn_cfg, seed=seed, demo_seed=int(seed) + _DEMO_SEED_OFFSET, test_seed=TEST_SEED,
         dynamic_seed=DYNAMIC_SEED)
     episodes = check_int(dyn_cfg.pop("episodes", 100), "dynamic.episodes", 0)
+    paper_cfg = paper_settings(dynamic_paper, training_seeds=(int(seed), int(seed) + _DEMO_SEED_OFFSET))
 
     make_env_map(backend, alpha, **map_options)  # refuses a bad backend or option now
     point = PointParticleTask(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in task_cfg.items()
@@ -155,8 +159,10 @@ def prepare(
         dyn_env0=point.sample_envs(episodes, torch.Generator().manual_seed(dyn_seed), dtype=dtype).to(device),
         dyn_seed=dyn_seed,
         dyn_cfg=dyn_cfg,
-        optimizers={"pro": optimizer_spec(optimizer), "rwr": baseline_spec(optimizer, baseline_optimizer)},
-        loop_kwargs=loop_kwargs, env_map=env_map, var_floor=var_floor,
+        optimizers={m: (cls, convergence_rule(kw, point.objectives))
+                    for m, (cls, kw) in (("pro", optimizer_spec(optimizer)),
+                                         ("rwr", baseline_spec(optimizer, baseline_optimizer)))},
+        loop_kwargs=loop_kwargs, env_map=env_map, var_floor=var_floor, paper_cfg=paper_cfg,
     )
 
 
@@ -174,6 +180,7 @@ def run(
     loop: dict | None = None,
     test: dict | None = None,
     dynamic: dict | None = None,
+    dynamic_paper: dict | None = None,
     baselines: Sequence[str] = _BASELINES,
     resume: bool = False,
     progress: bool = True,
@@ -187,10 +194,14 @@ def run(
     ``nearest_k``. ``loop``: ``num_envs``, ``batch_size``, ``add_only``, ``choice``,
     ``checkpoint_every``, ``eval_dtype``, ``min_var``, ``stop_when_solved`` (see
     :func:`~protorch.loop.self_improve`). ``test``: ``num_envs``, ``seed``. ``dynamic``:
-    ``episodes`` plus :func:`~protorch.control.particle.run_episodes` options. ``baselines``: any of
+    ``episodes`` plus :func:`~protorch.control.particle.run_episodes` options. ``dynamic_paper``:
+    the authors' moving test (start fixed; wall, hole and goal moving as ``main3.py`` moves
+    them; :mod:`protorch.experiments.particle_paper`): ``episodes``, ``seed`` and
+    :func:`~protorch.control.paper_scenario.run_paper_episodes` options. ``baselines``: any of
     ``demos_only``, ``rwr`` (the loop with ``baseline_optimizer``, an optimizer group; RWR by
     default). ``optimizer``: an optimizer group (``{"name": "pro", ...}``) or PRO's settings with
-    per-method sections. ``resume``: continue the loops from the checkpoints in ``out_dir``.
+    per-method sections; ``optimizer.convergence``: ``mean`` (protorch's rule) or ``authors``.
+    ``resume``: continue the loops from the checkpoints in ``out_dir``.
     Every setting is validated before any work starts.
     """
     t0 = time.perf_counter()
@@ -200,7 +211,8 @@ def run(
     if bad:
         raise ValueError(f"unknown baseline(s) {bad}; choose from {list(_BASELINES)}")
     setup = prepare(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp, promp=promp,
-                    loop=loop, test=test, dynamic=dynamic, baseline_optimizer=baseline_optimizer)
+                    loop=loop, test=test, dynamic=dynamic, baseline_optimizer=baseline_optimizer,
+                    dynamic_paper=dynamic_paper)
     rwr_dir = out_dir / "baselines" / "rwr"
     if not resume:
         for d in [out_dir] + ([rwr_dir] if "rwr" in baselines else []):
@@ -230,6 +242,9 @@ def run(
     model = load(out_dir, device=device, dtype=dtype)  # the checkpoint is what gets evaluated
     test_m, dyn_m, episode = setup.evaluate(model)
     metrics.update(test=test_m, dynamic=dyn_m, loop=_loop_metrics(pro))
+    metrics["dynamic_paper"], paper_ep = evaluate_paper(point, model, setup.paper_cfg, dtype=dtype, device=device)
+    if point.objectives == "hole":
+        metrics["hole_analysis"] = hole_failures(point, model.mean_trajectory(setup.test_envs), setup.test_envs)
     # ------------------------------------------------------------------ baseline: RWR in the loop
     rwr = None
     if "rwr" in baselines:
@@ -239,6 +254,7 @@ def run(
     # ------------------------------------------------------------------ figures
     if plot:
         _figures(out_dir, point, model, setup.test_envs, pro, rwr, metrics, episode, seed)
+        paper_figures(out_dir, paper_ep)
     metrics["seconds"] = round(time.perf_counter() - t0, 3)
     return metrics
 

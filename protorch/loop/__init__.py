@@ -10,7 +10,9 @@ a ProMP, an optimiser and the environment map together. No Hydra, no particular 
 
 The environments come from a pool of ``num_envs`` draws of ``task.sample_envs`` fixed by the seed;
 ``choice="random"`` takes them in draw order, ``choice="nearest"`` takes the untried ones closest
-to the known environments first (the authors' curriculum). Every step's optimiser seed is a
+to the known environments first (the authors' curriculum); ``choice="dataset"`` makes the pool
+the initial data set's own environments (demonstrations and priors, in data-set order: the
+paper's arm loop iterates its initialisation environments). Every step's optimiser seed is a
 function of ``(seed, step)``, so a resumed run repeats exactly what an uninterrupted run does.
 
 The task needs ``costs(traj (..., T, D), env (..., E)) -> (..., O)``, ``success(traj, env) ->
@@ -50,7 +52,7 @@ from torch import Tensor
 from ..data.checkpoint import save_model
 from ..data.dataset import TrajectoryDataset
 from ..threads import torch_threads
-from .initial import demonstration_dataset, group_by_env
+from .initial import dataset_pool, demonstration_dataset, group_by_env
 from .phases import Evaluator, accept, add, choose, infer, optimise, step_row
 from .settings import ADD_ONLY, CHOICES, LoopSettings
 from .state import (
@@ -149,7 +151,7 @@ def self_improve(
         add_only: which solutions join the data set: ``"converged"`` (the optimiser's flag, the
             authors' rule; a ``solved`` stop counts as converged), ``"success"`` (the optimised
             mean trajectory passes ``task.success``) or ``"all"``.
-        choice: ``"random"`` or ``"nearest"`` (module docstring).
+        choice: ``"random"``, ``"nearest"`` or ``"dataset"`` (module docstring).
         solved: ``(traj (b, T, D), env (b, E)) -> (b,)`` bool, checked on every active problem's
             mean before the first and after every iteration; a solved problem stops there
             (converged). ``None``: run each problem until the optimiser's own rule stops it.
@@ -217,7 +219,10 @@ def _improve(task, promp, dataset, *, optimizer, optimizer_kwargs, env_map, num_
     state = RunState(run_signature(settings, optimizer, optimizer_kwargs, gp, ev.eval_dtype, solved=solved is not None,
                                    labels=labeler is not None), run_dir, save=save_model)
     # the pool of environments, fixed by the seed (drawn on the CPU)
-    pool = task.sample_envs(settings.num_envs, torch.Generator().manual_seed(int(seed)), dtype=dataset.dtype)  # (n, E)
+    if settings.choice == "dataset":
+        pool = dataset_pool(dataset, settings.num_envs, dataset.dtype)  # (n, E)
+    else:
+        pool = task.sample_envs(settings.num_envs, torch.Generator().manual_seed(int(seed)), dtype=dataset.dtype)  # (n, E)
     if eval_envs is not None:
         eval_envs = ev.here(torch.as_tensor(eval_envs))  # (Q, E)
     data = state.start(dataset, promp, resume=resume)  # a copy of dataset, or the checkpoint's

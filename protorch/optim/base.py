@@ -27,6 +27,7 @@ import torch
 from torch import Tensor, nn
 
 from ..checks import check_int, check_number, check_positive, check_tensor
+from .convergence import make_rule
 
 __all__ = ["BaseOptimizer", "OptimizeResult"]
 
@@ -58,9 +59,11 @@ class BaseOptimizer(nn.Module):
         beta: reward temperature ``R = exp(-beta * cost)``: a float or ``(B,)``.
         num_samples: ``S`` rollouts per update.
         max_iter: hard limit on iterations.
-        tol, window: the authors' convergence rule: a problem has converged once every
-            objective's per-iteration cost stayed within ``tol`` (max - min) over the last
-            ``window`` iterations. ``tol=0`` disables it. Converged problems stop moving.
+        tol, window: a problem has converged once every objective's mean sample cost stayed
+            within ``tol`` (max - min) over the last ``window`` iterations (``convergence="mean"``).
+            ``tol=0`` disables it. Converged problems stop moving.
+        convergence: ``"mean"`` (above), ``"authors"`` (every sample's cost within ``tol``, the
+            authors' ``rwpo.py``) or a rule object (:mod:`protorch.optim.convergence`).
         num_objectives: ``O``; inferred from the first ``tell`` when ``None``.
         seed: seed of the optimiser's own ``torch.Generator`` (reproducible sampling).
         dtype: dtype of the distribution (float64 default; float32 is fine for sampling).
@@ -76,6 +79,7 @@ class BaseOptimizer(nn.Module):
         max_iter: int = 200,
         tol: float = 1e-3,
         window: int = 5,
+        convergence="mean",
         num_objectives: int | None = None,
         seed: int | None = None,
         dtype: torch.dtype | None = None,
@@ -116,6 +120,7 @@ class BaseOptimizer(nn.Module):
         self.max_iter = int(max_iter)
         self.tol = float(tol)
         self.window = int(window)
+        self.convergence = make_rule(convergence, tol=self.tol, window=self.window)
         self.num_objectives = None if num_objectives is None else int(num_objectives)
         self.generator = torch.Generator(device=mean.device)
         if seed is not None:
@@ -123,7 +128,7 @@ class BaseOptimizer(nn.Module):
         else:
             self.generator.seed()
         self.iteration = 0
-        self.history: dict[str, list[Tensor]] = {"cost": [], "mean": [], "var": []}
+        self.history: dict[str, list[Tensor]] = {"cost": [], "cost_min": [], "cost_max": [], "mean": [], "var": []}
         self.relevance_seconds: list[float] = []
         self._gen: Generator[Tensor, Tensor, None] | None = None
         self._next: Tensor | None = None
@@ -153,12 +158,15 @@ class BaseOptimizer(nn.Module):
         return self.mean[:, None, :] + eps * var.clamp_min(0).sqrt()[:, None, :]
 
     def _record_cost(self, objective: int | slice, costs: Tensor) -> None:
-        """Note the mean cost this iteration's update saw for ``objective``: ``costs (B, S[, O])``."""
+        """Note the mean, min and max cost this iteration's update saw for ``objective``:
+        ``costs (B, S[, O])``."""
         if self._iter_cost is None:
             self._iter_cost = torch.full(
-                (self.batch_size, self.num_objectives), float("nan"), dtype=costs.dtype, device=costs.device
-            )
-        self._iter_cost[:, objective] = costs.mean(1)
+                (3, self.batch_size, self.num_objectives), float("nan"), dtype=costs.dtype, device=costs.device
+            )  # (3, B, O): mean, min, max over the samples
+        self._iter_cost[0][:, objective] = costs.mean(1)
+        self._iter_cost[1][:, objective] = costs.amin(1)
+        self._iter_cost[2][:, objective] = costs.amax(1)
 
     def _set_objective_weights(self, objective_weights) -> None:
         """``objective_weights (O,)`` for optimisers that score one total cost (``None``: all ones)."""
@@ -271,11 +279,10 @@ class BaseOptimizer(nn.Module):
         self.history["mean"].append(self.mean.clone())
         self.history["var"].append(self.var.clone())
         if cost is not None:
-            self.history["cost"].append(cost)
-        if self.tol > 0 and len(self.history["cost"]) >= self.window:
-            recent = torch.stack(self.history["cost"][-self.window :])  # (W, B, O)
-            spread = (recent.amax(0) - recent.amin(0)).nan_to_num(nan=float("inf"))  # (B, O)
-            self.converged |= (spread <= self.tol).all(-1)
+            for key, c in zip(("cost", "cost_min", "cost_max"), cost):
+                self.history[key].append(c)  # (B, O)
+        if len(self.history["cost"]) >= self.convergence.window:
+            self.converged |= self.convergence(self.history)
 
     def mark_converged(self, mask) -> None:
         """Declare problems finished from outside, e.g. once their mean already solves the task

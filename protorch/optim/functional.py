@@ -71,7 +71,7 @@ def pearson_relevance(w: Tensor, costs: Tensor, *, noise_floor: float | None = N
         costs: ``(..., S, O)`` objective values of those samples.
         noise_floor: optional ``z``. An estimated correlation of two unrelated variables is not 0
             but noise of size ``1/sqrt(S)``; with ``z`` set, ``|rho| < z / sqrt(S)`` counts as 0
-            before normalising. ``None`` is the paper's formula as written. See GUIDE.md: without
+            before normalising. ``None`` is the paper's formula as written. Without
             a floor the irrelevant variance slowly collapses in the Fig. 3 toy.
 
     Returns:

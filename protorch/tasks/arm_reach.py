@@ -52,9 +52,9 @@ from .arm_geometry import (
     RIGHT,
     SIDES,
     down_rotation,
-    point_segment_distance,
     segment_axis_distance,
 )
+from .arm_deviation import DEVIATIONS, deviation
 from .base import Task
 
 __all__ = ["ArmReachTask", "START_Q", "LEFT", "RIGHT", "SIDES", "segment_axis_distance", "down_rotation"]
@@ -107,11 +107,14 @@ class ArmReachTask(Task):
     start_q: tuple = START_Q
     urdf: str | None = None
     end_link: str = PANDA_END_LINK
+    deviation: str = "segment"  # "time": to tau_direct(t) at the same instant (protorch.tasks.arm_deviation)
     name: str = "arm_reach"
     objective_names: tuple[str, ...] = field(default=("start", "can", "goal"), init=False)
     env_names: tuple[str, ...] = field(default=("can_x", "can_y", "goal_x", "goal_y"), init=False)
 
     def __post_init__(self) -> None:
+        if self.deviation not in DEVIATIONS:
+            raise ValueError(f"deviation must be one of {list(DEVIATIONS)}, got {self.deviation!r}")
         for name in ("can_radius", "can_height", "clearance", "goal_tol", "start_tol"):
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v > 0):
@@ -319,7 +322,7 @@ class ArmReachTask(Task):
         s = self.start_position(path.dtype, path.device) if start is None else start  # (..., 3)
         s = s.expand(*path.shape[:-2], 3)
         g = self.goal_point(env)  # (..., 3)
-        d = point_segment_distance(path, s, g).mean(-1)  # (...)
+        d = deviation(self.deviation, path, s, g).mean(-1)  # (...)
         d_start = (path[..., 0, :] - s).norm(dim=-1)
         d_goal = (path[..., -1, :] - g).norm(dim=-1)
         near = (path[..., :2] - env[..., None, 0:2]).norm(dim=-1).amin(-1)  # (...)

@@ -34,7 +34,7 @@ def test_key_meanings_are_dotted_by_indentation_and_continue_onto_comment_lines(
     assert rows["gp.alpha"] == ("1.0e-03", "kernel exp(-alpha ||e - e'||^2) on the 6-D environment")
     assert rows["settings.loop.batch_size"][0] == "100"
     # a two-line comment is one meaning
-    assert rows["optimizer.pro.noise_floor"][1].endswith("4.0 keeps irrelevant variances")
+    assert rows["optimizer.convergence"][1].endswith("best clearance >= 0.1")
     shared = {k: m for k, _, m in key_meanings(CONF / "config.yaml")}
     assert "threads" in shared and shared["plot"] == "write PNG figures"
     assert not any(k.startswith("hydra") or k.startswith("defaults") for k in shared)

@@ -130,7 +130,7 @@ def self_improve(
     progress: bool = False,
     desc: str = "self-improvement",
     on_step: Callable[[dict], None] | None = None,
-    threads: int | None = None,
+    threads: int | None = 1,
 ) -> LoopResult:
     """Run the self-improvement loop; see the module docstring.
 
@@ -191,8 +191,9 @@ def self_improve(
         progress: show a tqdm bar with the live success rate.
         on_step: called with each new metrics row (after the step's checkpoint, if any).
         threads: torch's intra-op CPU threads for the call, restored after it
-            (:func:`~protorch.threads.torch_threads`); ``None`` leaves torch's setting. One thread
-            keeps the loop fast on a machine where another program holds a core.
+            (:func:`~protorch.threads.torch_threads`); ``None`` leaves torch's setting. The
+            default, one thread, keeps the loop fast on a machine where another program holds a
+            core (docs/contention.md), as the app's ``threads`` setting does for the experiments.
     """
     with torch_threads(threads):
         return _improve(task, promp, dataset, optimizer=optimizer, optimizer_kwargs=optimizer_kwargs,

@@ -204,9 +204,11 @@ def collect(sweep_dir: str | Path) -> SweepReport:
     keys: list[str] = []
     for r in runs:
         keys += [k for k in r.overrides if k not in keys]
-    if len(runs) > 1:
+    if len(runs) > 1:  # ... except entries that only follow an overridden key (``${optimizer.beta}``)
         config_keys = sorted({k for r in runs for k in r.config})
-        keys += [k for k in config_keys if k not in keys and not _same([r.config.get(k) for r in runs])]
+        followed = [[r.param(k) for r in runs] for k in keys]
+        keys += [k for k in config_keys if k not in keys and not _same([r.config.get(k) for r in runs])
+                 and [r.config.get(k) for r in runs] not in followed]
     swept = [k for k in keys if not _same([r.param(k) for r in runs])]
     fixed = {k: runs[0].param(k) for k in keys if k not in swept}
     optuna = None

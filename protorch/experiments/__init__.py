@@ -102,7 +102,7 @@ def check_config(cfg: dict) -> dict:
         raise SettingsError(f"device / dtype: {exc}") from None
     fn = EXPERIMENTS[name]
     accepted = inspect.signature(fn).parameters
-    opt = _check_optimizer_group(dict(cfg.get("optimizer") or {"name": "pro"}), "optimizer")
+    opt = _check_optimizer_group({"name": "pro", **dict(cfg.get("optimizer") or {})}, "optimizer")  # PRO unless named
     base = cfg.get("baseline_optimizer")
     base = None if base is None else _check_optimizer_group(dict(base), "baseline_optimizer")
     settings = dict(cfg.get("settings") or {})

@@ -53,6 +53,10 @@ HEADLINES: dict[str, list[Headline]] = {
                  (("demos only", "baselines.demos_only.dynamic.success_rate"),
                   ("RWR loop", "baselines.rwr.dynamic.success_rate"))),
     ],
+    "self_improve": [
+        Headline("held-out success", "test.success_rate", "loop",
+                 (("demos only", "demos_only.test.success_rate"),)),
+    ],
     "arm_reach": [
         Headline("held-out success", "test.success_rate", "PRO loop, labels",
                  (("labels dropped", "baselines.labels_off.test.success_rate"),

@@ -28,7 +28,7 @@ from protorch.experiments.arm_reach import prepare
 from protorch.robots.kinematics import ArmKinematics
 
 QUICK = ["settings.loop.batch_size=10", "optimizer.max_iter=5", "optimizer.num_samples=20",
-         "optimizer.relevance_samples=20", "task.priors=60", "task.demo_envs=4", "settings.test.num_envs=10"]
+         "task.priors=60", "task.demo_envs=4", "settings.test.num_envs=10"]
 
 
 def _sync(device: str) -> None:
@@ -69,9 +69,9 @@ def loop_table(devices: list[str], envs: int, overrides: list[str]) -> None:
     overrides = [*overrides, f"settings.loop.num_envs={envs}", "settings.dynamic.episodes=0"]
     base = experiment_settings("arm_reach", overrides)
     opt, lp = base["optimizer"], base["loop"]
-    print(f"\nself-improvement loop, {envs} environments, PRO <= {opt['max_iter']} x {opt['num_samples']}, "
-          f"B = {lp['batch_size']}, labels {'on' if lp['labels'] else 'off'}, "
-          f"{'both classes' if lp['each_label'] else 'one class'} per environment")
+    classes = "both classes" if lp["labels"] and lp["each_label"] else "one class"
+    print(f"\nself-improvement loop, {envs} environments, {opt['name'].upper()} <= {opt['max_iter']} x "
+          f"{opt['num_samples']}, B = {lp['batch_size']}, labels {'on' if lp['labels'] else 'off'}, {classes} per environment")
     print(f"{'device':<8}{'loop s':>10}{'s / env':>10}{'2024 envs (extrap.)':>22}{'tried success':>15}{'held-out success':>18}")
     for d in devices:
         setup = prepare(**arguments_of(prepare, experiment_settings("arm_reach", [*overrides, f"device={d}"])))

@@ -22,7 +22,7 @@ from configs import arguments_of, experiment_settings
 
 from protorch.experiments.point_particle import prepare
 
-QUICK = ["optimizer.max_iter=10", "optimizer.num_samples=20", "optimizer.relevance_samples=20",
+QUICK = ["optimizer.max_iter=10", "optimizer.num_samples=20",
          "settings.test.num_envs=10"]
 
 

@@ -5,22 +5,31 @@ Problems (each optimiser starts from the same mean and stds and gets the same ro
 
 - ``window``: the Fig. 4 task, the ProMP of 5 imperfect demonstrations (one demonstration draw
   and optimiser seed per repeat);
-- ``point particle``: single environments of Sec. IV-B (one per repeat, random, fixed seed),
-  started from the GP map of the 30 x 3 synthetic demonstrations (Eq. 7, 8): the guess the
-  self-improvement loop has to improve (it fails in every environment here).
+- ``point_particle``: 20 single environments of Sec. IV-B (random, fixed seed), started from
+  the GP map of the 30 x 3 synthetic demonstrations (Eq. 7, 8): the guess the self-improvement
+  loop has to improve (it fails in every environment here);
+- ``beam_position``, ``beam_orientation``: the beam's two PRO stages (Sec. IV-A) from the ProMP
+  of 10 simulated operator trials (one draw per repeat); success: the four position via points
+  within 5 mm, the four via angles within 2 degrees (at the demonstrations' window phases);
+- ``arm``: 20 single arm problems (Sec. IV-C), environments whose label-aware GP start (the
+  experiment's demonstrations and priors) fails ``ArmReachTask.success``.
+(Problem builders: benchmarks/peers_tasks.py.)
 
 Weights that do not matter, by construction: every problem gets a third DoF (10 more weights)
 that no objective reads, like the height of a pen over the table or a wrist angle the task
 leaves free; its mean is 0 and its initial std the median initial std of the task's own weights.
-The benchmark checks that changing those weights leaves every cost unchanged. "std kept" is the
-median over those weights of final std / initial std (1 = kept, PRO's claim; 0 = collapsed).
+The benchmark checks that changing those weights leaves every cost unchanged. "std kept"
+(``irrelevant_std_kept`` in peers.json) is the median over those 10 weights of final std /
+initial std (1 = kept, PRO's claim; 0 = collapsed), then the median over the problems.
 
-Optimisers: PRO with the relevance noise floor (z = 3, the window experiment's) and as written
-(``noise_floor=None``); RWPO with a relevance learning the budget affords (10 iterations x 20
+Optimisers: PRO with the relevance noise floor (z = 3, the window experiment's) and, on request,
+as written (``noise_floor=None``); EPRO (protorch.optim.EPRO, its defaults: 20 samples per
+iteration); RWPO (window only: its sigmoid relevance assumes the Fig. 4 layout) with a relevance learning the budget affords (10 iterations x 20
 theta samples x 10 trajectories per objective: 6,000 rollouts, once) and with the authors'
 50 x 200 x 50 (1.5 M rollouts, 30 times the default budget: it cannot finish); RWR; CEM
 (elite 10 %); CMA-ES (pycma behind the same ask / tell contract, ``CMA_stds`` = the initial stds,
-pycma's default population for the dimension). PRO, RWPO and RWR use beta = 20 (the paper's);
+pycma's default population for the dimension). PRO, RWPO and RWR use beta = 20 (the paper's)
+on window and point particle, 200 (the paper's) on the beam and the arm; EPRO sets its own;
 RWR, CEM and CMA-ES rank or weight the sum of the objectives. Every optimiser runs until it
 stops by the experiments' rule (every objective's mean sample cost within 1e-3 over 5
 iterations; CMA-ES also by pycma's own ``stop()``) or its next ask would exceed the budget; after
@@ -34,7 +43,10 @@ stopped (median), success of the final mean, the final mean's total cost (sum of
 objectives, median), std kept in the weights that do not matter (median), wall time per
 iteration (median; ask + rollouts + tell) and rollouts per iteration. Success of the window
 task also asks the path to cross the wall inside the window (``WindowTask.success``), which no
-objective encodes: a final mean can have a near-zero cost and still fail.
+objective encodes: a final mean can have a near-zero cost and still fail. ``--out X.md`` also
+writes ``X.json``: per task and optimiser ``problems``, ``solved`` (the mean met the criterion
+within the budget), ``median_rollouts_to_success`` (over the solved ones, or null) and
+``irrelevant_std_kept``.
 """
 
 from __future__ import annotations
@@ -47,89 +59,37 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse
+import json
 import math
 import shlex
 import statistics
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import torch
 
-from protorch import PRO, RWPO, RWR, ProMP
-from protorch.data.files import atomic_write_bytes
-from protorch.experiments.point_particle import prepare
-from protorch.optim import CEM, CMAES
-from protorch.tasks import WindowTask
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # peers_tasks beside this file
 
-NUISANCE = 10  # weights of the DoF no objective reads
-BETA = 20.0
-F64 = torch.float64
+from peers_tasks import (  # noqa: E402
+    F64, NUISANCE, Problem, arm_problems, beam_problems, point_particle_problems, window_problems,
+)
 
+from protorch import PRO, RWPO, RWR  # noqa: E402
+from protorch.data.files import atomic_write_bytes  # noqa: E402
+from protorch.optim import CEM, CMAES, EPRO  # noqa: E402
 
-@dataclass
-class Problem:
-    """One start distribution and its task: weights ``(N_task + NUISANCE,)``."""
-
-    task: str
-    repeat: int
-    mean: torch.Tensor  # (N,)
-    var: torch.Tensor  # (N,)
-    n_task: int
-    costs: Callable[[torch.Tensor], torch.Tensor]  # (..., N) -> (..., O)
-    success: Callable[[torch.Tensor], bool]  # (N,) mean -> solved?
-    num_basis: int
-
-
-def with_nuisance(mean: torch.Tensor, var: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Append ``NUISANCE`` weights of mean 0 and the median task variance."""
-    v = var.median()
-    return torch.cat([mean, mean.new_zeros(NUISANCE)]), torch.cat([var, v.expand(NUISANCE)])
-
-
-def window_problems(repeats: int) -> list[Problem]:
-    task = WindowTask()
-    out = []
-    for r in range(repeats):
-        demos = task.demonstrations(5, generator=torch.Generator().manual_seed(r), dtype=F64)
-        promp = ProMP(2, 10, 100, dtype=F64).fit(demos)
-        mean, var = with_nuisance(promp.mean, promp.var)
-        n = promp.mean.shape[-1]
-
-        def costs(w, promp=promp, n=n):  # (..., N) -> (..., 3)
-            return task.costs(promp.trajectory(w[..., :n]))
-
-        def success(w, promp=promp, n=n):
-            return bool(task.success(promp.trajectory(w[..., :n])))
-
-        out.append(Problem("window", r, mean, var, n, costs, success, 10))
-    return out
-
-
-def point_particle_problems(repeats: int) -> list[Problem]:
-    setup = prepare(optimizer={"beta": BETA}, task={"objectives": "clearance"}, loop={"num_envs": 0},
-                    test={"num_envs": 1}, dynamic={"episodes": 0})
-    data = setup.initial_data()
-    gp = setup.env_map().fit(data.env, data.mean, data.var, data.label)
-    envs = setup.task.sample_envs(repeats, torch.Generator().manual_seed(12345), dtype=F64)  # (R, 6)
-    mu, var = gp.predict(envs)  # (R, N), (R, N)
-    promp, task = setup.promp, setup.task
-    n = mu.shape[-1]
-    out = []
-    for r in range(repeats):
-        env = envs[r]
-        mean, v = with_nuisance(mu[r], var[r])
-
-        def costs(w, env=env):  # (..., N) -> (..., 3)
-            return task.costs(promp.trajectory(w[..., :n]), env)
-
-        def success(w, env=env):
-            return bool(task.success(promp.trajectory(w[..., :n]), env))
-
-        out.append(Problem("point particle", r, mean, v, n, costs, success, 10))
-    return out
+BETA = 20.0  # the paper's point-particle temperature, for PRO, RWPO and RWR on window and particle
+BETAS = {"window": BETA, "point_particle": BETA, "beam_position": 200.0, "beam_orientation": 200.0, "arm": 200.0}
+EFFICIENT_PRO = "EPRO"
+TASKS = {
+    "window": window_problems,
+    "point_particle": point_particle_problems,
+    "beam_position": lambda r: beam_problems(r, "position"),
+    "beam_orientation": lambda r: beam_problems(r, "orientation"),
+    "arm": arm_problems,
+}
+DEFAULT_REPEATS = {"window": 5, "point_particle": 20, "beam_position": 5, "beam_orientation": 5, "arm": 20}
 
 
 def check_nuisance(p: Problem) -> None:
@@ -144,17 +104,20 @@ def check_nuisance(p: Problem) -> None:
 
 def make_optimizer(name: str, p: Problem, seed: int):
     common = dict(num_samples=100, max_iter=10**9, tol=1e-3, window=5, seed=seed)
+    beta = BETAS[p.task]
     if name == "PRO":
-        return PRO(p.mean, p.var, beta=BETA, relevance_samples=200, noise_floor=3.0, **common)
+        return PRO(p.mean, p.var, beta=beta, relevance_samples=200, noise_floor=3.0, **common)
     if name == "PRO (as written)":
-        return PRO(p.mean, p.var, beta=BETA, relevance_samples=200, noise_floor=None, **common)
+        return PRO(p.mean, p.var, beta=beta, relevance_samples=200, noise_floor=None, **common)
     if name == "RWPO":  # a relevance learning the budget affords: 10 x 20 x 10 x 3 objectives = 6,000 rollouts
-        return RWPO(p.mean, p.var, beta=BETA, num_objectives=3, num_basis=p.num_basis, relevance_iters=10,
+        return RWPO(p.mean, p.var, beta=beta, num_objectives=3, num_basis=p.num_basis, relevance_iters=10,
                     theta_samples=20, trajectory_samples=10, **common)
     if name == "RWPO (authors')":  # 50 x 200 x 50 x 3 = 1.5 M rollouts for the relevance alone
-        return RWPO(p.mean, p.var, beta=BETA, num_objectives=3, num_basis=p.num_basis, **common)
+        return RWPO(p.mean, p.var, beta=beta, num_objectives=3, num_basis=p.num_basis, **common)
+    if name == EFFICIENT_PRO:  # its defaults: 20 samples, temperature set for ESS = 5, 10 batches pooled
+        return EPRO(p.mean, p.var, **{**common, "num_samples": 20})
     if name == "RWR":
-        return RWR(p.mean, p.var, beta=BETA, **common)
+        return RWR(p.mean, p.var, beta=beta, **common)
     if name == "CEM":
         return CEM(p.mean, p.var, elite_frac=0.1, **common)
     if name == "CMA-ES":
@@ -165,7 +128,8 @@ def make_optimizer(name: str, p: Problem, seed: int):
     raise ValueError(name)
 
 
-METHODS = ("PRO", "PRO (as written)", "RWPO", "RWPO (authors')", "RWR", "CEM", "CMA-ES")
+METHODS = ("PRO", EFFICIENT_PRO, "RWR", "RWPO", "CEM", "CMA-ES", "PRO (as written)", "RWPO (authors')")
+DEFAULT_METHODS = ("PRO", EFFICIENT_PRO, "RWR", "RWPO", "CEM", "CMA-ES")  # RWPO on the window only (see main)
 
 
 def run_one(name: str, p: Problem, budget: int) -> dict:
@@ -216,7 +180,7 @@ def table(results: dict, repeats: int, budget: int, command: str, note: str = ""
         "",
         f"Command: `{command}`",
         "",
-        f"torch {torch.__version__}, {torch.get_num_threads()} thread (torch and numpy), CPU; {repeats} repeats per task, a budget "
+        f"torch {torch.__version__}, {torch.get_num_threads()} thread (torch and numpy), CPU; problems per task: {repeats}; a budget "
         f"of {budget:,} rollouts per run, medians over the repeats. See the docstring of benchmarks/peers.py."
         + (f" {note}" if note else ""),
         "",
@@ -242,38 +206,62 @@ def table(results: dict, repeats: int, budget: int, command: str, note: str = ""
     return "\n".join(lines) + "\n"
 
 
+def summary(results: dict) -> dict:
+    """peers.json: per task and optimiser, problems, solved (the mean met the success criterion
+    within the budget), the median rollouts to success over the solved ones and the median
+    irrelevant_std_kept (see the module docstring)."""
+    tasks: dict = {}
+    for (task, name), runs in results.items():
+        reached = [r["first"] for r in runs if r["first"] is not None]
+        updated = [r["std_kept"] for r in runs if r["iterations"] > 0]
+        tasks.setdefault(task, {})[name] = {
+            "problems": len(runs),
+            "solved": len(reached),
+            "median_rollouts_to_success": float(statistics.median(reached)) if reached else None,
+            "irrelevant_std_kept": float(statistics.median(updated)) if updated else None,
+        }
+    return {"efficient_pro": EFFICIENT_PRO, "tasks": tasks}
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--repeats", type=int, default=5, help="window seeds and point-particle environments")
+    ap.add_argument("--repeats", type=int, default=None,
+                    help=f"problems per task (default {DEFAULT_REPEATS})")
     ap.add_argument("--budget", type=int, default=50_000, help="rollouts per run")
-    ap.add_argument("--tasks", default="window,point_particle")
-    ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--tasks", default=",".join(TASKS))
+    ap.add_argument("--methods", default=",".join(DEFAULT_METHODS), help=f"from {list(METHODS)}")
     ap.add_argument("--note", default="", help="a sentence about the machine, added to the table's header")
-    ap.add_argument("--out", default=None, help="also write the table here (atomically), e.g. benchmarks/results/peers.md")
+    ap.add_argument("--out", default=None, help="also write the table here (atomically), e.g. benchmarks/results/peers.md;"
+                    " the JSON summary goes beside it (.json)")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     methods = [m for m in args.methods.split(",") if m]
     bad = sorted(set(methods) - set(METHODS))
     if bad:
         ap.error(f"unknown method(s) {bad}; choose from {list(METHODS)}")
-    builders = {"window": window_problems, "point_particle": point_particle_problems}
     tasks = [t for t in args.tasks.split(",") if t]
-    if set(tasks) - set(builders):
-        ap.error(f"unknown task(s) {sorted(set(tasks) - set(builders))}; choose from {list(builders)}")
+    if set(tasks) - set(TASKS):
+        ap.error(f"unknown task(s) {sorted(set(tasks) - set(TASKS))}; choose from {list(TASKS)}")
     command = shlex.join(["python", "benchmarks/peers.py", *(sys.argv[1:] if argv is None else argv)])
     results: dict = {}
     for t in tasks:
-        problems = builders[t](args.repeats)
+        problems = TASKS[t](args.repeats or DEFAULT_REPEATS[t])
         for p in problems:
             check_nuisance(p)
         for name in methods:
+            if name.startswith("RWPO") and t != "window":
+                continue  # its sigmoid relevance basis assumes the 2-DoF layout of the Fig. 4 task
             t0 = time.perf_counter()
-            results[(problems[0].task, name)] = [run_one(name, p, args.budget) for p in problems]
-            print(f"{problems[0].task:>14} {name:<17} {time.perf_counter() - t0:7.1f} s", file=sys.stderr, flush=True)
-    text = table(results, args.repeats, args.budget, command, args.note)
+            results[(t, name)] = [run_one(name, p, args.budget) for p in problems]
+            print(f"{t:>16} {name:<17} {time.perf_counter() - t0:7.1f} s", file=sys.stderr, flush=True)
+    repeats = ", ".join(f"{t} {args.repeats or DEFAULT_REPEATS[t]}" for t in tasks)
+    text = table(results, repeats, args.budget, command, args.note)
     print(text)
     if args.out:
-        atomic_write_bytes(Path(args.out), text.encode())
+        out = Path(args.out)
+        atomic_write_bytes(out, text.encode())
+        body = {"command": command, **summary(results)}
+        atomic_write_bytes(out.with_suffix(".json"), (json.dumps(body, indent=1) + "\n").encode())
 
 
 if __name__ == "__main__":

@@ -80,7 +80,10 @@ def check_keys(given: dict, allowed: set, where: str) -> None:
 
 
 def check_int(v, name: str, lo: int) -> int:
-    """``v`` as an int, refusing bools, fractions and values below ``lo``."""
-    if isinstance(v, bool) or int(v) != v or int(v) < lo:
+    """``v`` as an int, refusing bools, fractions, NaN / inf, non-numbers and values below ``lo``."""
+    if isinstance(v, Tensor) and v.numel() == 1 and not v.is_floating_point() and v.dtype != torch.bool:
+        v = int(v)
+    ok = isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(float(v))
+    if not ok or int(v) != v or int(v) < lo:
         raise ValueError(f"{name} must be an int >= {lo}, got {v!r}")
     return int(v)

@@ -34,7 +34,6 @@ target. The arm starts at rest at the task's start configuration.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -43,9 +42,16 @@ from torch import Tensor
 
 from ..checks import check_number, check_tensor
 from ..robots.panda import PANDA_MAX_ACCELERATION
-from .particle import promp_state_at
+from .episodes import (
+    Timing,
+    check_timing,
+    check_velocity_loop_stable,
+    episode_walk,
+    hold_last,
+    track,
+)
 
-__all__ = ["ArmEpisodeResult", "run_arm_episodes", "count_switches"]
+__all__ = ["ArmEpisodeResult", "run_arm_episodes", "count_switches", "rest_scores"]
 
 _BRIDGE = torch.linspace(0.0, 1.0, 9, dtype=torch.float64)[:-1]  # (8,) from the arm to a class's path
 
@@ -174,7 +180,10 @@ def run_arm_episodes(
             ``walk``: ``(E, M + 1, 4)`` prescribed environments of the ``M = ceil(duration / dt)``
             moving steps (frozen for the hold), no random moves.
         duration, hold, dt: seconds of motion, of holding the end, control step.
-        kp: gain of the joint-position error in the commanded velocity (1/s).
+        kp: gain of the joint-position error in the commanded velocity (1/s); refused unless
+            ``kp dt < 2`` (the one-step velocity command is stable only then, derived in
+            :mod:`protorch.control.episodes`; the defaults give 0.2). An episode has at most
+            :data:`~protorch.control.episodes.MAX_STEPS` (``10^6``) control steps.
         max_acceleration: per joint (rad/s^2); the velocity limits are the URDF's.
         moves, move_window, place_clearance: how many moves an episode gets (one value drawn
             uniformly from ``moves``), in which phase range, and how far from the arm a moved
@@ -190,95 +199,35 @@ def run_arm_episodes(
         raise ValueError("model must have .env_map (a protorch EnvMap) and .promp, e.g. protorch.load(run_dir)")
     if promp.num_dof != task.num_dof:
         raise ValueError(f"the ProMP has {promp.num_dof} DoF but the arm has {task.num_dof} joints")
-    dt, duration = check_number(dt, "dt"), check_number(duration, "duration")
-    hold, kp = check_number(hold, "hold", allow_zero=True), check_number(kp, "kp")
+    timing = check_timing(dt, duration, hold)
+    kp = check_number(kp, "kp")
+    check_velocity_loop_stable(kp, timing.dt)
     place_clearance = check_number(place_clearance, "place_clearance", allow_zero=True)
     switch_margin = check_number(switch_margin, "switch_margin", allow_zero=True)
-    if dt > duration:
-        raise ValueError(f"dt ({dt}) must not exceed duration ({duration})")
     moves = [int(m) for m in moves]
     if not moves or min(moves) < 0:
         raise ValueError(f"moves must be a non-empty list of ints >= 0, got {moves}")
     lo_w, hi_w = (float(v) for v in move_window)
     if not 0 <= lo_w <= hi_w <= 1:
         raise ValueError(f"move_window must be (lo, hi) with 0 <= lo <= hi <= 1, got {move_window}")
-    moving = int(math.ceil(duration / dt - 1e-9))
-    held = int(round(hold / dt))
-    total = moving + held
-    ref = promp.basis
-    kw = dict(dtype=ref.dtype, device=ref.device)
+    kw = dict(dtype=promp.basis.dtype, device=promp.basis.device)
+    walk = episode_walk(env0, walk, timing, 4)
     if walk is not None:
-        if env0 is not None:
-            raise ValueError("give env0 or walk, not both")
-        walk = task.check_envs(check_tensor(walk, "walk", ndim=3), "walk").to(**kw)
-        if walk.shape[1] != moving + 1:
-            raise ValueError(f"walk must be (E, {moving + 1}, 4) for duration {duration} and dt {dt}, "
-                             f"got shape {tuple(walk.shape)}")
-        envs = torch.cat([walk, walk[:, -1:].expand(-1, held, -1)], 1)  # (E, T+1, 4)
+        envs = hold_last(task.check_envs(walk, "walk").to(**kw), timing.held)  # (E, T+1, 4)
         schedule = [[] for _ in range(walk.shape[0])]
     else:
-        if env0 is None:
-            raise ValueError("give env0 (E, 4), the initial environments, or walk")
         env0 = task.check_envs(check_tensor(env0, "env0", ndim=2), "env0").to(**kw)
-        envs = env0[:, None].repeat(1, total + 1, 1)  # (E, T+1, 4), rewritten by the moves
-        schedule = _draw_moves(env0.shape[0], moving, moves, (lo_w, hi_w), generator)
-    n_env = envs.shape[0]
-    kin = task.kinematics
-    vmax = kin.max_velocity.to(**kw)  # (J,)
-    amax = torch.as_tensor(max_acceleration, **kw).expand(task.num_dof)  # (J,)
-    cand = torch.unique(env_map.labels)  # (K,) the classes
-    # phases the objectives of the rest of the motion are evaluated on
-    grid = promp.phase[task.cost_indices(promp.num_steps)].to(**kw)  # (P,)
-
-    q = torch.empty(n_env, total + 1, task.num_dof, **kw)  # (E, T+1, J)
-    qd = torch.zeros_like(q)
-    labels = torch.empty(n_env, total + 1, dtype=torch.long, device=ref.device)
-    weights = torch.empty(n_env, total + 1, promp.num_weights, **kw) if record else None
-    q[:, 0] = task.start_config(**kw)
-    moved = torch.zeros(n_env, dtype=torch.long)
-    by_step: dict[int, list[int]] = {}
-    for e, steps in enumerate(schedule):
-        for s in steps:
-            by_step.setdefault(s, []).append(e)
-    current = None  # (E,) index into cand of the tracked class
-    k = cand.numel()
-    means = torch.empty(k, n_env, promp.num_weights, **kw)  # (K, E, N) every class's answer for env_t
-    answered = None  # (E, 4) the environments those answers are for
-    queries = 0
+        if env0.shape[0] < 1:
+            raise ValueError(f"env0 holds no environment: shape {tuple(env0.shape)}")
+        envs = env0[:, None].repeat(1, timing.total + 1, 1)  # (E, T+1, 4), rewritten by the moves
+        schedule = _draw_moves(env0.shape[0], timing.moving, moves, (lo_w, hi_w), generator)
+    arm = _ArmTracker(task, env_map, promp, envs, schedule, timing, kp=kp, max_acceleration=max_acceleration,
+                      place_clearance=place_clearance, switch_margin=switch_margin, generator=generator,
+                      reuse_answers=reuse_answers)
+    run = track(arm, promp, timing, envs.shape[0], task.start_config(**kw), record=record, markers=False)
+    q = run.positions  # (E, T+1, J)
     with torch.no_grad():
-        for t in range(total + 1):
-            if t in by_step:
-                _apply_moves(task, envs, q[:, t], by_step[t], t, place_clearance, generator, moved)
-            env_t = envs[:, t]  # (E, 4)
-            # ---- the map's answer for every class at the current environments (Eq. 7)
-            ask = torch.ones(n_env, dtype=torch.bool, device=ref.device) if answered is None or not reuse_answers \
-                else (env_t != answered).any(-1)  # (E,) an unchanged environment has the same answer
-            if bool(ask.any()):
-                idx = torch.nonzero(ask).flatten()  # (n,)
-                mu_q = env_map.predict_mean(env_t[idx].repeat(k, 1), cand.repeat_interleave(idx.numel()))  # (K n, N)
-                means[:, idx] = mu_q.reshape(k, idx.numel(), -1).to(**kw)
-                answered = env_t.clone()
-                queries += k * idx.numel()
-            # ---- each class scored on the rest of the motion from where the arm is now
-            z = min(t * dt / duration, 1.0)
-            scores = _rest_scores(task, promp, means, env_t, kin.ee_position(q[:, t]), grid[grid > z])  # (K, E)
-            if current is not None:  # hysteresis: every other class pays the margin
-                scores = scores + switch_margin * (torch.arange(k, device=scores.device)[:, None] != current)
-            current = scores.argmin(0)  # (E,)
-            mu = means[current, torch.arange(n_env, device=ref.device)]  # (E, N)
-            labels[:, t] = cand[current]
-            if record:
-                weights[:, t] = mu
-            if t == total:
-                break
-            m, dm_dz = promp_state_at(promp, mu, z)  # (E, J), (E, J)
-            m_vel = dm_dz / duration if t < moving else torch.zeros_like(m)
-            v_cmd = torch.maximum(torch.minimum(m_vel + kp * (m - q[:, t]), vmax), -vmax)  # (E, J)
-            acc = torch.maximum(torch.minimum((v_cmd - qd[:, t]) / dt, amax), -amax)
-            qd[:, t + 1] = qd[:, t] + acc * dt
-            q[:, t + 1] = q[:, t] + qd[:, t + 1] * dt
-
-        # ------------------------------------------------------------ outcome
+        kin = task.kinematics
         links = kin.link_positions(q)  # (E, T+1, F, 3)
         dist = task.skeleton_distance(links[:, :, None], envs)  # (E, T+1)
         min_dist = dist.amin(-1)
@@ -287,14 +236,71 @@ def run_arm_episodes(
         table = (links[..., 1:, 2] >= 0).flatten(1).all(-1)
         goal = (links[:, -1, -1] - task.goal_point(envs[:, -1])).norm(dim=-1)
         success = ~collided & limits & table & (goal <= task.goal_tol)
-    return ArmEpisodeResult(q=q, qd=qd, envs=envs, labels=labels, weights=weights, success=success,
-                            collided=collided, within_limits=limits, final_goal_distance=goal,
-                            min_can_distance=min_dist, moves=moved, map_queries=queries, dt=dt, duration=duration,
-                            hold=held * dt,
-                            num_moving_steps=moving, promp=promp, task=task)
+    return ArmEpisodeResult(q=q, qd=run.velocities, envs=envs, labels=arm.labels, weights=run.weights,
+                            success=success, collided=collided, within_limits=limits, final_goal_distance=goal,
+                            min_can_distance=min_dist, moves=arm.moved, map_queries=arm.queries, dt=timing.dt,
+                            duration=timing.duration, hold=timing.hold, num_moving_steps=timing.moving,
+                            promp=promp, task=task)
 
 
-def _rest_scores(task, promp, means: Tensor, env: Tensor, ee_now: Tensor, rest: Tensor) -> Tensor:
+class _ArmTracker:
+    """The arm for :func:`~protorch.control.episodes.track`: at each instant the moves of that
+    instant, every class's answer for the current environments (reused where unchanged), the class
+    choice with hysteresis; a velocity command within the joint velocity and acceleration limits."""
+
+    def __init__(self, task, env_map, promp, envs: Tensor, schedule: list[list[int]], timing: Timing, *,
+                 kp: float, max_acceleration, place_clearance: float, switch_margin: float, generator,
+                 reuse_answers: bool) -> None:
+        kw = dict(dtype=envs.dtype, device=envs.device)
+        self.task, self.env_map, self.promp, self.envs = task, env_map, promp, envs  # envs (E, T+1, 4)
+        self.dt, self.kp, self.generator, self.reuse = timing.dt, kp, generator, reuse_answers
+        self.place_clearance, self.switch_margin = place_clearance, switch_margin
+        self.vmax = task.kinematics.max_velocity.to(**kw)  # (J,)
+        self.amax = torch.as_tensor(max_acceleration, **kw).expand(task.num_dof)  # (J,)
+        self.cand = torch.unique(env_map.labels)  # (K,) the classes
+        # phases the objectives of the rest of the motion are evaluated on
+        self.grid = promp.phase[task.cost_indices(promp.num_steps)].to(**kw)  # (P,)
+        n_env = envs.shape[0]
+        self.by_step: dict[int, list[int]] = {}
+        for e, steps in enumerate(schedule):
+            for s in steps:
+                self.by_step.setdefault(s, []).append(e)
+        self.labels = torch.empty(n_env, timing.total + 1, dtype=torch.long, device=envs.device)  # (E, T+1)
+        self.moved = torch.zeros(n_env, dtype=torch.long)  # (E,)
+        self.current = None  # (E,) index into cand of the tracked class
+        self.means = torch.empty(self.cand.numel(), n_env, promp.num_weights, **kw)  # (K, E, N) answers for env_t
+        self.answered = None  # (E, 4) the environments those answers are for
+        self.queries = 0
+
+    def answer(self, t: int, z: float, q: Tensor) -> Tensor:
+        task, envs, n_env, k = self.task, self.envs, self.envs.shape[0], self.cand.numel()
+        if t in self.by_step:
+            _apply_moves(task, envs, q, self.by_step[t], t, self.place_clearance, self.generator, self.moved)
+        env_t = envs[:, t]  # (E, 4)
+        # ---- the map's answer for every class at the current environments (Eq. 7)
+        ask = torch.ones(n_env, dtype=torch.bool, device=envs.device) if self.answered is None or not self.reuse \
+            else (env_t != self.answered).any(-1)  # (E,) an unchanged environment has the same answer
+        if bool(ask.any()):
+            idx = torch.nonzero(ask).flatten()  # (n,)
+            mu_q = self.env_map.predict_mean(env_t[idx].repeat(k, 1), self.cand.repeat_interleave(idx.numel()))
+            self.means[:, idx] = mu_q.reshape(k, idx.numel(), -1).to(self.means)  # (K, n, N)
+            self.answered = env_t.clone()
+            self.queries += k * idx.numel()
+        # ---- each class scored on the rest of the motion from where the arm is now
+        ee = task.kinematics.ee_position(q)  # (E, 3)
+        scores = rest_scores(task, self.promp, self.means, env_t, ee, self.grid[self.grid > z])  # (K, E)
+        if self.current is not None:  # hysteresis: every other class pays the margin
+            scores = scores + self.switch_margin * (torch.arange(k, device=scores.device)[:, None] != self.current)
+        self.current = scores.argmin(0)  # (E,)
+        self.labels[:, t] = self.cand[self.current]
+        return self.means[self.current, torch.arange(n_env, device=envs.device)]  # (E, N)
+
+    def acceleration(self, q: Tensor, qd: Tensor, m: Tensor, m_vel: Tensor) -> Tensor:
+        v_cmd = torch.maximum(torch.minimum(m_vel + self.kp * (m - q), self.vmax), -self.vmax)  # (E, J)
+        return torch.maximum(torch.minimum((v_cmd - qd) / self.dt, self.amax), -self.amax)  # (E, J)
+
+
+def rest_scores(task, promp, means: Tensor, env: Tensor, ee_now: Tensor, rest: Tensor) -> Tensor:
     """Summed objectives of the rest of the motion for every class: the way from the end effector
     now (``ee_now (E, 3)``) over to the class's mean path, then that path at the phases ``rest
     (P',)``; ``means (K, E, N)`` -> ``(K, E)``."""

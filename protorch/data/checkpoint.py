@@ -8,11 +8,17 @@ one safetensors file holding the :class:`~protorch.data.dataset.TrajectoryDatase
 (``env (M, d)``, ``mean (M, N)``, ``var (M, N)``, ``label``, ``origin``, ``converged``, ``cost``
 ``(M,)``) and, in the header's ``__metadata__`` under the key ``"protorch"``, a JSON object::
 
-    {"format": "protorch.trajectory_dataset", "schema_version": 1, "task_name": "...",
+    {"format": "protorch.trajectory_dataset", "schema_version": 2, "task_name": "...",
      "promp": {"num_dof", "num_basis", "num_steps", "width", "ridge"}, "env_dim": d,
      "num_entries": M, "origins": [...], "checksum": "<sha256 of the tensors>",
      "env_map": {"backend": "torch", "alpha": 1.0, "options": {...},
-                 "include_unconverged": false}}
+                 "include_unconverged": false},
+     "digests": {"<section>": "<sha256 of its canonical JSON>", ...}}
+
+``digests`` holds one digest per other top-level section (``checksum`` included); :func:`load`
+refuses a file whose sections do not match them, naming the section (an edited ``alpha`` or ProMP
+width would otherwise load silently and change the predictions). Schema version 1 files, written
+before the digests, are refused with a message saying so: re-create them.
 
 Data and metadata live in one file so that a single atomic ``os.replace`` publishes both:
 every write goes to a temporary file in the same directory, is flushed and fsync-ed, then

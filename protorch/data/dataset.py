@@ -27,7 +27,7 @@ __all__ = ["TrajectoryDataset", "Entry", "ORIGINS", "DATASET_FORMAT", "DATASET_S
 
 ORIGINS = ("demonstration", "prior", "learned")
 DATASET_FORMAT = "protorch.trajectory_dataset"
-DATASET_SCHEMA = 1
+DATASET_SCHEMA = 2  # 2: metadata digests (version 1 files are refused: their settings cannot be verified)
 _KEYS = ("env", "mean", "var", "label", "origin", "converged", "cost")
 _PROMP_KEYS = ("num_dof", "num_basis", "num_steps", "width", "ridge")
 
@@ -239,7 +239,7 @@ class TrajectoryDataset:
         ds = cls(settings, env_dim, task_name=name, dtype=tensors["mean"].dtype)
         ds.metadata = {k: v for k, v in meta.items() if k not in
                        ("format", "schema_version", "task_name", "promp", "env_dim", "num_entries", "origins",
-                        "checksum")}
+                        "checksum", "digests")}
         ds._grow(m)
         for k in _KEYS:
             getattr(ds, "_" + k)[:m] = tensors[k]

@@ -2,7 +2,7 @@
 
 A folder holds pairs ``trajK.out`` / ``envK.out`` (``K = 0, 1, ...``): the trajectory is a CSV
 without header, one ``x,y`` row per mouse sample; the environment is 6 numbers, one per line,
-``start_x start_y wall_x hole_y goal_x goal_y`` (see ``../shared/data/point_particle_human_demos``).
+``start_x start_y wall_x hole_y goal_x goal_y`` (the authors' public repository marcoewerton/avoid_moving_walls).
 """
 
 from __future__ import annotations
@@ -14,13 +14,36 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-__all__ = ["load_human_demos"]
+__all__ = ["load_human_demos", "WORKSPACE", "ENV_NAMES"]
 
 _NAME = re.compile(r"^(traj|env)(\d+)\.out$")
+# the point-particle task's workspace, both axes (protorch.tasks.point_particle.WORKSPACE; a test
+# keeps the two equal): every sample and every environment coordinate lies in it
+WORKSPACE = (0.0, 10.0)
+ENV_NAMES = ("start_x", "start_y", "wall_x", "hole_y", "goal_x", "goal_y")
 
 
-def _parse_floats(text: str, path: Path, per_row: int) -> list[list[float]]:
-    """Rows of ``per_row`` comma-separated finite floats; blank lines are skipped."""
+def _read_text(path: Path) -> str:
+    try:
+        return path.read_text()
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path} is not a text file (byte {exc.start} cannot be decoded: {exc.reason})") from None
+
+
+def _env_names(i: int) -> list[str]:
+    return [ENV_NAMES[i] if i < len(ENV_NAMES) else f"value {i + 1}"]
+
+
+def _check_workspace(values: list[float], path: Path, lineno: int, names: list[str]) -> None:
+    lo, hi = WORKSPACE
+    for v, name in zip(values, names):
+        if not lo <= v <= hi:
+            raise ValueError(f"{path}:{lineno}: {name} = {v:g} lies outside the workspace [{lo:g}, {hi:g}]")
+
+
+def _parse_floats(text: str, path: Path, per_row: int, names=None) -> list[list[float]]:
+    """Rows of ``per_row`` comma-separated finite floats inside the workspace; blank lines are
+    skipped. ``names(row_index)`` names a row's values in the error messages."""
     rows = []
     for lineno, line in enumerate(text.splitlines(), 1):
         line = line.strip()
@@ -35,6 +58,7 @@ def _parse_floats(text: str, path: Path, per_row: int) -> list[list[float]]:
             raise ValueError(f"{path}:{lineno}: not a number: {line!r}") from None
         if not all(math.isfinite(v) for v in values):
             raise ValueError(f"{path}:{lineno}: NaN or infinite value: {line!r}")
+        _check_workspace(values, path, lineno, names(len(rows)) if names else ["value"] * per_row)
         rows.append(values)
     return rows
 
@@ -49,9 +73,11 @@ def load_human_demos(
 
     Raises:
         FileNotFoundError: ``folder`` does not exist or is not a directory.
-        ValueError: no pairs, a trajectory without its environment file or the reverse, a row
-            that is not two numbers, an environment that is not 6 numbers, a NaN or infinite
-            value, or a trajectory of fewer than 2 samples. The message names the file and line.
+        ValueError: no pairs, a trajectory without its environment file or the reverse, a file
+            that is not text, a row that is not two numbers, an environment that is not 6
+            numbers, a NaN or infinite value, a sample or environment coordinate outside the
+            workspace ``[0, 10]``, or a trajectory of fewer than 2 samples. The message names the
+            file and line (and the value and bound).
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -74,10 +100,10 @@ def load_human_demos(
         raise ValueError(f"unpaired demonstration files in {folder}: " + "; ".join(parts))
     demos, env_rows = [], []
     for k in sorted(trajs):
-        rows = _parse_floats(trajs[k].read_text(), trajs[k], 2)
+        rows = _parse_floats(_read_text(trajs[k]), trajs[k], 2, lambda _: ["x", "y"])
         if len(rows) < 2:
             raise ValueError(f"{trajs[k]}: a trajectory needs at least 2 samples, got {len(rows)}")
-        env = [v for (v,) in _parse_floats(envs[k].read_text(), envs[k], 1)]
+        env = [v for (v,) in _parse_floats(_read_text(envs[k]), envs[k], 1, _env_names)]
         if len(env) != 6:
             raise ValueError(
                 f"{envs[k]}: expected 6 numbers (start_x start_y wall_x hole_y goal_x goal_y), got {len(env)}"

@@ -12,6 +12,8 @@ import inspect
 import os
 import re
 import socket
+import time
+import traceback
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
@@ -22,6 +24,9 @@ from ..tasks import TASKS, task_class
 from . import arm_reach, beam_window, fig3_toy, fig4_window, point_particle, self_improve
 from .common import metric_value, per_method_form, resolve_device, resolve_dtype, write_json
 from .settings import GP, OPTIMIZER_SCHEMAS, SETTINGS_SCHEMAS, TASK_SCHEMAS, SettingsError, validate
+from ..threads import torch_threads
+from .run_folder import check_run_folder, write_status
+from .summary import build_summary
 
 EXPERIMENTS: dict[str, Callable[..., dict]] = {
     "fig3_toy": fig3_toy.run,
@@ -129,8 +134,12 @@ def check_config(cfg: dict) -> dict:
 
 
 def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
-    """Check ``cfg`` (:func:`check_config`), run ``cfg["name"]`` into ``out_dir``, write
-    ``metrics.json``; return the metrics.
+    """Check ``cfg`` (:func:`check_config`), run ``cfg["name"]`` into ``out_dir`` with
+    ``cfg["threads"]`` torch threads (:func:`~protorch.threads.torch_threads`; ``None`` leaves
+    torch's setting), write ``metrics.json`` with its headline numbers under ``"summary"``
+    (:mod:`~protorch.experiments.summary`) and ``status.json`` (``running``, then ``ok`` or
+    ``failed`` with the error); return the metrics. A folder holding another experiment's results
+    is refused before any work (:func:`~protorch.experiments.run_folder.check_run_folder`).
 
     ``cfg``: ``name``, ``seed``, ``device``, ``dtype``, ``plot``, ``resume``, the ``optimizer``
     group (``{"name": "pro", "beta": ..., ...}``, conf/optimizer/), ``baseline_optimizer`` (the
@@ -143,16 +152,29 @@ def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
     kwargs = check_config(cfg)
     name, objective = cfg["name"], cfg.get("objective")
     out_dir = Path(out_dir)
+    check_run_folder(out_dir, name)  # another experiment's results are refused before any work
     out_dir.mkdir(parents=True, exist_ok=True)
     # provenance, so a sweep's report can tell where and when each run ran (host, process)
     run_info = {"host": socket.gethostname(), "pid": os.getpid(),
                 "started": datetime.now(timezone.utc).isoformat(timespec="milliseconds")}
-    metrics = EXPERIMENTS[name](out_dir, **kwargs)
+    t0 = time.perf_counter()
+    try:
+        with torch_threads(cfg.get("threads")):
+            write_status(out_dir, name, "running")
+            metrics = EXPERIMENTS[name](out_dir, **kwargs)
+    except BaseException as exc:  # the folder says the run failed, and why
+        error = f"{type(exc).__name__}: {exc}"
+        summary = build_summary(name, {}, run_dir=out_dir, wall_seconds=time.perf_counter() - t0,
+                                status="failed", error=error)
+        write_status(out_dir, name, "failed", error=error, traceback=traceback.format_exc(), summary=summary)
+        raise
     run_info["finished"] = datetime.now(timezone.utc).isoformat(timespec="milliseconds")
     metrics = {"experiment": name, **metrics, "run": run_info}
     try:
         if objective is not None:
             metrics["objective"] = {"metric": objective, "value": metric_value(metrics, objective)}
     finally:  # the run's results are kept even when the objective key is wrong
+        metrics["summary"] = build_summary(name, metrics, run_dir=out_dir, wall_seconds=time.perf_counter() - t0)
         write_json(out_dir / "metrics.json", metrics)
+        write_status(out_dir, name, "ok", summary=metrics["summary"])
     return metrics

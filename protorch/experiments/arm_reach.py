@@ -32,6 +32,7 @@ import torch
 
 from ..checks import check_int
 from ..control.arm import run_arm_episodes
+from ..control.switches import geometric_switch_summary
 from ..data.checkpoint import load
 from ..gp.model import label_aware_mean
 from ..loop import LoopResult, demonstration_dataset
@@ -52,7 +53,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
     times :meth:`run_loop`."""
 
     task_keys = frozenset({"_target_", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin", "goal_tol",
-                           "start_tol", "can_radius", "can_height", "clearance", "urdf"})
+                           "start_tol", "can_radius", "can_height", "clearance", "urdf", "deviation"})
     loop_keys = frozenset({"labels", "each_label"})
     dynamic_keys = frozenset({"seed", "episodes", "duration", "hold", "dt", "kp", "moves", "move_window",
                               "place_clearance", "switch_margin"})
@@ -113,7 +114,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
                        "right": int((self.prior_labels == RIGHT).sum())},
             "settings": {"num_envs": lk["num_envs"], "batch_size": lk["batch_size"], "add_only": lk["add_only"],
                          "choice": lk["choice"], "alpha": self.alpha, "nearest_k": self.nearest_k,
-                         "beta": float(opt.get("beta", float("nan"))), "var_floor": self.var_floor,
+                         "beta": None if opt.get("beta") is None else float(opt["beta"]), "var_floor": self.var_floor,
                          "labels": self.labels, "each_label": self.each_label, "max_iter": opt.get("max_iter"),
                          "num_samples": opt.get("num_samples"), "threads": torch.get_num_threads()},
         }
@@ -132,7 +133,8 @@ class ArmReachExperiment(SelfImprovementExperiment):
             return {"success_rate": float("nan"), "episodes": 0, "switches": 0}, None
         res = run_arm_episodes(model, self.task, self.dyn_env0,
                                generator=torch.Generator().manual_seed(self.dyn_seed), **self.dyn_cfg)
-        return {**res.summary(), "seed": self.dyn_seed}, res
+        geometric = geometric_switch_summary(res, self.task) if res.weights is not None else {}
+        return {**res.summary(), **geometric, "seed": self.dyn_seed}, res
 
     def loop_metrics(self, res: LoopResult) -> dict:
         learned = res.dataset.origin == 2

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import time
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -31,6 +32,8 @@ from ..optim import PRO
 from ..primitives.pose import PoseProMP
 from ..tasks.beam_window import BeamWindowTask, SimulatedOperator
 from ..viz.beam import fig5_figure, teleop_figure
+from ..viz.guidance import guidance_figure
+from .beam_guidance import compare_guidance, compare_settings, pro_stage_rollouts
 from .common import optimizer_kwargs, resolve_dtype
 
 __all__ = ["run", "optimize_pose_promp"]
@@ -120,6 +123,7 @@ def run(
     teleop: dict | None = None,
     num_threads: int | None = None,
     progress: bool = False,
+    guidance_compare: dict | None = None,
 ) -> dict:
     """Run the experiment into ``out_dir`` and return its metrics (see the module docstring).
 
@@ -138,13 +142,28 @@ def run(
     with _num_threads(num_threads):
         return _run(out_dir, seed=seed, device=device, dtype=dtype, optimizer=optimizer, plot=plot, task=task,
                     operator=operator, num_demos=num_demos, promp=promp, eval_dtype=eval_dtype,
-                    eval_samples=eval_samples, guidance=guidance, teleop=teleop, progress=progress)
+                    eval_samples=eval_samples, guidance=guidance, teleop=teleop, progress=progress,
+                    guidance_compare=guidance_compare)
 
 
-def _run(out_dir, *, seed, device, dtype, optimizer, plot, task, operator, num_demos, promp, eval_dtype,
-         eval_samples, guidance, teleop, progress) -> dict:
-    t_start = time.perf_counter()
-    out_dir = Path(out_dir)
+@dataclass
+class _Setup:
+    """The validated settings of one run: the task, the person, the ProMP and the guidance."""
+
+    beam: BeamWindowTask
+    person: SimulatedOperator
+    model: PoseProMP
+    guide_cfg: dict
+    hand: dict  # the hand's stiffnesses of the teleoperation
+    trials: int
+    num_demos: int
+    eval_samples: int
+    eval_dtype: torch.dtype
+
+
+def _setup(*, dtype, device, optimizer, task, operator, num_demos, promp, eval_dtype, eval_samples, guidance,
+           teleop) -> _Setup:
+    """Validate every setting (naming the bad one) and build the task, person and ProMP."""
     promp_cfg, guide_cfg, tele_cfg = dict(promp or {}), dict(guidance or {}), dict(teleop or {})
     check_keys(promp_cfg, _PROMP_KEYS, "promp")
     check_keys(tele_cfg, _TELEOP_KEYS, "teleop")
@@ -164,39 +183,82 @@ def _run(out_dir, *, seed, device, dtype, optimizer, plot, task, operator, num_d
     for k in ("human_position_stiffness", "human_rotation_stiffness"):
         if k in tele_cfg and not float(tele_cfg[k]) >= 0:
             raise ValueError(f"teleop.{k} must be >= 0, got {tele_cfg[k]}")
+    return _Setup(beam=beam, person=person, model=model, guide_cfg=guide_cfg,
+                  hand={k: float(v) for k, v in tele_cfg.items()}, trials=trials, num_demos=num_demos,
+                  eval_samples=eval_samples, eval_dtype=ev_dtype)
 
-    # ------------------------------------------------------------------ demonstrations
-    demos = person.trials(beam, num_demos, torch.Generator().manual_seed(int(seed) + _DEMO_SEED), dtype=dtype)
+
+def _run(out_dir, *, seed, device, dtype, optimizer, plot, task, operator, num_demos, promp, eval_dtype,
+         eval_samples, guidance, teleop, progress, guidance_compare=None) -> dict:
+    """Build task and demonstrations -> optimise (two-stage PRO) -> evaluate (teleoperation, and
+    guidance from each optimiser's distribution) -> figures."""
+    t_start = time.perf_counter()
+    out_dir = Path(out_dir)
+    cfg = _setup(dtype=dtype, device=device, optimizer=optimizer, task=task, operator=operator,
+                 num_demos=num_demos, promp=promp, eval_dtype=eval_dtype, eval_samples=eval_samples,
+                 guidance=guidance, teleop=teleop)
+    compare = compare_settings(guidance_compare)
+    gen = torch.Generator(device=cfg.model.phase.device).manual_seed(int(seed) + _EVAL_SEED)
+    demos, demo_hits, demo_model, metrics_demos = _demonstrations(cfg, seed, gen, dtype=dtype, device=device)
+    metrics: dict = {"demos": metrics_demos}
+    stages = optimize_pose_promp(cfg.beam, cfg.model, optimizer=optimizer, seed=int(seed),
+                                 eval_dtype=cfg.eval_dtype, progress=progress)
+    samples, metrics["optimized"] = _optimized_metrics(cfg, stages, gen)
+    tele, metrics["teleop"] = _teleoperation(cfg, demo_model, stages["phases"], seed, dtype=dtype, device=device)
+    if compare.pop("enabled"):  # guidance from each optimiser's distribution (protorch.experiments.beam_guidance)
+        compare["budget"] = min(compare["budget"], pro_stage_rollouts(optimizer))  # never more than PRO's
+        metrics["guidance"] = compare_guidance(cfg.beam, demo_model, cfg.model, tele["intended"], tele["lengths"],
+                                               guidance=cfg.guide_cfg, hand=cfg.hand, beta=float(optimizer["beta"]),
+                                               seed=int(seed), eval_dtype=cfg.eval_dtype, **compare)
+    if plot:
+        if "guidance" in metrics:
+            guidance_figure(out_dir / "guidance.png", metrics["guidance"])
+        fig5_figure(out_dir / "fig5_beam_window.png", cfg.beam, demos, demo_hits, demo_model, cfg.model,
+                    samples[:30], stages["phases"])
+        teleop_figure(out_dir / "teleop.png", cfg.beam, tele["guide"], tele["intended"], tele["assisted"],
+                      tele["free_ok"], tele["guided_ok"], tele["lengths"])
+    metrics["seconds"] = round(time.perf_counter() - t_start, 3)
+    return metrics
+
+
+def _demonstrations(cfg: _Setup, seed: int, gen: torch.Generator, *, dtype, device):
+    """The person's trials, the ProMP fitted to them (``cfg.model``, and a copy kept) and their
+    metrics; ``gen`` draws the copy's samples. Returns ``(demos, hits (n,), demo_model, metrics)``."""
+    beam, model = cfg.beam, cfg.model
+    demos = cfg.person.trials(beam, cfg.num_demos, torch.Generator().manual_seed(int(seed) + _DEMO_SEED),
+                              dtype=dtype)
     demos = [d.to(device) for d in demos]
     demo_hits = torch.stack([beam.collides(d) for d in demos])  # (n,)
-    demo_ok = torch.stack([beam.success(d) for d in demos])
+    demo_ok = torch.stack([beam.success(d) for d in demos])  # (n,)
     model.fit(demos, reference=torch.tensor(beam.start_quaternion, dtype=dtype, device=device))
     demo_model = model.copy()
-    gen = torch.Generator(device=model.phase.device).manual_seed(int(seed) + _EVAL_SEED)
-    w_pos, w_rot = demo_model.sample(eval_samples, generator=gen)
+    w_pos, w_rot = demo_model.sample(cfg.eval_samples, generator=gen)
     demo_samples = demo_model.trajectory(w_pos, w_rot)  # (S, T, 7)
-    metrics: dict = {"demos": {
-        "count": num_demos,
+    metrics = {
+        "count": cfg.num_demos,
         "collision_free_rate": float((~demo_hits).double().mean()),
         "success_rate": float(demo_ok.double().mean()),
         "promp_mean_collision_free": not bool(beam.collides(demo_model.mean_trajectory())),
         "promp_samples_collision_free_rate": float((~beam.collides(demo_samples)).double().mean()),
         "promp_mean_via_errors": beam.via_errors(demo_model.mean_trajectory()),
-    }}
+    }
+    return demos, demo_hits, demo_model, metrics
 
-    # ------------------------------------------------------------------ two-stage PRO
-    stages = optimize_pose_promp(beam, model, optimizer=optimizer, seed=int(seed), eval_dtype=ev_dtype,
-                                 progress=progress)
+
+def _optimized_metrics(cfg: _Setup, stages: dict, gen: torch.Generator) -> tuple[torch.Tensor, dict]:
+    """The optimised ProMP's mean and ``eval_samples`` samples (drawn with ``gen``) checked by the
+    task, and each stage's iterations and costs. Returns ``(samples (S, T, 7), metrics)``."""
+    beam, model = cfg.beam, cfg.model
     mean = model.mean_trajectory()  # (T, 7)
-    w_pos, w_rot = model.sample(eval_samples, generator=gen)
+    w_pos, w_rot = model.sample(cfg.eval_samples, generator=gen)
     samples = model.trajectory(w_pos, w_rot)  # (S, T, 7)
     std = model.std_trajectory()  # (T, 7)
-    metrics["optimized"] = {
+    metrics = {
         "mean_collision_free": not bool(beam.collides(mean)),
         "mean_success": bool(beam.success(mean)),
         "samples_collision_free_rate": float((~beam.collides(samples)).double().mean()),
         "samples_success_rate": float(beam.success(samples).double().mean()),
-        "num_samples": eval_samples,
+        "num_samples": cfg.eval_samples,
         "via_errors": beam.via_errors(mean),
         "window_phases": stages["phases"].tolist(),
         "max_std_position": float(std[:, :3].max()),
@@ -204,28 +266,32 @@ def _run(out_dir, *, seed, device, dtype, optimizer, plot, task, operator, num_d
     }
     for name in ("position", "orientation"):
         res = stages[name]["result"]
-        metrics["optimized"][name] = {
+        metrics[name] = {
             "iterations": res.iterations, "seconds": round(stages[name]["seconds"], 3),
             "final_cost": res.history["cost"][-1].tolist(), "initial_cost": res.history["cost"][0].tolist(),
         }
+    return samples, metrics
 
-    # ------------------------------------------------------------------ teleoperation
-    guide = HapticGuidance(model, **guide_cfg)
+
+def _teleoperation(cfg: _Setup, demo_model, phases: torch.Tensor, seed: int, *, dtype, device):
+    """Simulated teleoperation trials unassisted, guided by the optimised ProMP and by the
+    demonstrations' ProMP. Returns ``(what the figure needs, metrics)``."""
+    beam, person, trials = cfg.beam, cfg.person, cfg.trials
+    guide = HapticGuidance(cfg.model, **cfg.guide_cfg)
     intended, lengths = person.intentions(beam, trials, torch.Generator().manual_seed(int(seed) + _TELEOP_SEED),
                                           dtype=dtype)
-    intended = intended.to(device)
+    intended = intended.to(device)  # (B, T_max, 7)
     t0 = time.perf_counter()
-    hand = {k: float(v) for k, v in tele_cfg.items()}
-    assisted = guide.assist(intended, lengths=lengths, **hand)
+    assisted = guide.assist(intended, lengths=lengths, **cfg.hand)
     assist_seconds = time.perf_counter() - t0
     free_ok, free_hit = beam.success(intended), beam.collides(intended)  # (B,)
-    guided_ok, guided_hit = beam.success(assisted.poses), beam.collides(assisted.poses)
+    guided_ok, guided_hit = beam.success(assisted.poses), beam.collides(assisted.poses)  # (B,)
     # the same guidance from the demonstrations' ProMP (before PRO): what the optimisation adds
-    demo_guided = HapticGuidance(demo_model, **guide_cfg).assist(intended, lengths=lengths, **hand)
-    i_front, i_back = (stages["phases"][1:3] * (guide.num_steps - 1)).round().long().tolist()
+    demo_guided = HapticGuidance(demo_model, **cfg.guide_cfg).assist(intended, lengths=lengths, **cfg.hand)
+    i_front, i_back = (phases[1:3] * (guide.num_steps - 1)).round().long().tolist()
     unassisted_rate = float(free_ok.double().mean())
     assisted_rate = float(guided_ok.double().mean())
-    metrics["teleop"] = {
+    metrics = {
         "trials": trials,
         "unassisted_success_rate": unassisted_rate,
         "assisted_success_rate": assisted_rate,
@@ -242,10 +308,6 @@ def _run(out_dir, *, seed, device, dtype, optimizer, plot, task, operator, num_d
         "max_force_position": float(assisted.force[..., :3].norm(dim=-1).max()),
         "seconds": round(assist_seconds, 3),
     }
-    if plot:
-
-        fig5_figure(out_dir / "fig5_beam_window.png", beam, demos, demo_hits, demo_model, model, samples[:30],
-                    stages["phases"])
-        teleop_figure(out_dir / "teleop.png", beam, guide, intended, assisted.poses, free_ok, guided_ok, lengths)
-    metrics["seconds"] = round(time.perf_counter() - t_start, 3)
-    return metrics
+    tele = {"guide": guide, "intended": intended, "assisted": assisted.poses, "free_ok": free_ok,
+            "guided_ok": guided_ok, "lengths": lengths}
+    return tele, metrics

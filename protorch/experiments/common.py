@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import torch
 
 from ..checks import check_int
+from ..data.files import atomic_write_bytes
 from ..loop import ADD_ONLY, CHOICES
 from ..optim import PRO, RWR, optimizer_class
 
@@ -51,16 +50,7 @@ def write_json(path: Path, data: dict) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     text = json.dumps(_strict_json(data), indent=2, sort_keys=True, allow_nan=False)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write_bytes(path, text.encode())  # mode 0644 under the usual umask, fsync-ed
 
 
 def flatten_metrics(data: dict, prefix: str = "") -> dict:
@@ -136,8 +126,9 @@ def per_method_form(optimizer: dict, baseline: dict | None) -> dict:
 
 # ----------------------------------------------------------------------------- settings checks
 def check_optimizer(optimizer: dict) -> None:
-    """``beta > 0`` (reward-weighted optimisers); ``max_iter >= 1`` and ``num_samples >= 2`` where given."""
-    if "name" in optimizer and "beta" not in optimizer:
+    """``beta > 0`` (reward-weighted optimisers; a registered optimiser may take no beta, or
+    ``None`` where it sets its own); ``max_iter >= 1`` and ``num_samples >= 2`` where given."""
+    if "name" in optimizer and optimizer.get("beta") is None:
         pass
     elif "beta" not in optimizer or not float(optimizer["beta"]) > 0:
         raise ValueError(f"optimizer.beta must be > 0, got {optimizer.get('beta')}")

@@ -93,7 +93,7 @@ def _figure(path, task, model, demos, results, opts) -> None:
         plot_trajectories(ax, d, color="0.5", lw=1)
     plot_trajectories(ax, model.mean_trajectory(), color="k", lw=2, label="demonstrations' mean")
     ax.set_title("demonstrations")
-    ax.legend(fontsize=7, loc="lower right")
+    ax.legend(fontsize=7, loc="upper left")  # a free corner: the paths run lower left to upper right
     colors = {"pro": "tab:blue", "rwpo": "tab:orange"}
     ax = axes[1]
     plot_window(ax, task)
@@ -104,10 +104,12 @@ def _figure(path, task, model, demos, results, opts) -> None:
         plot_trajectories(ax, model.trajectory(samples), color=colors[name], lw=0.5, alpha=0.4)
         plot_trajectories(ax, model.trajectory(res.mean), color=colors[name], lw=2, label=name.upper())
     ax.set_title("solutions (mean and samples)")
-    ax.legend(fontsize=7, loc="lower right")
+    ax.legend(fontsize=7, loc="upper left")  # a free corner: the paths run lower left to upper right
+    k = model.num_basis
     for ax, name in zip(axes[2:], ("pro", "rwpo")):
         first = results[name].history["relevance"][0]  # relevance at the first iteration (O, N)
         t = results[name].relevance_seconds
-        plot_relevance(ax, first, task.objective_names,
-                       title=f"{name.upper()} relevance (first iteration), {t[0]:.3g} s")
+        # the paper's Fig. 4 (c, d): the K weights of the x coordinate, (O, K)
+        plot_relevance(ax, first[:, :k], task.objective_names, xlabel="x weight index (basis function)",
+                       title=f"{name.upper()} relevance (first iteration), {t[0]:.3g} s", legend_loc="below")
     save_figure(fig, path)

@@ -27,7 +27,8 @@ from ..tasks import PointParticleTask, load_human_demos
 from ..viz.online import plot_episode_frames, write_episode_gif
 from ..viz.paper import plot_point_particle, plot_trajectories, save_figure
 from .common import baseline_spec
-from .self_improvement import DYNAMIC_SEED, TEST_SEED, Outcome, SelfImprovementExperiment
+from .particle_paper import convergence_rule, evaluate_paper, hole_failures, paper_figures, paper_settings
+from .self_improvement import DEMO_SEED_OFFSET, DYNAMIC_SEED, TEST_SEED, Outcome, SelfImprovementExperiment
 
 __all__ = ["run", "prepare", "Setup", "PointParticleExperiment", "TEST_SEED", "DYNAMIC_SEED"]
 
@@ -51,8 +52,10 @@ class PointParticleExperiment(SelfImprovementExperiment):
     pre_loop_baselines = frozenset({"demos_only"})
     loop_baselines = frozenset({"rwr"})
 
-    def __init__(self, *, baseline_optimizer: dict | None = None, **settings):
+    def __init__(self, *, baseline_optimizer: dict | None = None, dynamic_paper: dict | None = None, **settings):
         self.baseline_optimizer = baseline_optimizer
+        self.dynamic_paper = dynamic_paper
+        self.paper_episodes = None
         super().__init__(**settings)
 
     def configure(self, task_cfg: dict, loop_cfg: dict) -> None:
@@ -69,7 +72,11 @@ class PointParticleExperiment(SelfImprovementExperiment):
             if self.task.fixed_start is not None:
                 raise ValueError("the human demonstrations have 6-D environments: leave task.fixed_start unset")
         self.stop_when_solved = loop_cfg.get("stop_when_solved", False)
-        self.optimizers = {"pro": self.optimizer, "rwr": baseline_spec(self.optimizer_cfg, self.baseline_optimizer)}
+        seed = int(self.seed)
+        self.paper_cfg = paper_settings(self.dynamic_paper, training_seeds=(seed, seed + DEMO_SEED_OFFSET))
+        self.optimizers = {m: (cls, convergence_rule(kw, self.task.objectives))
+                           for m, (cls, kw) in (("pro", self.optimizer),
+                                                ("rwr", baseline_spec(self.optimizer_cfg, self.baseline_optimizer)))}
 
     def num_dof(self) -> int:
         return 2
@@ -98,7 +105,7 @@ class PointParticleExperiment(SelfImprovementExperiment):
         return {"demos": {"source": self.source, "count": len(self.demos), "envs": len(self.initial_data())},
                 "settings": {"num_envs": lk["num_envs"], "batch_size": lk["batch_size"], "add_only": lk["add_only"],
                              "choice": lk["choice"], "alpha": self.alpha,
-                             "beta": float(self.optimizer_cfg.get("beta", float("nan"))), "var_floor": self.var_floor,
+                             "beta": None if self.optimizer_cfg.get("beta") is None else float(self.optimizer_cfg["beta"]), "var_floor": self.var_floor,
                              "objectives": self.task.objectives}}
 
     def test_metrics(self, model) -> dict:
@@ -120,9 +127,20 @@ class PointParticleExperiment(SelfImprovementExperiment):
                            **self.dyn_cfg)
         return {**res.summary(), "seed": self.dyn_seed}, res
 
+    def extra_tests(self, model) -> dict:
+        """The authors' moving test (``dynamic_paper``; :mod:`protorch.experiments.particle_paper`),
+        and under the paper's hole objective why the held-out means fail (``hole_analysis``)."""
+        out = {}
+        out["dynamic_paper"], self.paper_episodes = evaluate_paper(self.task, model, self.paper_cfg, dtype=self.dtype,
+                                                                   device=self.device)
+        if self.task.objectives == "hole":
+            out["hole_analysis"] = hole_failures(self.task, model.mean_trajectory(self.test_envs), self.test_envs)
+        return out
+
     def figures(self, out_dir: Path, outcome: Outcome, metrics: dict) -> None:
         _figures(out_dir, self.task, outcome.model, self.test_envs, outcome.result, outcome.baselines.get("rwr"),
                  metrics, outcome.episodes, self.seed)
+        paper_figures(out_dir, self.paper_episodes)
 
 
 Setup = PointParticleExperiment  # what prepare() returns
@@ -141,12 +159,13 @@ def prepare(
     test: dict | None = None,
     dynamic: dict | None = None,
     baseline_optimizer: dict | None = None,
+    dynamic_paper: dict | None = None,
 ) -> PointParticleExperiment:
     """Validate every setting (clear errors, before any work), load or synthesise the
     demonstrations and draw the test environments; see :func:`run` for the settings."""
     return PointParticleExperiment(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp,
                                    promp=promp, loop=loop, test=test, dynamic=dynamic,
-                                   baseline_optimizer=baseline_optimizer).build()
+                                   baseline_optimizer=baseline_optimizer, dynamic_paper=dynamic_paper).build()
 
 
 def run(
@@ -167,6 +186,7 @@ def run(
     resume: bool = False,
     progress: bool = True,
     baseline_optimizer: dict | None = None,
+    dynamic_paper: dict | None = None,
 ) -> dict:
     """Run the experiment into ``out_dir``; return the metrics (see the module docstring).
 
@@ -176,21 +196,25 @@ def run(
     ``nearest_k``. ``loop``: ``num_envs``, ``batch_size``, ``add_only``, ``choice``,
     ``checkpoint_every``, ``eval_dtype``, ``min_var``, ``stop_when_solved`` (see
     :func:`~protorch.loop.self_improve`). ``test``: ``num_envs``, ``seed``. ``dynamic``:
-    ``episodes`` plus :func:`~protorch.control.particle.run_episodes` options. ``baselines``: any of
+    ``episodes`` plus :func:`~protorch.control.particle.run_episodes` options. ``dynamic_paper``:
+    the authors' moving test (start fixed; wall, hole and goal moving as ``main3.py`` moves
+    them; :mod:`protorch.experiments.particle_paper`): ``episodes``, ``seed`` and
+    :func:`~protorch.control.paper_scenario.run_paper_episodes` options. ``baselines``: any of
     ``demos_only``, ``rwr`` (the loop with ``baseline_optimizer``, an optimizer group; RWR by
     default). ``optimizer``: an optimizer group (``{"name": "pro", ...}``) or PRO's settings with
-    per-method sections. ``resume``: continue the loops from the checkpoints in ``out_dir``.
+    per-method sections; ``optimizer.convergence``: ``mean`` (protorch's rule) or ``authors``.
+    ``resume``: continue the loops from the checkpoints in ``out_dir``.
     Every setting is validated before any work starts.
     """
     exp = PointParticleExperiment(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp,
                                   promp=promp, loop=loop, test=test, dynamic=dynamic,
-                                  baseline_optimizer=baseline_optimizer)
+                                  baseline_optimizer=baseline_optimizer, dynamic_paper=dynamic_paper)
     return exp.run(out_dir, baselines=baselines, resume=resume, progress=progress, plot=plot)
 
 
 # ----------------------------------------------------------------------------- figures
 def _figures(out_dir, task, model, test_envs, pro, rwr, metrics, episode, seed) -> None:
-    """Success vs loop iteration, a grid of test environments, one moving episode (frames, GIF)."""
+    """Success vs loop iteration, a grid of test environments, failures first, one moving episode (frames, GIF)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -218,27 +242,34 @@ def _figures(out_dir, task, model, test_envs, pro, rwr, metrics, episode, seed) 
     ax.set_title("self-improvement: success rate vs loop iteration", fontsize=10)
     save_figure(fig, Path(out_dir) / "success_vs_iteration.png")
 
-    # a grid of test environments: sampled and mean trajectories of the trained map
+    # a grid of test environments, failures first: sampled and mean trajectories of the trained map
+    with torch.no_grad():
+        all_ok = task.success(model.mean_trajectory(test_envs), test_envs)  # (M,), as in the test metrics
+    order = torch.cat([torch.nonzero(~all_ok).flatten(), torch.nonzero(all_ok).flatten()])
     n = min(12, test_envs.shape[0])
+    pick = order[:n]
     cols = min(4, n)
     rows = (n + cols - 1) // cols
-    fig, axes = plt.subplots(rows, cols, figsize=(3 * cols, 3 * rows), squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(3 * cols, 3.1 * rows), squeeze=False)
     gen = torch.Generator().manual_seed(int(seed))
     with torch.no_grad():
-        mu, var = model(test_envs[:n])  # (n, N), (n, N)
+        mu, var = model(test_envs[pick])  # (n, N), (n, N)
         w = mu[:, None] + var.sqrt()[:, None] * torch.randn(n, 10, mu.shape[-1], generator=gen, dtype=mu.dtype)
         samples, means = model.promp.trajectory(w), model.promp.trajectory(mu)  # (n, 10, T, 2), (n, T, 2)
-        ok = task.success(means, test_envs[:n])
+        ok = task.success(means, test_envs[pick])
     for i, ax in enumerate(axes.flat):
         if i >= n:
             ax.axis("off")
             continue
-        plot_point_particle(ax, task, test_envs[i])
+        plot_point_particle(ax, task, test_envs[pick[i]])
         plot_trajectories(ax, samples[i], color="tab:blue", lw=0.6, alpha=0.35)
         plot_trajectories(ax, means[i], color="k", lw=1.8, label="mean")
-        ax.set_title(f"test env {i}: {'success' if ok[i] else 'failure'}", fontsize=8)
-    fig.suptitle(f"held-out environments: 10 samples (blue) and the mean (black); test success "
-                 f"{metrics['test']['success_rate']:.3f}", fontsize=10)
+        ax.set_title(f"test env {int(pick[i])}: {'success' if ok[i] else 'FAILURE'}", fontsize=8,
+                     color="k" if ok[i] else "tab:red")
+    failures = int((~all_ok).sum())
+    fig.suptitle(f"held-out environments, failures first ({failures} of {all_ok.numel()} fail): 10 samples (blue) "
+                 f"and the mean (black); test success {metrics['test']['success_rate']:.3f}", fontsize=10)
+    fig.tight_layout()
     save_figure(fig, Path(out_dir) / "test_grid.png")
 
     # one moving episode (Fig. 6): frames and a GIF (protorch.viz.online)

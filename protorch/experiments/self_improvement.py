@@ -170,6 +170,10 @@ class SelfImprovementExperiment:
         """Put the trained map's results into ``metrics``."""
         metrics.update(self.entry(test_m, dyn_m, loop=self.loop_metrics(res)))
 
+    def extra_tests(self, model) -> dict:
+        """Further tests of the trained map, as metrics sections (none by default)."""
+        return {}
+
     def figures(self, out_dir: Path, outcome: Outcome, metrics: dict) -> None:
         """Draw the experiment's figures into ``out_dir`` (none by default)."""
 
@@ -267,6 +271,7 @@ class SelfImprovementExperiment:
         test_m, dyn_m, episodes = self.evaluate(model)
         self.seconds["evaluation"] = round(time.perf_counter() - t1, 3)
         self.record(metrics, test_m, dyn_m, res)
+        metrics.update(self.extra_tests(model))
         for name in (b for b in chosen if b not in self.pre_loop_baselines):
             baseline(name, model)
         if plot:

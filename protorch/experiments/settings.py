@@ -125,6 +125,8 @@ class _Shared:
     max_iter: int = setting(200, "iteration limit", ge=1)
     tol: float = setting(1e-3, "converged: every objective's mean sample cost within tol over `window` iterations; 0 = never", ge=0)
     window: int = setting(5, "iterations the convergence rule looks back over", ge=1)
+    convergence: str = setting("mean", "stop rule: mean (each objective's mean sample cost) | authors (every "
+                               "sample, plus the task's thresholds; point particle)", choices=("mean", "authors"))
 
 
 @dataclass
@@ -190,7 +192,7 @@ class Loop:
     num_envs: int = setting(1000, "environments the self-improvement loop tries", ge=1)
     batch_size: int = setting(100, "B environments inferred and optimised at once", ge=1)
     add_only: str = setting("success", "which solutions join the data set", choices=("converged", "success", "all"))
-    choice: str = setting("random", "order of the environments: pool order or nearest known first", choices=("random", "nearest"))
+    choice: str = setting("random", "order of the environments: pool order or nearest known first", choices=("random", "nearest", "dataset"))
     checkpoint_every: int = setting(1, "loop steps between atomic checkpoints", ge=1)
     eval_dtype: str = setting("float32", "dtype of the optimiser's samples and costs", choices=("float32", "float64"))
     min_var: float = setting(0.0, "floor on the inferred variance the optimiser starts from", ge=0)
@@ -223,11 +225,25 @@ class ParticleDynamic:
 
 
 @dataclass
+class ParticlePaperDynamic:
+    seed: int = setting(3_000_029, "seed of the authors' moving test (never a training seed)", ge=0)
+    episodes: int = setting(100, "episodes of the authors' moving test (start fixed; wall, hole, goal moving)", ge=0)
+    duration: float = setting(2.0, "seconds of motion", gt=0)
+    hold: float = setting(0.5, "seconds held at the end", ge=0)
+    dt: float = setting(0.01, "control step (s)", gt=0)
+    kp: float = setting(1000.0, "PD stiffness", gt=0)
+    kd: float = setting(30.0, "PD damping", ge=0)
+    start: str = setting("env", "where the particle starts")
+    goal_tol: float = setting(0.2, "distance to the goal that counts as reached", gt=0)
+
+
+@dataclass
 class PointParticleSettings:
     promp: ProMPSettings = setting(ProMPSettings(), "the ProMP's basis")
     loop: ParticleLoop = setting(ParticleLoop(), "the self-improvement loop")
     test: Test = setting(Test(), "the held-out test")
     dynamic: ParticleDynamic = setting(ParticleDynamic(), "the moving-environment episodes")
+    dynamic_paper: ParticlePaperDynamic = setting(ParticlePaperDynamic(), "the authors' moving test (main3.py)")
     baselines: list[str] = setting(["demos_only", "rwr"], "baselines run alongside", choices=("demos_only", "rwr"))
     progress: bool = setting(True, "show progress bars")
 

@@ -10,11 +10,11 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..data.files import read_safetensors
-from .base import ENV_MAP_FORMAT, ENV_MAP_SCHEMA, BestPrediction, EnvMap, rbf
+from .base import ENV_MAP_FORMAT, ENV_MAP_SCHEMA, BestPrediction, EnvMap, EnvMapWarning, rbf
 from .closed_form import TorchEnvMap
 from .gpytorch_exact import GPyTorchEnvMap
 
-__all__ = ["EnvMap", "BestPrediction", "TorchEnvMap", "GPyTorchEnvMap", "BACKENDS", "make_env_map", "load_env_map", "rbf"]
+__all__ = ["EnvMap", "BestPrediction", "EnvMapWarning", "TorchEnvMap", "GPyTorchEnvMap", "BACKENDS", "make_env_map", "load_env_map", "rbf"]
 
 BACKENDS: dict[str, type[EnvMap]] = {"torch": TorchEnvMap, "gpytorch": GPyTorchEnvMap}
 

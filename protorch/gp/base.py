@@ -27,52 +27,13 @@ from torch import Tensor, nn
 
 from ..checks import check_nonnegative, check_positive, check_tensor
 from ..data.files import atomic_write_safetensors
+from .kernels import EnvMapWarning, posdef_cholesky, rbf, sq_dist
 
-__all__ = ["EnvMap", "BestPrediction", "rbf", "sq_dist", "posdef_cholesky", "ENV_MAP_FORMAT", "ENV_MAP_SCHEMA"]
+__all__ = ["EnvMap", "BestPrediction", "EnvMapWarning", "rbf", "sq_dist", "posdef_cholesky", "ENV_MAP_FORMAT",
+           "ENV_MAP_SCHEMA"]
 
 ENV_MAP_FORMAT = "protorch.env_map"
-ENV_MAP_SCHEMA = 1
-
-
-def sq_dist(a: Tensor, b: Tensor) -> Tensor:
-    """Squared Euclidean distances ``(..., P, d), (..., R, d) -> (..., P, R)`` from differences
-    (no ``|a|^2 + |b|^2 - 2ab`` cancellation, so duplicates give exactly 0)."""
-    return torch.cdist(a, b, compute_mode="donot_use_mm_for_euclid_dist") ** 2
-
-
-def rbf(a: Tensor, b: Tensor, alpha: float) -> Tensor:
-    """The paper's kernel ``exp(-alpha ||a - b||^2)``: ``(..., P, d), (..., R, d) -> (..., P, R)``."""
-    return torch.exp(-alpha * sq_dist(a, b))
-
-
-def posdef_cholesky(a: Tensor, *, max_tries: int = 6) -> tuple[Tensor, Tensor]:
-    """Cholesky factor of a batch of SPD matrices ``(..., P, P)``.
-
-    Exact whenever float64 allows it. A matrix whose factorisation fails (duplicate
-    environments with variances near 0 make ``K + Sigma`` singular to round-off) is retried with
-    ``jitter = 1e-12, 1e-11, ...`` times its mean diagonal added to the diagonal, for that matrix
-    only. Returns ``(L (..., P, P), jitter (...,))`` so the caller can report what was added.
-    """
-    chol, info = torch.linalg.cholesky_ex(a)  # (..., P, P), (...,)
-    jitter = torch.zeros(a.shape[:-2], dtype=a.dtype, device=a.device)  # (...,)
-    bad = info != 0  # (...,)
-    if not bool(bad.any()):
-        return chol, jitter
-    scale = a.diagonal(dim1=-2, dim2=-1).mean(-1).abs().clamp_min(1e-300)  # (...,)
-    eye = torch.eye(a.shape[-1], dtype=a.dtype, device=a.device)
-    for t in range(max_tries):
-        j = torch.where(bad, scale * 10.0 ** (-12 + t), torch.zeros_like(scale))  # (...,)
-        c2, info2 = torch.linalg.cholesky_ex(a + j[..., None, None] * eye)
-        fixed = bad & (info2 == 0)
-        chol = torch.where(fixed[..., None, None], c2, chol)
-        jitter = torch.where(fixed, j, jitter)
-        bad = bad & ~fixed
-        if not bool(bad.any()):
-            return chol, jitter
-    raise torch.linalg.LinAlgError(
-        "K + diag(VAR) is not positive definite even with jitter 1e-7 x its mean diagonal; "
-        "check the environments and variances"
-    )
+ENV_MAP_SCHEMA = 2  # 2: metadata digests
 
 
 def _as_labels(labels, m: int, device) -> Tensor:

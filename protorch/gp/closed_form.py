@@ -26,7 +26,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from .base import EnvMap, posdef_cholesky, rbf
+from .base import EnvMap
+from .kernels import posdef_cholesky, rbf, warn_if_amplified
 
 __all__ = ["TorchEnvMap"]
 
@@ -110,8 +111,9 @@ class _CholGroup(nn.Module):
         self.L, self.E, self.zy, self.z1 = L, E, zy, z1
         self.coef = torch.zeros(cap, n, **kw)  # (cap, N), recomputed by extend()
 
-    def extend(self, E: Tensor, MU: Tensor, VAR: Tensor) -> None:
-        """Append ``E (B, d), MU (B, N), VAR (B, N)``: ``O(N M^2 B)``."""
+    def extend(self, E: Tensor, MU: Tensor, VAR: Tensor) -> bool:
+        """Append ``E (B, d), MU (B, N), VAR (B, N)``: ``O(N M^2 B)``. Returns whether a factor of
+        the new rows needed jitter (then only they carry it, unlike a refit's whole diagonal)."""
         b, m, n = E.shape[0], self.m, MU.shape[1]
         self._ensure_capacity(m + b)
         L = self.L
@@ -125,7 +127,8 @@ class _CholGroup(nn.Module):
                 x = _solve_lower(L[i], m, k12, self.block)  # (m, B)
                 s = s - x.T @ x  # (B, B) Schur complement
                 L[i, m : m + b, :m] = x.T
-            l22, jit = posdef_cholesky(s)  # (B, B)
+            # jitter scaled by A22's diagonal: the Schur complement of a duplicate is ~0
+            l22, jit = posdef_cholesky(s, scale=(k22.diagonal() + VAR[:, i]).mean())  # (B, B)
             L[i, m : m + b, m : m + b] = l22
             new_jit[i] = jit
         # forward vectors of the new rows: z_new = L22^-1 (rhs - L21 z_old)
@@ -142,6 +145,7 @@ class _CholGroup(nn.Module):
         self.jitter = torch.maximum(self.jitter, new_jit)
         self._update_coef()
         self.nys_S = self.nys_R = self.nys_H = None
+        return bool((new_jit > 0).any())
 
     def _update_coef(self) -> None:
         m, mu0 = self.m, self.mu0  # (N,)
@@ -252,9 +256,20 @@ class TorchEnvMap(EnvMap):
                          device=self.device)
         grp.extend(E, MU, VAR)
         self.groups[str(g)] = grp
+        self._warn_if_amplified(g)
 
     def _group_add(self, g, E, MU, VAR) -> None:
-        self.groups[str(g)].extend(E, MU, VAR)
+        if self.groups[str(g)].extend(E, MU, VAR):
+            # jitter on the new rows only would favour the old ones (a duplicate added with
+            # variance 0 would be ignored): refit, so add and fit give the same map
+            sel = self.labels == g
+            self._group_fit(g, self.E[sel], self.MU[sel], self.VAR[sel])
+        else:
+            self._warn_if_amplified(g)
+
+    def _warn_if_amplified(self, g: int) -> None:
+        grp = self.groups[str(g)]
+        warn_if_amplified(grp.coef[: grp.m], self.MU[self.labels == g], grp.mu0, f"label {g}")
 
     def _group_predict(self, g, Eq, *, need_var, approx_var):
         grp = self.groups[str(g)]

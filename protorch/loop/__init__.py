@@ -10,7 +10,9 @@ a ProMP, an optimiser and the environment map together. No Hydra, no particular 
 
 The environments come from a pool of ``num_envs`` draws of ``task.sample_envs`` fixed by the seed;
 ``choice="random"`` takes them in draw order, ``choice="nearest"`` takes the untried ones closest
-to the known environments first (the authors' curriculum). Every step's optimiser seed is a
+to the known environments first (the authors' curriculum); ``choice="dataset"`` makes the pool
+the initial data set's own environments (demonstrations and priors, in data-set order: the
+paper's arm loop iterates its initialisation environments). Every step's optimiser seed is a
 function of ``(seed, step)``, so a resumed run repeats exactly what an uninterrupted run does.
 
 The task needs ``costs(traj (..., T, D), env (..., E)) -> (..., O)``, ``success(traj, env) ->
@@ -49,7 +51,8 @@ from torch import Tensor
 
 from ..data.checkpoint import save_model
 from ..data.dataset import TrajectoryDataset
-from .initial import demonstration_dataset, group_by_env
+from ..threads import torch_threads
+from .initial import dataset_pool, demonstration_dataset, group_by_env
 from .phases import Evaluator, accept, add, choose, infer, optimise, step_row
 from .settings import ADD_ONLY, CHOICES, LoopSettings
 from .state import (
@@ -127,6 +130,7 @@ def self_improve(
     progress: bool = False,
     desc: str = "self-improvement",
     on_step: Callable[[dict], None] | None = None,
+    threads: int | None = None,
 ) -> LoopResult:
     """Run the self-improvement loop; see the module docstring.
 
@@ -147,7 +151,7 @@ def self_improve(
         add_only: which solutions join the data set: ``"converged"`` (the optimiser's flag, the
             authors' rule; a ``solved`` stop counts as converged), ``"success"`` (the optimised
             mean trajectory passes ``task.success``) or ``"all"``.
-        choice: ``"random"`` or ``"nearest"`` (module docstring).
+        choice: ``"random"``, ``"nearest"`` or ``"dataset"`` (module docstring).
         solved: ``(traj (b, T, D), env (b, E)) -> (b,)`` bool, checked on every active problem's
             mean before the first and after every iteration; a solved problem stops there
             (converged). ``None``: run each problem until the optimiser's own rule stops it.
@@ -186,7 +190,24 @@ def self_improve(
             Without ``resume`` an existing checkpoint there is an error (never overwritten).
         progress: show a tqdm bar with the live success rate.
         on_step: called with each new metrics row (after the step's checkpoint, if any).
+        threads: torch's intra-op CPU threads for the call, restored after it
+            (:func:`~protorch.threads.torch_threads`); ``None`` leaves torch's setting. One thread
+            keeps the loop fast on a machine where another program holds a core.
     """
+    with torch_threads(threads):
+        return _improve(task, promp, dataset, optimizer=optimizer, optimizer_kwargs=optimizer_kwargs,
+                        env_map=env_map, num_envs=num_envs, batch_size=batch_size, add_only=add_only,
+                        choice=choice, solved=solved, labeler=labeler, each_label=each_label,
+                        sample_steps=sample_steps, seed=seed, eval_envs=eval_envs, min_var=min_var,
+                        var_floor=var_floor, eval_dtype=eval_dtype, run_dir=run_dir,
+                        checkpoint_every=checkpoint_every, resume=resume, progress=progress, desc=desc,
+                        on_step=on_step)
+
+
+def _improve(task, promp, dataset, *, optimizer, optimizer_kwargs, env_map, num_envs, batch_size, add_only,
+             choice, solved, labeler, each_label, sample_steps, seed, eval_envs, min_var, var_floor, eval_dtype,
+             run_dir, checkpoint_every, resume, progress, desc, on_step) -> LoopResult:
+    """The body of :func:`self_improve` (the same arguments), run inside its thread setting."""
     settings = LoopSettings(num_envs=num_envs, batch_size=batch_size, add_only=add_only, choice=choice,
                             each_label=each_label, sample_steps=sample_steps, seed=seed, min_var=min_var,
                             var_floor=var_floor, checkpoint_every=checkpoint_every)
@@ -198,7 +219,10 @@ def self_improve(
     state = RunState(run_signature(settings, optimizer, optimizer_kwargs, gp, ev.eval_dtype, solved=solved is not None,
                                    labels=labeler is not None), run_dir, save=save_model)
     # the pool of environments, fixed by the seed (drawn on the CPU)
-    pool = task.sample_envs(settings.num_envs, torch.Generator().manual_seed(int(seed)), dtype=dataset.dtype)  # (n, E)
+    if settings.choice == "dataset":
+        pool = dataset_pool(dataset, settings.num_envs, dataset.dtype)  # (n, E)
+    else:
+        pool = task.sample_envs(settings.num_envs, torch.Generator().manual_seed(int(seed)), dtype=dataset.dtype)  # (n, E)
     if eval_envs is not None:
         eval_envs = ev.here(torch.as_tensor(eval_envs))  # (Q, E)
     data = state.start(dataset, promp, resume=resume)  # a copy of dataset, or the checkpoint's

@@ -63,3 +63,14 @@ def demonstration_dataset(
         ds.append(demo_envs[idx[0]].to(dtype), wg.mean(0), var, label=int(lab[idx[0]]), origin="demonstration",
                   converged=True)
     return ds
+
+
+def dataset_pool(dataset: TrajectoryDataset, num_envs: int, dtype) -> Tensor:
+    """The first ``num_envs`` distinct environments of the data set, in order: ``(num_envs, E)``
+    (``choice="dataset"``: the paper's arm loop iterates its initialisation environments)."""
+    env = dataset.env.to(dtype).cpu()  # (M, E)
+    first = torch.stack([g[0] for g in group_by_env(env)]) if env.shape[0] else torch.zeros(0, dtype=torch.long)
+    if first.numel() < num_envs:
+        raise ValueError(f"choice='dataset' needs num_envs <= the data set's {first.numel()} distinct "
+                         f"environments, got num_envs={num_envs}")
+    return env[first[:num_envs]]

@@ -9,7 +9,7 @@ from ..checks import check_int
 __all__ = ["ADD_ONLY", "CHOICES", "LoopSettings"]
 
 ADD_ONLY = ("converged", "success", "all")
-CHOICES = ("random", "nearest")
+CHOICES = ("random", "nearest", "dataset")
 
 
 @dataclass(frozen=True)

@@ -11,17 +11,20 @@ from torch import Tensor
 from .base import BaseOptimizer, OptimizeResult
 from .cem import CEM
 from .cmaes import CMAES
+from .efficient_pro import EPRO
 from .functional import noise_floor_threshold, pearson_relevance, pro_update, stable_rewards
 from .pro import PRO
 from .rwpo import RWPO, rwpo_relevance_basis
 from .rwr import RWR
 
-OPTIMIZERS: dict[str, type[BaseOptimizer]] = {"pro": PRO, "rwr": RWR, "rwpo": RWPO, "cem": CEM, "cmaes": CMAES}
+OPTIMIZERS: dict[str, type[BaseOptimizer]] = {
+    "pro": PRO, "rwr": RWR, "rwpo": RWPO, "cem": CEM, "cmaes": CMAES, "epro": EPRO,
+}
 
 __all__ = [
-    "BaseOptimizer", "OptimizeResult", "PRO", "RWR", "RWPO", "CEM", "CMAES", "OPTIMIZERS", "optimizer_class",
-    "make_optimizer", "pearson_relevance", "pro_update", "stable_rewards", "noise_floor_threshold",
-    "rwpo_relevance_basis",
+    "BaseOptimizer", "OptimizeResult", "PRO", "RWR", "RWPO", "CEM", "CMAES", "EPRO", "OPTIMIZERS",
+    "optimizer_class", "make_optimizer", "pearson_relevance", "pro_update", "stable_rewards",
+    "noise_floor_threshold", "rwpo_relevance_basis",
 ]
 
 

@@ -26,7 +26,8 @@ from typing import Callable, Generator
 import torch
 from torch import Tensor, nn
 
-from ..checks import check_positive, check_tensor
+from ..checks import check_int, check_number, check_positive, check_tensor
+from .convergence import make_rule
 
 __all__ = ["BaseOptimizer", "OptimizeResult"]
 
@@ -58,9 +59,11 @@ class BaseOptimizer(nn.Module):
         beta: reward temperature ``R = exp(-beta * cost)``: a float or ``(B,)``.
         num_samples: ``S`` rollouts per update.
         max_iter: hard limit on iterations.
-        tol, window: the authors' convergence rule: a problem has converged once every
-            objective's per-iteration cost stayed within ``tol`` (max - min) over the last
-            ``window`` iterations. ``tol=0`` disables it. Converged problems stop moving.
+        tol, window: a problem has converged once every objective's mean sample cost stayed
+            within ``tol`` (max - min) over the last ``window`` iterations (``convergence="mean"``).
+            ``tol=0`` disables it. Converged problems stop moving.
+        convergence: ``"mean"`` (above), ``"authors"`` (every sample's cost within ``tol``, the
+            authors' ``rwpo.py``) or a rule object (:mod:`protorch.optim.convergence`).
         num_objectives: ``O``; inferred from the first ``tell`` when ``None``.
         seed: seed of the optimiser's own ``torch.Generator`` (reproducible sampling).
         dtype: dtype of the distribution (float64 default; float32 is fine for sampling).
@@ -76,6 +79,7 @@ class BaseOptimizer(nn.Module):
         max_iter: int = 200,
         tol: float = 1e-3,
         window: int = 5,
+        convergence="mean",
         num_objectives: int | None = None,
         seed: int | None = None,
         dtype: torch.dtype | None = None,
@@ -99,14 +103,15 @@ class BaseOptimizer(nn.Module):
         check_positive(beta_t, "beta")
         if beta_t.ndim > 1 or (beta_t.ndim == 1 and beta_t.shape[0] not in (1, mean2.shape[0])):
             raise ValueError(f"beta must be a float or ({mean2.shape[0]},), got shape {tuple(beta_t.shape)}")
-        if int(num_samples) < 2:
-            raise ValueError(f"num_samples must be >= 2, got {num_samples}")
-        if int(max_iter) < 1:
-            raise ValueError(f"max_iter must be >= 1, got {max_iter}")
-        if tol < 0 or int(window) < 1:
+        for name, v, lo in (("num_samples", num_samples, 2), ("max_iter", max_iter, 1)):
+            if isinstance(v, (int, float)) and not isinstance(v, bool) and v < lo:
+                raise ValueError(f"{name} must be >= {lo}, got {v}")
+        num_samples, max_iter = check_int(num_samples, "num_samples", 2), check_int(max_iter, "max_iter", 1)
+        if isinstance(tol, (int, float)) and tol < 0 or isinstance(window, (int, float)) and window < 1:
             raise ValueError(f"need tol >= 0 and window >= 1, got tol={tol}, window={window}")
-        if num_objectives is not None and int(num_objectives) < 1:
-            raise ValueError(f"num_objectives must be >= 1, got {num_objectives}")
+        tol, window = check_number(tol, "tol", allow_zero=True), check_int(window, "window", 1)
+        if num_objectives is not None:
+            num_objectives = check_int(num_objectives, "num_objectives", 1)
         self.register_buffer("mean", mean2.clone())  # (B, N)
         self.register_buffer("var", var2.clone())  # (B, N)
         self.register_buffer("beta", beta_t.expand(mean2.shape[0]).clone())  # (B,)
@@ -115,6 +120,7 @@ class BaseOptimizer(nn.Module):
         self.max_iter = int(max_iter)
         self.tol = float(tol)
         self.window = int(window)
+        self.convergence = make_rule(convergence, tol=self.tol, window=self.window)
         self.num_objectives = None if num_objectives is None else int(num_objectives)
         self.generator = torch.Generator(device=mean.device)
         if seed is not None:
@@ -122,7 +128,7 @@ class BaseOptimizer(nn.Module):
         else:
             self.generator.seed()
         self.iteration = 0
-        self.history: dict[str, list[Tensor]] = {"cost": [], "mean": [], "var": []}
+        self.history: dict[str, list[Tensor]] = {"cost": [], "cost_min": [], "cost_max": [], "mean": [], "var": []}
         self.relevance_seconds: list[float] = []
         self._gen: Generator[Tensor, Tensor, None] | None = None
         self._next: Tensor | None = None
@@ -131,6 +137,7 @@ class BaseOptimizer(nn.Module):
         self.asked_objective: int | None = None
         self._asked: Tensor | None = None
         self._iter_cost: Tensor | None = None
+        self._start: dict = {}  # the state at the start of the current iteration
 
     # -------------------------------------------------------------- sizes
     @property
@@ -151,27 +158,31 @@ class BaseOptimizer(nn.Module):
         return self.mean[:, None, :] + eps * var.clamp_min(0).sqrt()[:, None, :]
 
     def _record_cost(self, objective: int | slice, costs: Tensor) -> None:
-        """Note the mean cost this iteration's update saw for ``objective``: ``costs (B, S[, O])``."""
+        """Note the mean, min and max cost this iteration's update saw for ``objective``:
+        ``costs (B, S[, O])``."""
         if self._iter_cost is None:
             self._iter_cost = torch.full(
-                (self.batch_size, self.num_objectives), float("nan"), dtype=costs.dtype, device=costs.device
-            )
-        self._iter_cost[:, objective] = costs.mean(1)
+                (3, self.batch_size, self.num_objectives), float("nan"), dtype=costs.dtype, device=costs.device
+            )  # (3, B, O): mean, min, max over the samples
+        self._iter_cost[0][:, objective] = costs.mean(1)
+        self._iter_cost[1][:, objective] = costs.amin(1)
+        self._iter_cost[2][:, objective] = costs.amax(1)
 
     def _set_objective_weights(self, objective_weights) -> None:
         """``objective_weights (O,)`` for optimisers that score one total cost (``None``: all ones)."""
-        self.objective_weights = None if objective_weights is None else torch.as_tensor(
-            objective_weights, dtype=self.mean.dtype, device=self.mean.device
-        )
+        if objective_weights is None:
+            self.objective_weights = None
+            return
+        c = check_tensor(torch.as_tensor(objective_weights, dtype=self.mean.dtype, device=self.mean.device),
+                         "objective_weights", ndim=1)
+        if self.num_objectives is not None and c.shape[0] != self.num_objectives:
+            raise ValueError(f"objective_weights must be ({self.num_objectives},), got {tuple(c.shape)}")
+        self.objective_weights = c
 
     def _total_cost(self, costs: Tensor) -> Tensor:
         """``costs (B, S, O)`` -> ``(B, S)``: the objectives combined with ``objective_weights``."""
-        c = self.objective_weights
-        if c is None:
-            return costs.sum(-1)
-        if c.shape != (self.num_objectives,):
-            raise ValueError(f"objective_weights must be ({self.num_objectives},), got {tuple(c.shape)}")
-        return costs @ c
+        c = self.objective_weights  # its shape was checked against the costs by tell()
+        return costs.sum(-1) if c is None else costs @ c
 
     def _apply(self, new_mean: Tensor, new_var: Tensor) -> None:
         """Commit an update to the problems that have not converged."""
@@ -190,6 +201,7 @@ class BaseOptimizer(nn.Module):
         if self.stop():
             raise RuntimeError(f"the optimiser has stopped ({self.stop_reason()}); read result()")
         if self._next is None:
+            self._start = self._snapshot()
             self._gen = self._iteration()
             self._next = next(self._gen)
         self._asked = self._next
@@ -199,6 +211,20 @@ class BaseOptimizer(nn.Module):
         """Costs of the last asked weights: ``(B, S, O)`` (unbatched: ``(S, O)`` or ``(S,)``)."""
         if self._asked is None:
             raise RuntimeError("tell() called without a pending ask()")
+        costs = self._checked_costs(costs)
+        self._asked = None
+        try:
+            self._next = self._gen.send(costs)
+        except StopIteration:
+            self._next = None
+            self._end_iteration()
+        except BaseException:  # an update failed half-way: back to the start of the iteration
+            self._restore(self._start)
+            raise
+
+    def _checked_costs(self, costs) -> Tensor:
+        """``costs`` as ``(B, S, O)`` in the distribution's dtype, or an error naming what is
+        wrong; nothing changes before every check passed."""
         costs = check_tensor(costs, "costs")
         if not costs.is_floating_point():
             costs = costs.to(self.mean.dtype)
@@ -211,16 +237,40 @@ class BaseOptimizer(nn.Module):
             raise ValueError(
                 f"costs must be (B, S, O) with (B, S) = {expect} (unbatched: (S, O)), got {tuple(costs.shape)}"
             )
+        if self.num_objectives is not None and costs.shape[-1] != self.num_objectives:
+            raise ValueError(f"expected {self.num_objectives} objective(s), got costs of shape {tuple(costs.shape)}")
+        c = getattr(self, "objective_weights", None)
+        if c is not None and tuple(c.shape) != (costs.shape[-1],):
+            raise ValueError(f"objective_weights must be ({costs.shape[-1]},) to match the costs' "
+                             f"{costs.shape[-1]} objective(s), got shape {tuple(c.shape)}")
+        cast = costs.to(self.mean.dtype)
+        if not bool(torch.isfinite(cast).all()):
+            raise ValueError(f"costs overflow the optimiser's {self.mean.dtype} (largest |cost| "
+                             f"{float(costs.abs().max()):.3g}): rescale them or use dtype=torch.float64")
         if self.num_objectives is None:
             self.num_objectives = costs.shape[-1]
-        elif costs.shape[-1] != self.num_objectives:
-            raise ValueError(f"expected {self.num_objectives} objective(s), got costs of shape {tuple(costs.shape)}")
-        self._asked = None
-        try:
-            self._next = self._gen.send(costs.to(self.mean.dtype))
-        except StopIteration:
-            self._next = None
-            self._end_iteration()
+        return cast
+
+    def _snapshot(self) -> dict:
+        """What an iteration may change, to undo an iteration that failed inside ``tell``."""
+        return {"mean": self.mean.clone(), "var": self.var.clone(), "converged": self.converged.clone(),
+                "rng": self.generator.get_state(), "num_objectives": self.num_objectives,
+                "history": {k: len(v) for k, v in self.history.items()},
+                "relevance_seconds": len(self.relevance_seconds), "relevance": getattr(self, "relevance", None)}
+
+    def _restore(self, snap: dict) -> None:
+        self.mean.copy_(snap["mean"])
+        self.var.copy_(snap["var"])
+        self.converged.copy_(snap["converged"])
+        self.generator.set_state(snap["rng"])
+        self.num_objectives = snap["num_objectives"]
+        for k, n in snap["history"].items():
+            del self.history[k][n:]
+        del self.relevance_seconds[snap["relevance_seconds"]:]
+        if hasattr(self, "relevance"):
+            self.relevance = snap["relevance"]
+        self._gen, self._next, self._asked, self._iter_cost = None, None, None, None
+        self.asked_objective = None
 
     def _end_iteration(self) -> None:
         self.iteration += 1
@@ -229,16 +279,15 @@ class BaseOptimizer(nn.Module):
         self.history["mean"].append(self.mean.clone())
         self.history["var"].append(self.var.clone())
         if cost is not None:
-            self.history["cost"].append(cost)
-        if self.tol > 0 and len(self.history["cost"]) >= self.window:
-            recent = torch.stack(self.history["cost"][-self.window :])  # (W, B, O)
-            spread = (recent.amax(0) - recent.amin(0)).nan_to_num(nan=float("inf"))  # (B, O)
-            self.converged |= (spread <= self.tol).all(-1)
+            for key, c in zip(("cost", "cost_min", "cost_max"), cost):
+                self.history[key].append(c)  # (B, O)
+        if len(self.history["cost"]) >= self.convergence.window:
+            self.converged |= self.convergence(self.history)
 
     def mark_converged(self, mask) -> None:
         """Declare problems finished from outside, e.g. once their mean already solves the task
         (the self-improvement loop's ``solved`` check): they stop moving, count as converged and
-        :meth:`stop` no longer waits for them. ``mask`` is ``(B,)`` bool (unbatched: a bool)."""
+        :meth:`stop` does not wait for them. ``mask`` is ``(B,)`` bool (unbatched: a bool)."""
         m = torch.as_tensor(mask, device=self.converged.device)
         if m.dtype != torch.bool:
             raise ValueError(f"mask must be bool, got {m.dtype}")

@@ -30,6 +30,7 @@ def stable_rewards(costs: Tensor, beta, dim: int = -1) -> Tensor:
     against ``costs`` with ``dim`` removed (one beta per problem).
     """
     costs = check_tensor(costs, "costs")
+    costs = costs if costs.is_floating_point() else costs.to(torch.float64)  # exp of ints: float64
     beta_t = _beta_tensor(beta, costs)
     if beta_t.ndim > 0:
         per_problem = costs.shape[:dim % costs.ndim] + costs.shape[dim % costs.ndim + 1:]
@@ -55,6 +56,12 @@ def _is_constant(centered: Tensor, raw: Tensor, std: Tensor) -> Tensor:
     return std <= 64 * eps * scale.clamp_min(torch.finfo(raw.dtype).tiny)
 
 
+def _pow2_scale(x: Tensor) -> Tensor:
+    """``2^e (..., 1, C)`` with ``max_s |x| = m 2^e``, ``m in [0.5, 1)`` (1 for a zero column)."""
+    _, e = torch.frexp(x.abs().amax(-2, keepdim=True))
+    return torch.ldexp(torch.ones_like(x[..., :1, :]), e)
+
+
 def pearson_relevance(w: Tensor, costs: Tensor, *, noise_floor: float | None = None) -> Tensor:
     """Relevance of each weight to each objective: normalised ``|Pearson rho(w_n, o)|``.
 
@@ -64,7 +71,7 @@ def pearson_relevance(w: Tensor, costs: Tensor, *, noise_floor: float | None = N
         costs: ``(..., S, O)`` objective values of those samples.
         noise_floor: optional ``z``. An estimated correlation of two unrelated variables is not 0
             but noise of size ``1/sqrt(S)``; with ``z`` set, ``|rho| < z / sqrt(S)`` counts as 0
-            before normalising. ``None`` is the paper's formula as written. See GUIDE.md: without
+            before normalising. ``None`` is the paper's formula as written. Without
             a floor the irrelevant variance slowly collapses in the Fig. 3 toy.
 
     Returns:
@@ -93,11 +100,14 @@ def pearson_relevance(w: Tensor, costs: Tensor, *, noise_floor: float | None = N
     costs = costs - costs[..., :1, :]
     wc = w - w.mean(-2, keepdim=True)  # (..., S, N)
     cc = costs - costs.mean(-2, keepdim=True)  # (..., S, O)
+    const_w = _is_constant(wc, w, wc.pow(2).mean(-2).sqrt())  # (..., N)
+    const_c = _is_constant(cc, costs, cc.pow(2).mean(-2).sqrt())  # (..., O)
+    # rho is scale-invariant: dividing by a power of two near each column's largest |value| is
+    # exact, and keeps the squares finite for values near the dtype's maximum
+    wc, cc = wc / _pow2_scale(wc), cc / _pow2_scale(cc)
     sw = wc.pow(2).mean(-2).sqrt()  # (..., N)
     sc = cc.pow(2).mean(-2).sqrt()  # (..., O)
     cov = torch.einsum("...sn,...so->...on", wc, cc) / num_samples  # (..., O, N)
-    const_w = _is_constant(wc, w, sw)  # (..., N)
-    const_c = _is_constant(cc, costs, sc)  # (..., O)
     denom = sc[..., :, None] * sw[..., None, :]  # (..., O, N)
     dead = const_c[..., :, None] | const_w[..., None, :]  # (..., O, N)
     rho = torch.where(dead, torch.zeros_like(cov), cov / torch.where(dead, torch.ones_like(denom), denom))
@@ -134,6 +144,12 @@ def pro_update(
     samples = check_tensor(samples, "samples", ndim_min=2)
     costs = check_tensor(costs, "costs", ndim_min=1)
     relevance = check_tensor(relevance, "relevance", ndim_min=1)
+    if not (mean.is_floating_point() and var.is_floating_point() and samples.is_floating_point()):
+        # integer (or bool) inputs are promoted, never truncated: float64 unless one is floating
+        dtype = next((x.dtype for x in (samples, mean, var) if x.is_floating_point()), torch.float64)
+        mean, var, samples = mean.to(dtype), var.to(dtype), samples.to(dtype)
+    relevance = relevance if relevance.is_floating_point() else relevance.to(samples.dtype)
+    costs = costs if costs.is_floating_point() else costs.to(samples.dtype)
     if costs.ndim == samples.ndim and costs.shape[-1] == 1:
         costs = costs[..., 0]
     batch, n = mean.shape[:-1], mean.shape[-1]

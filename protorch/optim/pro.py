@@ -8,6 +8,7 @@ from typing import Generator
 import torch
 from torch import Tensor
 
+from ..checks import check_int, check_number
 from .base import BaseOptimizer
 from .functional import pearson_relevance, pro_update
 
@@ -51,17 +52,11 @@ class PRO(BaseOptimizer):
         **kwargs,
     ) -> None:
         super().__init__(mean, var, beta=beta, **kwargs)
-        if int(relevance_samples) < 3:
-            raise ValueError(f"relevance_samples must be >= 3, got {relevance_samples}")
-        if not relevance_var > 0:
-            raise ValueError(f"relevance_var must be > 0, got {relevance_var}")
-        if int(relevance_every) < 0:
-            raise ValueError(f"relevance_every must be >= 0, got {relevance_every}")
-        if noise_floor is not None and noise_floor < 0:
-            raise ValueError(f"noise_floor must be >= 0 or None, got {noise_floor}")
-        self.relevance_samples = int(relevance_samples)
-        self.relevance_var = float(relevance_var)
-        self.relevance_every = int(relevance_every)
+        self.relevance_samples = check_int(relevance_samples, "relevance_samples", 3)
+        self.relevance_var = check_number(relevance_var, "relevance_var")  # finite, > 0
+        self.relevance_every = check_int(relevance_every, "relevance_every", 0)
+        if noise_floor is not None:
+            noise_floor = check_number(noise_floor, "noise_floor", allow_zero=True)
         self.noise_floor = noise_floor
         self.relevance: Tensor | None = None  # (B, O, N)
         self.history["relevance"] = []

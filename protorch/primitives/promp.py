@@ -16,7 +16,7 @@ from typing import Sequence
 import torch
 from torch import Tensor, nn
 
-from ..checks import check_positive, check_tensor
+from ..checks import check_int, check_number, check_positive, check_tensor
 
 __all__ = ["ProMP", "gaussian_basis", "resample"]
 
@@ -70,14 +70,14 @@ class ProMP(nn.Module):
         device: torch.device | str | None = None,
     ) -> None:
         super().__init__()
-        if int(num_dof) < 1 or int(num_basis) < 2 or int(num_steps) < 2:
+        sizes = ((num_dof, "num_dof", 1), (num_basis, "num_basis", 2), (num_steps, "num_steps", 2))
+        if any(isinstance(v, (int, float)) and v < lo for v, _, lo in sizes):
             raise ValueError(
                 f"need num_dof >= 1, num_basis >= 2, num_steps >= 2; "
                 f"got {num_dof}, {num_basis}, {num_steps}"
             )
-        if ridge < 0:
-            raise ValueError(f"ridge must be >= 0, got {ridge}")
-        self.num_dof, self.num_basis, self.num_steps = int(num_dof), int(num_basis), int(num_steps)
+        self.num_dof, self.num_basis, self.num_steps = (check_int(v, name, lo) for v, name, lo in sizes)
+        ridge = check_number(ridge, "ridge", allow_zero=True)  # finite, >= 0
         self.width = float(width) if width is not None else 1.0 / (self.num_basis - 1)
         check_positive(self.width, "width")
         self.ridge = float(ridge)
@@ -218,6 +218,7 @@ class ProMP(nn.Module):
 
     def sample(self, num_samples: int, *, generator: torch.Generator | None = None) -> Tensor:
         """Draw weights ``(S, N)`` from the weight Gaussian."""
+        num_samples = check_int(num_samples, "num_samples", 0)
         self._require_fitted()
         n = self.num_weights
         z = torch.randn(num_samples, n, generator=generator, dtype=self.mean.dtype, device=self.mean.device)
@@ -260,6 +261,8 @@ class ProMP(nn.Module):
         if bool(((phase < 0) | (phase > 1)).any()):
             raise ValueError(f"via-point phases must lie in [0, 1], got {phase.tolist()}")
         v, d = phase.shape[0], self.num_dof
+        if v == 0:
+            raise ValueError("condition() needs at least one via point, got an empty phase")
         y = check_tensor(torch.as_tensor(y), "y").to(self.basis)
         if y.ndim == 1:  # (D,) for one via point, or (V,) for a 1-DoF ProMP
             y = y[:, None] if d == 1 else y[None]
@@ -285,7 +288,13 @@ class ProMP(nn.Module):
         obs_cov = torch.block_diag(*y_cov)  # (V*D, V*D)
         sig = self.cov  # (N, N)
         s = psi @ sig @ psi.T + obs_cov  # (V*D, V*D)
-        gain = torch.linalg.solve(s, psi @ sig).T  # (N, V*D)
+        sol, info = torch.linalg.solve_ex(s, psi @ sig)  # (V*D, N)
+        if int(info) != 0 or not bool(torch.isfinite(sol).all()):
+            raise ValueError(
+                "the via points' covariance Psi Sigma Psi^T + y_cov is singular (the ProMP's "
+                "covariance is zero at those phases and y_cov is 0): give y_cov > 0"
+            )
+        gain = sol.T  # (N, V*D)
         new_mean = self.mean + gain @ (y.reshape(-1) - psi @ self.mean)  # (N,)
         new_cov = sig - gain @ psi @ sig  # (N, N)
         out = copy.deepcopy(self)

@@ -46,60 +46,21 @@ from torch import Tensor
 from ..checks import check_tensor
 from ..robots.kinematics import ArmKinematics
 from ..robots.panda import PANDA_END_LINK
+from .arm_demos import follow_path, ik_demonstrations
+from .arm_geometry import (
+    LEFT,
+    RIGHT,
+    SIDES,
+    down_rotation,
+    segment_axis_distance,
+)
+from .arm_deviation import DEVIATIONS, deviation
 from .base import Task
-from .curves import catmull_rom, smooth_noise
 
 __all__ = ["ArmReachTask", "START_Q", "LEFT", "RIGHT", "SIDES", "segment_axis_distance", "down_rotation"]
 
 # the start configuration: hand pointing down, tool centre point 10 cm above the table at (0.40, 0)
 START_Q = (0.0, 0.0654, 0.0, -2.7266, 0.0, 2.7921, 0.7854)
-LEFT, RIGHT = 0, 1
-SIDES = {LEFT: "left", RIGHT: "right"}
-
-
-def down_rotation(dtype=torch.float64, device=None) -> Tensor:
-    """The hand's orientation at the start: tool ``z`` down, tool ``x`` along ``+x``: ``(3, 3)``."""
-    return torch.tensor([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]], dtype=dtype, device=device)
-
-
-def segment_axis_distance(a: Tensor, b: Tensor, axis_xy: Tensor, z0: float, z1: float) -> Tensor:
-    """Exact distance between the segments ``a -> b`` (``(..., 3)``) and the vertical axis segment
-    ``{(axis_x, axis_y, z): z0 <= z <= z1}`` (``axis_xy (..., 2)``): ``(...)``.
-
-    Along the segment ``p(u) = a + u (b - a)`` the squared distance is
-    ``h(u)^2 + v(u)^2`` with ``h`` the horizontal distance and ``v = max(0, z(u) - z1, z0 - z(u))``,
-    a convex piecewise quadratic; its minimum over ``[0, 1]`` is at an end, a breakpoint
-    (``z(u) = z0`` or ``z1``) or a stationary point of a piece, so evaluating it at those seven
-    candidates is exact.
-    """
-    shape = torch.broadcast_shapes(a.shape[:-1], b.shape[:-1], axis_xy.shape[:-1])
-    a, b = a.expand(*shape, 3), b.expand(*shape, 3)
-    P = a[..., :2] - axis_xy  # (..., 2)
-    Q = b[..., :2] - a[..., :2]  # (..., 2)
-    za, dz = a[..., 2], b[..., 2] - a[..., 2]  # (...)
-    pq, qq = (P * Q).sum(-1), (Q * Q).sum(-1)  # (...)
-    tiny = torch.finfo(a.dtype).tiny
-
-    def ratio(num, den):
-        return torch.where(den > tiny, num / den.clamp_min(tiny), torch.zeros_like(num))
-
-    cands = [
-        torch.zeros_like(za), torch.ones_like(za), ratio(-pq, qq),
-        ratio(-(pq + dz * (za - z1)), qq + dz * dz), ratio(-(pq + dz * (za - z0)), qq + dz * dz),
-        ratio(z0 - za, dz), ratio(z1 - za, dz),
-    ]
-    u = torch.stack(cands, -1).clamp(0.0, 1.0)  # (..., 7)
-    h = P[..., None, :] + u[..., None] * Q[..., None, :]  # (..., 7, 2)
-    z = za[..., None] + u * dz[..., None]  # (..., 7)
-    v = torch.clamp(torch.maximum(z - z1, z0 - z), min=0.0)  # (..., 7)
-    return (h.square().sum(-1) + v.square()).amin(-1).sqrt()  # (...)
-
-
-def _point_segment_distance(p: Tensor, s: Tensor, g: Tensor) -> Tensor:
-    """Distance of points ``p (..., T, 3)`` to the segments ``s -> g`` (``(..., 3)``): ``(..., T)``."""
-    d = (g - s)[..., None, :]  # (..., 1, 3)
-    u = ((p - s[..., None, :]) * d).sum(-1) / d.square().sum(-1).clamp_min(1e-12)  # (..., T)
-    return (p - s[..., None, :] - u.clamp(0, 1)[..., None] * d).norm(dim=-1)
 
 
 def _box(name: str, box) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -146,11 +107,14 @@ class ArmReachTask(Task):
     start_q: tuple = START_Q
     urdf: str | None = None
     end_link: str = PANDA_END_LINK
+    deviation: str = "segment"  # "time": to tau_direct(t) at the same instant (protorch.tasks.arm_deviation)
     name: str = "arm_reach"
     objective_names: tuple[str, ...] = field(default=("start", "can", "goal"), init=False)
     env_names: tuple[str, ...] = field(default=("can_x", "can_y", "goal_x", "goal_y"), init=False)
 
     def __post_init__(self) -> None:
+        if self.deviation not in DEVIATIONS:
+            raise ValueError(f"deviation must be one of {list(DEVIATIONS)}, got {self.deviation!r}")
         for name in ("can_radius", "can_height", "clearance", "goal_tol", "start_tol"):
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v > 0):
@@ -358,7 +322,7 @@ class ArmReachTask(Task):
         s = self.start_position(path.dtype, path.device) if start is None else start  # (..., 3)
         s = s.expand(*path.shape[:-2], 3)
         g = self.goal_point(env)  # (..., 3)
-        d = _point_segment_distance(path, s, g).mean(-1)  # (...)
+        d = deviation(self.deviation, path, s, g).mean(-1)  # (...)
         d_start = (path[..., 0, :] - s).norm(dim=-1)
         d_goal = (path[..., -1, :] - g).norm(dim=-1)
         near = (path[..., :2] - env[..., None, 0:2]).norm(dim=-1).amin(-1)  # (...)
@@ -384,20 +348,7 @@ class ArmReachTask(Task):
         down (the start configuration's orientation), from the start configuration: damped least squares at every step, warm-started
         from the step before, with a null-space pull to the start posture. Returns
         ``(q (n, T, 7), position error (n, T))``."""
-        path = check_tensor(path, "path", ndim=3)
-        kin = self.kinematics
-        dtype, device = kin.lower.dtype, kin.lower.device
-        path = path.to(dtype=dtype, device=device)
-        n, t_len = path.shape[:2]
-        rest = self.start_config(dtype, device)
-        rot = kin.ee_pose(rest)[:3, :3].expand(n, 3, 3)  # the hand keeps its start orientation (pointing down)
-        q = rest.expand(n, -1).clone()  # (n, J)
-        out = torch.empty(n, t_len, kin.num_joints, dtype=dtype, device=device)
-        err = torch.empty(n, t_len, dtype=dtype, device=device)
-        for t in range(t_len):
-            q, err[:, t] = kin.inverse(path[:, t], q, rotation=rot, rest=rest, iters=first_iters if t == 0 else iters)
-            out[:, t] = q
-        return out, err
+        return follow_path(self, path, iters=iters, first_iters=first_iters)
 
     def straight_paths(self, env: Tensor, num_steps: int = 100) -> Tensor:
         """The straight end-effector path from ``s`` to the target of each environment, with a
@@ -436,44 +387,5 @@ class ArmReachTask(Task):
         their environments ``(M * per_env, 4)`` and the homotopy class of each (measured on
         the joint trajectory with :meth:`side`, not assumed).
         """
-        if isinstance(envs, int):
-            envs = self.sample_envs(envs, generator)
-        envs = self.check_envs(check_tensor(envs, "envs", ndim=2)).to(torch.float64)
-        if int(per_env) < 1:
-            raise ValueError(f"per_env must be >= 1, got {per_env}")
-        m = envs.shape[0]
-        sides = torch.arange(m) % 2 if sides is None else torch.as_tensor(sides).long().reshape(-1)
-        if sides.shape[0] != m or not bool(((sides == LEFT) | (sides == RIGHT)).all()):
-            raise ValueError(f"sides must hold {m} entries of {LEFT} (left) or {RIGHT} (right)")
-        t_min, t_max = int(lengths[0]), int(lengths[1])
-        if not 2 <= t_min <= t_max:
-            raise ValueError(f"lengths must be (lo, hi) with 2 <= lo <= hi, got {lengths}")
-        g_, f64 = generator, torch.float64
-        e = envs.repeat_interleave(int(per_env), 0)  # (n, 4)
-        side = sides.repeat_interleave(int(per_env))  # (n,)
-        n = e.shape[0]
-        s = self.start_position()  # (3,)
-        goal = self.goal_point(e)  # (n, 3)
-        line = goal[:, :2] - s[:2]  # (n, 2)
-        line = line / line.norm(dim=-1, keepdim=True)
-        normal = torch.stack([-line[:, 1], line[:, 0]], -1)  # (n, 2) to the left of the line
-        sign = torch.where(side == LEFT, 1.0, -1.0).to(f64)[:, None]  # (n, 1)
-        dist = pass_distance[0] + (pass_distance[1] - pass_distance[0]) * torch.rand(n, 1, generator=g_, dtype=f64)
-        beside = e[:, :2] + sign * dist * normal  # (n, 2) beside the can, perpendicular to the line
-        lift = 0.03 * torch.rand(n, 1, generator=g_, dtype=f64)  # (n, 1)
-        h = self.ee_height
-        end = goal + torch.cat([goal_noise * torch.randn(n, 2, generator=g_, dtype=f64), torch.zeros(n, 1, dtype=f64)], -1)
-        via = torch.stack([s.expand(n, 3), torch.cat([beside, h + lift], -1), end], 1)  # (n, 3, 3)
-        length = torch.randint(t_min, t_max + 1, (n, 1), generator=g_)  # (n, 1)
-        skew = 0.8 + 0.45 * torch.rand(n, 1, generator=g_, dtype=f64)  # (n, 1)
-        u = (torch.arange(t_max, dtype=f64) / (length - 1)).clamp(max=1)  # (n, T_max)
-        v = u**skew
-        prog = v**3 * (10 - 15 * v + 6 * v**2)  # (n, T_max) minimum-jerk progress along the path
-        path = catmull_rom(via, prog)  # (n, T_max, 3)
-        wobble = smooth_noise(u, tremor, g_, dim=3) * torch.sin(torch.pi * prog)[..., None]  # (n, T_max, 3)
-        path = path + wobble
-        q, _ = self.ik_path(path)  # (n, T_max, 7)
-        q = q.to(torch.float64).cpu()
-        demos = [qi[:t].clone() for qi, t in zip(q, length[:, 0].tolist())]
-        labels = torch.stack([self.side(d, ei) for d, ei in zip(demos, e)])  # (n,)
-        return demos, e, labels
+        return ik_demonstrations(self, envs, per_env, generator, sides=sides, lengths=lengths,
+                                 pass_distance=pass_distance, goal_noise=goal_noise, tremor=tremor)

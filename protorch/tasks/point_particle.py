@@ -2,7 +2,7 @@
 moves from a start, through the hole of a thick vertical wall, to a goal.
 
 Environment ``e = (start_x, start_y, wall_x, hole_y, goal_x, goal_y)``, as in the authors' data
-(``../shared/data/point_particle_human_demos``). The wall is the two rectangles
+(marcoewerton/avoid_moving_walls, ``envK.out``). The wall is the two rectangles
 ``x in [wall_x - 1, wall_x + 1]``, ``y <= hole_y - 1`` and ``y >= hole_y + 1``; the hole is
 ``y in (hole_y - 1, hole_y + 1)``. With ``fixed_start`` the environment is the paper's 4-D
 ``(wall_x, hole_y, goal_x, goal_y)`` and the start is a constant.

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from ..gp.model import label_aware_mean
-from .common import atomic_save, frame_indices, new_figure, to_numpy
+from .common import atomic_save, frame_indices, legend_below, new_figure, to_numpy
 
 __all__ = ["CLASS_COLORS", "draw_can", "plot_top_view", "plot_arm_3d", "draw_episode_frame",
            "plot_switch_frames", "write_switch_gif", "experiment_figures"]
@@ -46,6 +46,8 @@ def _limits(ax, task):
     ax.set_ylim(min(cy0, gy0) - 0.2, max(cy1, gy1) + 0.2)
     ax.set_aspect("equal")
     ax.tick_params(labelsize=7)
+    ax.set_xlabel("x [m] (forward)", fontsize=7)
+    ax.set_ylabel("y [m] (robot's left)", fontsize=7)
 
 
 def plot_top_view(ax, task, env, paths: dict, *, title: str | None = None):
@@ -109,8 +111,8 @@ def draw_episode_frame(ax, task, ep: dict, *, t: int, legend: bool = False):
     ax.plot(ee[: t + 1, 0], ee[: t + 1, 1], "-", color="k", lw=1.3, zorder=6, label="end effector")
     _limits(ax, task)
     ax.set_title(f"t = {t * ep['dt']:.2f} s, {_NAMES.get(lab, lab)}", fontsize=8)
-    if legend:
-        ax.legend(fontsize=6, loc="lower left")
+    if legend:  # outside the axes, on the right: the can and the target can be anywhere inside
+        ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False)
     return ax
 
 
@@ -131,12 +133,13 @@ def plot_switch_frames(path, task, ep: dict, *, frames=None, num_frames: int = 5
     idx = _switch_frames(ep["labels"], n, num_frames) if frames is None else frame_indices(n, frames, num_frames)
     fig = new_figure((2.9 * len(idx), 3.2))
     axes = fig.subplots(1, len(idx), squeeze=False)
-    for k, (ax, t) in enumerate(zip(axes[0], idx)):
-        draw_episode_frame(ax, task, ep, t=t, legend=k == 0)
+    for ax, t in zip(axes[0], idx):
+        draw_episode_frame(ax, task, ep, t=t)
     head = title or "moving can / target"
     fig.suptitle(f"{head}: {'success' if ep['success'] else 'failure'}", fontsize=10)
     fig.tight_layout()
-    return atomic_save(path, ".png", lambda tmp: fig.savefig(tmp, dpi=dpi, format="png"))
+    legend_below(fig, axes)
+    return atomic_save(path, ".png", lambda tmp: fig.savefig(tmp, dpi=dpi, format="png", bbox_inches="tight"))
 
 
 def write_switch_gif(path, task, ep: dict, *, fps: int = 12, max_frames: int = 40, title: str | None = None,
@@ -145,8 +148,8 @@ def write_switch_gif(path, task, ep: dict, *, fps: int = 12, max_frames: int = 4
     from matplotlib.animation import FuncAnimation, PillowWriter
 
     idx = frame_indices(len(ep["envs"]), None, int(max_frames))
-    fig = new_figure((4.2, 4.2))
-    ax = fig.subplots()
+    fig = new_figure((5.6, 4.2))
+    ax = fig.add_axes((0.12, 0.1, 0.55, 0.82))  # room on the right for the legend
     head = title or "moving can / target"
 
     def update(t):
@@ -189,12 +192,12 @@ def experiment_figures(out_dir, task, model, off_model, test_envs, res, off_loop
         if off is not None:
             lines["labels off (averaged)"] = (off[i], "0.35", "--")
         plot_top_view(ax, task, env[i], lines, title=f"held-out env {pick[i]}: {'success' if ok[i] else 'failure'}")
-        if i == 0:
-            ax.legend(fontsize=6, loc="lower left")
     fig.suptitle(f"end-effector paths of both classes' predicted means (top view); test success "
                  f"{metrics['test']['success_rate']:.3f}", fontsize=10)
     fig.tight_layout()
-    atomic_save(out_dir / "top_view.png", ".png", lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    legend_below(fig, axes, ncol=5)
+    atomic_save(out_dir / "top_view.png", ".png",
+                lambda tmp: fig.savefig(tmp, dpi=110, format="png", bbox_inches="tight"))
 
     # 3-D view of the arm along the chosen mean of the first of those environments
     fig = new_figure((6, 5.5))

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["to_numpy", "new_figure", "atomic_save", "frame_indices"]
+__all__ = ["to_numpy", "new_figure", "atomic_save", "frame_indices", "legend_below"]
 
 
 def to_numpy(x):
@@ -56,3 +56,18 @@ def frame_indices(n: int, frames, num_frames: int) -> list[int]:
     if bad or not idx:
         raise ValueError(f"frames must be instants in [0, {n - 1}], got {list(frames)}")
     return idx
+
+
+def legend_below(fig, axes, *, ncol: int = 6, fontsize: int = 7):
+    """One legend for the whole figure, centred below its panels (so it covers no data), with
+    each label of ``axes`` once; call after ``tight_layout``. Returns the legend (or ``None``)."""
+    handles, labels = [], []
+    for ax in np.ravel(axes):
+        for h, label in zip(*ax.get_legend_handles_labels()):
+            if label not in labels and not label.startswith("_"):
+                handles.append(h)
+                labels.append(label)
+    if not handles:
+        return None
+    return fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=min(ncol, len(labels)),
+                      fontsize=fontsize, frameon=False)

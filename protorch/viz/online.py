@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .common import atomic_save, frame_indices, new_figure, to_numpy
+from .common import atomic_save, frame_indices, legend_below, new_figure, to_numpy
 
 __all__ = ["draw_online_frame", "plot_episode_frames", "write_episode_gif"]
 
@@ -70,8 +70,10 @@ def draw_online_frame(ax, positions, envs, means, markers=None, *, t: int, dt: f
     ax.set_aspect("equal")
     ax.set_title(f"t = {t * dt:.2f} s", fontsize=9)
     ax.tick_params(labelsize=7)
-    if legend:
-        ax.legend(fontsize=6, loc="best")
+    ax.set_xlabel("x (workspace units)", fontsize=7)
+    ax.set_ylabel("y (workspace units)", fontsize=7)
+    if legend:  # outside the axes, on the right: the wall and the goal can be anywhere inside
+        ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False)
     return ax
 
 
@@ -87,15 +89,16 @@ def plot_episode_frames(path, positions, envs, means, markers=None, *, dt: float
     idx = frame_indices(positions.shape[0], frames, num_frames)
     fig = new_figure((2.6 * len(idx), 2.9))
     axes = fig.subplots(1, len(idx), squeeze=False)
-    for k, (ax, t) in enumerate(zip(axes[0], idx)):
-        draw_online_frame(ax, positions, envs, means, markers, t=t, dt=dt, goal_tol=goal_tol,
-                          legend=k == len(idx) - 1)
+    for ax, t in zip(axes[0], idx):
+        draw_online_frame(ax, positions, envs, means, markers, t=t, dt=dt, goal_tol=goal_tol)
     head = title or "online episode"
     if success is not None:
         head += f": {'success' if success else 'failure'}"
     fig.suptitle(head, fontsize=10)
     fig.tight_layout()
-    return atomic_save(path, ".png", lambda tmp: fig.savefig(tmp, dpi=dpi, format="png"))
+    legend_below(fig, axes)
+    return atomic_save(path, ".png", lambda tmp: fig.savefig(tmp, dpi=dpi, format="png",
+                                                            bbox_inches="tight"))
 
 
 def write_episode_gif(path, positions, envs, means, markers=None, *, dt: float = 0.01, fps: int = 20,
@@ -111,8 +114,8 @@ def write_episode_gif(path, positions, envs, means, markers=None, *, dt: float =
     if int(fps) < 1 or int(max_frames) < 1:
         raise ValueError(f"fps and max_frames must be >= 1, got {fps}, {max_frames}")
     idx = frame_indices(positions.shape[0], None, int(max_frames))
-    fig = new_figure((4, 4))
-    ax = fig.subplots()
+    fig = new_figure((5.4, 4))
+    ax = fig.add_axes((0.1, 0.11, 0.62, 0.8))  # room on the right for the legend
     head = title or "online episode"
     if success is not None:
         head += f": {'success' if success else 'failure'}"

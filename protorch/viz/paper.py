@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .common import to_numpy
+from .common import atomic_save, to_numpy
 
 __all__ = [
     "plot_cloud", "plot_curves", "plot_trajectories", "plot_window", "plot_point_particle", "plot_relevance",
@@ -53,6 +53,8 @@ def plot_window(ax, task):
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 1)
     ax.set_aspect("equal")
+    ax.set_xlabel("x (unit square)")
+    ax.set_ylabel("y (unit square)")
     return ax
 
 
@@ -73,31 +75,34 @@ def plot_point_particle(ax, task, env):
     ax.set_ylim(0, 10)
     ax.set_aspect("equal")
     ax.tick_params(labelsize=7)
+    ax.set_xlabel("x (workspace units)", fontsize=7)
+    ax.set_ylabel("y (workspace units)", fontsize=7)
     return ax
 
 
-def plot_relevance(ax, relevance, names, *, title: str = ""):
-    """Relevance profiles ``(O, N)`` over the weight index."""
+def plot_relevance(ax, relevance, names, *, title: str = "", xlabel: str = "weight index",
+                   legend_loc: str = "best"):
+    """Relevance profiles ``(O, N)`` over the weight index (pass a slice, e.g. one DoF's ``K``
+    weights ``relevance[:, :K]``, to plot those only). The legend goes to ``legend_loc``
+    (``"below"``: under the axes, covering nothing)."""
     r = to_numpy(relevance)
     for o, name in enumerate(names):
         ax.plot(np.arange(r.shape[1]), r[o], marker="o", ms=3, label=name)
-    ax.set_xlabel("weight index")
-    ax.set_ylabel("relevance")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("relevance (normalised |Pearson r|)")
     ax.set_ylim(-0.05, 1.05)
+    ax.set_xticks(np.arange(r.shape[1]))
     ax.set_title(title)
-    ax.legend(fontsize=7)
+    if legend_loc == "below":
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=len(names), frameon=False)
+    else:
+        ax.legend(fontsize=7, loc=legend_loc)
     return ax
 
 
 def save_figure(fig, path) -> None:
-    """Save a PNG atomically and close the figure."""
-    import os
-    from pathlib import Path
-
+    """Save a PNG atomically (mode 0644) and close the figure."""
     import matplotlib.pyplot as plt
 
-    path = Path(path)
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    os.replace(tmp, path)
+    atomic_save(path, ".png", lambda tmp: fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png"))
     plt.close(fig)

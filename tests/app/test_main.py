@@ -124,3 +124,25 @@ def test_app_runs_from_a_built_wheel_outside_the_source_tree(tmp_path):
     assert all(Path(p).is_relative_to(site) for p in where), where  # the wheel's copy, configs inside it
     run_cli(["experiment=fig3_toy", *TINY["fig3_toy"], "hydra.run.dir=out"], cwd=work, env=env)
     assert json.loads((work / "out" / "metrics.json").read_text())["experiment"] == "fig3_toy"
+
+
+def test_run_prints_a_summary_last_and_refuses_another_experiments_folder(tmp_path):
+    proc = run_cli(["experiment=fig4_window", *TINY["fig4_window"], "plot=false", f"hydra.run.dir={tmp_path}"])
+    last = proc.stdout.strip().splitlines()
+    assert last[0] == "[protorch] fig4_window summary" and "relevance time [s]" in proc.stdout
+    assert "84.47" in proc.stdout and last[-1] == f"  run folder {tmp_path}"
+    assert (tmp_path / "main.log").read_text() == ""  # no stray log lines
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+    proc = run_cli(["experiment=point_particle", *TINY["point_particle"], f"hydra.run.dir={tmp_path}"], check=False)
+    assert proc.returncode != 0 and "holds results of experiment 'fig4_window'" in proc.stderr
+    after = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file() and p.name != "main.log"}
+    assert after == {k: v for k, v in before.items() if k != "main.log"}
+
+
+def test_a_failed_run_says_failed_in_its_last_line_and_status(tmp_path):
+    proc = run_cli(["experiment=point_particle", *TINY["point_particle"], "task.demos=/nonexistent/demos",
+                    f"hydra.run.dir={tmp_path}"], check=False)
+    assert proc.returncode == 1
+    assert "FAILED" in proc.stderr.strip().splitlines()[-1]
+    assert json.loads((tmp_path / "status.json").read_text())["status"] == "failed"
+    assert not (tmp_path / "metrics.json").exists()

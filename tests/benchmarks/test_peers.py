@@ -61,3 +61,26 @@ def test_pro_keeps_the_std_the_peers_collapse(peers, one_thread):
     text = peers.table({("window", k): v for k, v in results.items()}, 1, budget, "python benchmarks/peers.py")
     rows = [line for line in text.splitlines() if line.startswith("| window")]
     assert [r.split(" | ")[1] for r in rows] == ["PRO", "RWR", "CEM", "CMA-ES"]
+
+
+def test_new_tasks_at_a_tiny_budget(peers, one_thread, tmp_path):
+    """Beam stages and arm problems: irrelevant weights really are, every start needs improving,
+    EPRO keeps the irrelevant std, and main() writes peers.md and peers.json with the issue's keys."""
+    import json
+
+    problems = peers.beam_problems(1, "position") + peers.beam_problems(1, "orientation")
+    problems += peers.arm_problems(1, priors=60, demo_envs=4)
+    for p in problems:
+        peers.check_nuisance(p)
+        assert not p.success(p.mean)
+    for p in problems:
+        r = peers.run_one(peers.EFFICIENT_PRO, p, 400)
+        assert r["rollouts"] <= 400 and r["std_kept"] > 0.9, (p.task, r)
+    out = tmp_path / "peers.md"
+    peers.main(["--tasks", "window", "--repeats", "1", "--budget", "300", "--methods", "EPRO,CEM", "--out", str(out)])
+    body = json.loads(out.with_suffix(".json").read_text())
+    assert body["efficient_pro"] == "EPRO" and set(body["tasks"]["window"]) == {"EPRO", "CEM"}
+    row = body["tasks"]["window"]["EPRO"]
+    assert set(row) == {"problems", "solved", "median_rollouts_to_success", "irrelevant_std_kept"}
+    assert row["problems"] == 1 and body["command"].startswith("python benchmarks/peers.py")
+    assert "| window | EPRO |" in out.read_text()

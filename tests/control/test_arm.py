@@ -123,3 +123,17 @@ def test_bad_input_is_refused(task, switching):
         run_arm_episodes(model, task, walk[:, 0], walk=walk)
     with pytest.raises(ValueError, match="move_window"):
         run_arm_episodes(model, task, walk[:, 0], move_window=(0.5, 0.2))
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"kp": 100.0}, r"dt = 0\.02 with kp = 100.*kp dt < 2, got 2"),  # the unclamped loop: e *= (1 - kp dt) = -1
+        ({"dt": 0.5, "duration": 3.0}, r"dt = 0\.5 with kp = 10.*kp dt < 2, got 5"),
+        ({"dt": 1e-6}, r"4000000 control steps per episode, over the limit of 1000000"),
+    ],
+)
+def test_unstable_or_huge_settings_are_refused(task, switching, kwargs, match):
+    model, walk = switching
+    with pytest.raises(ValueError, match=match):
+        run_arm_episodes(model, task, walk[:, 0], **kwargs)

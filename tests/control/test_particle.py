@@ -364,3 +364,32 @@ def test_frame_inputs_are_checked(tmp_path):
     with pytest.raises(ValueError, match="frames"):
         plot_episode_frames(tmp_path / "x.png", **ep, frames=[0, 999])
     assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------ unstable or oversized settings
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        # kp dt^2 = 10: the explicit PD step diverges (a goal distance of ~1e25 if it ran)
+        ({"dt": 0.1, "kp": 1000.0}, r"dt = 0\.1 with kp = 1000.*kp dt\^2 / mass \+ 2 kd dt / mass < 4, got 16"),
+        ({"kp": 1e6}, r"dt = 0\.01 with kp = 1e\+06.*< 4, got 100\.6"),  # NaN positions if it ran
+        ({"kd": 300.0, "mass": 1.0}, r"kd = 300.*< 4, got 6\.1"),  # the damping alone overshoots
+        ({"dt": 1e-6}, r"2500000 control steps per episode, over the limit of 1000000"),
+        ({"duration": 20000.0}, r"control steps per episode, over the limit of 1000000"),
+    ],
+)
+def test_unstable_or_huge_settings_are_refused_before_any_work(kwargs, match):
+    p = promp()
+    model = FixedModel(p, line_weights(p, (1.0, 5.0), (9.0, 5.0)))
+    with pytest.raises(ValueError, match=match):
+        run_episodes(model, TASK, ENV[None], **kwargs)
+    assert model.calls == []
+
+
+def test_gains_just_inside_the_bound_stay_bounded():
+    # kp dt^2 + 2 kd dt = 3.9 at dt = 0.05 (kp = 1000, kd = 14): stable, if badly damped
+    p = promp()
+    model = FixedModel(p, line_weights(p, (1.0, 5.0), (9.0, 5.0)))
+    res = run_episodes(model, TASK, walk=static_walk(ENV, 2.0, 0.05), dt=0.05, kp=1000.0, kd=14.0, hold=5.0)
+    assert bool(torch.isfinite(res.positions).all())
+    assert float(res.final_goal_distance[0]) < 0.2

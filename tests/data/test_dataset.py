@@ -7,6 +7,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from pathlib import Path
 
 import pytest
 import torch
@@ -117,11 +118,11 @@ def test_refuses_bad_files(tmp_path):
     # foreign schema version / foreign format
     from protorch.data.files import atomic_write_safetensors, read_safetensors
 
-    tensors, meta = read_safetensors(p, fmt="protorch.trajectory_dataset", schema_version=1,
+    tensors, meta = read_safetensors(p, fmt="protorch.trajectory_dataset", schema_version=2,
                                      keys=("env", "mean", "var", "label", "origin", "converged", "cost"))
-    atomic_write_safetensors(tmp_path / "v2.safetensors", tensors, {**meta, "schema_version": 2})
-    with pytest.raises(CheckpointError, match="schema version 2"):
-        TrajectoryDataset.load(tmp_path / "v2.safetensors")
+    atomic_write_safetensors(tmp_path / "v3.safetensors", tensors, {**meta, "schema_version": 3})
+    with pytest.raises(CheckpointError, match="schema version 3"):
+        TrajectoryDataset.load(tmp_path / "v3.safetensors")
     atomic_write_safetensors(tmp_path / "map.safetensors", tensors, {**meta, "format": "protorch.env_map"})
     with pytest.raises(CheckpointError, match="expected 'protorch.trajectory_dataset'"):
         TrajectoryDataset.load(tmp_path / "map.safetensors")
@@ -153,6 +154,11 @@ _WRITER = textwrap.dedent(
 )
 
 
+# the writer imports this checkout's protorch, not whichever one the interpreter has installed
+_THIS_REPO = {**os.environ, "PYTHONPATH": os.pathsep.join(
+    [str(Path(__file__).resolve().parents[2]), *filter(None, [os.environ.get("PYTHONPATH")])])}
+
+
 def test_sigkill_at_random_moments_leaves_a_complete_checkpoint(tmp_path):
     path = tmp_path / "run" / "checkpoint" / "dataset.safetensors"
     script = tmp_path / "writer.py"
@@ -160,7 +166,8 @@ def test_sigkill_at_random_moments_leaves_a_complete_checkpoint(tmp_path):
     rng = random.Random(0)
     last_saved = -1
     for _ in range(4):
-        proc = subprocess.Popen([sys.executable, str(script), str(path)], stdout=subprocess.PIPE, text=True)
+        proc = subprocess.Popen([sys.executable, str(script), str(path)], stdout=subprocess.PIPE, text=True,
+                                env=_THIS_REPO)
         try:
             assert proc.stdout.readline().startswith("start")
             time.sleep(rng.uniform(0.05, 0.4))  # then kill at an arbitrary instant, mid-write or not

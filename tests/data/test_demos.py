@@ -124,3 +124,37 @@ def test_bad_content(tmp_path, traj, env, message):
     _write(tmp_path, 0, traj, env)
     with pytest.raises(ValueError, match=message):
         load_human_demos(tmp_path)
+
+
+# ------------------------------------------------------------------ the audit's bad files
+def _write_pair(folder, k=0, traj="1,2\n3,4\n5,5\n", env="1\n2\n5\n5\n8\n8\n"):
+    folder.mkdir(exist_ok=True)
+    p = folder / f"traj{k}.out"
+    p.write_bytes(traj) if isinstance(traj, bytes) else p.write_text(traj)
+    (folder / f"env{k}.out").write_text(env)
+    return folder
+
+
+def test_a_binary_file_is_named(tmp_path):
+    folder = _write_pair(tmp_path / "d", 3, traj=b"\x89PNG\r\n\x1a\n\xff\xfe\x00\x01")
+    with pytest.raises(ValueError, match=r"traj3\.out.*not a text file"):
+        load_human_demos(folder)
+
+
+def test_a_row_outside_the_workspace_names_file_row_and_bound(tmp_path):
+    folder = _write_pair(tmp_path / "d", traj="1,2\n1e308,1e308\n5,5\n")
+    with pytest.raises(ValueError, match=r"traj0\.out:2: .*outside the workspace \[0(\.0)?, 10(\.0)?\]"):
+        load_human_demos(folder)
+
+
+def test_an_environment_outside_the_workspace_is_refused(tmp_path):
+    folder = _write_pair(tmp_path / "d", env="1\n2\n50\n5\n8\n8\n")  # wall_x = 50
+    with pytest.raises(ValueError, match=r"env0\.out:3: wall_x = 50.*outside the workspace"):
+        load_human_demos(folder)
+
+
+def test_the_workspace_is_the_point_particle_tasks():
+    from protorch.data.demos import WORKSPACE
+    from protorch.tasks.point_particle import WORKSPACE as TASK_WORKSPACE
+
+    assert tuple(WORKSPACE) == tuple(TASK_WORKSPACE)

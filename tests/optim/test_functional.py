@@ -524,3 +524,21 @@ def test_pro_update_bad_input_raises(key, value, message):
     args[key] = value.to(torch.float64)
     with pytest.raises(ValueError, match=message):
         pro_update(**args)
+
+
+def test_pro_update_promotes_integer_tensors():
+    """Integer inputs are the same numbers as float ones: the step must not truncate them."""
+    mean, var = torch.tensor([1, 0, 1]), torch.tensor([1, 1, 1])
+    samples = torch.tensor([[2, 0, 1], [1, 1, 0], [3, 0, 1], [0, 1, 2]])
+    costs, rel = torch.tensor([1, 3, 2, 4]), torch.tensor([1, 1, 1])
+    got = pro_update(mean, var, samples, costs, rel, 1.0)
+    want = pro_update(mean.double(), var.double(), samples.double(), costs.double(), rel.double(), 1.0)
+    for g, w in zip(got, want):
+        assert g.dtype == torch.float64
+        torch.testing.assert_close(g, w, rtol=0, atol=0)
+    assert float(got[0].abs().sum()) > 0
+
+
+def test_stable_rewards_of_integer_costs_keep_a_fractional_beta():
+    got = stable_rewards(torch.tensor([3, 1, 2]), 0.5)
+    torch.testing.assert_close(got, torch.exp(-0.5 * torch.tensor([2.0, 0.0, 1.0], dtype=torch.float64)))

@@ -185,10 +185,10 @@ def test_relevance_history_in_unit_interval():
 @pytest.mark.parametrize(
     "kw, message",
     [
-        ({"relevance_samples": 2}, "relevance_samples must be >= 3"),
+        ({"relevance_samples": 2}, "relevance_samples must be an int >= 3"),
         ({"relevance_var": 0.0}, "relevance_var must be > 0"),
         ({"relevance_var": -1e-5}, "relevance_var must be > 0"),
-        ({"relevance_every": -1}, "relevance_every must be >= 0"),
+        ({"relevance_every": -1}, "relevance_every must be an int >= 0"),
         ({"noise_floor": -1.0}, "noise_floor must be >= 0"),
     ],
 )

@@ -445,3 +445,42 @@ def test_fit_wrong_shapes_raise():
 def test_bad_constructor_arguments_raise(args, kw, message):
     with pytest.raises(ValueError, match=message):
         ProMP(*args, **kw)
+
+
+# ---------------------------------------------------------------- the audit's bad inputs
+@pytest.mark.parametrize("kw, match", [
+    ({"ridge": float("nan")}, "ridge"), ({"ridge": -1.0}, "ridge"), ({"ridge": float("inf")}, "ridge"),
+    ({"num_basis": 2.7}, "num_basis"), ({"num_dof": 1.5}, "num_dof"), ({"num_steps": float("nan")}, "num_steps"),
+    ({"width": float("nan")}, "width"),
+])
+def test_bad_constructor_settings_are_refused(kw, match):
+    args = {"num_dof": 1, "num_basis": 5, **kw}
+    with pytest.raises(ValueError, match=match):
+        ProMP(args.pop("num_dof"), args.pop("num_basis"), **args)
+
+
+def _fitted(var=1.0):
+    return ProMP(1, 5).set_distribution(torch.zeros(5, dtype=torch.float64), var=torch.full((5,), var))
+
+
+@pytest.mark.parametrize("n", [-1, 2.5, float("nan"), True])
+def test_sample_count_must_be_a_nonnegative_int(n):
+    with pytest.raises(ValueError, match="num_samples"):
+        _fitted().sample(n)
+
+
+def test_sample_zero_is_empty():
+    assert _fitted().sample(0).shape == (0, 5)
+
+
+def test_condition_on_a_deterministic_prior_with_exact_observation_is_refused():
+    with pytest.raises(ValueError, match="y_cov"):
+        _fitted(0.0).condition(0.5, torch.ones(1), 0.0)
+    # with some observation noise the result is the prior (nothing can move a zero covariance)
+    out = _fitted(0.0).condition(0.5, torch.ones(1), 0.1)
+    torch.testing.assert_close(out.mean, torch.zeros(5, dtype=torch.float64))
+
+
+def test_condition_needs_at_least_one_via_point():
+    with pytest.raises(ValueError, match="at least one via point"):
+        _fitted().condition([], torch.zeros(0, 1))

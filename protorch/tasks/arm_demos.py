@@ -1,0 +1,89 @@
+"""The arm-reach task's demonstrator (:meth:`protorch.tasks.ArmReachTask.demonstrations`):
+end-effector paths around the can, followed in joint space by inverse kinematics."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from ..checks import check_tensor
+from .arm_geometry import LEFT, RIGHT
+from .curves import catmull_rom, smooth_noise
+
+__all__ = ["follow_path", "ik_demonstrations"]
+
+
+def follow_path(task, path: Tensor, *, iters: int = 8, first_iters: int = 60) -> tuple[Tensor, Tensor]:
+    """:meth:`~protorch.tasks.ArmReachTask.ik_path` of ``task``: joint trajectories following the
+    end-effector paths ``(n, T, 3)``; ``(q (n, T, 7), position error (n, T))``."""
+    path = check_tensor(path, "path", ndim=3)
+    kin = task.kinematics
+    dtype, device = kin.lower.dtype, kin.lower.device
+    path = path.to(dtype=dtype, device=device)
+    n, t_len = path.shape[:2]
+    rest = task.start_config(dtype, device)
+    rot = kin.ee_pose(rest)[:3, :3].expand(n, 3, 3)  # the hand keeps its start orientation (pointing down)
+    q = rest.expand(n, -1).clone()  # (n, J)
+    out = torch.empty(n, t_len, kin.num_joints, dtype=dtype, device=device)
+    err = torch.empty(n, t_len, dtype=dtype, device=device)
+    for t in range(t_len):
+        q, err[:, t] = kin.inverse(path[:, t], q, rotation=rot, rest=rest, iters=first_iters if t == 0 else iters)
+        out[:, t] = q
+    return out, err
+
+
+def ik_demonstrations(
+    task,
+    envs: Tensor | int,
+    per_env: int = 3,
+    generator: torch.Generator | None = None,
+    *,
+    sides: Tensor | None = None,
+    lengths: tuple[int, int] = (150, 250),
+    pass_distance: tuple[float, float] = (0.17, 0.27),
+    goal_noise: float = 0.01,
+    tremor: float = 0.008,
+) -> tuple[list[Tensor], Tensor, Tensor]:
+    """:meth:`~protorch.tasks.ArmReachTask.demonstrations` of ``task`` (documented there):
+    ``(demos [(T_i, 7)], demo_envs (n, 4), labels (n,))``."""
+    if isinstance(envs, int):
+        envs = task.sample_envs(envs, generator)
+    envs = task.check_envs(check_tensor(envs, "envs", ndim=2)).to(torch.float64)
+    if int(per_env) < 1:
+        raise ValueError(f"per_env must be >= 1, got {per_env}")
+    m = envs.shape[0]
+    sides = torch.arange(m) % 2 if sides is None else torch.as_tensor(sides).long().reshape(-1)
+    if sides.shape[0] != m or not bool(((sides == LEFT) | (sides == RIGHT)).all()):
+        raise ValueError(f"sides must hold {m} entries of {LEFT} (left) or {RIGHT} (right)")
+    t_min, t_max = int(lengths[0]), int(lengths[1])
+    if not 2 <= t_min <= t_max:
+        raise ValueError(f"lengths must be (lo, hi) with 2 <= lo <= hi, got {lengths}")
+    g_, f64 = generator, torch.float64
+    e = envs.repeat_interleave(int(per_env), 0)  # (n, 4)
+    side = sides.repeat_interleave(int(per_env))  # (n,)
+    n = e.shape[0]
+    s = task.start_position()  # (3,)
+    goal = task.goal_point(e)  # (n, 3)
+    line = goal[:, :2] - s[:2]  # (n, 2)
+    line = line / line.norm(dim=-1, keepdim=True)
+    normal = torch.stack([-line[:, 1], line[:, 0]], -1)  # (n, 2) to the left of the line
+    sign = torch.where(side == LEFT, 1.0, -1.0).to(f64)[:, None]  # (n, 1)
+    dist = pass_distance[0] + (pass_distance[1] - pass_distance[0]) * torch.rand(n, 1, generator=g_, dtype=f64)
+    beside = e[:, :2] + sign * dist * normal  # (n, 2) beside the can, perpendicular to the line
+    lift = 0.03 * torch.rand(n, 1, generator=g_, dtype=f64)  # (n, 1)
+    h = task.ee_height
+    end = goal + torch.cat([goal_noise * torch.randn(n, 2, generator=g_, dtype=f64), torch.zeros(n, 1, dtype=f64)], -1)
+    via = torch.stack([s.expand(n, 3), torch.cat([beside, h + lift], -1), end], 1)  # (n, 3, 3)
+    length = torch.randint(t_min, t_max + 1, (n, 1), generator=g_)  # (n, 1)
+    skew = 0.8 + 0.45 * torch.rand(n, 1, generator=g_, dtype=f64)  # (n, 1)
+    u = (torch.arange(t_max, dtype=f64) / (length - 1)).clamp(max=1)  # (n, T_max)
+    v = u**skew
+    prog = v**3 * (10 - 15 * v + 6 * v**2)  # (n, T_max) minimum-jerk progress along the path
+    path = catmull_rom(via, prog)  # (n, T_max, 3)
+    wobble = smooth_noise(u, tremor, g_, dim=3) * torch.sin(torch.pi * prog)[..., None]  # (n, T_max, 3)
+    path = path + wobble
+    q, _ = task.ik_path(path)  # (n, T_max, 7)
+    q = q.to(torch.float64).cpu()
+    demos = [qi[:t].clone() for qi, t in zip(q, length[:, 0].tolist())]
+    labels = torch.stack([task.side(d, ei) for d, ei in zip(demos, e)])  # (n,)
+    return demos, e, labels

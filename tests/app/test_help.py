@@ -1,0 +1,65 @@
+"""``python -m protorch --help`` and a bare ``python -m protorch``: the experiments and their keys."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+from protorch.app.help import chosen_experiment, experiment_lines, help_text, key_meanings, wants_help
+from protorch.app.main import config_dir
+
+ROOT = Path(__file__).resolve().parents[2]
+CONF = config_dir()
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "protorch", *args], cwd=ROOT, capture_output=True, text=True,
+                          timeout=120)
+
+
+def test_help_lists_every_experiment_with_its_first_comment_line():
+    names = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
+    lines = experiment_lines(CONF)
+    assert sorted(lines) == names
+    assert lines["fig4_window"].startswith("Fig. 4:") and lines["point_particle"].startswith("Sec. IV-B")
+    text = help_text(CONF, ["--help"])
+    for name, first in lines.items():
+        assert f"{name}" in text and first in text
+    assert "--cfg job" in text and "key=value" in text
+
+
+def test_key_meanings_are_dotted_by_indentation_and_continue_onto_comment_lines():
+    rows = {k: (v, m) for k, v, m in key_meanings(CONF / "experiment" / "point_particle.yaml")}
+    assert rows["gp.alpha"] == ("1.0e-03", "kernel exp(-alpha ||e - e'||^2) on the 6-D environment")
+    assert rows["settings.loop.batch_size"][0] == "100"
+    # a two-line comment is one meaning
+    assert rows["optimizer.pro.noise_floor"][1].endswith("4.0 keeps irrelevant variances")
+    shared = {k: m for k, _, m in key_meanings(CONF / "config.yaml")}
+    assert "threads" in shared and shared["plot"] == "write PNG figures"
+    assert not any(k.startswith("hydra") or k.startswith("defaults") for k in shared)
+
+
+def test_which_command_lines_get_the_help():
+    assert wants_help([]) and wants_help(["--help"]) and wants_help(["experiment=fig3_toy", "-h"])
+    assert wants_help(["seed=1"])  # names no experiment: nothing to run
+    assert not wants_help(["experiment=fig3_toy"]) and not wants_help(["-m", "experiment=fig3_toy", "seed=1,2"])
+    assert not wants_help(["--hydra-help"]) and not wants_help(["--info"])
+    assert chosen_experiment(["+experiment=arm_reach"]) == "arm_reach"
+    assert chosen_experiment(["experiment=null"]) is None
+
+
+def test_bare_command_prints_the_help_and_exits_0_without_running(tmp_path):
+    proc = _cli(f"hydra.run.dir={tmp_path / 'run'}")
+    assert proc.returncode == 0, proc.stderr
+    assert "experiments (conf/experiment/NAME.yaml)" in proc.stdout and "fig4_window" in proc.stdout
+    assert not (tmp_path / "run").exists()
+
+
+def test_help_of_one_experiment_lists_its_keys_meanings():
+    proc = _cli("experiment=point_particle", "--help")
+    assert proc.returncode == 0, proc.stderr
+    assert "settings of experiment=point_particle" in proc.stdout
+    assert "settings.loop.batch_size=100" in proc.stdout and "B environments inferred" in proc.stdout
+    bad = _cli("experiment=nope", "--help")
+    assert bad.returncode == 0 and "unknown experiment 'nope'" in bad.stdout

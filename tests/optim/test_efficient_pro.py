@@ -1,0 +1,174 @@
+"""EPRO (protorch.optim.efficient_pro): its update equations, the variance it keeps on weights no
+objective reads, batched problems, devices and bad input."""
+
+import pytest
+import torch
+
+from tests.optim.test_contract import *  # noqa: F401,F403  the contract suite, run here for EPRO (make below)
+
+from protorch.optim import EPRO, OPTIMIZERS, PRO, noise_floor_threshold
+from protorch.optim.efficient_pro import curvature_relevance, ess_temperature
+
+F64 = torch.float64
+
+
+@pytest.fixture
+def make():
+    """The contract suite's builder, for EPRO alone."""
+
+    def build(mean, var=1.0, **kw):
+        kw.setdefault("beta", 1.0)
+        kw.setdefault("num_samples", 20)
+        kw.setdefault("num_objectives", 2)
+        kw.setdefault("seed", 0)
+        return EPRO(mean, torch.as_tensor(var, dtype=F64), **kw)
+
+    build.cls = EPRO
+    return build
+
+
+def test_registered_and_exported():
+    import protorch.optim as optim
+
+    assert OPTIMIZERS["epro"] is EPRO and "EPRO" in optim.__all__
+
+
+def test_ess_temperature_hits_the_target():
+    costs = torch.rand(3, 50, generator=torch.Generator().manual_seed(0), dtype=F64) * torch.tensor([[1.0], [1e-4], [1e3]], dtype=F64)
+    beta = ess_temperature(costs, 0.25)  # (3,)
+    r = torch.exp(-beta[:, None] * (costs - costs.amin(-1, keepdim=True)))
+    ess = r.sum(-1) ** 2 / r.pow(2).sum(-1)
+    torch.testing.assert_close(ess, torch.full_like(ess, 12.5), rtol=1e-6, atol=1e-6)
+    # the same selection pressure at any cost scale: beta scales as 1 / cost
+    torch.testing.assert_close(beta[1] * 1e-4 / beta[0], torch.tensor(1.0, dtype=F64), rtol=0.5, atol=0)
+    assert ess_temperature(torch.ones(2, 10, dtype=F64), 0.5).tolist() == [1.0, 1.0]  # constant: no NaN
+    with pytest.raises(ValueError, match="ess"):
+        ess_temperature(costs, 0.0)
+
+
+def test_curvature_relevance_sees_a_v_shaped_cost():
+    g = torch.Generator().manual_seed(1)
+    w = torch.randn(400, 3, generator=g, dtype=F64)  # (P, 3)
+    costs = torch.stack([w[:, 0].abs(), w[:, 1]], -1)  # (P, 2): V-shaped in w0 at the mean, linear in w1
+    f = curvature_relevance(w, costs, torch.zeros(3, dtype=F64), noise_floor=3.0)  # (2, 3)
+    linear_only = torch.corrcoef(torch.stack([w[:, 0], costs[:, 0]]))[0, 1].abs()
+    assert linear_only < noise_floor_threshold(400, 3.0)  # Pearson alone misses w0 ...
+    assert f[0, 0] == 1.0 and f[1, 1] == 1.0  # ... the squared deviation sees it
+    assert f[0, 2] == 0 and f[1, 2] == 0 and f[0, 1] == 0  # w2 is read by nothing
+
+
+def test_update_matches_the_equations():
+    """One iteration by hand: ESS-tempered rewards on the summed costs, relevance from the batch,
+    mean' = mean + f (sum R w - mean), var' = (1 - f) var + f sum R (w - mean)^2."""
+    mean, var = torch.tensor([0.5, -0.2, 0.0], dtype=F64), torch.tensor([1.0, 0.5, 2.0], dtype=F64)
+    opt = EPRO(mean, var, num_samples=30, seed=3, pool=1, ess=0.3)
+    fn = lambda w: torch.stack([(w[..., 0] - 1) ** 2, (w[..., 1] + 1) ** 2], -1)  # noqa: E731
+    w = opt.ask()  # (S, 3)
+    c = fn(w)
+    opt.tell(c)
+    f = curvature_relevance(w, c, mean, 3.0).amax(0)  # (3,)
+    total = c.sum(-1)
+    beta = ess_temperature(total, 0.3)
+    r = torch.exp(-beta * (total - total.min()))
+    r = r / r.sum()
+    torch.testing.assert_close(opt.mean[0], mean + f * (r @ w - mean))
+    torch.testing.assert_close(opt.var[0], (1 - f) * var + f * (r @ (w - mean) ** 2))
+    assert f[2] == 0 and opt.mean[0, 2] == 0 and opt.var[0, 2] == 2.0
+
+
+def test_fixed_beta_is_the_reward_temperature():
+    mean, var = torch.zeros(2, dtype=F64), torch.ones(2, dtype=F64)
+    opt = EPRO(mean, var, beta=5.0, num_samples=40, seed=0, pool=1, noise_floor=None)
+    w = opt.ask()
+    c = (w - 1).pow(2)  # (S, 2)
+    opt.tell(c)
+    r = torch.softmax(-5.0 * c.sum(-1), 0)
+    f = curvature_relevance(w, c, mean, None).amax(0)
+    torch.testing.assert_close(opt.mean[0], f * (r @ w))
+
+
+def test_irrelevant_weights_keep_their_variance_and_mean():
+    """Quadratic on 3 of 8 weights: EPRO solves it and the other 5 keep std and mean; RWR-style
+    collapse would take them down with the rest."""
+    n = 8
+    opt = EPRO(torch.zeros(n, dtype=F64), torch.ones(n, dtype=F64), max_iter=60, tol=0, seed=0)
+    res = opt.minimize(lambda w: torch.stack([(w[..., :3] - 2).pow(2).sum(-1), (w[..., 0] - 2).abs()], -1))
+    assert (res.mean[:3] - 2).abs().max() < 0.1
+    kept = res.var[3:].sqrt()
+    assert kept.min() > 0.9, kept
+    assert res.mean[3:].abs().max() < 0.3
+    assert res.var[:3].sqrt().max() < 0.2  # the relevant ones did shrink
+
+
+def test_batched_problems_are_independent():
+    means = torch.tensor([[0.0, 0.0], [3.0, -3.0]], dtype=F64)
+    targets = torch.tensor([[1.0, 1.0], [-1.0, 2.0]], dtype=F64)
+    opt = EPRO(means, torch.ones(2, 2, dtype=F64), max_iter=80, tol=0, seed=1)
+    res = opt.minimize(lambda w: (w - targets[:, None]).pow(2))  # (B, S, 2)
+    assert res.mean.shape == (2, 2) and res.history["relevance"].shape == (80, 2, 2, 2)
+    torch.testing.assert_close(res.mean, targets, atol=0.1, rtol=0)
+
+
+def test_one_batch_per_iteration_and_seeded():
+    run = lambda: EPRO(torch.zeros(4, dtype=F64), torch.ones(4, dtype=F64), max_iter=5, tol=0, seed=7).minimize(  # noqa: E731
+        lambda w: w.pow(2))
+    a, b = run(), run()
+    torch.testing.assert_close(a.mean, b.mean, rtol=0, atol=0)
+    opt = EPRO(torch.zeros(4, dtype=F64), torch.ones(4, dtype=F64), num_samples=12, max_iter=3, tol=0, seed=0)
+    asked = 0
+    while not opt.stop():
+        w = opt.ask()
+        asked += w.shape[0]
+        opt.tell(w.pow(2))
+    assert asked == 3 * 12  # versus PRO's relevance probes + one batch per objective
+    pro = PRO(torch.zeros(4, dtype=F64), torch.ones(4, dtype=F64), beta=1.0, num_samples=12, max_iter=1, tol=0,
+              relevance_samples=20, seed=0)
+    pro_asked = 0
+    while not pro.stop():
+        w = pro.ask()
+        pro_asked += w.shape[0]
+        pro.tell(w.pow(2))
+    assert pro_asked == 20 + 4 * 12
+
+
+def test_constant_costs_do_not_move_or_nan():
+    opt = EPRO(torch.zeros(3, dtype=F64), torch.ones(3, dtype=F64), max_iter=3, tol=0, seed=0)
+    res = opt.minimize(lambda w: torch.ones(*w.shape[:-1], 2, dtype=F64))
+    assert torch.isfinite(res.var).all() and (res.var == 1).all() and (res.mean == 0).all()
+
+
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not torch.cuda.is_available(), reason="no cuda"))])
+def test_device_follows_the_mean(device):
+    opt = EPRO(torch.zeros(2, 3, dtype=torch.float32, device=device), 1.0, max_iter=4, tol=0, seed=0)
+    res = opt.minimize(lambda w: (w - 1).pow(2))
+    assert res.mean.device.type == device and res.mean.dtype == torch.float32 and torch.isfinite(res.mean).all()
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"ess": 0.0}, "ess"), ({"ess": 1.5}, "ess"), ({"pool": 0}, "pool"), ({"noise_floor": -1.0}, "noise_floor"),
+    ({"beta": -1.0}, "beta"), ({"num_samples": 1}, "num_samples"),
+])
+def test_bad_settings(kw, match):
+    with pytest.raises(ValueError, match=match):
+        EPRO(torch.zeros(3, dtype=F64), torch.ones(3, dtype=F64), **kw)
+
+
+def test_bad_costs():
+    opt = EPRO(torch.zeros(3, dtype=F64), torch.ones(3, dtype=F64), seed=0)
+    w = opt.ask()
+    with pytest.raises(ValueError, match="costs"):
+        opt.tell(torch.zeros(w.shape[0] + 1, 2, dtype=F64))
+    with pytest.raises(ValueError):
+        opt.tell(torch.full((w.shape[0], 2), float("nan"), dtype=F64))
+
+
+def test_linear_relevance_option_is_the_papers_pearson():
+    from protorch.optim import pearson_relevance
+
+    mean, var = torch.zeros(3, dtype=F64), torch.ones(3, dtype=F64)
+    opt = EPRO(mean, var, num_samples=40, seed=2, pool=1, curvature=False)
+    w = opt.ask()
+    c = torch.stack([w[:, 0].abs(), w[:, 1]], -1)  # (S, 2)
+    opt.tell(c)
+    torch.testing.assert_close(opt.relevance[0], pearson_relevance(w, c, noise_floor=3.0))

@@ -1,0 +1,107 @@
+"""The viewer's plain functions (no browser): run discovery, task rebuilding, scene states and
+the step-wise live controllers, on a small point-particle run built from demonstrations."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+import torch
+
+from protorch.gp.model import label_aware_mean
+from protorch.view.__main__ import main
+from protorch.view.live import ArmPlayer, ParticlePlayer
+from protorch.view.scene import (
+    MAKE_RUN,
+    find_runs,
+    open_run,
+    run_task_name,
+    scene_state,
+    weight_noise,
+)
+
+
+@pytest.fixture(scope="module")
+def run(particle_run_dir):
+    return open_run(particle_run_dir)
+
+
+def test_open_run_rebuilds_the_task_from_the_config(run):
+    assert run.kind == "particle" and run.model.task_name == "point_particle"
+    assert run.task.objectives == "clearance"  # from config.yaml, not the class default "hole"
+    assert [p.name for p in run.params] == ["start_x", "start_y", "wall_x", "hole_y", "goal_x", "goal_y"]
+
+
+def test_scene_state_is_the_maps_answer(run):
+    env = torch.tensor([1.0, 2.0, 5.0, 6.5, 9.0, 3.0], dtype=torch.float64)
+    eps = weight_noise(run.model.promp.num_weights, 8)
+    s = scene_state(run, env, eps)
+    mu, var = run.model.env_map.predict(env[None])
+    mean = run.model.promp.trajectory(mu)[0]  # (T, 2)
+    assert torch.allclose(torch.as_tensor(s.mean[:, :2]), mean) and (s.mean[:, 2] == 0).all()
+    sample0 = run.model.promp.trajectory(mu + var.sqrt() * eps[:1])[0]
+    assert torch.allclose(torch.as_tensor(s.samples[0, :, :2]), sample0)
+    assert s.success == bool(run.task.success(mean[None], env[None])[0])
+    assert s.costs == pytest.approx(dict(zip(run.task.objective_names, run.task.costs(mean, env).tolist())))
+    assert 0 < s.infer_ms <= s.total_ms
+    # a zero-variance direction: a sample with eps = 0 is the mean itself
+    z = scene_state(run, env, torch.zeros(1, run.model.promp.num_weights, dtype=torch.float64))
+    assert torch.allclose(torch.as_tensor(z.samples[0]), torch.as_tensor(z.mean))
+
+
+def test_clamp_and_bad_env(run):
+    c = run.clamp([-5.0, 20.0, 0.0, 9.5, 11.0, 5.0])
+    assert c.tolist() == [0.0, 10.0, 2.0, 9.0, 10.0, 5.0]
+    with pytest.raises(ValueError, match="6 values"):
+        run.clamp([1.0, 2.0])
+    with pytest.raises(ValueError, match="NaN"):
+        run.clamp([float("nan")] * 6)
+
+
+def test_find_runs_newest_first_and_skips_other_tasks(tmp_path, particle_run_factory):
+    a = particle_run_factory(tmp_path / "a")
+    b = particle_run_factory(tmp_path / "nested" / "b")
+    os.utime(a / "checkpoint" / "dataset.safetensors", (1e9, 1e9))
+    (tmp_path / "junk" / "checkpoint").mkdir(parents=True)
+    (tmp_path / "junk" / "checkpoint" / "dataset.safetensors").write_bytes(b"not a checkpoint")
+    assert find_runs(tmp_path) == [b, a]
+    assert run_task_name(tmp_path / "junk") is None and find_runs(tmp_path / "missing") == []
+
+
+def test_cli_without_runs_says_how_to_make_one(tmp_path, capsys):
+    assert main(["--runs", str(tmp_path)]) == 1
+    out = capsys.readouterr().out
+    assert MAKE_RUN in out and out.count("\n") == 1
+
+
+def test_live_particle_tracks_a_static_environment_to_the_goal(run):
+    env = torch.tensor([1.0, 2.0, 5.0, 6.5, 9.0, 3.0], dtype=torch.float64)
+    p = ParticlePlayer(run)
+    p.reset(env)
+    while not p.done:
+        p.step(env)
+    mean = scene_state(run, env, weight_noise(run.model.promp.num_weights, 1)).mean
+    assert p.t == p.total == 250
+    # the PD with feed-forward ends on the mean's end point (the hold settles it)
+    assert abs(p.trace()[-1] - mean[-1]).max() < 1e-3
+    assert p.success == (not p.collided and bool((p.pos - env[4:6]).norm() <= 0.2))
+
+
+def test_arm_state_is_the_label_aware_answer(arm_run_dir):
+    run = open_run(arm_run_dir)
+    assert run.kind == "arm" and [p.name for p in run.params] == ["can_x", "can_y", "goal_x", "goal_y"]
+    env = run.env0
+    s = scene_state(run, env, weight_noise(run.model.promp.num_weights, 4))
+    best = label_aware_mean(run.model.env_map, run.model.promp, run.task, env[None], dtype=torch.float64)
+    traj = run.model.promp.trajectory(best.mean)  # (1, T, 7)
+    assert s.label == {0: "left", 1: "right"}[int(best.label[0])]
+    assert s.scores == pytest.approx(dict(zip(["left", "right"], best.scores[0].tolist())))
+    assert torch.allclose(torch.as_tensor(s.mean), run.task.ee_path(traj)[0])
+    assert s.success == bool(run.task.success(traj, env[None])[0])
+    assert s.links.shape == (5, run.task.kinematics.num_frames, 3)
+    assert torch.allclose(torch.as_tensor(s.links[-1, -1]), torch.as_tensor(s.mean[-1]))  # the hand ends the path
+    p = ArmPlayer(run)
+    p.reset()
+    while not p.done:
+        p.step(env)
+    assert p.t == p.total == 200 and p.label in ("left", "right") and isinstance(p.success, bool)

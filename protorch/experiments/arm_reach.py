@@ -25,96 +25,142 @@ table around a can, and switches between passing it on the left and on the right
 
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Sequence
 
 import torch
 
-from ..checks import check_int, check_keys
+from ..checks import check_int
 from ..control.arm import run_arm_episodes
 from ..control.switches import geometric_switch_summary
-from ..data.checkpoint import checkpoint_path, load
-from ..gp import make_env_map
+from ..data.checkpoint import load
 from ..gp.model import label_aware_mean
-from ..loop import LoopResult, demonstration_dataset, self_improve
+from ..loop import LoopResult, demonstration_dataset
 from ..primitives.promp import ProMP, resample
 from ..tasks.arm_reach import LEFT, RIGHT, ArmReachTask
 from ..viz.arm import experiment_figures
-from .common import check_optimizer, evaluation_settings, gp_settings, loop_settings, optimizer_spec
+from .self_improvement import DYNAMIC_SEED, TEST_SEED, Outcome, SelfImprovementExperiment, loop_summary
 
-__all__ = ["run", "prepare", "Setup", "TEST_SEED", "DYNAMIC_SEED"]
+__all__ = ["run", "prepare", "Setup", "ArmReachExperiment", "TEST_SEED", "DYNAMIC_SEED"]
 
-TEST_SEED = 2_000_003  # the held-out environments: fixed, never a training seed
-DYNAMIC_SEED = 3_000_017  # the moving episodes (start environments and moves)
-_DEMO_SEED_OFFSET = 10_007  # demonstrations: seed + offset (the loop's pool uses seed)
 _BASELINES = ("labels_off", "labels_off_loop")
-_TASK_KEYS = {"_target_", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin", "goal_tol", "start_tol",
-              "can_radius", "can_height", "clearance", "urdf", "deviation"}
-_GP_KEYS = {"backend", "alpha", "var_floor", "nearest_k"}
-_LOOP_KEYS = {"num_envs", "batch_size", "add_only", "choice", "checkpoint_every", "eval_dtype", "min_var", "labels",
-              "each_label"}
-_DYNAMIC_KEYS = {"seed", "episodes", "duration", "hold", "dt", "kp", "moves", "move_window", "place_clearance",
-                 "switch_margin"}
 
 
-@dataclass
-class Setup:
-    """Everything the experiment builds from its settings (:func:`prepare`); ``benchmarks/arm.py``
-    uses it to time the loop."""
+class ArmReachExperiment(SelfImprovementExperiment):
+    """The arm's parts of the skeleton (:class:`SelfImprovementExperiment`): the labelled IK
+    demonstrations and the grid priors, the labeller, the label-aware test, the moving can and
+    target, the labels-off baselines, the figures, the per-phase timings. ``benchmarks/arm.py``
+    times :meth:`run_loop`."""
 
-    task: ArmReachTask
-    promp: ProMP
-    demos: list
-    demo_envs: torch.Tensor  # (n, 4)
-    demo_labels: torch.Tensor  # (n,)
-    prior_envs: torch.Tensor  # (P, 4)
-    prior_mean: torch.Tensor  # (P, N)
-    prior_labels: torch.Tensor  # (P,)
-    seed: int
-    test_envs: torch.Tensor  # (Q, 4)
-    test_seed: int
-    dyn_env0: torch.Tensor  # (episodes, 4)
-    dyn_cfg: dict
-    dyn_seed: int
-    optimizer: tuple  # (class, kwargs)
-    loop_kwargs: dict  # self_improve keyword arguments (no optimizer, labeler, run_dir, resume, progress)
-    env_map: Callable
-    var_floor: float
-    labels: bool
-    each_label: bool
-    alpha: float
-    nearest_k: int | None
-    seconds: dict = field(default_factory=dict)  # demonstrations, priors
+    task_keys = frozenset({"_target_", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin", "goal_tol",
+                           "start_tol", "can_radius", "can_height", "clearance", "urdf", "deviation"})
+    loop_keys = frozenset({"labels", "each_label"})
+    dynamic_keys = frozenset({"seed", "episodes", "duration", "hold", "dt", "kp", "moves", "move_window",
+                              "place_clearance", "switch_margin"})
+    gp_defaults = {"alpha": 30.0, "var_floor": 1e-3, "nearest_k": 30}
+    num_envs = 2024
+    baseline_names = _BASELINES
+    loop_baselines = frozenset({"labels_off_loop"})
+
+    def configure(self, task_cfg: dict, loop_cfg: dict) -> None:
+        self.labels, self.each_label = loop_cfg.get("labels", True), loop_cfg.get("each_label", True)
+        for name, v in (("labels", self.labels), ("each_label", self.each_label)):
+            if not isinstance(v, bool):
+                raise ValueError(f"loop.{name} must be true or false, got {v!r}")
+        self.demo_envs_n = check_int(task_cfg.pop("demo_envs", 20), "task.demo_envs", 1)
+        self.per_env = check_int(task_cfg.pop("demos_per_env", 3), "task.demos_per_env", 2)
+        self.n_priors = check_int(task_cfg.pop("priors", 2004), "task.priors", 0)
+        self.nearest_k = self.map_options.get("nearest_k")
+        task_cfg.pop("_target_", None)
+        self.task = ArmReachTask(**task_cfg).to(self.device)
+
+    def make_demonstrations(self) -> None:
+        self.demos, self.demo_envs, self.demo_labels = self.task.demonstrations(self.demo_envs_n, self.per_env,
+                                                                                self.demo_generator())
+
+    def make_priors(self) -> None:
+        self.prior_envs, self.prior_mean, self.prior_labels = _priors(self.task, self.promp, self.n_priors)
+
+    def loop_options(self) -> dict:
+        return {"sample_steps": self.task.cost_steps}
 
     def initial_data(self, labels: bool | None = None):
         """A fresh data set: the demonstrations (one entry per environment and side) and the
         priors (average demonstrated variance); every label 0 with ``labels=False``."""
         labels = self.labels if labels is None else labels
-        lab = self.demo_labels if labels else None
         ds = demonstration_dataset(self.promp, self.demos, self.demo_envs, task_name=self.task.name,
-                                   var_floor=self.var_floor, dtype=self.promp.basis.dtype, labels=lab)
+                                   var_floor=self.var_floor, dtype=self.promp.basis.dtype,
+                                   labels=self.demo_labels if labels else None)
         if self.prior_envs.shape[0]:
             vbar = ds.var.mean(0).expand_as(self.prior_mean)  # (P, N) the average demonstrated variance
             ds.append(self.prior_envs, self.prior_mean, vbar, label=self.prior_labels if labels else 0,
                       origin="prior", converged=True)
         return ds
 
-    def run_loop(self, labels: bool | None = None, **overrides) -> LoopResult:
-        """:func:`~protorch.loop.self_improve` with PRO, with (default) or without labels."""
-        labels = self.labels if labels is None else labels
+    def loop_arguments(self, variant: str | None) -> dict:
+        """PRO with the labeller, or ``variant="labels_off_loop"``: the same loop without labels."""
+        labels = self.labels and variant != "labels_off_loop"
         cls, kwargs = self.optimizer
-        kw = {**self.loop_kwargs, **overrides}
-        return self_improve(self.task, self.promp, self.initial_data(labels), optimizer=cls, optimizer_kwargs=kwargs,
-                            env_map=self.env_map, labeler=self.task.side if labels else None,
-                            each_label=labels and self.each_label, **kw)
+        return {"optimizer": cls, "optimizer_kwargs": kwargs, "dataset": self.initial_data(labels),
+                "labeler": self.task.side if labels else None, "each_label": labels and self.each_label}
 
-    def evaluate(self, model) -> tuple[dict, dict, object]:
-        """``(test metrics, dynamic metrics, the episodes)`` of a map (an EnvToProMP) with the
-        label-aware inference (a map with one label: its plain prediction)."""
-        return _test(self.task, model, self.test_envs, self.test_seed), *_dynamic(self.task, model, self.dyn_env0,
-                                                                                 self.dyn_cfg, self.dyn_seed)
+    def describe(self) -> dict:
+        lk, opt, data0 = self.loop_kwargs, self.optimizer_cfg, self.initial_data()
+        return {
+            "demos": {"count": len(self.demos), "envs": int(self.demo_envs.unique(dim=0).shape[0]),
+                      "entries": int((data0.origin == 0).sum()), "left": int((self.demo_labels == LEFT).sum()),
+                      "right": int((self.demo_labels == RIGHT).sum()), "success_rate": self.demo_success()},
+            "priors": {"count": int(self.prior_envs.shape[0]), "left": int((self.prior_labels == LEFT).sum()),
+                       "right": int((self.prior_labels == RIGHT).sum())},
+            "settings": {"num_envs": lk["num_envs"], "batch_size": lk["batch_size"], "add_only": lk["add_only"],
+                         "choice": lk["choice"], "alpha": self.alpha, "nearest_k": self.nearest_k,
+                         "beta": None if opt.get("beta") is None else float(opt["beta"]), "var_floor": self.var_floor,
+                         "labels": self.labels, "each_label": self.each_label, "max_iter": opt.get("max_iter"),
+                         "num_samples": opt.get("num_samples"), "threads": torch.get_num_threads()},
+        }
+
+    def demo_success(self) -> float:
+        """Success of the demonstrations themselves (resampled to the ProMP's steps)."""
+        traj = torch.stack([resample(d, self.promp.num_steps) for d in self.demos]).to(self.promp.basis)
+        return float(self.task.success(traj, self.demo_envs.to(traj)).double().mean())
+
+    def test_metrics(self, model) -> dict:
+        return _test(self.task, model, self.test_envs, self.test_seed)
+
+    def moving_test(self, model) -> tuple[dict, object]:
+        """The can or the target moved while the arm moves (:func:`protorch.control.arm.run_arm_episodes`)."""
+        if self.dyn_env0.shape[0] == 0:
+            return {"success_rate": float("nan"), "episodes": 0, "switches": 0}, None
+        res = run_arm_episodes(model, self.task, self.dyn_env0,
+                               generator=torch.Generator().manual_seed(self.dyn_seed), **self.dyn_cfg)
+        geometric = geometric_switch_summary(res, self.task) if res.weights is not None else {}
+        return {**res.summary(), **geometric, "seed": self.dyn_seed}, res
+
+    def loop_metrics(self, res: LoopResult) -> dict:
+        learned = res.dataset.origin == 2
+        lab = res.dataset.label[learned]
+        return {**loop_summary(res), "added": int(learned.sum()), "added_left": int((lab == LEFT).sum()),
+                "added_right": int((lab == RIGHT).sum())}
+
+    def baseline(self, name: str, out_dir: Path, model) -> tuple[dict, object]:
+        """``labels_off``: the trained map's data with every label 0 (left and right averaged)."""
+        if name != "labels_off":
+            return super().baseline(name, out_dir, model)
+        off_model = load(out_dir, device=self.device, dtype=self.dtype)
+        em = off_model.env_map
+        em.fit(em.E, em.MU, em.VAR)
+        test_m, dyn_m, _ = self.evaluate(off_model)
+        return self.entry(test_m, dyn_m), off_model
+
+    def figures(self, out_dir: Path, outcome: Outcome, metrics: dict) -> None:
+        experiment_figures(out_dir, self.task, outcome.model, outcome.baselines.get("labels_off"), self.test_envs,
+                           outcome.result, outcome.baselines.get("labels_off_loop"), outcome.episodes, metrics)
+
+    def seconds_metrics(self) -> dict:
+        return dict(self.seconds)
+
+
+Setup = ArmReachExperiment  # what prepare() returns
 
 
 def prepare(
@@ -129,57 +175,11 @@ def prepare(
     loop: dict | None = None,
     test: dict | None = None,
     dynamic: dict | None = None,
-) -> Setup:
+) -> ArmReachExperiment:
     """Validate every setting (clear errors, before any work), make the demonstrations and the
     priors and draw the test environments; see :func:`run` for the settings."""
-    task_cfg, gp_cfg = dict(task or {}), dict(gp or {})
-    loop_cfg, test_cfg, dyn_cfg = dict(loop or {}), dict(test or {}), dict(dynamic or {})
-    for cfg, keys, where in ((task_cfg, _TASK_KEYS, "task"), (gp_cfg, _GP_KEYS, "gp"), (loop_cfg, _LOOP_KEYS, "loop"),
-                             (test_cfg, {"num_envs", "seed"}, "test"), (dyn_cfg, _DYNAMIC_KEYS, "dynamic")):
-        check_keys(cfg, keys, where)
-    check_optimizer(optimizer)
-    backend, alpha, var_floor, map_options = gp_settings(gp_cfg, alpha=30.0, var_floor=1e-3, nearest_k=30)
-    loop_kwargs = loop_settings(loop_cfg, num_envs=2024)
-    labels, each_label = loop_cfg.get("labels", True), loop_cfg.get("each_label", True)
-    for name, v in (("labels", labels), ("each_label", each_label)):
-        if not isinstance(v, bool):
-            raise ValueError(f"loop.{name} must be true or false, got {v!r}")
-    test_n, test_seed, dyn_seed = evaluation_settings(
-        test_cfg, dyn_cfg, seed=seed, demo_seed=int(seed) + _DEMO_SEED_OFFSET, test_seed=TEST_SEED,
-        dynamic_seed=DYNAMIC_SEED)
-    episodes = check_int(dyn_cfg.pop("episodes", 100), "dynamic.episodes", 0)
-    demo_envs_n = check_int(task_cfg.pop("demo_envs", 20), "task.demo_envs", 1)
-    per_env = check_int(task_cfg.pop("demos_per_env", 3), "task.demos_per_env", 2)
-    n_priors = check_int(task_cfg.pop("priors", 2004), "task.priors", 0)
-    make_env_map(backend, alpha, **map_options)  # refuses a bad backend or option now
-    task_cfg.pop("_target_", None)
-    arm = ArmReachTask(**task_cfg).to(device)
-    model0 = ProMP(arm.num_dof, **{"num_basis": 10, "num_steps": 100, **dict(promp or {})}, dtype=dtype, device=device)
-    seconds = {}
-
-    t0 = time.perf_counter()
-    gen = torch.Generator().manual_seed(int(seed) + _DEMO_SEED_OFFSET)
-    demos, demo_envs, demo_labels = arm.demonstrations(demo_envs_n, per_env, gen)
-    seconds["demonstrations"] = round(time.perf_counter() - t0, 3)
-    t0 = time.perf_counter()
-    prior_envs, prior_mean, prior_labels = _priors(arm, model0, n_priors)
-    seconds["priors"] = round(time.perf_counter() - t0, 3)
-
-    def env_map():
-        return make_env_map(backend, alpha, dtype=dtype, device=device, **map_options)
-
-    loop_kwargs.update(seed=int(seed), var_floor=var_floor, sample_steps=arm.cost_steps)
-    test_envs = arm.sample_envs(test_n, torch.Generator().manual_seed(test_seed), dtype=dtype).to(device)
-    loop_kwargs["eval_envs"] = test_envs
-    return Setup(
-        task=arm, promp=model0, demos=demos, demo_envs=demo_envs, demo_labels=demo_labels, prior_envs=prior_envs,
-        prior_mean=prior_mean, prior_labels=prior_labels, seed=int(seed), test_envs=test_envs, test_seed=test_seed,
-        dyn_env0=arm.sample_envs(episodes, torch.Generator().manual_seed(dyn_seed), dtype=dtype).to(device),
-        dyn_seed=dyn_seed,
-        dyn_cfg=dyn_cfg, optimizer=optimizer_spec(optimizer),
-        loop_kwargs=loop_kwargs, env_map=env_map, var_floor=var_floor, labels=labels, each_label=each_label,
-        alpha=alpha, nearest_k=map_options.get("nearest_k"), seconds=seconds,
-    )
+    return ArmReachExperiment(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp,
+                              promp=promp, loop=loop, test=test, dynamic=dynamic).build()
 
 
 def _priors(task: ArmReachTask, promp: ProMP, n: int):
@@ -237,92 +237,14 @@ def run(
     if threads is not None:
         torch.set_num_threads(int(threads))
     try:
-        return _run(out_dir, seed=seed, device=device, dtype=dtype, optimizer=optimizer, plot=plot, task=task, gp=gp,
-                    promp=promp, loop=loop, test=test, dynamic=dynamic, baselines=baselines, resume=resume,
-                    progress=progress)
+        exp = ArmReachExperiment(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp,
+                                 promp=promp, loop=loop, test=test, dynamic=dynamic)
+        return exp.run(out_dir, baselines=baselines, resume=resume, progress=progress, plot=plot)
     finally:
         torch.set_num_threads(before)
 
 
-def _run(out_dir, *, seed, device, dtype, optimizer, plot, task, gp, promp, loop, test, dynamic, baselines, resume,
-         progress) -> dict:
-    t0 = time.perf_counter()
-    out_dir = Path(out_dir)
-    baselines = list(baselines or [])
-    bad = sorted(set(baselines) - set(_BASELINES))
-    if bad:
-        raise ValueError(f"unknown baseline(s) {bad}; choose from {list(_BASELINES)}")
-    base_dir = out_dir / "baselines" / "labels_off_loop"
-    if not resume:
-        for d in [out_dir] + ([base_dir] if "labels_off_loop" in baselines else []):
-            if checkpoint_path(d).is_file():
-                raise FileExistsError(
-                    f"{checkpoint_path(d)} already exists: add resume=true to continue that run, or choose "
-                    "another hydra.run.dir"
-                )
-    setup = prepare(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp, promp=promp,
-                    loop=loop, test=test, dynamic=dynamic)
-    arm, lk = setup.task, setup.loop_kwargs
-    seconds = dict(setup.seconds)
-    data0 = setup.initial_data()
-    metrics: dict = {
-        "demos": {"count": len(setup.demos), "envs": int(setup.demo_envs.unique(dim=0).shape[0]),
-                  "entries": int((data0.origin == 0).sum()),
-                  "left": int((setup.demo_labels == LEFT).sum()), "right": int((setup.demo_labels == RIGHT).sum()),
-                  "success_rate": _demo_success(setup)},
-        "priors": {"count": int(setup.prior_envs.shape[0]),
-                   "left": int((setup.prior_labels == LEFT).sum()), "right": int((setup.prior_labels == RIGHT).sum())},
-        "settings": {"num_envs": lk["num_envs"], "batch_size": lk["batch_size"], "add_only": lk["add_only"],
-                     "choice": lk["choice"], "alpha": setup.alpha, "nearest_k": setup.nearest_k, "beta": None if optimizer.get("beta") is None else float(optimizer["beta"]),
-                     "var_floor": setup.var_floor, "labels": setup.labels, "each_label": setup.each_label, "max_iter": optimizer.get("max_iter"),
-                     "num_samples": optimizer.get("num_samples"), "threads": torch.get_num_threads()},
-        "baselines": {},
-    }
-    # ------------------------------------------------------------------ the loop (label-aware)
-    res = setup.run_loop(run_dir=out_dir, resume=resume, progress=progress, desc="PRO loop")
-    seconds["loop"] = round(res.seconds, 3)
-    model = load(out_dir, device=device, dtype=dtype)  # the checkpoint is what gets evaluated
-    t1 = time.perf_counter()
-    test_m, dyn_m, episodes = setup.evaluate(model)
-    seconds["evaluation"] = round(time.perf_counter() - t1, 3)
-    metrics.update(test=test_m, dynamic=dyn_m, loop=_loop_metrics(res, setup.task))
-    # ------------------------------------------------------------------ baselines
-    off_model = None
-    if "labels_off" in baselines:
-        t1 = time.perf_counter()
-        off_model = load(out_dir, device=device, dtype=dtype)
-        em = off_model.env_map
-        em.fit(em.E, em.MU, em.VAR)  # the same data, every label 0: left and right averaged
-        test_o, dyn_o, _ = setup.evaluate(off_model)
-        metrics["baselines"]["labels_off"] = {"test": test_o, "dynamic": dyn_o}
-        seconds["labels_off"] = round(time.perf_counter() - t1, 3)
-    off_loop = None
-    if "labels_off_loop" in baselines:
-        t1 = time.perf_counter()
-        off_loop = setup.run_loop(labels=False, run_dir=base_dir, resume=resume, progress=progress,
-                                  desc="loop, labels off")
-        test_l, dyn_l, _ = setup.evaluate(load(base_dir, device=device, dtype=dtype))
-        metrics["baselines"]["labels_off_loop"] = {"test": test_l, "dynamic": dyn_l,
-                                                   "loop": _loop_metrics(off_loop, setup.task)}
-        seconds["labels_off_loop"] = round(time.perf_counter() - t1, 3)
-    # ------------------------------------------------------------------ figures
-    if plot:
-        t1 = time.perf_counter()
-
-        experiment_figures(out_dir, arm, model, off_model, setup.test_envs, res, off_loop, episodes, metrics)
-        seconds["figures"] = round(time.perf_counter() - t1, 3)
-    seconds["total"] = round(time.perf_counter() - t0, 3)
-    metrics["seconds"] = seconds
-    return metrics
-
-
 # ----------------------------------------------------------------------------- evaluation
-def _demo_success(setup: Setup) -> float:
-
-    traj = torch.stack([resample(d, setup.promp.num_steps) for d in setup.demos]).to(setup.promp.basis)
-    return float(setup.task.success(traj, setup.demo_envs.to(traj)).double().mean())
-
-
 def _test(task: ArmReachTask, model, envs: torch.Tensor, seed: int) -> dict:
     """Success of the label-aware mean trajectories on the held-out environments."""
     with torch.no_grad():
@@ -341,23 +263,3 @@ def _test(task: ArmReachTask, model, envs: torch.Tensor, seed: int) -> dict:
                                                                                      .double().mean()),
             "left": int((side == LEFT).sum()), "right": int((side == RIGHT).sum()),
             "cost_median": float(c.sum(-1).median())}
-
-
-def _dynamic(task: ArmReachTask, model, env0: torch.Tensor, cfg: dict, seed: int) -> tuple[dict, object]:
-    if env0.shape[0] == 0:
-        return {"success_rate": float("nan"), "episodes": 0, "switches": 0}, None
-
-    res = run_arm_episodes(model, task, env0, generator=torch.Generator().manual_seed(seed), **cfg)
-    geometric = geometric_switch_summary(res, task) if res.weights is not None else {}
-    return {**res.summary(), **geometric, "seed": int(seed)}, res
-
-
-def _loop_metrics(res: LoopResult, task: ArmReachTask) -> dict:
-    last = res.metrics[-1]
-    learned = res.dataset.origin == 2
-    lab = res.dataset.label[learned]
-    return {"seconds": round(res.seconds, 3), "envs_tried": len(res.tried),
-            "added": int(learned.sum()), "added_left": int((lab == LEFT).sum()), "added_right": int((lab == RIGHT).sum()),
-            "dataset_size": len(res.dataset), "success_rate": res.success_rate,
-            "final_eval_success": last.get("eval_success"), "steps": int(last["step"]),
-            "resumed_from": res.resumed_from}

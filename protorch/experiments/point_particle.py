@@ -16,79 +16,134 @@
 
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Sequence
 
 import torch
 
-from ..checks import check_int, check_keys
+from ..checks import check_int
 from ..control.particle import run_episodes
-from ..data.checkpoint import checkpoint_path, load
-from ..gp import make_env_map
-from ..gp.model import EnvToProMP
-from ..loop import LoopResult, demonstration_dataset, self_improve
-from ..primitives.promp import ProMP
 from ..tasks import PointParticleTask, load_human_demos
 from ..viz.online import plot_episode_frames, write_episode_gif
 from ..viz.paper import plot_point_particle, plot_trajectories, save_figure
-from .common import baseline_spec, check_optimizer, evaluation_settings, gp_settings, loop_settings, optimizer_spec
+from .common import baseline_spec
 from .particle_paper import convergence_rule, evaluate_paper, hole_failures, paper_figures, paper_settings
+from .self_improvement import DEMO_SEED_OFFSET, DYNAMIC_SEED, TEST_SEED, Outcome, SelfImprovementExperiment
 
-__all__ = ["run", "prepare", "Setup", "TEST_SEED", "DYNAMIC_SEED"]
+__all__ = ["run", "prepare", "Setup", "PointParticleExperiment", "TEST_SEED", "DYNAMIC_SEED"]
 
-TEST_SEED = 2_000_003  # the held-out test environments: fixed, never a training seed
-DYNAMIC_SEED = 3_000_017  # the moving-environment episodes (start environments and walks)
-_DEMO_SEED_OFFSET = 10_007  # synthetic demonstrations: seed + offset (the loop's pool uses seed)
 _BASELINES = ("demos_only", "rwr")
-_TASK_KEYS = {"_target_", "objectives", "fixed_start", "infinite_wall", "demos", "demo_envs", "demos_per_env"}
-_GP_KEYS = {"backend", "alpha", "var_floor", "nearest_k"}
-_LOOP_KEYS = {"num_envs", "batch_size", "add_only", "choice", "checkpoint_every", "eval_dtype", "min_var",
-              "stop_when_solved"}
-_DYNAMIC_KEYS = {"seed", "episodes", "duration", "hold", "dt", "kp", "kd", "step_std", "start", "goal_tol"}
 
 
-@dataclass
-class Setup:
-    """Everything the experiment builds from its settings (:func:`prepare`): the task, the ProMP,
-    the demonstrations, the held-out and moving-environment test sets and the loop's settings.
-    ``benchmarks/loop.py`` uses it to time the loop at other batch sizes."""
+class PointParticleExperiment(SelfImprovementExperiment):
+    """The point-particle parts of the skeleton (:class:`SelfImprovementExperiment`): the task and
+    its demonstrations, the authors' ``stop_when_solved`` margins, the RWR loop baseline, the
+    moving hole and goal, the figures. ``benchmarks/loop.py`` times :meth:`run_loop` at other
+    batch sizes."""
 
-    task: PointParticleTask
-    promp: ProMP
-    demos: list
-    demo_envs: torch.Tensor
-    source: str
-    seed: int
-    test_envs: torch.Tensor  # (Q, E)
-    test_seed: int
-    dyn_env0: torch.Tensor  # (episodes, E)
-    dyn_cfg: dict
-    dyn_seed: int
-    optimizers: dict  # name -> (class, kwargs)
-    loop_kwargs: dict  # self_improve keyword arguments (no optimizer, run_dir, resume, progress)
-    env_map: Callable
-    var_floor: float
-    paper_cfg: dict | None = None  # the authors' moving test (protorch.experiments.particle_paper)
+    task_keys = frozenset({"_target_", "objectives", "fixed_start", "infinite_wall", "demos", "demo_envs",
+                           "demos_per_env"})
+    loop_keys = frozenset({"stop_when_solved"})
+    dynamic_keys = frozenset({"seed", "episodes", "duration", "hold", "dt", "kp", "kd", "step_std", "start",
+                              "goal_tol"})
+    gp_defaults = {"alpha": 1e-3, "var_floor": 1e-4, "nearest_k": None}
+    num_envs = 1000
+    baseline_names = _BASELINES
+    pre_loop_baselines = frozenset({"demos_only"})
+    loop_baselines = frozenset({"rwr"})
 
-    def initial_data(self):
-        """A fresh data set of the demonstrations (each loop grows its own)."""
-        return demonstration_dataset(self.promp, self.demos, self.demo_envs, task_name=self.task.name,
-                                     var_floor=self.var_floor, dtype=self.promp.basis.dtype)
+    def __init__(self, *, baseline_optimizer: dict | None = None, dynamic_paper: dict | None = None, **settings):
+        self.baseline_optimizer = baseline_optimizer
+        self.dynamic_paper = dynamic_paper
+        self.paper_episodes = None
+        super().__init__(**settings)
 
-    def run_loop(self, method: str = "pro", **overrides) -> LoopResult:
-        """:func:`~protorch.loop.self_improve` with ``method``'s optimiser ("pro" / "rwr");
-        ``overrides`` replace loop settings (``batch_size``, ``num_envs``, ``run_dir``, ...)."""
-        cls, kwargs = self.optimizers[method]
-        kw = {**self.loop_kwargs, **overrides}
-        return self_improve(self.task, self.promp, self.initial_data(), optimizer=cls, optimizer_kwargs=kwargs,
-                            env_map=self.env_map, **kw)
+    def configure(self, task_cfg: dict, loop_cfg: dict) -> None:
+        self.task = PointParticleTask(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in task_cfg.items()
+                                         if k in ("objectives", "fixed_start", "infinite_wall")})
+        self.source = str(task_cfg.get("demos", "synthetic"))
+        self.demo_envs_n = check_int(task_cfg.get("demo_envs", 30), "task.demo_envs", 1)
+        self.per_env = check_int(task_cfg.get("demos_per_env", 3), "task.demos_per_env", 2)
+        if self.source != "synthetic":
+            folder = Path(self.source).expanduser()
+            if not folder.is_dir():
+                raise FileNotFoundError(f"task.demos={self.source!r}: no such folder (resolved to {folder.resolve()}); "
+                                        "give 'synthetic' or a folder of trajK.out / envK.out files")
+            if self.task.fixed_start is not None:
+                raise ValueError("the human demonstrations have 6-D environments: leave task.fixed_start unset")
+        self.stop_when_solved = loop_cfg.get("stop_when_solved", False)
+        seed = int(self.seed)
+        self.paper_cfg = paper_settings(self.dynamic_paper, training_seeds=(seed, seed + DEMO_SEED_OFFSET))
+        self.optimizers = {m: (cls, convergence_rule(kw, self.task.objectives))
+                           for m, (cls, kw) in (("pro", self.optimizer),
+                                                ("rwr", baseline_spec(self.optimizer_cfg, self.baseline_optimizer)))}
 
-    def evaluate(self, model) -> tuple[dict, dict, object]:
-        """``(test metrics, dynamic metrics, the episodes)`` of a map (an EnvToProMP)."""
-        return _test(self.task, model, self.test_envs, self.test_seed), *_dynamic(
-            self.task, model, self.dyn_env0, self.dyn_cfg, self.dyn_seed)
+    def num_dof(self) -> int:
+        return 2
+
+    def make_demonstrations(self) -> None:
+        if self.source == "synthetic":
+            self.demos, self.demo_envs = self.task.demonstrations(self.demo_envs_n, self.per_env, self.demo_generator())
+        else:
+            self.demos, self.demo_envs = load_human_demos(Path(self.source).expanduser())
+
+    def loop_options(self) -> dict:
+        point = self.task
+
+        def solved(traj, env):  # the authors' acceptance margins, looser on the end points
+            return point.success(traj, env, tol=0.05) & (point.clearance(traj, env) >= 0.1)
+
+        return {"solved": solved if self.stop_when_solved else None}
+
+    def loop_arguments(self, variant: str | None) -> dict:
+        """The method's optimiser, or ``variant="rwr"``: the ``baseline_optimizer`` (RWR by default)."""
+        cls, kwargs = self.optimizers["pro" if variant is None else variant]
+        return {"optimizer": cls, "optimizer_kwargs": kwargs, "dataset": self.initial_data()}
+
+    def describe(self) -> dict:
+        lk = self.loop_kwargs
+        return {"demos": {"source": self.source, "count": len(self.demos), "envs": len(self.initial_data())},
+                "settings": {"num_envs": lk["num_envs"], "batch_size": lk["batch_size"], "add_only": lk["add_only"],
+                             "choice": lk["choice"], "alpha": self.alpha,
+                             "beta": None if self.optimizer_cfg.get("beta") is None else float(self.optimizer_cfg["beta"]), "var_floor": self.var_floor,
+                             "objectives": self.task.objectives}}
+
+    def test_metrics(self, model) -> dict:
+        """Success of the map's mean trajectories on the held-out environments."""
+        task, envs = self.task, self.test_envs
+        with torch.no_grad():
+            traj = model.mean_trajectory(envs)  # (Q, T, 2)
+            ok = task.success(traj, envs)  # (Q,)
+            c = task.costs(traj, envs)  # (Q, 3)
+        return {"success_rate": float(ok.double().mean()), "num_envs": int(envs.shape[0]),
+                "seed": self.test_seed, "collision_rate": float(task.collides(traj, envs).double().mean()),
+                "start_error_median": float(c[:, 0].median()), "goal_error_median": float(c[:, 2].median())}
+
+    def moving_test(self, model) -> tuple[dict, object]:
+        """The moving hole and goal (:func:`protorch.control.particle.run_episodes`)."""
+        if self.dyn_env0.shape[0] == 0:
+            return {"success_rate": float("nan"), "episodes": 0}, None
+        res = run_episodes(model, self.task, self.dyn_env0, generator=torch.Generator().manual_seed(self.dyn_seed),
+                           **self.dyn_cfg)
+        return {**res.summary(), "seed": self.dyn_seed}, res
+
+    def extra_tests(self, model) -> dict:
+        """The authors' moving test (``dynamic_paper``; :mod:`protorch.experiments.particle_paper`),
+        and under the paper's hole objective why the held-out means fail (``hole_analysis``)."""
+        out = {}
+        out["dynamic_paper"], self.paper_episodes = evaluate_paper(self.task, model, self.paper_cfg, dtype=self.dtype,
+                                                                   device=self.device)
+        if self.task.objectives == "hole":
+            out["hole_analysis"] = hole_failures(self.task, model.mean_trajectory(self.test_envs), self.test_envs)
+        return out
+
+    def figures(self, out_dir: Path, outcome: Outcome, metrics: dict) -> None:
+        _figures(out_dir, self.task, outcome.model, self.test_envs, outcome.result, outcome.baselines.get("rwr"),
+                 metrics, outcome.episodes, self.seed)
+        paper_figures(out_dir, self.paper_episodes)
+
+
+Setup = PointParticleExperiment  # what prepare() returns
 
 
 def prepare(
@@ -105,65 +160,12 @@ def prepare(
     dynamic: dict | None = None,
     baseline_optimizer: dict | None = None,
     dynamic_paper: dict | None = None,
-) -> Setup:
+) -> PointParticleExperiment:
     """Validate every setting (clear errors, before any work), load or synthesise the
     demonstrations and draw the test environments; see :func:`run` for the settings."""
-    task_cfg, gp_cfg = dict(task or {}), dict(gp or {})
-    loop_cfg, test_cfg, dyn_cfg = dict(loop or {}), dict(test or {}), dict(dynamic or {})
-    for cfg, keys, where in ((task_cfg, _TASK_KEYS, "task"), (gp_cfg, _GP_KEYS, "gp"), (loop_cfg, _LOOP_KEYS, "loop"),
-                             (test_cfg, {"num_envs", "seed"}, "test"), (dyn_cfg, _DYNAMIC_KEYS, "dynamic")):
-        check_keys(cfg, keys, where)
-    check_optimizer(optimizer)
-    backend, alpha, var_floor, map_options = gp_settings(gp_cfg, alpha=1e-3, var_floor=1e-4, nearest_k=None)
-    lk = loop_settings(loop_cfg, num_envs=1000)
-    test_n, test_seed, dyn_seed = evaluation_settings(
-        test_cfg, dyn_cfg, seed=seed, demo_seed=int(seed) + _DEMO_SEED_OFFSET, test_seed=TEST_SEED,
-        dynamic_seed=DYNAMIC_SEED)
-    episodes = check_int(dyn_cfg.pop("episodes", 100), "dynamic.episodes", 0)
-    paper_cfg = paper_settings(dynamic_paper, training_seeds=(int(seed), int(seed) + _DEMO_SEED_OFFSET))
-
-    make_env_map(backend, alpha, **map_options)  # refuses a bad backend or option now
-    point = PointParticleTask(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in task_cfg.items()
-                                 if k in ("objectives", "fixed_start", "infinite_wall")})
-    source = str(task_cfg.get("demos", "synthetic"))
-    demo_envs_n = check_int(task_cfg.get("demo_envs", 30), "task.demo_envs", 1)
-    per_env = check_int(task_cfg.get("demos_per_env", 3), "task.demos_per_env", 2)
-    if source == "synthetic":
-        gen = torch.Generator().manual_seed(int(seed) + _DEMO_SEED_OFFSET)
-        demos, demo_envs = point.demonstrations(demo_envs_n, per_env, gen)
-    else:
-        folder = Path(source).expanduser()
-        if not folder.is_dir():
-            raise FileNotFoundError(
-                f"task.demos={source!r}: no such folder (resolved to {folder.resolve()}); give "
-                "'synthetic' or a folder of trajK.out / envK.out files"
-            )
-        if point.fixed_start is not None:
-            raise ValueError("the human demonstrations have 6-D environments: leave task.fixed_start unset")
-        demos, demo_envs = load_human_demos(folder)
-    model0 = ProMP(2, **{"num_basis": 10, "num_steps": 100, **dict(promp or {})}, dtype=dtype, device=device)
-
-    def env_map():
-        return make_env_map(backend, alpha, dtype=dtype, device=device, **map_options)
-
-    def solved(traj, env):  # the authors' acceptance margins, looser on the end points
-        return point.success(traj, env, tol=0.05) & (point.clearance(traj, env) >= 0.1)
-
-    loop_kwargs = dict(**lk, solved=solved if loop_cfg.get("stop_when_solved", False) else None, seed=int(seed),
-                       var_floor=var_floor)
-    test_envs = point.sample_envs(test_n, torch.Generator().manual_seed(test_seed), dtype=dtype).to(device)
-    loop_kwargs["eval_envs"] = test_envs
-    return Setup(
-        task=point, promp=model0, demos=demos, demo_envs=demo_envs, source=source, seed=int(seed),
-        test_envs=test_envs, test_seed=test_seed,
-        dyn_env0=point.sample_envs(episodes, torch.Generator().manual_seed(dyn_seed), dtype=dtype).to(device),
-        dyn_seed=dyn_seed,
-        dyn_cfg=dyn_cfg,
-        optimizers={m: (cls, convergence_rule(kw, point.objectives))
-                    for m, (cls, kw) in (("pro", optimizer_spec(optimizer)),
-                                         ("rwr", baseline_spec(optimizer, baseline_optimizer)))},
-        loop_kwargs=loop_kwargs, env_map=env_map, var_floor=var_floor, paper_cfg=paper_cfg,
-    )
+    return PointParticleExperiment(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp,
+                                   promp=promp, loop=loop, test=test, dynamic=dynamic,
+                                   baseline_optimizer=baseline_optimizer, dynamic_paper=dynamic_paper).build()
 
 
 def run(
@@ -180,11 +182,11 @@ def run(
     loop: dict | None = None,
     test: dict | None = None,
     dynamic: dict | None = None,
-    dynamic_paper: dict | None = None,
     baselines: Sequence[str] = _BASELINES,
     resume: bool = False,
     progress: bool = True,
     baseline_optimizer: dict | None = None,
+    dynamic_paper: dict | None = None,
 ) -> dict:
     """Run the experiment into ``out_dir``; return the metrics (see the module docstring).
 
@@ -204,93 +206,15 @@ def run(
     ``resume``: continue the loops from the checkpoints in ``out_dir``.
     Every setting is validated before any work starts.
     """
-    t0 = time.perf_counter()
-    out_dir = Path(out_dir)
-    baselines = list(baselines or [])
-    bad = sorted(set(baselines) - set(_BASELINES))
-    if bad:
-        raise ValueError(f"unknown baseline(s) {bad}; choose from {list(_BASELINES)}")
-    setup = prepare(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp, promp=promp,
-                    loop=loop, test=test, dynamic=dynamic, baseline_optimizer=baseline_optimizer,
-                    dynamic_paper=dynamic_paper)
-    rwr_dir = out_dir / "baselines" / "rwr"
-    if not resume:
-        for d in [out_dir] + ([rwr_dir] if "rwr" in baselines else []):
-            if checkpoint_path(d).is_file():
-                raise FileExistsError(
-                    f"{checkpoint_path(d)} already exists: add resume=true to continue that run, or choose "
-                    "another hydra.run.dir"
-                )
-    point = setup.task
-    lk = setup.loop_kwargs
-    metrics: dict = {
-        "demos": {"source": setup.source, "count": len(setup.demos), "envs": len(setup.initial_data())},
-        "settings": {"num_envs": lk["num_envs"], "batch_size": lk["batch_size"], "add_only": lk["add_only"],
-                     "choice": lk["choice"], "alpha": float((gp or {}).get("alpha", 1e-3)),
-                     "beta": None if optimizer.get("beta") is None else float(optimizer["beta"]), "var_floor": setup.var_floor,
-                     "objectives": point.objectives},
-        "baselines": {},
-    }
-    # ------------------------------------------------------------------ baseline: demonstrations only
-    if "demos_only" in baselines:
-        data0 = setup.initial_data()
-        gp0 = setup.env_map().fit(data0.env, data0.mean, data0.var, data0.label)
-        test_m, dyn_m, _ = setup.evaluate(EnvToProMP(setup.promp, gp0, point.name))
-        metrics["baselines"]["demos_only"] = {"test": test_m, "dynamic": dyn_m}
-    # ------------------------------------------------------------------ PRO loop (the method)
-    pro = setup.run_loop("pro", run_dir=out_dir, resume=resume, progress=progress, desc="PRO loop")
-    model = load(out_dir, device=device, dtype=dtype)  # the checkpoint is what gets evaluated
-    test_m, dyn_m, episode = setup.evaluate(model)
-    metrics.update(test=test_m, dynamic=dyn_m, loop=_loop_metrics(pro))
-    metrics["dynamic_paper"], paper_ep = evaluate_paper(point, model, setup.paper_cfg, dtype=dtype, device=device)
-    if point.objectives == "hole":
-        metrics["hole_analysis"] = hole_failures(point, model.mean_trajectory(setup.test_envs), setup.test_envs)
-    # ------------------------------------------------------------------ baseline: RWR in the loop
-    rwr = None
-    if "rwr" in baselines:
-        rwr = setup.run_loop("rwr", run_dir=rwr_dir, resume=resume, progress=progress, desc="RWR loop")
-        test_r, dyn_r, _ = setup.evaluate(load(rwr_dir, device=device, dtype=dtype))
-        metrics["baselines"]["rwr"] = {"test": test_r, "dynamic": dyn_r, "loop": _loop_metrics(rwr)}
-    # ------------------------------------------------------------------ figures
-    if plot:
-        _figures(out_dir, point, model, setup.test_envs, pro, rwr, metrics, episode, seed)
-        paper_figures(out_dir, paper_ep)
-    metrics["seconds"] = round(time.perf_counter() - t0, 3)
-    return metrics
-
-
-# ----------------------------------------------------------------------------- evaluation
-def _test(task, model, envs, seed: int) -> dict:
-    """Success of the map's mean trajectories on the held-out environments."""
-    with torch.no_grad():
-        traj = model.mean_trajectory(envs)  # (Q, T, 2)
-        ok = task.success(traj, envs)  # (Q,)
-        c = task.costs(traj, envs)  # (Q, 3)
-    return {"success_rate": float(ok.double().mean()), "num_envs": int(envs.shape[0]),
-            "seed": int(seed), "collision_rate": float(task.collides(traj, envs).double().mean()),
-            "start_error_median": float(c[:, 0].median()), "goal_error_median": float(c[:, 2].median())}
-
-
-def _dynamic(task, model, env0, cfg, seed: int) -> tuple[dict, object]:
-    """The moving-environment episodes (:mod:`protorch.control.particle`)."""
-    if env0.shape[0] == 0:
-        return {"success_rate": float("nan"), "episodes": 0}, None
-
-    res = run_episodes(model, task, env0, generator=torch.Generator().manual_seed(seed), **cfg)
-    return {**res.summary(), "seed": int(seed)}, res
-
-
-def _loop_metrics(res: LoopResult) -> dict:
-    last = res.metrics[-1]
-    added = sum(int(r.get("added") or 0) for r in res.metrics)
-    return {"seconds": round(res.seconds, 3), "envs_tried": len(res.tried), "added": added,
-            "dataset_size": len(res.dataset), "success_rate": res.success_rate,
-            "final_eval_success": last.get("eval_success"), "steps": int(last["step"]),
-            "resumed_from": res.resumed_from}
+    exp = PointParticleExperiment(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp,
+                                  promp=promp, loop=loop, test=test, dynamic=dynamic,
+                                  baseline_optimizer=baseline_optimizer, dynamic_paper=dynamic_paper)
+    return exp.run(out_dir, baselines=baselines, resume=resume, progress=progress, plot=plot)
 
 
 # ----------------------------------------------------------------------------- figures
 def _figures(out_dir, task, model, test_envs, pro, rwr, metrics, episode, seed) -> None:
+    """Success vs loop iteration, a grid of test environments, failures first, one moving episode (frames, GIF)."""
     import matplotlib
 
     matplotlib.use("Agg")

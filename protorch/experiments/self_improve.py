@@ -15,27 +15,20 @@ The whole pipeline on a class that follows :class:`~protorch.tasks.SelfImproveme
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Sequence
 
 import torch
 
-from ..checks import check_int, check_keys
-from ..data.checkpoint import checkpoint_path, load
+from ..checks import check_int
 from ..data.demos import load_human_demos
-from ..gp import make_env_map
-from ..gp.model import EnvToProMP
-from ..loop import LoopResult, demonstration_dataset, self_improve
-from ..primitives.promp import ProMP
+from ..loop import LoopResult
 from ..tasks import check_task_protocol, make_task
 from ..viz.paper import save_figure
-from .common import evaluation_settings, gp_settings, loop_settings, optimizer_spec
+from .self_improvement import DEMO_SEED_OFFSET, TEST_SEED, Outcome, SelfImprovementExperiment
 
-__all__ = ["run", "build_task", "TEST_SEED", "DEMO_SEED_OFFSET"]
+__all__ = ["run", "build_task", "GenericExperiment", "TEST_SEED", "DEMO_SEED_OFFSET"]
 
-TEST_SEED = 2_000_003  # the held-out environments: fixed, never a training seed
-DEMO_SEED_OFFSET = 10_007  # generated demonstrations: seed + offset (the loop's pool uses seed)
 _BASELINES = ("demos_only",)
 _PIPELINE_KEYS = ("demos", "demo_envs", "demos_per_env")
 
@@ -59,33 +52,64 @@ def build_task(task: dict) -> tuple[object, dict]:
                  "demos_per_env": check_int(own.get("demos_per_env", 3), "task.demos_per_env", 2)}
 
 
-def _demonstrations(task, own: dict, seed: int):
-    if own["demos"] == "generate":
-        gen = torch.Generator().manual_seed(int(seed) + DEMO_SEED_OFFSET)
-        demos, envs = task.demonstrations(own["demo_envs"], own["demos_per_env"], gen)
-    else:
-        folder = Path(own["demos"]).expanduser()
-        if not folder.is_dir():
-            raise FileNotFoundError(f"task.demos={own['demos']!r}: no such folder; give 'generate' or a folder of "
+class GenericExperiment(SelfImprovementExperiment):
+    """The skeleton (:class:`SelfImprovementExperiment`) on any task class: its demonstrations
+    (generated or from a folder), the held-out test, the demonstrations-only baseline, one figure."""
+
+    gp_defaults = {"alpha": 1.0, "var_floor": 1e-4, "nearest_k": None}
+    num_envs = 100
+    dynamic_seed_default = TEST_SEED + 1
+    baseline_names = _BASELINES
+    pre_loop_baselines = frozenset({"demos_only"})
+    baseline_section = None  # metrics["demos_only"]
+
+    def configure(self, task_cfg: dict, loop_cfg: dict) -> None:
+        self.task, self.own = build_task(task_cfg)
+        source = self.own["demos"]
+        if source != "generate" and not Path(source).expanduser().is_dir():
+            raise FileNotFoundError(f"task.demos={source!r}: no such folder; give 'generate' or a folder of "
                                     "trajK.out / envK.out files")
-        demos, envs = load_human_demos(folder)
-    envs = torch.as_tensor(envs, dtype=torch.float64)
-    if envs.ndim != 2 or envs.shape != (len(demos), task.env_dim):
-        raise ValueError(f"the demonstrations' environments must be ({len(demos)}, {task.env_dim}) "
-                         f"(task.env_dim), got {tuple(envs.shape)}")
-    bad = [i for i, d in enumerate(demos) if d.ndim != 2 or d.shape[1] != task.num_dof]
-    if bad:
-        raise ValueError(f"demonstration {bad[0]} has shape {tuple(demos[bad[0]].shape)}; expected (T, {task.num_dof})")
-    return demos, envs
 
+    def make_demonstrations(self) -> None:
+        task, own = self.task, self.own
+        if own["demos"] == "generate":
+            demos, envs = task.demonstrations(own["demo_envs"], own["demos_per_env"], self.demo_generator())
+        else:
+            demos, envs = load_human_demos(Path(own["demos"]).expanduser())
+        envs = torch.as_tensor(envs, dtype=torch.float64)
+        if envs.ndim != 2 or envs.shape != (len(demos), task.env_dim):
+            raise ValueError(f"the demonstrations' environments must be ({len(demos)}, {task.env_dim}) "
+                             f"(task.env_dim), got {tuple(envs.shape)}")
+        bad = [i for i, d in enumerate(demos) if d.ndim != 2 or d.shape[1] != task.num_dof]
+        if bad:
+            raise ValueError(f"demonstration {bad[0]} has shape {tuple(demos[bad[0]].shape)}; "
+                             f"expected (T, {task.num_dof})")
+        self.demos, self.demo_envs = demos, envs
 
-def _test(task, model, envs: torch.Tensor) -> dict:
-    with torch.no_grad():
-        traj = model.mean_trajectory(envs)  # (Q, T, D)
-        ok = task.success(traj, envs)  # (Q,)
-        c = task.costs(traj, envs)  # (Q, O)
-    return {"success_rate": float(ok.double().mean()), "num_envs": int(envs.shape[0]),
-            "cost_median": float(c.sum(-1).median())}
+    def describe(self) -> dict:
+        lk, cls = self.loop_settings, self.optimizer[0]
+        return {"task": f"{type(self.task).__module__}.{type(self.task).__qualname__}",
+                "demos": {"source": self.own["demos"], "count": len(self.demos), "envs": len(self.initial_data())},
+                "settings": {"optimizer": self.optimizer_cfg.get("name", cls.__name__.lower()),
+                             **lk, "eval_dtype": str(lk["eval_dtype"]).replace("torch.", ""),
+                             "alpha": self.alpha, "var_floor": self.var_floor, "backend": self.backend}}
+
+    def test_metrics(self, model) -> dict:
+        """Success and median summed cost of the map's mean trajectories on the held-out environments."""
+        envs = self.test_envs
+        with torch.no_grad():
+            traj = model.mean_trajectory(envs)  # (Q, T, D)
+            ok = self.task.success(traj, envs)  # (Q,)
+            c = self.task.costs(traj, envs)  # (Q, O)
+        return {"success_rate": float(ok.double().mean()), "num_envs": int(envs.shape[0]),
+                "cost_median": float(c.sum(-1).median())}
+
+    def record(self, metrics: dict, test_m: dict, dyn_m: dict | None, res: LoopResult) -> None:
+        metrics["test"] = {**test_m, "seed": self.test_seed}
+        metrics["loop"] = self.loop_metrics(res)
+
+    def figures(self, out_dir: Path, outcome: Outcome, metrics: dict) -> None:
+        _figure(out_dir, outcome.result, metrics)
 
 
 def run(
@@ -114,60 +138,9 @@ def run(
     ``min_var``. ``test``: ``num_envs``, ``seed``. ``baselines``: ``[]`` or ``["demos_only"]``.
     Every setting is checked and the task built before any work.
     """
-    t0 = time.perf_counter()
-    out_dir = Path(out_dir)
-    loop_cfg, test_cfg, gp_cfg = dict(loop or {}), dict(test or {}), dict(gp or {})
-    check_keys(test_cfg, {"num_envs", "seed"}, "test")
-    bad = sorted(set(baselines or []) - set(_BASELINES))
-    if bad:
-        raise ValueError(f"unknown baseline(s) {bad}; choose from {list(_BASELINES)}")
-    obj, own = build_task(task or {})
-    cls, opt_kwargs = optimizer_spec(optimizer)
-    backend, alpha, var_floor, map_options = gp_settings(gp_cfg, alpha=1.0, var_floor=1e-4, nearest_k=None)
-    lk = loop_settings(loop_cfg, num_envs=100)
-    test_n, test_seed, _ = evaluation_settings(test_cfg, {}, seed=seed, demo_seed=int(seed) + DEMO_SEED_OFFSET,
-                                               test_seed=TEST_SEED, dynamic_seed=TEST_SEED + 1)
-    make_env_map(backend, alpha, **map_options)  # refuses a bad backend or option now
-    if not resume and checkpoint_path(out_dir).is_file():
-        raise FileExistsError(f"{checkpoint_path(out_dir)} already exists: add resume=true to continue that run, "
-                              "or choose another hydra.run.dir")
-    demos, demo_envs = _demonstrations(obj, own, seed)
-    model0 = ProMP(obj.num_dof, **{"num_basis": 10, "num_steps": 100, **dict(promp or {})}, dtype=dtype, device=device)
-
-    def env_map():
-        return make_env_map(backend, alpha, dtype=dtype, device=device, **map_options)
-
-    def initial_data():
-        return demonstration_dataset(model0, demos, demo_envs, task_name=obj.name, var_floor=var_floor, dtype=dtype)
-
-    test_envs = obj.sample_envs(test_n, torch.Generator().manual_seed(test_seed), dtype=dtype).to(device)
-    data0 = initial_data()
-    metrics: dict = {"task": f"{type(obj).__module__}.{type(obj).__qualname__}",
-                     "demos": {"source": own["demos"], "count": len(demos), "envs": len(data0)},
-                     "settings": {"optimizer": optimizer.get("name", cls.__name__.lower()), **lk,
-                                  "eval_dtype": str(lk["eval_dtype"]).replace("torch.", ""), "alpha": alpha,
-                                  "var_floor": var_floor, "backend": backend}}
-    if "demos_only" in (baselines or []):
-        gp0 = env_map().fit(data0.env, data0.mean, data0.var, data0.label)
-        metrics["demos_only"] = {"test": _test(obj, EnvToProMP(model0, gp0, obj.name), test_envs)}
-    res = self_improve(obj, model0, data0, optimizer=cls, optimizer_kwargs=opt_kwargs, env_map=env_map,
-                       seed=int(seed), var_floor=var_floor, eval_envs=test_envs, run_dir=out_dir, resume=resume,
-                       progress=progress, desc=f"{cls.__name__} loop", **lk)
-    model = load(out_dir, device=device, dtype=dtype)  # the checkpoint is what gets evaluated
-    metrics["test"] = {**_test(obj, model, test_envs), "seed": test_seed}
-    metrics["loop"] = _loop_metrics(res)
-    if plot:
-        _figure(out_dir, res, metrics)
-    metrics["seconds"] = round(time.perf_counter() - t0, 3)
-    return metrics
-
-
-def _loop_metrics(res: LoopResult) -> dict:
-    last = res.metrics[-1]
-    return {"seconds": round(res.seconds, 3), "envs_tried": len(res.tried),
-            "added": sum(int(r.get("added") or 0) for r in res.metrics), "dataset_size": len(res.dataset),
-            "success_rate": res.success_rate, "final_eval_success": last.get("eval_success"),
-            "steps": int(last["step"]), "resumed_from": res.resumed_from}
+    exp = GenericExperiment(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp,
+                            promp=promp, loop=loop, test=test)
+    return exp.run(out_dir, baselines=baselines, resume=resume, progress=progress, plot=plot)
 
 
 def _figure(out_dir: Path, res: LoopResult, metrics: dict) -> None:

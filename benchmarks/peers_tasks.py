@@ -20,6 +20,7 @@ from protorch.tasks.beam_window import BeamWindowTask, SimulatedOperator
 NUISANCE = 10  # weights of the DoF no objective reads
 F64 = torch.float64
 CONF = Path(__file__).resolve().parents[1] / "conf" / "experiment"
+TASK_CONF = CONF.parent / "task"
 BEAM_POSITION_TOL = 0.005  # m: every position via point of the mean within 5 mm
 BEAM_ANGLE_TOL = 2.0  # deg: every orientation via point of the mean within 2 degrees
 
@@ -89,9 +90,19 @@ def point_particle_problems(repeats: int, beta: float = 20.0) -> list[Problem]:
     return out
 
 
+def _experiment_cfg(name: str) -> dict:
+    """conf/experiment/<name>.yaml with ``task`` = conf/task/<name>.yaml (its ``_target_`` dropped)
+    updated by the experiment's own ``task`` entries, as Hydra composes them."""
+    cfg = OmegaConf.to_container(OmegaConf.load(CONF / f"{name}.yaml"), resolve=True)
+    task = OmegaConf.to_container(OmegaConf.load(TASK_CONF / f"{name}.yaml"), resolve=True)
+    task.pop("_target_", None)
+    cfg["task"] = {**task, **cfg.get("task", {})}
+    return cfg
+
+
 def _beam_setup(repeat: int) -> tuple[BeamWindowTask, PoseProMP]:
     """The experiment's beam task and pose ProMP of 10 simulated operator trials (seed ``repeat``)."""
-    cfg = OmegaConf.to_container(OmegaConf.load(CONF / "beam_window.yaml"), resolve=True)
+    cfg = _experiment_cfg("beam_window")
     tup = {k: tuple(v) if isinstance(v, list) else v for k, v in cfg["task"].items()}
     beam = BeamWindowTask(**tup)
     person = SimulatedOperator(**{k: tuple(v) if isinstance(v, list) else v
@@ -146,7 +157,7 @@ def arm_problems(repeats: int, **task_overrides) -> list[Problem]:
     ``task_overrides`` replace task settings (a test uses fewer priors)."""
     from protorch.experiments.arm_reach import prepare as prepare_arm
 
-    cfg = OmegaConf.to_container(OmegaConf.load(CONF / "arm_reach.yaml"), resolve=True)
+    cfg = _experiment_cfg("arm_reach")
     st = cfg["settings"]
     setup = prepare_arm(optimizer=cfg["optimizer"], task={**cfg["task"], **task_overrides}, gp=cfg["gp"], promp=st["promp"],
                         loop={"num_envs": 0}, test={"num_envs": 1}, dynamic={"episodes": 0})

@@ -15,7 +15,10 @@ What it changes, each measured in benchmarks/peers.py:
    ``z / sqrt(P)`` (``P`` pooled samples), normalised by its maximum. The second term sees a
    weight whose cost is V-shaped around the mean (a distance at its minimum): its linear
    correlation is 0 there, which is what freezes the paper's PRO a little short of the optimum.
-   The update reads ``f_n = max_o f_o(n)``.
+   The update reads ``f_n = max_o f_o(n)``. With ``standardize=True`` each batch enters the pool
+   in its own units (the samples standardised by the distribution they were drawn from, the
+   costs centred on the batch's mean), so an unread weight's pooled samples cannot correlate
+   with the costs' drift from batch to batch.
 3. **Reward temperature per iteration**: ``R_i = exp(-beta_t (c_i - min c))`` on the total cost
    ``c = sum_o c_o * cost_o`` with ``beta_t`` set (bisection in log space) so the normalised
    rewards have an effective sample size ``(sum R)^2 / sum R^2 = ess * S``; a fixed ``beta`` can
@@ -39,7 +42,16 @@ from torch import Tensor
 from .base import BaseOptimizer
 from .functional import pearson_relevance, stable_rewards
 
-__all__ = ["EPRO", "ess_temperature", "curvature_relevance"]
+__all__ = ["EPRO", "ess_temperature", "curvature_relevance", "standardize_batch"]
+
+
+def standardize_batch(w: Tensor, mean: Tensor, var: Tensor) -> Tensor:
+    """``(w - mean) / sqrt(var)`` for samples ``w (..., S, N)`` drawn from ``N(mean, diag(var))``,
+    ``mean, var (..., N)`` (a zero variance gives 0). Pooled over iterations, the samples of a
+    weight no objective reads are then i.i.d. N(0, 1) whatever its mean and variance did, so they
+    cannot correlate with the costs' drift from one iteration to the next."""
+    std = var.sqrt().unsqueeze(-2)  # (..., 1, N)
+    return (w - mean.unsqueeze(-2)) / torch.where(std > 0, std, torch.ones_like(std))
 
 
 def ess_temperature(costs: Tensor, ess: float, *, steps: int = 40) -> Tensor:
@@ -90,6 +102,10 @@ class EPRO(BaseOptimizer):
             correlation, as the paper's formula is written.
         curvature: also correlate ``(w_n - mean_n)^2`` with the costs (default); ``False``: the
             linear Pearson relevance alone, as the paper's PRO.
+        standardize: pool each batch in its own units: the samples as ``(w - mean) / std`` of
+            the distribution they were drawn from, the costs minus the batch's mean cost;
+            ``False`` (default) pools the raw samples and costs. Measured in docs/peers.md: it
+            keeps the beam orientation's unread std, but not on every problem.
         objective_weights: ``(O,)``, default all ones: how objectives combine into the total cost.
         Other arguments: :class:`BaseOptimizer` (``num_samples`` defaults to 20 here).
     """
@@ -104,6 +120,7 @@ class EPRO(BaseOptimizer):
         pool: int = 10,
         noise_floor: float | None = 3.0,
         curvature: bool = True,
+        standardize: bool = False,
         objective_weights=None,
         num_samples: int = 20,
         **kwargs,
@@ -122,6 +139,7 @@ class EPRO(BaseOptimizer):
         self.pool = int(pool)
         self.noise_floor = noise_floor
         self.curvature = bool(curvature)
+        self.standardize = bool(standardize)
         self._set_objective_weights(objective_weights)
         self._pool: deque[tuple[Tensor, Tensor]] = deque(maxlen=self.pool)
         self.relevance: Tensor | None = None  # (B, O, N)
@@ -132,11 +150,17 @@ class EPRO(BaseOptimizer):
         self.asked_objective = None
         costs = yield w  # (B, S, O)
         self._record_cost(slice(None), costs)
-        self._pool.append((w, costs))
+        if self.standardize:
+            z = standardize_batch(w, self.mean, self.var)  # (B, S, N), N(0, 1) for an unread weight
+            self._pool.append((z, costs - costs.mean(-2, keepdim=True)))  # each batch's costs centred
+            center = torch.zeros_like(self.mean)  # (B, N): the sampling mean, in standard units
+        else:
+            self._pool.append((w, costs))
+            center = self.mean
         pooled_w = torch.cat([p[0] for p in self._pool], 1)  # (B, P, N)
         pooled_c = torch.cat([p[1] for p in self._pool], 1)  # (B, P, O)
         if self.curvature:
-            self.relevance = curvature_relevance(pooled_w, pooled_c, self.mean, self.noise_floor)  # (B, O, N)
+            self.relevance = curvature_relevance(pooled_w, pooled_c, center, self.noise_floor)  # (B, O, N)
         else:
             self.relevance = pearson_relevance(pooled_w, pooled_c, noise_floor=self.noise_floor)  # (B, O, N)
         self.history["relevance"].append(self.relevance.clone())

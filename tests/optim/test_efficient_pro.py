@@ -172,3 +172,25 @@ def test_linear_relevance_option_is_the_papers_pearson():
     c = torch.stack([w[:, 0].abs(), w[:, 1]], -1)  # (S, 2)
     opt.tell(c)
     torch.testing.assert_close(opt.relevance[0], pearson_relevance(w, c, noise_floor=3.0))
+
+
+def test_standardized_pool_undoes_a_drifting_distribution():
+    """Samples of an unread weight whose mean and std change every batch: pooled raw, their
+    squared deviation from the last mean tracks a cost that falls with the batch; standardised by
+    each batch's own distribution they are N(0, 1) and uncorrelated with it."""
+    from protorch.optim.efficient_pro import standardize_batch
+
+    g = torch.Generator().manual_seed(0)
+    batches, raw, std = 10, [], []
+    for t in range(batches):
+        mean, var = torch.tensor([[0.1 * t]], dtype=F64), torch.tensor([[0.8**t]], dtype=F64)  # (1, 1)
+        w = mean[:, None] + var.sqrt()[:, None] * torch.randn(1, 50, 1, generator=g, dtype=F64)  # (1, 50, 1)
+        raw.append(w)
+        std.append(standardize_batch(w, mean, var))
+    cost = torch.arange(batches, dtype=F64).flip(0).repeat_interleave(50)[None, :, None]  # (1, 500, 1)
+    raw, std = torch.cat(raw, 1), torch.cat(std, 1)  # (1, 500, 1)
+    last = torch.tensor([[0.9]], dtype=F64)
+    assert curvature_relevance(raw, cost, last, 3.0)[0, 0, 0] > 0  # a false relevance
+    assert curvature_relevance(std, cost, torch.zeros(1, 1, dtype=F64), 3.0)[0, 0, 0] == 0
+    assert abs(std.mean().item()) < 0.15 and abs(std.var().item() - 1) < 0.2
+    assert standardize_batch(torch.ones(1, 3, 1, dtype=F64), torch.ones(1, 1, dtype=F64), torch.zeros(1, 1, dtype=F64)).abs().max() == 0

@@ -54,7 +54,8 @@ def _command(workload: str, threads: str, envs: int, run_dir: str) -> list[str]:
                 f"settings.loop.num_envs={envs}", "settings.loop.batch_size=50", "optimizer.max_iter=50",
                 "settings.test.num_envs=50", "settings.dynamic.episodes=10", "settings.progress=false",
                 f"hydra.run.dir={run_dir}"]
-    return [sys.executable, "-c", LOOP.format(threads="None" if n == "null" else n, envs=envs, run_dir=run_dir)]
+    loop_threads = {"null": "None", "auto": "'auto'"}.get(n, n)
+    return [sys.executable, "-c", LOOP.format(threads=loop_threads, envs=envs, run_dir=run_dir)]
 
 
 def timed(cmd: list[str], busy: bool) -> float:
@@ -73,7 +74,8 @@ def timed(cmd: list[str], busy: bool) -> float:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--threads", default="1,default", help="comma-separated settings: ints or 'default'")
+    p.add_argument("--threads", default="auto,1,default",
+                   help="comma-separated settings: 'auto', ints or 'default' (torch's own)")
     p.add_argument("--envs", type=int, default=100, help="loop environments of both workloads (default 100)")
     p.add_argument("--workloads", default="experiment,loop")
     args = p.parse_args()

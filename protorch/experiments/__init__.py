@@ -90,6 +90,10 @@ def check_config(cfg: dict) -> dict:
     objective = cfg.get("objective")
     if objective is not None and not (isinstance(objective, str) and _DOTTED.fullmatch(objective)):
         raise SettingsError(f"objective={objective!r} must be a dotted metrics key such as 'test.success_rate' or null")
+    threads = cfg.get("threads", "auto")
+    if not (threads is None or threads == "auto" or (isinstance(threads, int) and not isinstance(threads, bool)
+                                                     and threads >= 0)):
+        raise SettingsError(f"threads={threads!r} must be auto, an int >= 1 or null")
     seed = cfg.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise SettingsError(f"seed={seed!r} must be an int >= 0")

@@ -215,7 +215,7 @@ def run(
     baselines: Sequence[str] = _BASELINES,
     resume: bool = False,
     progress: bool = True,
-    threads: int | None = 1,
+    threads: int | None = None,
 ) -> dict:
     """Run the experiment into ``out_dir``; return the metrics (module docstring).
 
@@ -227,9 +227,9 @@ def run(
     ``seed``. ``dynamic``: ``episodes`` plus :func:`~protorch.control.arm.run_arm_episodes`
     options. ``baselines``: any of ``labels_off``, ``labels_off_loop``. ``resume``: continue the
     loops from the checkpoints in ``out_dir``. ``threads``: torch's intra-op threads for the run
-    (restored afterwards; ``None`` keeps torch's setting). One is the default: the work is many
-    medium-sized tensor operations, and on a shared 2-core machine two threads that wait for each
-    other made a loop step 4.5 times slower (README). Every setting is validated before any work starts.
+    (restored afterwards; ``None``, the default, keeps the setting around the call: the app's
+    top-level ``threads``, :mod:`protorch.threads`). Every setting is validated before any work
+    starts.
     """
     if threads is not None and (isinstance(threads, bool) or int(threads) != threads or int(threads) < 1):
         raise ValueError(f"threads must be None or an int >= 1, got {threads!r}")

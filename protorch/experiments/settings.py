@@ -277,7 +277,7 @@ class ArmReachSettings:
     baselines: list[str] = setting(["labels_off", "labels_off_loop"], "baselines run alongside",
                                    choices=("labels_off", "labels_off_loop"))
     progress: bool = setting(True, "show progress bars")
-    threads: typing.Optional[int] = setting(1, "torch threads for the run; null = torch's setting", ge=1)
+    threads: typing.Optional[int] = setting(None, "torch threads inside the experiment; null = the top-level threads setting", ge=1)
 
 
 @dataclass

@@ -52,6 +52,7 @@ HEADLINES: dict[str, list[Headline]] = {
         Headline("moving-environment success", "dynamic.success_rate", "PRO loop",
                  (("demos only", "baselines.demos_only.dynamic.success_rate"),
                   ("RWR loop", "baselines.rwr.dynamic.success_rate"))),
+        Headline("the authors' moving test (wall, hole, goal moving)", "dynamic_paper.success_rate", "PRO loop"),
     ],
     "self_improve": [
         Headline("held-out success", "test.success_rate", "loop",
@@ -64,9 +65,12 @@ HEADLINES: dict[str, list[Headline]] = {
         Headline("moving-environment success", "dynamic.success_rate", "PRO loop, labels",
                  (("labels dropped", "baselines.labels_off.dynamic.success_rate"),
                   ("loop without labels", "baselines.labels_off_loop.dynamic.success_rate"))),
-        Headline("side switches", "dynamic.switches", "PRO loop, labels",
+        Headline("side switches (labels)", "dynamic.switches", "PRO loop, labels",
                  (("labels dropped", "baselines.labels_off.dynamic.switches"),
                   ("loop without labels", "baselines.labels_off_loop.dynamic.switches"))),
+        Headline("side switches (geometric)", "dynamic.switches_geometric", "PRO loop, labels",
+                 (("labels dropped", "baselines.labels_off.dynamic.switches_geometric"),
+                  ("loop without labels", "baselines.labels_off_loop.dynamic.switches_geometric"))),
     ],
 }
 

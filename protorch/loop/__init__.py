@@ -51,7 +51,7 @@ from torch import Tensor
 
 from ..data.checkpoint import save_model
 from ..data.dataset import TrajectoryDataset
-from ..threads import torch_threads
+from ..threads import ThreadGovernor
 from .initial import dataset_pool, demonstration_dataset, group_by_env
 from .phases import Evaluator, accept, add, choose, infer, optimise, step_row
 from .settings import ADD_ONLY, CHOICES, LoopSettings
@@ -130,7 +130,7 @@ def self_improve(
     progress: bool = False,
     desc: str = "self-improvement",
     on_step: Callable[[dict], None] | None = None,
-    threads: int | None = 1,
+    threads: int | str | None = "auto",
 ) -> LoopResult:
     """Run the self-improvement loop; see the module docstring.
 
@@ -190,24 +190,25 @@ def self_improve(
             Without ``resume`` an existing checkpoint there is an error (never overwritten).
         progress: show a tqdm bar with the live success rate.
         on_step: called with each new metrics row (after the step's checkpoint, if any).
-        threads: torch's intra-op CPU threads for the call, restored after it
-            (:func:`~protorch.threads.torch_threads`); ``None`` leaves torch's setting. The
-            default, one thread, keeps the loop fast on a machine where another program holds a
-            core (docs/contention.md), as the app's ``threads`` setting does for the experiments.
+        threads: torch's intra-op CPU threads for the call, restored after it: an int, ``None``
+            (torch's setting) or ``"auto"`` (default: the cores other programs leave free,
+            re-chosen before every step; :class:`~protorch.threads.ThreadGovernor`), which keeps
+            the loop fast both on an idle machine and where another program holds a core
+            (docs/contention.md).
     """
-    with torch_threads(threads):
+    with ThreadGovernor(threads) as governor:
         return _improve(task, promp, dataset, optimizer=optimizer, optimizer_kwargs=optimizer_kwargs,
                         env_map=env_map, num_envs=num_envs, batch_size=batch_size, add_only=add_only,
                         choice=choice, solved=solved, labeler=labeler, each_label=each_label,
                         sample_steps=sample_steps, seed=seed, eval_envs=eval_envs, min_var=min_var,
                         var_floor=var_floor, eval_dtype=eval_dtype, run_dir=run_dir,
                         checkpoint_every=checkpoint_every, resume=resume, progress=progress, desc=desc,
-                        on_step=on_step)
+                        on_step=on_step, governor=governor)
 
 
 def _improve(task, promp, dataset, *, optimizer, optimizer_kwargs, env_map, num_envs, batch_size, add_only,
              choice, solved, labeler, each_label, sample_steps, seed, eval_envs, min_var, var_floor, eval_dtype,
-             run_dir, checkpoint_every, resume, progress, desc, on_step) -> LoopResult:
+             run_dir, checkpoint_every, resume, progress, desc, on_step, governor) -> LoopResult:
     """The body of :func:`self_improve` (the same arguments), run inside its thread setting."""
     settings = LoopSettings(num_envs=num_envs, batch_size=batch_size, add_only=add_only, choice=choice,
                             each_label=each_label, sample_steps=sample_steps, seed=seed, min_var=min_var,
@@ -233,6 +234,7 @@ def _improve(task, promp, dataset, *, optimizer, optimizer_kwargs, env_map, num_
                            "eval_success": ev.eval_success(gp, eval_envs), "seconds": 0.0})
     bar = _progress_bar(progress, settings.num_envs, len(state.tried), desc)
     while state.step < settings.num_steps:
+        governor.step()  # "auto": the cores other programs leave free now
         state.step += 1
         pick = choose(pool, state.tried, data.env, settings.batch_size, settings.choice)  # (b,)
         problems = infer(ev, gp, pool[pick], each_label=settings.each_label, min_var=settings.min_var)

@@ -59,7 +59,13 @@ def hydra_app(cfg: DictConfig) -> float | None:
         print(f"error: {exc}", file=sys.stderr)
         sys.exit(2)
     name = plain["name"]
-    check_run_folder(out_dir, name)  # before config.yaml replaces another experiment's
+    try:
+        check_run_folder(out_dir, name)  # before config.yaml replaces another experiment's
+    except ValueError as exc:
+        if os.environ.get("HYDRA_FULL_ERROR") == "1":
+            raise
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(2)
     out_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(out_dir / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(plain)).encode())
     t0 = time.perf_counter()

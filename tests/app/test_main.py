@@ -134,7 +134,8 @@ def test_run_prints_a_summary_last_and_refuses_another_experiments_folder(tmp_pa
     assert (tmp_path / "main.log").read_text() == ""  # no stray log lines
     before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
     proc = run_cli(["experiment=point_particle", *TINY["point_particle"], f"hydra.run.dir={tmp_path}"], check=False)
-    assert proc.returncode != 0 and "holds results of experiment 'fig4_window'" in proc.stderr
+    assert proc.returncode == 2 and "holds results of experiment 'fig4_window'" in proc.stderr
+    assert "Traceback" not in proc.stderr and proc.stderr.strip().splitlines()[-1].startswith("error: ")
     after = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file() and p.name != "main.log"}
     assert after == {k: v for k, v in before.items() if k != "main.log"}
 

@@ -85,7 +85,7 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     ("task.margin=-0.1", "margin must be >= 0"),
     ("gp.alpha=0", "^gp.alpha=0 must be a number > 0$"),
     ("settings.loop.labels=maybe", "^settings.loop.labels='maybe' must be true or false$"),
-    ("settings.threads=0", "^settings.threads=0 must be an int >= 1 or null$"),
+    ("+settings.threads=0", "^settings.threads=0 must be an int >= 1 or null$"),
     ("+settings.dynamic.speed=2", "^settings.dynamic.speed is not a setting of settings.dynamic"),
     ("settings.baselines=[labels_of]", r"^settings.baselines\[0\]='labels_of' must be one of labels_off, labels_off_loop$"),
     ("+settings.test.seed=0", r"test.seed \(0\) must differ from the training seeds"),

@@ -49,29 +49,39 @@ def test_auto_inside_a_fixed_setting_keeps_the_callers_number():
     assert torch.get_num_threads() == before
 
 
+def test_the_probe_counts_the_machine_busy_time_minus_its_own(monkeypatch):
+    import os
+    from types import SimpleNamespace
+
+    import protorch.threads as th
+
+    hz, ncpu = os.sysconf("SC_CLK_TCK"), os.cpu_count() or 1
+    machine = iter([(0, 0), (3 * hz // 2, ncpu * hz)])  # 1 s of wall time: 1.5 cores busy in all
+    ours = iter([0.0, 0.5])  # of which this process used 0.5 core-seconds
+    monkeypatch.setattr(th, "_machine_jiffies", lambda: next(machine))
+    monkeypatch.setattr(th.os, "times", lambda: SimpleNamespace(user=next(ours), system=0.0))
+    assert th.LoadProbe().other_cores() == pytest.approx(1.0)
+
+
 @pytest.mark.skipif(not __import__("os").path.exists("/proc/stat"), reason="the load probe reads /proc/stat")
-def test_the_probe_sees_another_busy_process_and_not_its_own_work():
+def test_the_probe_sees_another_busy_process():
     import subprocess
     import sys
     import time
 
     from protorch.threads import LoadProbe
 
-    def work(seconds):  # this process's own work, which is never "other" load
-        t0 = time.perf_counter()
-        while time.perf_counter() - t0 < seconds:
-            pass
-
-    probe = LoadProbe()
-    work(0.3)
-    own = probe.other_cores()
     spin = subprocess.Popen([sys.executable, "-c", "while True: pass"])
     try:
-        work(0.2)  # the competitor starts
-        probe.other_cores()
-        work(0.5)  # both busy: the competitor is the other load
+        t0 = time.perf_counter()
+        while time.perf_counter() - t0 < 0.2:  # the competitor starts; this process's work is its own
+            pass
+        probe = LoadProbe()
+        t0 = time.perf_counter()
+        while time.perf_counter() - t0 < 0.5:
+            pass
         other = probe.other_cores()
     finally:
         spin.kill()
         spin.wait()
-    assert other > own + 0.5 and other > 0.6, (own, other)
+    assert other > 0.6, other  # the spinner's core (any further load only adds to it)

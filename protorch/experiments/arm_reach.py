@@ -38,8 +38,15 @@ from ..gp.model import label_aware_mean
 from ..loop import LoopResult, demonstration_dataset
 from ..primitives.promp import ProMP, resample
 from ..tasks.arm_reach import LEFT, RIGHT, ArmReachTask
+from ..threads import torch_threads
 from ..viz.arm import experiment_figures
-from .self_improvement import DYNAMIC_SEED, TEST_SEED, Outcome, SelfImprovementExperiment, loop_summary
+from .self_improvement import (
+    DYNAMIC_SEED,
+    TEST_SEED,
+    Outcome,
+    SelfImprovementExperiment,
+    loop_summary,
+)
 
 __all__ = ["run", "prepare", "Setup", "ArmReachExperiment", "TEST_SEED", "DYNAMIC_SEED"]
 
@@ -233,15 +240,10 @@ def run(
     """
     if threads is not None and (isinstance(threads, bool) or int(threads) != threads or int(threads) < 1):
         raise ValueError(f"threads must be None or an int >= 1, got {threads!r}")
-    before = torch.get_num_threads()
-    if threads is not None:
-        torch.set_num_threads(int(threads))
-    try:
+    with torch_threads(threads):
         exp = ArmReachExperiment(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp,
                                  promp=promp, loop=loop, test=test, dynamic=dynamic)
         return exp.run(out_dir, baselines=baselines, resume=resume, progress=progress, plot=plot)
-    finally:
-        torch.set_num_threads(before)
 
 
 # ----------------------------------------------------------------------------- evaluation

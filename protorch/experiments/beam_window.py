@@ -20,7 +20,6 @@
 from __future__ import annotations
 
 import time
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,6 +30,7 @@ from ..control.guidance import HapticGuidance
 from ..optim import PRO
 from ..primitives.pose import PoseProMP
 from ..tasks.beam_window import BeamWindowTask, SimulatedOperator
+from ..threads import torch_threads
 from ..viz.beam import fig5_figure, teleop_figure
 from ..viz.guidance import guidance_figure
 from .beam_guidance import compare_guidance, compare_settings, pro_stage_rollouts
@@ -47,20 +47,6 @@ _PROMP_KEYS = {"num_basis", "num_steps", "width", "ridge"}
 
 def _tuples(cfg: dict) -> dict:
     return {k: tuple(v) if isinstance(v, (list, tuple)) else v for k, v in cfg.items()}
-
-
-@contextmanager
-def _num_threads(n: int | None):
-    """torch's intra-op threads set to ``n`` inside the block (``None``: left alone)."""
-    if n is None:
-        yield
-        return
-    old = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(old)
 
 
 def optimize_pose_promp(
@@ -139,7 +125,7 @@ def run(
     """
     if num_threads is not None:
         num_threads = check_int(num_threads, "num_threads", 1)
-    with _num_threads(num_threads):
+    with torch_threads(num_threads):
         return _run(out_dir, seed=seed, device=device, dtype=dtype, optimizer=optimizer, plot=plot, task=task,
                     operator=operator, num_demos=num_demos, promp=promp, eval_dtype=eval_dtype,
                     eval_samples=eval_samples, guidance=guidance, teleop=teleop, progress=progress,

@@ -10,16 +10,24 @@ What it changes, each measured in benchmarks/peers.py:
 1. **One batch per iteration**, ``S`` samples from the full ``N(mean, diag(var))``, shared by
    the relevance and the update (the paper asks ``relevance_samples`` probes plus ``S`` samples
    per objective: 500 rollouts per iteration at the defaults, here 20).
-2. **Relevance from the update samples**, pooled over the last ``pool`` batches:
-   ``f_o(n) = max(|rho(w_n, o)|, |rho((w_n - mean_n)^2, o)|)`` under the noise floor
-   ``z / sqrt(P)`` (``P`` pooled samples), normalised by its maximum. The second term sees a
-   weight whose cost is V-shaped around the mean (a distance at its minimum): its linear
-   correlation is 0 there, which is what freezes the paper's PRO a little short of the optimum.
-   The update reads ``f_n = max_o f_o(n)``. With ``standardize=True`` each batch enters the pool
-   in its own units (the samples standardised by the distribution they were drawn from, the
-   costs centred on the batch's mean), so an unread weight's pooled samples cannot correlate
-   with the costs' drift from batch to batch.
-3. **Reward temperature per iteration**: ``R_i = exp(-beta_t (c_i - min c))`` on the total cost
+2. **Relevance from the update samples**, pooled over the last ``pool`` batches, each batch in
+   its own units (the samples standardised by the distribution they were drawn from, the costs
+   centred on the batch's mean), so an unread weight's pooled samples are i.i.d. N(0, 1) and
+   cannot correlate with the costs' drift from batch to batch:
+   ``rho_o(n) = max(|rho(z_n, o)|, |rho(z_n^2, o)|)``. The second term sees a weight whose cost
+   is V-shaped around the mean (a distance at its minimum): its linear correlation is 0 there,
+   which is what freezes the paper's PRO a little short of the optimum.
+3. **Two noise floors from the pool's effective size.** The pooled batches' cost spreads shrink
+   as the run converges, so the early ones dominate each correlation and the pool counts as
+   ``P_eff = S (sum_b v_b)^2 / sum_b v_b^2`` samples, not ``P`` (``v_b`` the variance of batch
+   ``b``'s centred costs of objective ``o``). A correlation counts for the *mean* when it exceeds
+   ``noise_floor / sqrt(P_eff)`` and for the *variance* only when it also exceeds
+   ``variance_floor / sqrt(P_eff)``: a weakly read weight moves its mean on weak evidence, while
+   a chance correlation of an unread weight, which is rarely far above the floor, cannot shrink
+   its variance. ``f_o(n)`` is ``rho_o(n)`` under the mean's floor divided by the row's maximum;
+   the variance's relevance is ``f_o(n)`` where ``rho_o(n)`` also passes the variance's floor,
+   else 0. The update reads ``f_n = max_o f_o(n)`` (and the variance's likewise).
+4. **Reward temperature per iteration**: ``R_i = exp(-beta_t (c_i - min c))`` on the total cost
    ``c = sum_o c_o * cost_o`` with ``beta_t`` set (bisection in log space) so the normalised
    rewards have an effective sample size ``(sum R)^2 / sum R^2 = ess * S``; a fixed ``beta`` can
    be given instead. Costs of any scale then give the same selection pressure.
@@ -28,7 +36,7 @@ The update (Eq. 4-6 with the relevance gating the mean as well, since the sample
 irrelevant weight are not held at the mean here)::
 
     mean' = mean + f * (sum_i R_i w_i / sum_i R_i - mean)
-    var'  = (1 - f) * var + f * sum_i R_i (w_i - mean)^2 / sum_i R_i
+    var'  = (1 - g) * var + g * sum_i R_i (w_i - mean)^2 / sum_i R_i      (g <= f: the variance's relevance)
 """
 
 from __future__ import annotations
@@ -40,9 +48,11 @@ import torch
 from torch import Tensor
 
 from .base import BaseOptimizer
-from .functional import pearson_relevance, stable_rewards
+from .functional import abs_correlation, normalize_rows, pearson_relevance, stable_rewards
 
-__all__ = ["EPRO", "ess_temperature", "curvature_relevance", "standardize_batch"]
+__all__ = [
+    "EPRO", "ess_temperature", "curvature_relevance", "gated_relevance", "effective_pool_size", "standardize_batch",
+]
 
 
 def standardize_batch(w: Tensor, mean: Tensor, var: Tensor) -> Tensor:
@@ -90,6 +100,41 @@ def curvature_relevance(w: Tensor, costs: Tensor, center: Tensor, noise_floor: f
     return torch.where(top > 0, f / torch.where(top > 0, top, torch.ones_like(top)), torch.zeros_like(f))
 
 
+
+def effective_pool_size(batch_costs: list[Tensor]) -> Tensor:
+    """``P_eff (..., O)`` of pooled batches ``batch_costs[b] (..., S, O)``: ``S (sum_b v_b)^2 /
+    sum_b v_b^2`` with ``v_b`` batch ``b``'s variance of each objective (about the batch's mean).
+    Equal spreads give ``P = S * batches``; one batch far wider than the rest gives about ``S``.
+    An objective constant in every batch gives ``P``."""
+    v = torch.stack([c.var(-2, unbiased=False) for c in batch_costs], 0)  # (K, ..., O)
+    total = v.sum(0)  # (..., O)
+    s = batch_costs[0].shape[-2]
+    full = torch.full_like(total, float(s * len(batch_costs)))
+    sq = v.pow(2).sum(0)
+    return torch.where(sq > 0, s * total.pow(2) / torch.where(sq > 0, sq, torch.ones_like(sq)), full)
+
+
+def gated_relevance(
+    w: Tensor, costs: Tensor, center: Tensor, p_eff: Tensor, noise_floor: float | None,
+    variance_floor: float | None, curvature: bool = True,
+) -> tuple[Tensor, Tensor]:
+    """``(f, g)``, each ``(..., O, N)``: the mean's and the variance's relevance from the pooled
+    samples ``w (..., P, N)``, ``costs (..., P, O)`` (see the module): ``rho`` the larger of
+    ``|rho(w_n, o)|`` and (``curvature``) ``|rho((w_n - center_n)^2, o)|``; ``f`` = ``rho`` where
+    it reaches ``noise_floor / sqrt(p_eff)`` (``p_eff (..., O)``), divided by the row's maximum;
+    ``g`` = ``f`` where ``rho`` also reaches ``variance_floor / sqrt(p_eff)``, else 0. A floor of
+    ``None`` gates nothing."""
+    n = w.shape[-1]
+    feats = torch.cat([w, (w - center.unsqueeze(-2)) ** 2], -1) if curvature else w  # (..., P, F)
+    rho = abs_correlation(feats, costs)  # (..., O, F)
+    if curvature:
+        rho = torch.maximum(rho[..., :n], rho[..., n:])  # (..., O, N)
+    root = p_eff.sqrt().unsqueeze(-1)  # (..., O, 1)
+    mean_ok = rho >= noise_floor / root if noise_floor is not None else torch.ones_like(rho, dtype=torch.bool)
+    f = normalize_rows(torch.where(mean_ok, rho, torch.zeros_like(rho)))
+    var_ok = rho >= variance_floor / root if variance_floor is not None else torch.ones_like(mean_ok)
+    return f, torch.where(var_ok, f, torch.zeros_like(f))
+
 class EPRO(BaseOptimizer):
     """Sample-efficient PRO over ``B`` problems at once (see the module docstring).
 
@@ -98,14 +143,17 @@ class EPRO(BaseOptimizer):
             float or ``(B,)`` fixes it on the total cost instead, as the paper's PRO does.
         ess: target effective sample size of the rewards, as a fraction of ``num_samples``.
         pool: the relevance reads the samples of the last ``pool`` iterations (``>= 1``).
-        noise_floor: ``z`` of the relevance's noise floor (default 3); ``None`` counts every
-            correlation, as the paper's formula is written.
+        noise_floor: ``z`` of the mean's noise floor, ``|rho| < z / sqrt(P_eff)`` counts as 0
+            (default 2.5); ``None`` counts every correlation, as the paper's formula is written.
+        variance_floor: ``z`` of the variance's floor (default 3.5): a weight's variance is
+            updated only where its ``|rho|`` reaches ``variance_floor / sqrt(P_eff)``; ``None``
+            applies the mean's relevance to the variance too.
         curvature: also correlate ``(w_n - mean_n)^2`` with the costs (default); ``False``: the
             linear Pearson relevance alone, as the paper's PRO.
-        standardize: pool each batch in its own units: the samples as ``(w - mean) / std`` of
-            the distribution they were drawn from, the costs minus the batch's mean cost;
-            ``False`` (default) pools the raw samples and costs. Measured in docs/peers.md: it
-            keeps the beam orientation's unread std, but not on every problem.
+        standardize: pool each batch in its own units (default): the samples as
+            ``(w - mean) / std`` of the distribution they were drawn from, the costs minus the
+            batch's mean cost; ``False`` pools the raw samples and costs (measured in
+            docs/peers.md: an unread weight then correlates with the costs' drift).
         objective_weights: ``(O,)``, default all ones: how objectives combine into the total cost.
         Other arguments: :class:`BaseOptimizer` (``num_samples`` defaults to 20 here).
     """
@@ -118,9 +166,10 @@ class EPRO(BaseOptimizer):
         beta: float | Tensor | None = None,
         ess: float = 0.25,
         pool: int = 10,
-        noise_floor: float | None = 3.0,
+        noise_floor: float | None = 2.5,
+        variance_floor: float | None = 3.5,
         curvature: bool = True,
-        standardize: bool = False,
+        standardize: bool = True,
         objective_weights=None,
         num_samples: int = 20,
         **kwargs,
@@ -130,19 +179,22 @@ class EPRO(BaseOptimizer):
             raise ValueError(f"ess must be in (0, 1], got {ess}")
         if int(pool) < 1:
             raise ValueError(f"pool must be >= 1, got {pool}")
-        if noise_floor is not None and not noise_floor >= 0:
-            raise ValueError(f"noise_floor must be >= 0 or None, got {noise_floor}")
+        for key, z in (("noise_floor", noise_floor), ("variance_floor", variance_floor)):
+            if z is not None and not z >= 0:
+                raise ValueError(f"{key} must be >= 0 or None, got {z}")
         if self.num_samples < 3:
             raise ValueError(f"num_samples must be >= 3 for a correlation, got {self.num_samples}")
         self.adaptive = beta is None
         self.ess = float(ess)
         self.pool = int(pool)
         self.noise_floor = noise_floor
+        self.variance_floor = variance_floor
         self.curvature = bool(curvature)
         self.standardize = bool(standardize)
         self._set_objective_weights(objective_weights)
         self._pool: deque[tuple[Tensor, Tensor]] = deque(maxlen=self.pool)
-        self.relevance: Tensor | None = None  # (B, O, N)
+        self.relevance: Tensor | None = None  # (B, O, N), the mean's
+        self.variance_relevance: Tensor | None = None  # (B, O, N)
         self.history["relevance"] = []
 
     def _iteration(self) -> Generator[Tensor, Tensor, None]:
@@ -159,12 +211,11 @@ class EPRO(BaseOptimizer):
             center = self.mean
         pooled_w = torch.cat([p[0] for p in self._pool], 1)  # (B, P, N)
         pooled_c = torch.cat([p[1] for p in self._pool], 1)  # (B, P, O)
-        if self.curvature:
-            self.relevance = curvature_relevance(pooled_w, pooled_c, center, self.noise_floor)  # (B, O, N)
-        else:
-            self.relevance = pearson_relevance(pooled_w, pooled_c, noise_floor=self.noise_floor)  # (B, O, N)
+        p_eff = effective_pool_size([p[1] for p in self._pool])  # (B, O)
+        self.relevance, self.variance_relevance = gated_relevance(
+            pooled_w, pooled_c, center, p_eff, self.noise_floor, self.variance_floor, self.curvature)  # (B, O, N) each
         self.history["relevance"].append(self.relevance.clone())
-        f = self.relevance.amax(1)  # (B, N)
+        f, g = self.relevance.amax(1), self.variance_relevance.amax(1)  # (B, N), g <= f
         total = self._total_cost(costs)  # (B, S)
         beta = ess_temperature(total, self.ess) if self.adaptive else self.beta  # (B,)
         rewards = stable_rewards(total, beta, dim=-1)  # (B, S)
@@ -172,5 +223,5 @@ class EPRO(BaseOptimizer):
         target = torch.einsum("bs,bsn->bn", r, w)  # (B, N)
         spread = torch.einsum("bs,bsn->bn", r, (w - self.mean[:, None]) ** 2)  # (B, N)
         new_mean = self.mean + f * (target - self.mean)
-        new_var = (1 - f) * self.var + f * spread
+        new_var = (1 - g) * self.var + g * spread
         self._apply(new_mean, new_var)

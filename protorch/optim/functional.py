@@ -13,7 +13,9 @@ from torch import Tensor
 
 from ..checks import check_positive, check_tensor
 
-__all__ = ["stable_rewards", "pearson_relevance", "pro_update", "noise_floor_threshold"]
+__all__ = [
+    "stable_rewards", "abs_correlation", "normalize_rows", "pearson_relevance", "pro_update", "noise_floor_threshold",
+]
 
 
 def _beta_tensor(beta, ref: Tensor) -> Tensor:
@@ -62,22 +64,9 @@ def _pow2_scale(x: Tensor) -> Tensor:
     return torch.ldexp(torch.ones_like(x[..., :1, :]), e)
 
 
-def pearson_relevance(w: Tensor, costs: Tensor, *, noise_floor: float | None = None) -> Tensor:
-    """Relevance of each weight to each objective: normalised ``|Pearson rho(w_n, o)|``.
-
-    Args:
-        w: ``(..., S, N)`` weight samples (the authors draw them around the mean with a small
-            uniform variance).
-        costs: ``(..., S, O)`` objective values of those samples.
-        noise_floor: optional ``z``. An estimated correlation of two unrelated variables is not 0
-            but noise of size ``1/sqrt(S)``; with ``z`` set, ``|rho| < z / sqrt(S)`` counts as 0
-            before normalising. ``None`` is the paper's formula as written. Without
-            a floor the irrelevant variance slowly collapses in the Fig. 3 toy.
-
-    Returns:
-        ``(..., O, N)`` in [0, 1], each objective's row divided by its maximum. A constant weight,
-        a constant objective, or an objective with no correlation above the floor gives 0.
-    """
+def abs_correlation(w: Tensor, costs: Tensor) -> Tensor:
+    """``|Pearson rho(w_n, o)| (..., O, N)`` of samples ``w (..., S, N)`` and ``costs (..., S, O)``,
+    unnormalised; a constant weight or a constant objective gives 0 (not NaN)."""
     w = check_tensor(w, "w", ndim_min=2)
     costs = check_tensor(costs, "costs", ndim_min=2)
     if w.shape[:-1] != costs.shape[:-1]:
@@ -111,13 +100,37 @@ def pearson_relevance(w: Tensor, costs: Tensor, *, noise_floor: float | None = N
     denom = sc[..., :, None] * sw[..., None, :]  # (..., O, N)
     dead = const_c[..., :, None] | const_w[..., None, :]  # (..., O, N)
     rho = torch.where(dead, torch.zeros_like(cov), cov / torch.where(dead, torch.ones_like(denom), denom))
-    rho = rho.abs().clamp(max=1.0)  # (..., O, N)
-    if noise_floor is not None:
-        if noise_floor < 0:
-            raise ValueError(f"noise_floor must be >= 0, got {noise_floor}")
-        rho = torch.where(rho < noise_floor_threshold(num_samples, noise_floor), torch.zeros_like(rho), rho)
+    return rho.abs().clamp(max=1.0)  # (..., O, N)
+
+
+def normalize_rows(rho: Tensor) -> Tensor:
+    """Each row ``(..., O, N)`` divided by its maximum; an all-zero row stays 0."""
     top = rho.amax(-1, keepdim=True)  # (..., O, 1)
     return torch.where(top > 0, rho / torch.where(top > 0, top, torch.ones_like(top)), torch.zeros_like(rho))
+
+
+def pearson_relevance(w: Tensor, costs: Tensor, *, noise_floor: float | None = None) -> Tensor:
+    """Relevance of each weight to each objective: normalised ``|Pearson rho(w_n, o)|``.
+
+    Args:
+        w: ``(..., S, N)`` weight samples (the authors draw them around the mean with a small
+            uniform variance).
+        costs: ``(..., S, O)`` objective values of those samples.
+        noise_floor: optional ``z``. An estimated correlation of two unrelated variables is not 0
+            but noise of size ``1/sqrt(S)``; with ``z`` set, ``|rho| < z / sqrt(S)`` counts as 0
+            before normalising. ``None`` is the paper's formula as written. Without
+            a floor the irrelevant variance slowly collapses in the Fig. 3 toy.
+
+    Returns:
+        ``(..., O, N)`` in [0, 1], each objective's row divided by its maximum. A constant weight,
+        a constant objective, or an objective with no correlation above the floor gives 0.
+    """
+    if noise_floor is not None and noise_floor < 0:
+        raise ValueError(f"noise_floor must be >= 0, got {noise_floor}")
+    rho = abs_correlation(w, costs)  # (..., O, N)
+    if noise_floor is not None:
+        rho = torch.where(rho < noise_floor_threshold(w.shape[-2], noise_floor), torch.zeros_like(rho), rho)
+    return normalize_rows(rho)
 
 
 def pro_update(

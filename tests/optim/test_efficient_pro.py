@@ -7,7 +7,9 @@ import torch
 from tests.optim.test_contract import *  # noqa: F401,F403  the contract suite, run here for EPRO (make below)
 
 from protorch.optim import EPRO, OPTIMIZERS, PRO, noise_floor_threshold
-from protorch.optim.efficient_pro import curvature_relevance, ess_temperature
+from protorch.optim.efficient_pro import (
+    curvature_relevance, effective_pool_size, ess_temperature, gated_relevance,
+)
 
 F64 = torch.float64
 
@@ -167,7 +169,7 @@ def test_linear_relevance_option_is_the_papers_pearson():
     from protorch.optim import pearson_relevance
 
     mean, var = torch.zeros(3, dtype=F64), torch.ones(3, dtype=F64)
-    opt = EPRO(mean, var, num_samples=40, seed=2, pool=1, curvature=False)
+    opt = EPRO(mean, var, num_samples=40, seed=2, pool=1, curvature=False, noise_floor=3.0, variance_floor=None)
     w = opt.ask()
     c = torch.stack([w[:, 0].abs(), w[:, 1]], -1)  # (S, 2)
     opt.tell(c)
@@ -194,3 +196,45 @@ def test_standardized_pool_undoes_a_drifting_distribution():
     assert curvature_relevance(std, cost, torch.zeros(1, 1, dtype=F64), 3.0)[0, 0, 0] == 0
     assert abs(std.mean().item()) < 0.15 and abs(std.var().item() - 1) < 0.2
     assert standardize_batch(torch.ones(1, 3, 1, dtype=F64), torch.ones(1, 1, dtype=F64), torch.zeros(1, 1, dtype=F64)).abs().max() == 0
+
+
+def test_effective_pool_size_counts_batches_by_their_cost_spread():
+    g = torch.Generator().manual_seed(0)
+    same = [torch.randn(20, 2, generator=g, dtype=F64) for _ in range(10)]  # equal spreads
+    p_same = effective_pool_size([c / c.std(0, unbiased=False) for c in same])
+    torch.testing.assert_close(p_same, torch.full((2,), 200.0, dtype=F64))
+    wide = [same[0] * 1e3] + same[1:]  # one batch dominates the pooled correlation
+    assert (effective_pool_size(wide) < 21).all()
+    flat = [torch.zeros(20, 1, dtype=F64)] * 3  # a constant objective counts as the whole pool
+    assert effective_pool_size(flat).item() == 60
+
+
+def test_variance_gate_is_stricter_than_the_mean_gate():
+    """A weight correlated between the two floors moves its mean only; one far above both moves
+    both; an unread one neither."""
+    g = torch.Generator().manual_seed(1)
+    p = 400
+    z = lambda x: (x - x.mean()) / x.std(unbiased=False)  # noqa: E731
+    w0 = torch.randn(p, generator=g, dtype=F64)
+    c = z(5 * w0 + torch.randn(p, generator=g, dtype=F64))  # (P,), |rho(w0, c)| ~ 0.98
+    off = [z(e - (e @ c) / p * c) for e in torch.randn(2, p, generator=g, dtype=F64)]  # uncorrelated with c
+    w = torch.stack([w0, 0.15 * c + (1 - 0.15**2) ** 0.5 * off[0], off[1]], -1)  # (P, 3): strong, weak, unread
+    cost = c[:, None]  # (P, 1)
+    p_eff = torch.full((1,), float(p), dtype=F64)  # floors 2.5 / 20 = 0.125 and 3.5 / 20 = 0.175
+    f, gv = gated_relevance(w, cost, torch.zeros(3, dtype=F64), p_eff, 2.5, 3.5, curvature=False)  # (1, 3) each
+    assert f[0, 0] == 1 and f[0, 1] > 0 and f[0, 2] == 0
+    assert gv[0, 0] == 1 and gv[0, 1] == 0 and gv[0, 2] == 0
+    f2, g2 = gated_relevance(w, cost, torch.zeros(3, dtype=F64), p_eff, 2.5, None, curvature=False)
+    torch.testing.assert_close(f2, f)
+    torch.testing.assert_close(g2, f)  # variance_floor=None: the mean's relevance for both
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_unread_std_is_kept_long_after_convergence(seed):
+    """The quadratic of the test above, 60 iterations (most of them past convergence, where every
+    correlation sits near the floor): the unread weights keep their std on every seed."""
+    n = 8
+    opt = EPRO(torch.zeros(n, dtype=F64), torch.ones(n, dtype=F64), max_iter=60, tol=0, seed=seed)
+    res = opt.minimize(lambda w: torch.stack([(w[..., :3] - 2).pow(2).sum(-1), (w[..., 0] - 2).abs()], -1))
+    assert (res.mean[:3] - 2).abs().max() < 0.1 and res.var[:3].sqrt().max() < 0.2
+    assert res.var[3:].sqrt().min() > 0.9, res.var[3:].sqrt()

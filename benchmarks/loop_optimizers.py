@@ -2,10 +2,11 @@
 (on demand: ``python benchmarks/loop_optimizers.py [--envs 1000] [--methods pro,epro,rwr,cem,cmaes]``).
 
 Every loop starts from the same 30 x 3 synthetic demonstrations, tries the same pool of random
-environments with the experiment's settings (``conf/experiment/point_particle.yaml``: B = 100,
-beta = 20, alpha = 1e-3, the authors' acceptance check) and is evaluated by the experiment's own
-function on its 200 held-out environments and 100 moving-environment episodes. Only the
-optimiser changes (at most 200 iterations each, the contract's convergence rule):
+environments with the experiment's settings (``experiment=point_particle`` as the app composes
+it, ``benchmarks/configs.py``: B = 100, beta = 20, alpha = 1e-3, the authors' acceptance check) and
+is evaluated by the experiment's own function on its 200 held-out environments and 100
+moving-environment episodes. Only the optimiser changes (at most 200 iterations each, the
+contract's convergence rule):
 
 - ``pro``: the experiment's PRO (100 relevance probes + 3 x 100 samples per iteration);
 - ``epro``: :class:`~protorch.optim.EPRO` at its defaults (20 samples per iteration);
@@ -23,17 +24,13 @@ from __future__ import annotations
 import argparse
 import math
 import time
-from pathlib import Path
 
 import torch
-from omegaconf import OmegaConf
+from configs import arguments_of, experiment_settings
 
 from protorch.experiments.point_particle import prepare
 from protorch.gp.model import EnvToProMP
 from protorch.optim import CEM, CMAES, EPRO
-
-CONF = Path(__file__).resolve().parents[1] / "conf" / "experiment" / "point_particle.yaml"
-
 
 def counting(cls: type, counter: list) -> type:
     """``cls`` whose ``ask`` adds the samples asked for still-moving problems to ``counter[0]``."""
@@ -67,12 +64,12 @@ def main(argv=None) -> None:
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
-    cfg = OmegaConf.to_container(OmegaConf.load(CONF), resolve=True)
-    st = cfg["settings"]
-    setup = prepare(seed=0, optimizer=cfg["optimizer"], task=cfg["task"], gp=cfg["gp"], promp=st["promp"],
-                    loop={**st["loop"], "num_envs": args.envs}, test=st["test"], dynamic=st["dynamic"])
+    # composed as `python -m protorch experiment=point_particle` composes it (the experiment's yaml
+    # alone lacks the optimizer, task and gp groups and their experiment-specific values)
+    cfg = experiment_settings("point_particle", [f"settings.loop.num_envs={args.envs}"])
+    setup = prepare(**arguments_of(prepare, cfg))
     table = optimizers(setup, cfg)
-    print(f"point-particle loop, {args.envs} environments, B = {st['loop']['batch_size']}, torch threads "
+    print(f"point-particle loop, {args.envs} environments, B = {cfg['loop']['batch_size']}, torch threads "
           f"{torch.get_num_threads()}")
     print("| optimiser | held-out success | moving success | loop s | rollouts | tried success |")
     print("|---|---|---|---|---|---|")

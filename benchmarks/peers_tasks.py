@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Callable
 
 import torch
+from configs import experiment_settings
 from omegaconf import OmegaConf
 
 from protorch import ProMP
@@ -157,9 +158,10 @@ def arm_problems(repeats: int, **task_overrides) -> list[Problem]:
     ``task_overrides`` replace task settings (a test uses fewer priors)."""
     from protorch.experiments.arm_reach import prepare as prepare_arm
 
-    cfg = _experiment_cfg("arm_reach")
-    st = cfg["settings"]
-    setup = prepare_arm(optimizer=cfg["optimizer"], task={**cfg["task"], **task_overrides}, gp=cfg["gp"], promp=st["promp"],
+    # composed as the app composes it (the experiment's yaml alone lacks PRO's beta, which lives in
+    # conf/experiment_optimizer/arm_reach/pro.yaml)
+    st = experiment_settings("arm_reach", [f"task.{k}={v}" for k, v in task_overrides.items()])
+    setup = prepare_arm(optimizer=st["optimizer"], task=st["task"], gp=st["gp"], promp=st["promp"],
                         loop={"num_envs": 0}, test={"num_envs": 1}, dynamic={"episodes": 0})
     data = setup.initial_data()
     gp = setup.env_map().fit(data.env, data.mean, data.var, data.label)

@@ -123,7 +123,8 @@ class ArmReachExperiment(SelfImprovementExperiment):
                          "choice": lk["choice"], "alpha": self.alpha, "nearest_k": self.nearest_k,
                          "beta": None if opt.get("beta") is None else float(opt["beta"]), "var_floor": self.var_floor,
                          "labels": self.labels, "each_label": self.each_label, "max_iter": opt.get("max_iter"),
-                         "num_samples": opt.get("num_samples"), "threads": torch.get_num_threads()},
+                         "num_samples": opt.get("num_samples"), "threads": torch.get_num_threads(),
+                         "optimizer": opt.get("name", "pro")},
         }
 
     def demo_success(self) -> float:

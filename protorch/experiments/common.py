@@ -11,7 +11,7 @@ import torch
 from ..checks import check_int
 from ..data.files import atomic_write_bytes
 from ..loop import ADD_ONLY, CHOICES
-from ..optim import PRO, RWR, optimizer_class
+from ..optim import CMAES, OPTIMIZERS, PRO, RWPO, RWR, optimizer_class
 
 DTYPES = {"float32": torch.float32, "float64": torch.float64}
 
@@ -89,6 +89,25 @@ def optimizer_kwargs(common: dict, specific: dict | None) -> dict:
 
 
 SHARED_OPTIMIZER_KEYS = ("beta", "num_samples", "max_iter", "tol", "window")
+
+
+def optimizer_label(name: str) -> str:
+    """How summaries and figures name the optimiser registered as ``name`` (``"epro"`` -> ``"EPRO"``):
+    its class name, CMA-ES spelled so; an unregistered name as it is."""
+    cls = OPTIMIZERS.get(name)
+    return "CMA-ES" if cls is CMAES else (str(name) if cls is None else cls.__name__)
+
+
+def problem_arguments(cls: type, kwargs: dict, task, promp) -> dict:
+    """``kwargs`` plus what ``cls`` needs to know of the problem and no config holds: RWPO's
+    relevance search asks for the task's number of objectives and the ProMP's basis functions
+    per DoF (a task without ``num_objectives`` leaves it to RWPO to say so)."""
+    if not issubclass(cls, RWPO):
+        return kwargs
+    known = {"num_basis": promp.num_basis}
+    if getattr(task, "num_objectives", None) is not None:
+        known["num_objectives"] = task.num_objectives
+    return {**known, **kwargs}
 
 
 def optimizer_spec(optimizer: dict, default: type = PRO) -> tuple[type, dict]:

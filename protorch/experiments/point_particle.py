@@ -26,7 +26,7 @@ from ..control.particle import run_episodes
 from ..tasks import PointParticleTask, load_human_demos
 from ..viz.online import plot_episode_frames, write_episode_gif
 from ..viz.paper import plot_point_particle, plot_trajectories, save_figure
-from .common import baseline_spec
+from .common import baseline_spec, optimizer_label
 from .particle_paper import convergence_rule, evaluate_paper, hole_failures, paper_figures, paper_settings
 from .self_improvement import DEMO_SEED_OFFSET, DYNAMIC_SEED, TEST_SEED, Outcome, SelfImprovementExperiment
 
@@ -106,7 +106,13 @@ class PointParticleExperiment(SelfImprovementExperiment):
                 "settings": {"num_envs": lk["num_envs"], "batch_size": lk["batch_size"], "add_only": lk["add_only"],
                              "choice": lk["choice"], "alpha": self.alpha,
                              "beta": None if self.optimizer_cfg.get("beta") is None else float(self.optimizer_cfg["beta"]), "var_floor": self.var_floor,
-                             "objectives": self.task.objectives}}
+                             "objectives": self.task.objectives, **self.optimizer_names()}}
+
+    def optimizer_names(self) -> dict:
+        """The registry names of the loop's optimiser and of the `rwr` baseline's (what the summary
+        and the figures call the two loops): PRO and RWR unless the config names others."""
+        return {"optimizer": self.optimizer_cfg.get("name", "pro"),
+                "baseline_optimizer": (self.baseline_optimizer or {}).get("name", "rwr")}
 
     def test_metrics(self, model) -> dict:
         """Success of the map's mean trajectories on the held-out environments."""
@@ -138,8 +144,10 @@ class PointParticleExperiment(SelfImprovementExperiment):
         return out
 
     def figures(self, out_dir: Path, outcome: Outcome, metrics: dict) -> None:
-        _figures(out_dir, self.task, outcome.model, self.test_envs, outcome.result, outcome.baselines.get("rwr"),
-                 metrics, outcome.episodes, self.seed)
+        names = self.optimizer_names()
+        loops = ((f"{optimizer_label(names['optimizer'])} loop", outcome.result, "tab:blue"),
+                 (f"{optimizer_label(names['baseline_optimizer'])} loop", outcome.baselines.get("rwr"), "tab:red"))
+        _figures(out_dir, self.task, outcome.model, self.test_envs, loops, metrics, outcome.episodes, self.seed)
         paper_figures(out_dir, self.paper_episodes)
 
 
@@ -213,17 +221,17 @@ def run(
 
 
 # ----------------------------------------------------------------------------- figures
-def _figures(out_dir, task, model, test_envs, pro, rwr, metrics, episode, seed) -> None:
-    """Success vs loop iteration, a grid of test environments, failures first, one moving episode (frames, GIF)."""
+def _figures(out_dir, task, model, test_envs, loops, metrics, episode, seed) -> None:
+    """Success vs loop iteration (``loops``: ``(name, LoopResult or None, colour)`` of the method's loop
+    and the `rwr` baseline's), a grid of test environments, failures first, one moving episode (frames, GIF)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-
     # success rate vs loop iteration, on the held-out environments
     fig, ax = plt.subplots(figsize=(6, 4))
-    for name, res, color in (("PRO loop", pro, "tab:blue"), ("RWR loop", rwr, "tab:red")):
+    for name, res, color in loops:
         if res is None:
             continue
         x = [r["envs_done"] for r in res.metrics]

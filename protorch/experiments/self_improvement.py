@@ -35,7 +35,8 @@ from ..gp import make_env_map
 from ..gp.model import EnvToProMP
 from ..loop import LoopResult, demonstration_dataset, self_improve
 from ..primitives.promp import ProMP
-from .common import check_optimizer, evaluation_settings, gp_settings, loop_settings, optimizer_spec
+from .common import (check_optimizer, evaluation_settings, gp_settings, loop_settings, optimizer_spec,
+                     problem_arguments)
 
 __all__ = ["SelfImprovementExperiment", "Outcome", "TEST_SEED", "DYNAMIC_SEED", "DEMO_SEED_OFFSET",
            "GP_KEYS", "LOOP_KEYS", "loop_summary"]
@@ -210,6 +211,7 @@ class SelfImprovementExperiment:
         """:func:`~protorch.loop.self_improve` of the method (``variant=None``) or of the loop
         baseline ``variant``; ``overrides`` replace loop settings (``batch_size``, ``run_dir``, ...)."""
         args = self.loop_arguments(variant)
+        args["optimizer_kwargs"] = problem_arguments(args["optimizer"], args["optimizer_kwargs"], self.task, self.promp)
         data = args.pop("dataset")
         desc = f"{args['optimizer'].__name__} loop" + ("" if variant is None else f" ({variant})")
         kw = {"desc": desc, **self.loop_kwargs, **args, **overrides}

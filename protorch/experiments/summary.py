@@ -4,7 +4,10 @@
 metrics key of protorch's result, the method's name, ``((name, key), ...)`` of the baselines
 measured in the same run, and ``{method name: value}`` where the paper states a number (Fig. 4's
 relevance times; Sec. IV-A's operator failed 10 of 10 trials; the paper states no success rates for
-Sec. IV-B and IV-C).
+Sec. IV-B and IV-C). In a method's or baseline's name, ``{optimizer}`` stands for the loop's
+optimiser and ``{baseline}`` for the loop baseline's (``metrics["settings"]["optimizer"]`` and
+``["baseline_optimizer"]``, registry names; PRO and RWR where the metrics name none), so
+``optimizer=epro`` reads "EPRO loop".
 :func:`build_summary` turns them into ``metrics["summary"]``; :func:`format_summary` prints it.
 """
 
@@ -12,7 +15,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from .common import flatten_metrics
+from .common import flatten_metrics, optimizer_label
 
 __all__ = ["Headline", "HEADLINES", "build_summary", "format_summary"]
 
@@ -46,29 +49,30 @@ HEADLINES: dict[str, list[Headline]] = {
                   ("guided by demos", "teleop.assisted_by_demos_promp_success_rate"))),
     ],
     "point_particle": [
-        Headline("held-out success", "test.success_rate", "PRO loop",
+        Headline("held-out success", "test.success_rate", "{optimizer} loop",
                  (("demos only", "baselines.demos_only.test.success_rate"),
-                  ("RWR loop", "baselines.rwr.test.success_rate"))),
-        Headline("moving-environment success", "dynamic.success_rate", "PRO loop",
+                  ("{baseline} loop", "baselines.rwr.test.success_rate"))),
+        Headline("moving-environment success", "dynamic.success_rate", "{optimizer} loop",
                  (("demos only", "baselines.demos_only.dynamic.success_rate"),
-                  ("RWR loop", "baselines.rwr.dynamic.success_rate"))),
-        Headline("the authors' moving test (wall, hole, goal moving)", "dynamic_paper.success_rate", "PRO loop"),
+                  ("{baseline} loop", "baselines.rwr.dynamic.success_rate"))),
+        Headline("the authors' moving test (wall, hole, goal moving)", "dynamic_paper.success_rate",
+                 "{optimizer} loop"),
     ],
     "self_improve": [
         Headline("held-out success", "test.success_rate", "loop",
                  (("demos only", "demos_only.test.success_rate"),)),
     ],
     "arm_reach": [
-        Headline("held-out success", "test.success_rate", "PRO loop, labels",
+        Headline("held-out success", "test.success_rate", "{optimizer} loop, labels",
                  (("labels dropped", "baselines.labels_off.test.success_rate"),
                   ("loop without labels", "baselines.labels_off_loop.test.success_rate"))),
-        Headline("moving-environment success", "dynamic.success_rate", "PRO loop, labels",
+        Headline("moving-environment success", "dynamic.success_rate", "{optimizer} loop, labels",
                  (("labels dropped", "baselines.labels_off.dynamic.success_rate"),
                   ("loop without labels", "baselines.labels_off_loop.dynamic.success_rate"))),
-        Headline("side switches (labels)", "dynamic.switches", "PRO loop, labels",
+        Headline("side switches (labels)", "dynamic.switches", "{optimizer} loop, labels",
                  (("labels dropped", "baselines.labels_off.dynamic.switches"),
                   ("loop without labels", "baselines.labels_off_loop.dynamic.switches"))),
-        Headline("side switches (geometric)", "dynamic.switches_geometric", "PRO loop, labels",
+        Headline("side switches (geometric)", "dynamic.switches_geometric", "{optimizer} loop, labels",
                  (("labels dropped", "baselines.labels_off.dynamic.switches_geometric"),
                   ("loop without labels", "baselines.labels_off_loop.dynamic.switches_geometric"))),
     ],
@@ -81,9 +85,12 @@ def build_summary(name: str, metrics: dict, *, run_dir, wall_seconds: float, sta
     paper}}}``; a key the run did not produce (a baseline switched off, a failed run) is left out.
     The headline is keyed by metrics key, so a timing row's keys name it as one."""
     flat = flatten_metrics(metrics)
+    names = {"optimizer": optimizer_label(flat.get("settings.optimizer") or "pro"),
+             "baseline": optimizer_label(flat.get("settings.baseline_optimizer") or "rwr")}
     headline = {}
     for row in HEADLINES.get(name, []):
         for method, key in ((row.method, row.key), *row.baselines):
+            method = method.format(**names)
             if key in flat:
                 headline[key] = {"label": row.label, "method": method, "value": flat[key],
                                  "paper": row.paper.get(method)}

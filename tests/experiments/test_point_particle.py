@@ -4,6 +4,7 @@ figures, both demonstration sources, validation, and resume after a SIGKILL of t
 from __future__ import annotations
 
 import csv
+import inspect
 import json
 import os
 import signal
@@ -20,7 +21,8 @@ import protorch
 from protorch.app.main import config_dir
 from protorch.data.checkpoint import checkpoint_path
 from protorch.data.dataset import TrajectoryDataset
-from protorch.experiments import run_experiment
+from protorch.experiments import check_config, point_particle, run_experiment
+from protorch.experiments.self_improvement import Outcome
 
 ROOT = Path(__file__).resolve().parents[2]
 HUMAN = ROOT.parent / "shared" / "data" / "point_particle_human_demos"
@@ -29,6 +31,8 @@ TINY = [
     "optimizer.relevance_samples=20", "settings.test.num_envs=10", "settings.dynamic.episodes=3",
     "settings.progress=false",
 ]
+# TINY without PRO's own keys (relevance_samples) and its sample count: any optimiser at its own
+TINY_ANY = [o for o in TINY if not o.startswith("optimizer.")] + ["optimizer.max_iter=10"]
 
 
 def cfg(*overrides: str) -> dict:
@@ -37,6 +41,15 @@ def cfg(*overrides: str) -> dict:
     plain = OmegaConf.to_container(c, resolve=False)
     plain.pop("hydra", None)
     return OmegaConf.to_container(OmegaConf.create(plain), resolve=True)  # baseline_optimizer: ${optimizer.*}
+
+
+def cfg_any(*overrides: str) -> dict:
+    """:func:`cfg` without PRO's own tiny settings: for the loop with another optimiser."""
+    with initialize_config_dir(config_dir=str(config_dir()), version_base=None):
+        c = compose(config_name="config", overrides=["experiment=point_particle", *TINY_ANY, *overrides])
+    plain = OmegaConf.to_container(c, resolve=False)
+    plain.pop("hydra", None)
+    return OmegaConf.to_container(OmegaConf.create(plain), resolve=True)
 
 
 def run_cli(args, check=True, **kw):
@@ -140,3 +153,45 @@ def test_sigkill_mid_loop_then_resume_completes_with_every_finished_environment(
     assert final.env[:n].equal(killed.env) and final.mean[:n].equal(killed.mean)
     rows = list(csv.DictReader((run / "loop_metrics.csv").open()))
     assert [int(r["step"]) for r in rows] == list(range(101))
+
+
+def test_cli_loop_with_epro_at_its_own_defaults_is_named_after_it(tmp_path):
+    proc = run_cli(["experiment=point_particle", "optimizer=epro", *TINY_ANY, "settings.dynamic_paper.episodes=2",
+                    "settings.baselines=[rwr]", "plot=false", f"hydra.run.dir={tmp_path}"])
+    saved = OmegaConf.load(tmp_path / "config.yaml").optimizer
+    assert saved.name == "epro" and saved.beta is None and saved.num_samples == 20  # EPRO's own choices
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["settings"]["optimizer"] == "epro" and m["settings"]["beta"] is None
+    methods = {k: v["method"] for k, v in m["summary"]["headline"].items()}
+    assert methods["test.success_rate"] == methods["dynamic.success_rate"] == "EPRO loop"
+    assert methods["dynamic_paper.success_rate"] == "EPRO loop"
+    assert methods["baselines.rwr.test.success_rate"] == "RWR loop"  # the baseline is still RWR (beta 20)
+    rows = [line.split() for line in proc.stdout.splitlines() if "success" in line and " loop " in line]
+    assert rows and {r[r.index("loop") - 1] for r in rows} == {"EPRO", "RWR"}  # no row says "PRO loop"
+
+
+@pytest.mark.parametrize("option, extra", [
+    ("cem", []),
+    ("rwpo", ["optimizer.relevance_iters=2", "optimizer.theta_samples=4", "optimizer.trajectory_samples=3"]),
+])
+def test_loop_runs_with_other_optimisers(tmp_path, option, extra):
+    # CEM takes no beta; RWPO learns its relevance from the task's objectives and the ProMP's basis
+    m = run_experiment(cfg_any(f"optimizer={option}", *extra, "settings.loop.num_envs=10",
+                               "settings.baselines=[]", "plot=false"), tmp_path)
+    assert m["loop"]["envs_tried"] == 10 and 0.0 <= m["test"]["success_rate"] <= 1.0
+    label = {"cem": "CEM loop", "rwpo": "RWPO loop"}[option]
+    assert m["summary"]["headline"]["test.success_rate"]["method"] == label
+
+
+def test_the_success_figure_names_each_loop_by_its_optimiser(tmp_path, monkeypatch):
+    drawn = {}
+    monkeypatch.setattr(point_particle, "_figures", lambda out_dir, task, model, envs, loops, *rest: drawn.update(
+        names=[name for name, _, _ in loops]))
+    monkeypatch.setattr(point_particle, "paper_figures", lambda *a: None)
+    settings = check_config(cfg_any("optimizer=cmaes", "optimizer@baseline_optimizer=epro"))
+    exp = point_particle.prepare(**{k: v for k, v in settings.items()
+                                    if k in inspect.signature(point_particle.prepare).parameters})
+    exp.figures(tmp_path, Outcome(model=None, result=None, episodes=None), {})
+    assert drawn["names"] == ["CMA-ES loop", "EPRO loop"]
+    described = exp.describe()["settings"]
+    assert (described["optimizer"], described["baseline_optimizer"]) == ("cmaes", "epro")

@@ -32,3 +32,19 @@ def test_failed_summary_says_so():
     s = build_summary("fig3_toy", {}, run_dir="r", wall_seconds=1.0, status="failed", error="ValueError: bad")
     assert s["headline"] == {}
     assert "status FAILED: ValueError: bad" in format_summary("fig3_toy", s)
+
+
+def test_the_loops_are_named_after_the_optimisers_that_ran_them():
+    metrics = {"settings": {"optimizer": "epro", "baseline_optimizer": "cmaes"}, "test": {"success_rate": 0.9},
+               "baselines": {"rwr": {"test": {"success_rate": 0.5}}}}
+    h = build_summary("point_particle", metrics, run_dir="r", wall_seconds=1.0)["headline"]
+    assert h["test.success_rate"]["method"] == "EPRO loop"
+    assert h["baselines.rwr.test.success_rate"]["method"] == "CMA-ES loop"
+    arm = build_summary("arm_reach", {"settings": {"optimizer": "cem"}, "test": {"success_rate": 1.0}},
+                        run_dir="r", wall_seconds=1.0)["headline"]
+    assert arm["test.success_rate"]["method"] == "CEM loop, labels"
+    pro = build_summary("arm_reach", {"settings": {"optimizer": "pro"}, "test": {"success_rate": 1.0}},
+                        run_dir="r", wall_seconds=1.0)["headline"]
+    assert pro["test.success_rate"]["method"] == "PRO loop, labels"
+    text = format_summary("point_particle", build_summary("point_particle", metrics, run_dir="r", wall_seconds=1.0))
+    assert "EPRO loop" in text and "CMA-ES loop" in text and " PRO loop" not in text

@@ -3,8 +3,10 @@ table around a can, and switches between passing it on the left and on the right
 
 1. Demonstrations: 20 environments x 3, hand-guided-like end-effector paths passing the can on
    alternating sides, turned into joint trajectories by inverse kinematics; one ProMP weight
-   Gaussian per environment and side. Prior knowledge: 2004 environments on a grid with the
-   straight end-effector path to the target (by IK) and the average demonstrated variance.
+   Gaussian per environment and side. Prior knowledge: 2004 environments on a grid (over the
+   sampler's rectangles, or with ``task.prior_grid=table`` over the whole table within the arm's
+   reach) with the straight end-effector path to the target (by IK) and the average demonstrated
+   variance.
    Every entry carries its homotopy class (:meth:`~protorch.tasks.ArmReachTask.side`) as label.
 2. The self-improvement loop (:func:`protorch.loop.self_improve`, PRO) over 2024 random
    environments with the labeller: solutions are stored with their class, the GP map keeps the
@@ -14,9 +16,13 @@ table around a can, and switches between passing it on the left and on the right
 3. Evaluation with the same label-aware inference on 200 held-out environments, and on 100
    episodes in which the can or the target is moved once or twice while the arm moves
    (:func:`protorch.control.arm.run_arm_episodes`: the map queried every control step, the arm
-   switching classes when the objectives of the rest of the motion say so). Baselines in the
-   same run: ``labels_off``, the same learned data with the labels dropped (the GP averages
-   neighbouring left and right solutions, as the paper's single map would), and
+   switching classes when the objectives of the rest of the motion say so). When either
+   ``task.prior_grid`` or ``task.region`` (where the loop's pool, the held-out test and the
+   moving test draw; the demonstrations stay in the rectangles) is ``table``, the held-out test
+   is also run on 200 environments drawn over the other region (``test.table`` or
+   ``test.rectangles``). Baselines in the same run: ``labels_off``, the same learned data with
+   the labels dropped (the GP averages neighbouring left and right solutions, as the paper's
+   single map would), and
    ``labels_off_loop``, the whole loop run without labels (``<out_dir>/baselines/labels_off_loop``).
 4. Figures: top view of both classes' end-effector paths around the can (and the labels-off
    average), a 3-D view of the arm along one trajectory, held-out success vs loop iteration,
@@ -38,6 +44,7 @@ from ..gp.model import label_aware_mean
 from ..loop import LoopResult, demonstration_dataset
 from ..primitives.promp import ProMP, resample
 from ..tasks.arm_reach import LEFT, RIGHT, ArmReachTask
+from ..tasks.arm_workspace import REGIONS, check_region, prior_grid_nodes
 from ..threads import torch_threads
 from ..viz.arm import experiment_figures
 from .self_improvement import (
@@ -60,7 +67,8 @@ class ArmReachExperiment(SelfImprovementExperiment):
     times :meth:`run_loop`."""
 
     task_keys = frozenset({"_target_", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin", "goal_tol",
-                           "start_tol", "can_radius", "can_height", "clearance", "urdf", "deviation"})
+                           "start_tol", "can_radius", "can_height", "clearance", "urdf", "deviation",
+                           "prior_grid", "region", "reach"})
     loop_keys = frozenset({"labels", "each_label"})
     dynamic_keys = frozenset({"seed", "episodes", "duration", "hold", "dt", "kp", "moves", "move_window",
                               "place_clearance", "switch_margin"})
@@ -77,16 +85,30 @@ class ArmReachExperiment(SelfImprovementExperiment):
         self.demo_envs_n = check_int(task_cfg.pop("demo_envs", 20), "task.demo_envs", 1)
         self.per_env = check_int(task_cfg.pop("demos_per_env", 3), "task.demos_per_env", 2)
         self.n_priors = check_int(task_cfg.pop("priors", 2004), "task.priors", 0)
+        self.prior_over = check_region(task_cfg.pop("prior_grid", "rectangles"), "task.prior_grid")
+        check_region(task_cfg.get("region", "rectangles"), "task.region")
         self.nearest_k = self.map_options.get("nearest_k")
         task_cfg.pop("_target_", None)
         self.task = ArmReachTask(**task_cfg).to(self.device)
 
     def make_demonstrations(self) -> None:
-        self.demos, self.demo_envs, self.demo_labels = self.task.demonstrations(self.demo_envs_n, self.per_env,
-                                                                                self.demo_generator())
+        """The demonstrated environments are drawn over the rectangles whatever ``task.region``."""
+        gen = self.demo_generator()
+        envs = self.task.sample_envs(self.demo_envs_n, gen, region="rectangles")
+        self.demos, self.demo_envs, self.demo_labels = self.task.demonstrations(envs, self.per_env, gen)
 
     def make_priors(self) -> None:
-        self.prior_envs, self.prior_mean, self.prior_labels = _priors(self.task, self.promp, self.n_priors)
+        self.prior_envs, self.prior_mean, self.prior_labels, self.prior_report = _priors(
+            self.task, self.promp, self.n_priors, self.prior_over)
+
+    def build(self) -> "ArmReachExperiment":
+        """The skeleton's build, plus the held-out environments of the other region when either
+        the priors' grid or the task's region is the table (drawn with the same test seed)."""
+        super().build()
+        others = [r for r in REGIONS if r != self.task.region] if "table" in (self.prior_over, self.task.region) else []
+        self.region_tests = {r: self.task.sample_envs(self.test_n, torch.Generator().manual_seed(self.test_seed),
+                                                      dtype=self.dtype, region=r).to(self.device) for r in others}
+        return self
 
     def loop_options(self) -> dict:
         return {"sample_steps": self.task.cost_steps}
@@ -118,13 +140,14 @@ class ArmReachExperiment(SelfImprovementExperiment):
                       "entries": int((data0.origin == 0).sum()), "left": int((self.demo_labels == LEFT).sum()),
                       "right": int((self.demo_labels == RIGHT).sum()), "success_rate": self.demo_success()},
             "priors": {"count": int(self.prior_envs.shape[0]), "left": int((self.prior_labels == LEFT).sum()),
-                       "right": int((self.prior_labels == RIGHT).sum())},
+                       "right": int((self.prior_labels == RIGHT).sum()), "grid": self.prior_report},
             "settings": {"num_envs": lk["num_envs"], "batch_size": lk["batch_size"], "add_only": lk["add_only"],
                          "choice": lk["choice"], "alpha": self.alpha, "nearest_k": self.nearest_k,
                          "beta": None if opt.get("beta") is None else float(opt["beta"]), "var_floor": self.var_floor,
                          "labels": self.labels, "each_label": self.each_label, "max_iter": opt.get("max_iter"),
                          "num_samples": opt.get("num_samples"), "threads": torch.get_num_threads(),
-                         "optimizer": opt.get("name", "pro")},
+                         "optimizer": opt.get("name", "pro"), "prior_grid": self.prior_over,
+                         "region": self.task.region},
         }
 
     def demo_success(self) -> float:
@@ -133,7 +156,14 @@ class ArmReachExperiment(SelfImprovementExperiment):
         return float(self.task.success(traj, self.demo_envs.to(traj)).double().mean())
 
     def test_metrics(self, model) -> dict:
-        return _test(self.task, model, self.test_envs, self.test_seed)
+        """The held-out test over the task's region, and under the other region's name its test
+        over that region (only when the table is involved, :meth:`build`)."""
+        out = _test(self.task, model, self.test_envs, self.test_seed)
+        if self.region_tests:
+            out["region"] = self.task.region
+        for region, envs in self.region_tests.items():
+            out[region] = _test(self.task, model, envs, self.test_seed)
+        return out
 
     def moving_test(self, model) -> tuple[dict, object]:
         """The can or the target moved while the arm moves (:func:`protorch.control.arm.run_arm_episodes`)."""
@@ -190,20 +220,21 @@ def prepare(
                               promp=promp, loop=loop, test=test, dynamic=dynamic).build()
 
 
-def _priors(task: ArmReachTask, promp: ProMP, n: int):
-    """``n`` grid environments with the straight end-effector path to their target (by IK, one
-    per distinct target): ``(envs (n, 4), weight means (n, N), labels (n,))``."""
+def _priors(task: ArmReachTask, promp: ProMP, n: int, over: str = "rectangles"):
+    """``n`` environments on a grid over ``over`` with the straight end-effector path to their
+    target (by IK, one per distinct target): ``(envs (n, 4), weight means (n, N), labels (n,),
+    the grid's counts)``."""
     if n == 0:
         return torch.zeros(0, 4, dtype=torch.float64), torch.zeros(0, promp.num_weights, dtype=torch.float64), \
-            torch.zeros(0, dtype=torch.long)
-    grid = task.prior_grid(n)  # (n, 4)
+            torch.zeros(0, dtype=torch.long), {"over": over, "kept": 0}
+    grid, report = prior_grid_nodes(task, n, over, promp.num_steps)  # (n, 4)
     goals, inverse = torch.unique(grid[:, 2:], dim=0, return_inverse=True)  # (G, 2), (n,)
     any_can = grid[:1, :2].expand(goals.shape[0], 2)  # the straight path does not depend on the can
     q, _ = task.ik_path(task.straight_paths(torch.cat([any_can, goals], 1), promp.num_steps))  # (G, T, 7)
     q = q.to(promp.basis)
     w = promp.weights(q).cpu().to(torch.float64)  # (G, N)
     labels = task.side(q[inverse.to(q.device)], grid.to(q)).cpu()  # (n,) which side the straight path passes
-    return grid, w[inverse], labels
+    return grid, w[inverse], labels, report
 
 
 def run(
@@ -227,8 +258,10 @@ def run(
 ) -> dict:
     """Run the experiment into ``out_dir``; return the metrics (module docstring).
 
-    ``task``: ``demo_envs``, ``demos_per_env``, ``priors`` (number of grid priors) and the
-    :class:`~protorch.tasks.ArmReachTask` options (``cost_steps``, ``margin``, ``goal_tol``, ...).
+    ``task``: ``demo_envs``, ``demos_per_env``, ``priors`` (number of grid priors), ``prior_grid``
+    (``rectangles`` or ``table``: the region the priors' grid spans) and the
+    :class:`~protorch.tasks.ArmReachTask` options (``cost_steps``, ``margin``, ``goal_tol``,
+    ``region``, ``reach``, ...).
     ``gp``: ``backend``, ``alpha``, ``var_floor``, ``nearest_k``. ``loop``: ``num_envs``,
     ``batch_size``, ``add_only``, ``choice``, ``checkpoint_every``, ``eval_dtype``, ``min_var``,
     ``labels`` (the label-aware map; false runs the paper's single map). ``test``: ``num_envs``,

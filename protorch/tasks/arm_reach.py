@@ -11,8 +11,9 @@ Geometry (metres, the robot's base frame: the table top is ``z = 0``, the arm fa
 * the target: the point ``(goal_x, goal_y)`` at the start's height above the table;
 * environment ``e = (can_x, can_y, goal_x, goal_y)``, sampled uniformly over the rectangles
   ``can in [0.50, 0.62] x [-0.12, 0.12]`` and ``goal in [0.66, 0.74] x [-0.24, 0.24]`` (can and
-  target at least 12 cm from each other and from the start); anything off the table
-  ``[0.2, 0.9] x [-0.5, 0.5]`` is refused.
+  target at least 12 cm from each other and from the start), or with ``region="table"`` over the
+  whole table within the arm's reach (:mod:`protorch.tasks.arm_workspace`); anything off the
+  table ``[0.2, 0.9] x [-0.5, 0.5]`` is refused.
 
 Objectives (the paper's, on the end-effector path ``p(t)`` of a joint trajectory ``(..., T, 7)``,
 evaluated on ``cost_steps`` evenly spaced steps; ``d`` is the mean distance of ``p(t)`` to the
@@ -47,6 +48,7 @@ from ..checks import check_tensor
 from ..robots.kinematics import ArmKinematics
 from ..robots.panda import PANDA_END_LINK
 from .arm_demos import follow_path, ik_demonstrations
+from .arm_deviation import DEVIATIONS, deviation
 from .arm_geometry import (
     LEFT,
     RIGHT,
@@ -54,7 +56,9 @@ from .arm_geometry import (
     down_rotation,
     segment_axis_distance,
 )
-from .arm_deviation import DEVIATIONS, deviation
+from .arm_workspace import check_region, prior_grid_nodes
+from .arm_workspace import sample_envs as sample_region
+from .arm_workspace import valid_envs as valid_in_region
 from .base import Task
 
 __all__ = ["ArmReachTask", "START_Q", "LEFT", "RIGHT", "SIDES", "segment_axis_distance", "down_rotation"]
@@ -89,6 +93,10 @@ class ArmReachTask(Task):
             included; ``None``: all). Success always uses every step.
         can_box, goal_box: the sampler's rectangles; ``table``: the table top, outside which an
             environment is refused; ``min_separation``: between can, target and start.
+        region: where :meth:`sample_envs` draws: ``"rectangles"`` (``can_box``, ``goal_box``) or
+            ``"table"`` (the whole table, targets within ``reach``, the can clear of the start
+            posture); ``reach``: ``(r_min, r_max)``, the targets' horizontal distance from the
+            base's axis that the hand-down arm reaches (:mod:`protorch.tasks.arm_workspace`).
         start_q: the fixed start configuration (7 joint angles).
         urdf, end_link: the arm (default the Panda shipped with protorch).
     """
@@ -104,6 +112,8 @@ class ArmReachTask(Task):
     goal_box: tuple = ((0.66, 0.74), (-0.24, 0.24))
     table: tuple = ((0.2, 0.9), (-0.5, 0.5))
     min_separation: float = 0.12
+    region: str = "rectangles"
+    reach: tuple = (0.30, 0.80)
     start_q: tuple = START_Q
     urdf: str | None = None
     end_link: str = PANDA_END_LINK
@@ -125,6 +135,13 @@ class ArmReachTask(Task):
             raise ValueError(f"cost_steps must be None or an int >= 2, got {self.cost_steps!r}")
         self.can_box, self.goal_box = _box("can_box", self.can_box), _box("goal_box", self.goal_box)
         self.table = _box("table", self.table)
+        check_region(self.region)
+        try:
+            self.reach = (float(self.reach[0]), float(self.reach[1]))
+        except (TypeError, ValueError, IndexError):
+            raise ValueError(f"reach must be (r_min, r_max), got {self.reach!r}") from None
+        if not (0 <= self.reach[0] < self.reach[1] < math.inf):
+            raise ValueError(f"reach must be (r_min, r_max) with 0 <= r_min < r_max < inf, got {self.reach!r}")
         for name, box in (("can_box", self.can_box), ("goal_box", self.goal_box)):
             if not all(t[0] <= b[0] and b[1] <= t[1] for b, t in zip(box, self.table)):
                 raise ValueError(f"{name} {box} must lie on the table {self.table}")
@@ -193,49 +210,24 @@ class ArmReachTask(Task):
         return env
 
     def sample_envs(self, n: int, generator: torch.Generator | None = None, *, dtype: torch.dtype = torch.float64,
-                    device=None) -> Tensor:
-        """``n`` environments ``(n, 4)``: can and target uniform in their rectangles, redrawn
-        until both are ``min_separation`` from each other and from the start. Drawn in float64
-        on the CPU (``generator`` a CPU generator), then moved."""
-        if isinstance(n, bool) or int(n) != n or int(n) < 0:
-            raise ValueError(f"n must be an int >= 0, got {n!r}")
-        n = int(n)
-        out = torch.empty(0, 4, dtype=torch.float64)
-        lo = torch.tensor([self.can_box[0][0], self.can_box[1][0], self.goal_box[0][0], self.goal_box[1][0]],
-                          dtype=torch.float64)
-        hi = torch.tensor([self.can_box[0][1], self.can_box[1][1], self.goal_box[0][1], self.goal_box[1][1]],
-                          dtype=torch.float64)
-        for _ in range(1000):
-            if out.shape[0] >= n:
-                break
-            e = lo + (hi - lo) * torch.rand(max(2 * (n - out.shape[0]), 16), 4, generator=generator,
-                                            dtype=torch.float64)
-            out = torch.cat([out, e[self.valid_envs(e)]])
-        else:
-            raise RuntimeError("the sampler's rectangles leave (almost) no room for min_separation")
-        return out[:n].to(dtype=dtype, device=device)
+                    device=None, region: str | None = None) -> Tensor:
+        """``n`` environments ``(n, 4)``: uniform over ``region`` (default the task's: can and
+        target in their rectangles), redrawn until :meth:`valid_envs`. Drawn in float64 on the
+        CPU (``generator`` a CPU generator), then moved."""
+        return sample_region(self, n, generator, self.region if region is None else region, dtype, device)
 
-    def valid_envs(self, env: Tensor) -> Tensor:
-        """Whether can, target and start are ``min_separation`` apart: ``(...)`` bool."""
-        s = env.new_tensor(self.start[:2])
-        sep = self.min_separation
-        return (((env[..., :2] - env[..., 2:]).norm(dim=-1) >= sep) & ((env[..., :2] - s).norm(dim=-1) >= sep)
-                & ((env[..., 2:] - s).norm(dim=-1) >= sep))
+    def valid_envs(self, env: Tensor, region: str | None = None) -> Tensor:
+        """Whether environments are valid in ``region`` (default the task's): can, target and
+        start ``min_separation`` apart, and on the table the target within ``reach`` and the can
+        clear of the start posture: ``(...)`` bool."""
+        return valid_in_region(self, env, self.region if region is None else region)
 
-    def prior_grid(self, n: int = 2004) -> Tensor:
-        """``n`` environments on a regular grid over the sampler's rectangles ``(n, 4)``: the
-        smallest ``k^4`` grid with at least ``n`` valid nodes, of which ``n`` evenly spaced ones
-        (lexicographic order) are kept."""
-        if isinstance(n, bool) or int(n) != n or int(n) < 1:
-            raise ValueError(f"n must be an int >= 1, got {n!r}")
-        for k in range(2, 64):
-            axes = [torch.linspace(*b, k, dtype=torch.float64) for b in (*self.can_box, *self.goal_box)]
-            grid = torch.cartesian_prod(*axes)  # (k^4, 4)
-            grid = grid[self.valid_envs(grid)]
-            if grid.shape[0] >= n:
-                idx = torch.linspace(0, grid.shape[0] - 1, int(n), dtype=torch.float64).round().long()
-                return grid[idx]
-        raise RuntimeError(f"no grid up to 63^4 has {n} valid environments")
+    def prior_grid(self, n: int = 2004, over: str = "rectangles") -> Tensor:
+        """``n`` environments on a regular grid over the region ``over`` ``(n, 4)``: the smallest
+        ``k^4`` grid with at least ``n`` valid nodes, of which ``n`` evenly spaced ones
+        (lexicographic order) are kept (:func:`protorch.tasks.arm_workspace.prior_grid_nodes`
+        also returns the counts)."""
+        return prior_grid_nodes(self, n, over)[0]
 
     # ---------------------------------------------------------------- inputs
     def _prepare(self, traj, env, *, finite: bool = True) -> tuple[Tensor, Tensor]:

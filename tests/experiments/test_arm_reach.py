@@ -13,6 +13,7 @@ from omegaconf import OmegaConf
 import protorch
 from protorch.app.main import config_dir
 from protorch.data.checkpoint import checkpoint_path
+from protorch.data.dataset import TrajectoryDataset
 from protorch.experiments import run_experiment
 from protorch.experiments.arm_reach import prepare
 from protorch.tasks.arm_reach import LEFT, RIGHT
@@ -42,6 +43,7 @@ def test_config_holds_the_papers_settings():
     assert full.settings.test.num_envs == 200 and full.settings.dynamic.episodes == 100
     assert list(full.settings.dynamic.moves) == [1, 2] and full.settings.loop.labels is True
     assert full.gp.alpha > 0 and full.gp.nearest_k == 30
+    assert full.task.prior_grid == "rectangles" and full.task.region == "rectangles"
 
 
 def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
@@ -60,6 +62,8 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     assert m["test"]["num_envs"] == 6 and m["loop"]["envs_tried"] == 10
     assert m["demos"]["count"] == 6 and m["demos"]["left"] > 0 and m["demos"]["right"] > 0
     assert m["priors"]["count"] == 30 and m["priors"]["left"] + m["priors"]["right"] == 30
+    assert m["priors"]["grid"]["over"] == "rectangles" and m["priors"]["grid"]["kept"] == 30
+    assert not {"region", "table", "rectangles"} & set(m["test"])  # only the rectangles' test by default
     assert {"demonstrations", "priors", "loop", "evaluation", "labels_off", "labels_off_loop", "total"} <= set(
         m["seconds"])
     assert json.loads((tmp_path / "metrics.json").read_text())["test"] == m["test"]
@@ -91,6 +95,8 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     ("+settings.test.seed=0", r"test.seed \(0\) must differ from the training seeds"),
     ("+settings.dynamic.seed=0", r"dynamic.seed \(0\) must differ from the training seeds"),
     ("+settings.dynamic.seed=abc", "^settings.dynamic.seed='abc' must be an int >= 0$"),
+    ("task.prior_grid=room", "^task.prior_grid must be one of rectangles, table, got 'room'$"),
+    ("task.region=floor", "^task.region must be one of rectangles, table, got 'floor'$"),
 ])
 def test_bad_settings_are_refused_before_any_work(tmp_path, override, match):
     with pytest.raises((ValueError, TypeError), match=match):
@@ -110,3 +116,30 @@ def test_prepare_builds_labelled_demonstrations_and_priors():
     # the prior's straight path passes the can on the side its label says
     traj = setup.promp.trajectory(setup.prior_mean)
     assert torch.equal(setup.task.side(traj, setup.prior_envs), setup.prior_labels)
+
+
+def test_loop_over_the_table_grid_iterates_the_initial_data_and_tests_both_regions(tmp_path):
+    c = cfg("task.prior_grid=table", "settings.loop.choice=dataset", "settings.loop.num_envs=12",
+            "settings.baselines=[labels_off]")
+    assert c["task"]["prior_grid"] == "table" and c["settings"]["loop"]["choice"] == "dataset"
+    m = run_experiment(c, tmp_path)
+    grid = m["priors"]["grid"]
+    assert grid["over"] == "table" and grid["kept"] == 30 and m["priors"]["count"] == 30
+    assert grid["too_close"] + grid["goal_out_of_reach"] + grid["can_on_start_posture"] + grid["ik_failed"] \
+        + grid["valid"] == grid["nodes"]
+    assert m["settings"]["prior_grid"] == "table" and m["settings"]["region"] == "rectangles"
+    assert m["loop"]["envs_tried"] == 12
+    # the held-out test over the rectangles (the main one) and over the table, for every map
+    for t in (m["test"], m["baselines"]["labels_off"]["test"]):
+        assert t["region"] == "rectangles" and t["num_envs"] == 6 and t["table"]["num_envs"] == 6
+        assert 0.0 <= t["table"]["success_rate"] <= 1.0
+    # the loop's environments are the data set's own: the 2 demonstrated ones, then grid nodes
+    setup = prepare(optimizer=c["optimizer"], task=c["task"], gp=c["gp"], promp=c["settings"]["promp"],
+                    loop=c["settings"]["loop"], test=c["settings"]["test"], dynamic={"episodes": 0})
+    grid_envs = setup.task.prior_grid(30, over="table")
+    assert torch.equal(setup.prior_envs, grid_envs)
+    ds = TrajectoryDataset.load(checkpoint_path(tmp_path))
+    data = ds.env[ds.origin == 2].double()  # (L, 4) the learned entries' environments
+    assert data.shape[0] == m["loop"]["added"] > 0
+    initial = torch.cat([setup.demo_envs, grid_envs])
+    assert bool((torch.cdist(data, initial).amin(1) < 1e-6).all())  # (nodes lie 10 cm or more apart)

@@ -48,7 +48,7 @@ import torch
 from torch import Tensor
 
 from .base import BaseOptimizer
-from .functional import abs_correlation, normalize_rows, pearson_relevance, stable_rewards
+from .functional import abs_correlation, normalize_rows, stable_rewards
 
 __all__ = [
     "EPRO", "ess_temperature", "curvature_relevance", "gated_relevance", "effective_pool_size", "standardize_batch",
@@ -91,14 +91,10 @@ def ess_temperature(costs: Tensor, ess: float, *, steps: int = 40) -> Tensor:
 def curvature_relevance(w: Tensor, costs: Tensor, center: Tensor, noise_floor: float | None) -> Tensor:
     """``f (..., O, N)``: per objective, the larger of ``|rho(w_n, o)|`` and
     ``|rho((w_n - center_n)^2, o)|`` over the samples ``w (..., P, N)``, ``costs (..., P, O)``,
-    each under the noise floor ``z / sqrt(P)``, normalised by the row's maximum (see the module)."""
-    n = w.shape[-1]
-    feats = torch.cat([w, (w - center.unsqueeze(-2)) ** 2], -1)  # (..., P, 2N)
-    f = pearson_relevance(feats, costs, noise_floor=noise_floor)  # (..., O, 2N), one common max
-    f = torch.maximum(f[..., :n], f[..., n:])  # (..., O, N)
-    top = f.amax(-1, keepdim=True)
-    return torch.where(top > 0, f / torch.where(top > 0, top, torch.ones_like(top)), torch.zeros_like(f))
-
+    under the noise floor ``z / sqrt(P)``, normalised by the row's maximum: :func:`gated_relevance`
+    with every pooled sample counted and no variance gate."""
+    p = torch.full(costs.shape[:-2] + costs.shape[-1:], float(w.shape[-2]), dtype=torch.float64, device=w.device)
+    return gated_relevance(w, costs, center, p, noise_floor, None)[0]
 
 
 def effective_pool_size(batch_costs: list[Tensor]) -> Tensor:

@@ -4,12 +4,10 @@ per problem, each with ``NUISANCE`` extra weights that no objective reads (see p
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Callable
 
 import torch
-from configs import experiment_settings
-from omegaconf import OmegaConf
+from configs import experiment_config, experiment_settings
 
 from protorch import ProMP
 from protorch.experiments.point_particle import prepare as prepare_particle
@@ -20,8 +18,6 @@ from protorch.tasks.beam_window import BeamWindowTask, SimulatedOperator
 
 NUISANCE = 10  # weights of the DoF no objective reads
 F64 = torch.float64
-CONF = Path(__file__).resolve().parents[1] / "conf" / "experiment"
-TASK_CONF = CONF.parent / "task"
 BEAM_POSITION_TOL = 0.005  # m: every position via point of the mean within 5 mm
 BEAM_ANGLE_TOL = 2.0  # deg: every orientation via point of the mean within 2 degrees
 
@@ -91,20 +87,10 @@ def point_particle_problems(repeats: int, beta: float = 20.0) -> list[Problem]:
     return out
 
 
-def _experiment_cfg(name: str) -> dict:
-    """conf/experiment/<name>.yaml with ``task`` = conf/task/<name>.yaml (its ``_target_`` dropped)
-    updated by the experiment's own ``task`` entries, as Hydra composes them."""
-    cfg = OmegaConf.to_container(OmegaConf.load(CONF / f"{name}.yaml"), resolve=True)
-    task = OmegaConf.to_container(OmegaConf.load(TASK_CONF / f"{name}.yaml"), resolve=True)
-    task.pop("_target_", None)
-    cfg["task"] = {**task, **cfg.get("task", {})}
-    return cfg
-
-
 def _beam_setup(repeat: int) -> tuple[BeamWindowTask, PoseProMP]:
     """The experiment's beam task and pose ProMP of 10 simulated operator trials (seed ``repeat``)."""
-    cfg = _experiment_cfg("beam_window")
-    tup = {k: tuple(v) if isinstance(v, list) else v for k, v in cfg["task"].items()}
+    cfg = experiment_config("beam_window")  # composed as the app composes it
+    tup = {k: tuple(v) if isinstance(v, list) else v for k, v in cfg["task"].items() if k != "_target_"}
     beam = BeamWindowTask(**tup)
     person = SimulatedOperator(**{k: tuple(v) if isinstance(v, list) else v
                                   for k, v in cfg["settings"]["operator"].items()})

@@ -26,8 +26,9 @@ from typing import Callable, Generator
 import torch
 from torch import Tensor, nn
 
-from ..checks import check_int, check_number, check_positive, check_tensor
+from ..checks import all_finite, check_int, check_number, check_positive, check_tensor
 from .convergence import make_rule
+from .draws import NormalDraws
 
 __all__ = ["BaseOptimizer", "OptimizeResult"]
 
@@ -68,6 +69,8 @@ class BaseOptimizer(nn.Module):
         seed: seed of the optimiser's own ``torch.Generator`` (reproducible sampling).
         dtype: dtype of the distribution (float64 default; float32 is fine for sampling).
     """
+
+    can_draw_ahead = True  # every random number comes through _randn (see draw_ahead)
 
     def __init__(
         self,
@@ -127,6 +130,7 @@ class BaseOptimizer(nn.Module):
             self.generator.manual_seed(int(seed))
         else:
             self.generator.seed()
+        self.draws = NormalDraws(self.generator)  # every sample's noise comes from here (see draw_ahead)
         self.iteration = 0
         self.history: dict[str, list[Tensor]] = {"cost": [], "cost_min": [], "cost_max": [], "mean": [], "var": []}
         self.relevance_seconds: list[float] = []
@@ -150,12 +154,38 @@ class BaseOptimizer(nn.Module):
 
     # ------------------------------------------------------------ helpers
     def _randn(self, *shape: int) -> Tensor:
-        return torch.randn(*shape, generator=self.generator, dtype=self.mean.dtype, device=self.mean.device)
+        return self.draws.draw(shape, self.mean.dtype, self.mean.device)
+
+    def draw_ahead(self) -> bool:
+        """Make each next ask's normal numbers in a background thread while the caller evaluates
+        the current ones (:class:`~protorch.optim.draws.NormalDraws`): the same numbers in the same
+        order, the generator's time off the caller's path where a core is free. Only for
+        optimisers that draw through :meth:`_randn` alone (``can_draw_ahead``) on a CPU
+        generator; returns whether it is on. The generator is then in use between asks: draw
+        from it only through the optimiser."""
+        if self.can_draw_ahead:
+            self.draws.start_ahead()
+        return self.draws.ahead
 
     def _sample(self, var: Tensor, num: int) -> Tensor:
         """``num`` draws from ``N(mean, diag(var))`` per problem: ``var (B, N)`` -> ``(B, num, N)``."""
         eps = self._randn(self.batch_size, num, self.num_weights)  # (B, S, N)
-        return self.mean[:, None, :] + eps * var.clamp_min(0).sqrt()[:, None, :]
+        return eps.mul_(var.clamp_min(0).sqrt()[:, None, :]).add_(self.mean[:, None, :])  # mean + eps std
+
+    def _active_rows(self) -> Tensor | None:
+        """Indices ``(a,)`` of the problems still moving, or ``None`` when all are: an update
+        computed for these rows alone gives them the same numbers as one over all ``B`` (every
+        operation is per problem) and leaves the converged ones alone, as :meth:`_apply` does."""
+        moving = ~self.converged  # (B,)
+        return None if bool(moving.all()) else moving.nonzero().flatten()
+
+    def _apply_rows(self, rows: Tensor | None, new_mean: Tensor, new_var: Tensor) -> None:
+        """Commit an update of the problems ``rows`` (``None``: all, as :meth:`_apply`)."""
+        if rows is None:
+            self._apply(new_mean, new_var)
+            return
+        self.mean[rows] = new_mean
+        self.var[rows] = new_var.clamp_min(0)
 
     def _record_cost(self, objective: int | slice, costs: Tensor) -> None:
         """Note the mean, min and max cost this iteration's update saw for ``objective``:
@@ -202,6 +232,7 @@ class BaseOptimizer(nn.Module):
             raise RuntimeError(f"the optimiser has stopped ({self.stop_reason()}); read result()")
         if self._next is None:
             self._start = self._snapshot()
+            self.draws.new_iteration()
             self._gen = self._iteration()
             self._next = next(self._gen)
         self._asked = self._next
@@ -244,7 +275,7 @@ class BaseOptimizer(nn.Module):
             raise ValueError(f"objective_weights must be ({costs.shape[-1]},) to match the costs' "
                              f"{costs.shape[-1]} objective(s), got shape {tuple(c.shape)}")
         cast = costs.to(self.mean.dtype)
-        if not bool(torch.isfinite(cast).all()):
+        if cast is not costs and not all_finite(cast):
             raise ValueError(f"costs overflow the optimiser's {self.mean.dtype} (largest |cost| "
                              f"{float(costs.abs().max()):.3g}): rescale them or use dtype=torch.float64")
         if self.num_objectives is None:
@@ -254,7 +285,7 @@ class BaseOptimizer(nn.Module):
     def _snapshot(self) -> dict:
         """What an iteration may change, to undo an iteration that failed inside ``tell``."""
         return {"mean": self.mean.clone(), "var": self.var.clone(), "converged": self.converged.clone(),
-                "rng": self.generator.get_state(), "num_objectives": self.num_objectives,
+                "rng": self.draws.get_state(), "num_objectives": self.num_objectives,
                 "history": {k: len(v) for k, v in self.history.items()},
                 "relevance_seconds": len(self.relevance_seconds), "relevance": getattr(self, "relevance", None)}
 
@@ -262,7 +293,7 @@ class BaseOptimizer(nn.Module):
         self.mean.copy_(snap["mean"])
         self.var.copy_(snap["var"])
         self.converged.copy_(snap["converged"])
-        self.generator.set_state(snap["rng"])
+        self.draws.set_state(snap["rng"])
         self.num_objectives = snap["num_objectives"]
         for k, n in snap["history"].items():
             del self.history[k][n:]
@@ -312,7 +343,10 @@ class BaseOptimizer(nn.Module):
 
     def stop(self) -> bool:
         """True once every problem converged or ``max_iter`` iterations ran."""
-        return self._asked is None and self._next is None and self.stop_reason() is not None
+        done = self._asked is None and self._next is None and self.stop_reason() is not None
+        if done:
+            self.draws.cancel()  # a draw made ahead for an ask that will not come
+        return done
 
     def result(self) -> OptimizeResult:
         def unb(x: Tensor, axis: int = 0) -> Tensor:

@@ -85,3 +85,15 @@ def test_the_probe_sees_another_busy_process():
         spin.kill()
         spin.wait()
     assert other > 0.6, other  # the spinner's core (any further load only adds to it)
+
+
+def test_the_core_budget_and_the_threads_beside_workers():
+    from protorch.threads import available_cores, beside_workers, core_budget
+
+    with torch_threads(1):
+        assert core_budget() == 1 and beside_workers(1) == 1  # one core: never fewer than one thread
+    with torch_threads(3):
+        assert core_budget() == 3 and beside_workers(1) == 2
+    with torch_threads("auto"):
+        assert core_budget() == available_cores() and beside_workers(1) == "auto"  # auto measures the workers
+    assert core_budget() == available_cores()  # no setting: the available cores

@@ -268,8 +268,9 @@ class SelfImprovementExperiment:
         the experiment's settings can be passed to a process; none otherwise (they run here,
         after the method's loop)."""
         names = [b for b in chosen if b in self.loop_baselines]
-        if not names or core_budget() < 2 or torch.device(self.device).type != "cpu":
-            return {}
+        if not names or core_budget() < 2 or torch.device(self.device).type != "cpu" \
+                or type(self).__module__ == "__main__" or "<locals>" in type(self).__qualname__:
+            return {}  # (a class a child process cannot import runs its baselines here)
         try:
             encode_settings(self.constructed_with)
         except TypeError:

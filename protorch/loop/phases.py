@@ -173,7 +173,8 @@ def sample_costs(ev: Evaluator, opt, w: Tensor, env_e: Tensor) -> Tensor:
     steps = None
     if one_cost is not None and callable(getattr(ev.task, "objective_steps", None)):
         steps = ev.task.objective_steps(o)
-    w_a, env_a = w[active], env_e[active][:, None]  # (a, S, N), (a, 1, E)
+    every = bool(active.all())  # no gather and no scatter
+    w_a, env_a = (w, env_e[:, None]) if every else (w[active], env_e[active][:, None])  # (a, S, N), (a, 1, E)
     chunk = cost_chunks(w_a.shape[0], w_a.shape[1], ev.promp_sample.num_steps if steps is None else len(steps),
                         ev.promp_sample.num_dof)
     parts = []
@@ -181,12 +182,16 @@ def sample_costs(ev: Evaluator, opt, w: Tensor, env_e: Tensor) -> Tensor:
         traj = ev.sample_trajectory(w_a[i:i + chunk], steps)  # (c, S, T, D)
         env = env_a[i:i + chunk]  # (c, 1, E)
         parts.append(one_cost(traj, env, o) if one_cost is not None else ev.task.costs(traj, env))
-    c = torch.cat(parts).to(w.dtype)  # (a, S) or (a, S, O)
+    c = (parts[0] if len(parts) == 1 else torch.cat(parts)).to(w.dtype)  # (a, S) or (a, S, O)
+    if one_cost is None and every:
+        return c
     costs = c.new_zeros(*w.shape[:2], opt.num_objectives if one_cost is not None else c.shape[-1])  # (b, S, O)
-    if one_cost is not None:
-        costs[active, :, o] = c
-    else:
+    if one_cost is None:
         costs[active] = c
+    elif every:
+        costs[..., o] = c
+    else:
+        costs[active, :, o] = c
     return costs
 
 

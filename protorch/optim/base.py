@@ -173,19 +173,28 @@ class BaseOptimizer(nn.Module):
         return eps.mul_(var.clamp_min(0).sqrt()[:, None, :]).add_(self.mean[:, None, :])  # mean + eps std
 
     def _active_rows(self) -> Tensor | None:
-        """Indices ``(a,)`` of the problems still moving, or ``None`` when all are: an update
-        computed for these rows alone gives them the same numbers as one over all ``B`` (every
-        operation is per problem) and leaves the converged ones alone, as :meth:`_apply` does."""
+        """Indices ``(r,)`` of the problems an update is computed for, or ``None`` for all: every
+        block of ``64 / itemsize`` consecutive problems that holds one still moving. Every
+        operation is per problem, but a BLAS kernel's rounding depends on the 64-byte alignment
+        of a problem's matrices; whole blocks keep each problem's alignment, so its numbers are
+        those of an update over all ``B``. :meth:`_apply_rows` commits the moving ones only."""
         moving = ~self.converged  # (B,)
-        return None if bool(moving.all()) else moving.nonzero().flatten()
+        if bool(moving.all()):
+            return None
+        block = max(1, 64 // self.mean.element_size())
+        kept = torch.zeros((self.batch_size + block - 1) // block, dtype=torch.bool, device=moving.device)
+        kept.index_fill_(0, moving.nonzero().flatten() // block, True)  # (blocks,)
+        return kept.repeat_interleave(block)[: self.batch_size].nonzero().flatten()
 
     def _apply_rows(self, rows: Tensor | None, new_mean: Tensor, new_var: Tensor) -> None:
-        """Commit an update of the problems ``rows`` (``None``: all, as :meth:`_apply`)."""
+        """Commit an update computed for the problems ``rows`` to the moving ones among them
+        (``None``: for all problems, as :meth:`_apply`)."""
         if rows is None:
             self._apply(new_mean, new_var)
             return
-        self.mean[rows] = new_mean
-        self.var[rows] = new_var.clamp_min(0)
+        moving = ~self.converged[rows]  # (r,)
+        self.mean[rows[moving]] = new_mean[moving]
+        self.var[rows[moving]] = new_var[moving].clamp_min(0)
 
     def _record_cost(self, objective: int | slice, costs: Tensor) -> None:
         """Note the mean, min and max cost this iteration's update saw for ``objective``:

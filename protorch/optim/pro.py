@@ -78,7 +78,8 @@ class PRO(BaseOptimizer):
             return pearson_relevance(w, costs, noise_floor=self.noise_floor)  # (B, O, N)
         rel = (self.relevance.clone() if self.relevance is not None
                else w.new_zeros(self.batch_size, costs.shape[-1], self.num_weights))  # (B, O, N)
-        rel[rows] = pearson_relevance(w[rows], costs[rows], noise_floor=self.noise_floor)  # (a, O, N)
+        moving = ~self.converged[rows]  # (r,) a converged problem keeps its relevance
+        rel[rows[moving]] = pearson_relevance(w[rows], costs[rows], noise_floor=self.noise_floor)[moving]
         return rel
 
     def _iteration(self) -> Generator[Tensor, Tensor, None]:

@@ -176,7 +176,7 @@ def sample_costs(ev: Evaluator, opt, w: Tensor, env_e: Tensor) -> Tensor:
     every = bool(active.all())  # no gather and no scatter
     w_a, env_a = (w, env_e[:, None]) if every else (w[active], env_e[active][:, None])  # (a, S, N), (a, 1, E)
     chunk = cost_chunks(w_a.shape[0], w_a.shape[1], ev.promp_sample.num_steps if steps is None else len(steps),
-                        ev.promp_sample.num_dof)
+                        ev.promp_sample.num_dof, w_a.shape[2])
     parts = []
     for i in range(0, w_a.shape[0], chunk):
         traj = ev.sample_trajectory(w_a[i:i + chunk], steps)  # (c, S, T, D)
@@ -198,13 +198,15 @@ def sample_costs(ev: Evaluator, opt, w: Tensor, env_e: Tensor) -> Tensor:
 CHUNK_FLOATS = 1 << 19  # trajectory numbers per cost call (2 MB in float32): the fastest of 2^17 to 2^21
 
 
-def cost_chunks(problems: int, samples: int, steps: int, dof: int) -> int:
+def cost_chunks(problems: int, samples: int, steps: int, dof: int, weights: int = 0) -> int:
     """Problems per cost call: about :data:`CHUNK_FLOATS` trajectory numbers, and a multiple of
-    ``32 / gcd(S T, 32)`` problems, so that every call but the last fills torch's vectorised
-    loops (32 floats) exactly: the numbers that go through the scalar tail, whose transcendental
-    functions (``hypot``) can round differently in the last bit, are then the same as in one
-    call on all problems, and so are the costs."""
-    unit = 32 // math.gcd(samples * steps, 32)
+    ``32 / gcd(S T, 32)`` problems (and of ``32 / gcd(S N, 32)`` for ``N`` weights), so that every
+    call but the last fills torch's vectorised loops (32 floats) exactly and starts its tensors at
+    the 64-byte alignment they have in one call on all problems: the numbers that go through a
+    scalar tail (whose transcendental functions, ``hypot``, can round differently in the last
+    bit) and a BLAS kernel's alignment-dependent rounding are then those of one call, and so are
+    the costs."""
+    unit = math.lcm(*(32 // math.gcd(samples * n, 32) for n in (steps, weights) if n))
     return min(problems, max(unit, CHUNK_FLOATS // max(samples * steps * dof, 1) // unit * unit))
 
 

@@ -127,9 +127,9 @@ def test_costs_in_chunks_and_on_an_objectives_own_steps_are_the_numbers_of_one_c
 def test_cost_chunks_fill_the_vectorised_loops():
     assert cost_chunks(100, 100, 100, 2) == 26  # 2^19 numbers, an even count (S T = 10^4 = 16 mod 32)
     assert cost_chunks(3, 100, 100, 2) == 3 and cost_chunks(100, 7, 3, 2) == 100
-    for problems, samples, steps in ((100, 101, 99), (1000, 20, 50), (64, 100, 2)):
-        c = cost_chunks(problems, samples, steps, 2)
-        assert c == problems or (c * samples * steps) % 32 == 0
+    for problems, samples, steps, n in ((100, 101, 99, 20), (1000, 20, 50, 70), (64, 100, 2, 7), (500, 100, 20, 70)):
+        c = cost_chunks(problems, samples, steps, 7, n)
+        assert c == problems or ((c * samples * steps) % 32 == 0 and (c * samples * n) % 32 == 0)
 
 
 def test_evaluator_samples_the_same_basis_on_a_coarser_grid():

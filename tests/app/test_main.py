@@ -129,9 +129,10 @@ def test_app_runs_from_a_built_wheel_outside_the_source_tree(tmp_path):
 def test_run_prints_a_summary_last_and_refuses_another_experiments_folder(tmp_path):
     proc = run_cli(["experiment=fig4_window", *TINY["fig4_window"], "plot=false", f"hydra.run.dir={tmp_path}"])
     last = proc.stdout.strip().splitlines()
-    assert last[0] == "[protorch] fig4_window summary" and "relevance time [s]" in proc.stdout
-    assert "84.47" in proc.stdout and last[-1] == f"  run folder {tmp_path}"
-    assert (tmp_path / "main.log").read_text() == ""  # no stray log lines
+    assert last[0] == "[protorch] fig4_window summary" and "relevance time" in proc.stdout
+    assert "84.5 s" in proc.stdout and last[-1] == f"  run folder {tmp_path}"
+    log = (tmp_path / "main.log").read_text()  # the run's log: its start, then the summary, with times
+    assert "[protorch] fig4_window: seed 0" in log and all(line in log for line in last)
     before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
     proc = run_cli(["experiment=point_particle", *TINY["point_particle"], f"hydra.run.dir={tmp_path}"], check=False)
     assert proc.returncode == 2 and "holds results of experiment 'fig4_window'" in proc.stderr
@@ -140,10 +141,37 @@ def test_run_prints_a_summary_last_and_refuses_another_experiments_folder(tmp_pa
     assert after == {k: v for k, v in before.items() if k != "main.log"}
 
 
-def test_a_failed_run_says_failed_in_its_last_line_and_status(tmp_path):
+def test_a_failed_run_says_failed_once_with_its_traceback_in_main_log(tmp_path):
     proc = run_cli(["experiment=point_particle", *TINY["point_particle"], "task.demos=/nonexistent/demos",
                     f"hydra.run.dir={tmp_path}"], check=False)
     assert proc.returncode == 1
     assert "FAILED" in proc.stderr.strip().splitlines()[-1]
+    out = proc.stdout + proc.stderr
+    assert out.count("no such folder") == 1 and "Traceback" not in out  # printed once
     assert json.loads((tmp_path / "status.json").read_text())["status"] == "failed"
+    assert "Traceback" in (tmp_path / "main.log").read_text()
     assert not (tmp_path / "metrics.json").exists()
+
+
+BROKEN_TASKS = {  # a task breaking its contract, and what the one line must name
+    "Summed": ("return super().costs(traj, env).sum(-1)",
+               "costs(traj (12, 100, 2), env (12, 4)) returned shape (12,); it must return (12, O) with O >= 1"),
+    "Negative": ("return super().costs(traj, env) - 1.0", "costs(traj (12, 100, 2), env (12, 4)) returned -1"),
+    "NotBroadcasting": ("return super().costs(traj, env.expand(traj.shape[0], 4))",
+                        "costs(traj (12, 2, 100, 2), env (12, 1, 4)) raised"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BROKEN_TASKS))
+def test_a_task_breaking_its_contract_is_refused_in_one_line_and_leaves_no_folder(name, tmp_path):
+    body, expected = BROKEN_TASKS[name]
+    (tmp_path / "broken.py").write_text(
+        "from examples.reach_around_a_disc import ReachAroundADisc\n\n"
+        f"class {name}(ReachAroundADisc):\n    def costs(self, traj, env):\n        {body}\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(ROOT)])}
+    proc = run_cli(["experiment=self_improve", f"task._target_=broken.{name}", "task.demo_envs=4",
+                    "hydra.run.dir=runs/refused"], cwd=tmp_path, env=env, check=False)
+    assert proc.returncode == 2
+    assert proc.stdout == "" and proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+    assert proc.stderr.startswith(f"error: task broken.{name}: ") and expected in proc.stderr
+    assert not (tmp_path / "runs").exists()  # no run folder, not even an empty one

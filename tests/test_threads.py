@@ -63,6 +63,7 @@ def test_the_probe_counts_the_machine_busy_time_minus_its_own(monkeypatch):
     assert th.LoadProbe().other_cores() == pytest.approx(1.0)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not __import__("os").path.exists("/proc/stat"), reason="the load probe reads /proc/stat")
 def test_the_probe_sees_another_busy_process():
     import subprocess

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 import subprocess
 import sys
 from pathlib import Path
@@ -75,6 +77,7 @@ def test_which_command_lines_get_the_help():
     assert chosen_experiment(["experiment=null"]) is None
 
 
+@pytest.mark.slow
 def test_bare_command_prints_the_help_and_exits_0_without_running(tmp_path):
     proc = _cli(f"hydra.run.dir={tmp_path / 'run'}")
     assert proc.returncode == 0, proc.stderr
@@ -82,6 +85,7 @@ def test_bare_command_prints_the_help_and_exits_0_without_running(tmp_path):
     assert not (tmp_path / "run").exists()
 
 
+@pytest.mark.slow
 def test_help_of_one_experiment_lists_its_keys_meanings():
     proc = _cli("experiment=point_particle", "--help")
     assert proc.returncode == 0, proc.stderr

@@ -69,6 +69,7 @@ def test_experiment_config_composes(name):
     assert cfg.seed == 0 and cfg.dtype in ("float32", "float64")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", EXPERIMENTS)
 def test_experiment_runs_end_to_end_at_a_tiny_budget(name, tmp_path):
     run_cli([f"experiment={name}", *TINY[name], f"hydra.run.dir={tmp_path}"])
@@ -86,6 +87,7 @@ def test_bad_beta_is_refused_with_a_clear_error(tmp_path):
     assert not (tmp_path / "metrics.json").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("launcher", ["basic", "joblib"])
 def test_beta_sweep(launcher, tmp_path):
     args = ["-m", "experiment=fig4_window", "optimizer.beta=1,10,20", *TINY["fig4_window"], "plot=false",
@@ -99,6 +101,7 @@ def test_beta_sweep(launcher, tmp_path):
     assert betas == [1.0, 10.0, 20.0]
 
 
+@pytest.mark.slow
 def test_app_runs_from_a_built_wheel_outside_the_source_tree(tmp_path):
     wheels = tmp_path / "wheels"
     subprocess.run(
@@ -126,6 +129,7 @@ def test_app_runs_from_a_built_wheel_outside_the_source_tree(tmp_path):
     assert json.loads((work / "out" / "metrics.json").read_text())["experiment"] == "fig3_toy"
 
 
+@pytest.mark.slow
 def test_run_prints_a_summary_last_and_refuses_another_experiments_folder(tmp_path):
     proc = run_cli(["experiment=fig4_window", *TINY["fig4_window"], "plot=false", f"hydra.run.dir={tmp_path}"])
     last = proc.stdout.strip().splitlines()
@@ -141,6 +145,7 @@ def test_run_prints_a_summary_last_and_refuses_another_experiments_folder(tmp_pa
     assert after == {k: v for k, v in before.items() if k != "main.log"}
 
 
+@pytest.mark.slow
 def test_a_failed_run_says_failed_once_with_its_traceback_in_main_log(tmp_path):
     proc = run_cli(["experiment=point_particle", *TINY["point_particle"], "task.demos=/nonexistent/demos",
                     f"hydra.run.dir={tmp_path}"], check=False)
@@ -162,6 +167,7 @@ BROKEN_TASKS = {  # a task breaking its contract, and what the one line must nam
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(BROKEN_TASKS))
 def test_a_task_breaking_its_contract_is_refused_in_one_line_and_leaves_no_folder(name, tmp_path):
     body, expected = BROKEN_TASKS[name]

@@ -32,6 +32,7 @@ def cli(args, tmp_path, check=True):
     return proc
 
 
+@pytest.mark.slow
 def test_a_task_outside_protorch_runs_the_whole_pipeline(tmp_path):
     (tmp_path / "my_disc_task.py").write_text(EXAMPLE.read_text())  # a module protorch has never seen
     run = tmp_path / "run"
@@ -55,6 +56,7 @@ def test_a_task_outside_protorch_runs_the_whole_pipeline(tmp_path):
     assert float(ok.double().mean()) == m["test"]["success_rate"]
 
 
+@pytest.mark.slow
 def test_a_task_missing_a_member_is_refused_naming_it(tmp_path):
     (tmp_path / "half_task.py").write_text(
         "class Half:\n    name = 'half'\n    num_dof = 2\n    env_dim = 1\n"

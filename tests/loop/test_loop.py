@@ -310,6 +310,7 @@ SCRIPT = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_sigkill_mid_loop_then_resume_keeps_every_finished_environment(tmp_path):
     run = tmp_path / "run"
     script = tmp_path / "job.py"

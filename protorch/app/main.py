@@ -116,10 +116,24 @@ def hydra_app(cfg: DictConfig) -> float | None:
     return None if objective is None else objective["value"]
 
 
+def pin_mkl_code_path() -> str:
+    """Pin MKL's code path to its AVX2 branch (conditional numerical reproducibility,
+    ``MKL_CBWR=AVX2``) unless the user chose one; returns the setting in effect.
+
+    MKL picks its kernels by CPU (AVX2, AVX-512, ...) and their last bits differ (its Cholesky
+    and triangular solves, which the GP map runs in float64); the loop amplifies a flipped bit
+    into another solved environment, so the same command gave other success rates on another
+    machine. ATen's own kernels give the same bits on the AVX2 and AVX-512 paths
+    (docs/reproducibility.md). MKL reads the variable at its first call, which protorch's imports
+    never make (tests/app/test_main.py checks it); a CPU without AVX2 keeps MKL's own choice."""
+    return os.environ.setdefault("MKL_CBWR", "AVX2")
+
+
 def main() -> float | None:
     """``python -m protorch`` and the ``protorch`` command: ``protorch view [RUN_DIR] ...`` serves
     the live viewer (:mod:`protorch.view`); ``--help`` or no ``experiment=`` prints the help;
     anything else goes to the Hydra app (:func:`hydra_app`)."""
+    pin_mkl_code_path()
     if len(sys.argv) > 1 and sys.argv[1] == "view":
         sys.exit(view_main(sys.argv[2:]))
     if wants_help(sys.argv[1:]):

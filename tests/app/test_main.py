@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
@@ -181,3 +182,35 @@ def test_a_task_breaking_its_contract_is_refused_in_one_line_and_leaves_no_folde
     assert proc.stdout == "" and proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
     assert proc.stderr.startswith(f"error: task broken.{name}: ") and expected in proc.stderr
     assert not (tmp_path / "runs").exists()  # no run folder, not even an empty one
+
+
+CHOLESKY = ("import hashlib, torch; a = torch.randn(70, 70, generator=torch.Generator().manual_seed(0), "
+            "dtype=torch.float64); a = a @ a.T + 70 * torch.eye(70, dtype=torch.float64); "
+            "print(hashlib.sha256(torch.linalg.cholesky(a).numpy().tobytes()).hexdigest())")
+
+
+def _python(code: str, **env_vars) -> str:
+    env = {k: v for k, v in os.environ.items() if k not in ("MKL_CBWR", "ATEN_CPU_CAPABILITY")}
+    env.update(PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1", **env_vars)
+    return subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
+                          check=True, timeout=600).stdout.strip().splitlines()[-1]
+
+
+@pytest.mark.slow
+def test_the_app_pins_mkl_before_its_first_call():
+    # the app sets MKL_CBWR after protorch's imports: they must not have called MKL yet
+    pinned = _python("from protorch.app.main import pin_mkl_code_path; assert pin_mkl_code_path() == 'AVX2'; "
+                     + CHOLESKY)
+    assert pinned == _python(CHOLESKY, MKL_CBWR="AVX2")  # set before the interpreter started
+    assert _python("from protorch.app.main import pin_mkl_code_path; print(pin_mkl_code_path())",
+                   MKL_CBWR="COMPATIBLE") == "COMPATIBLE"  # the user's choice is kept
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(torch.backends.cpu.get_cpu_capability() != "AVX512", reason="this CPU has no AVX-512 path to compare")
+@pytest.mark.parametrize("name", ["arm_reach", "point_particle"])
+def test_an_avx2_and_an_avx512_cpu_give_the_same_run(name):
+    code = ("import json; from protorch.app.main import pin_mkl_code_path; pin_mkl_code_path(); "
+            f"from tests.small_runs import small_run; print(json.dumps(small_run({name!r}, 1)))")
+    avx512, avx2 = (json.loads(_python(code, ATEN_CPU_CAPABILITY=isa)) for isa in ("avx512", "avx2"))
+    assert avx512 == avx2  # every metric, and the loops' data sets bit for bit

@@ -8,6 +8,10 @@ by CPU). A run is a small ``arm_reach`` / ``point_particle`` (``tests/small_runs
 metric but the timings, and a hash of each loop's data set, bit for bit. It prints, per variant,
 how many entries differ from the first variant's and the first few of them.
 
+``--speed`` times MKL's pinned AVX2 branch against its own choice on the GP map's work (Cholesky
+and a solve of 30 to 1,000 environments in float64, 1 thread), alternating the two in fresh
+processes, 3 rounds.
+
 ``--ops`` instead prints which single operations (random draws, matmul, reductions,
 transcendental functions, Cholesky and solves, the arm's costs) give other bits under each
 variant than under the first: the depth at which a difference starts (docs/reproducibility.md).
@@ -59,6 +63,24 @@ def _ops() -> dict:
     return out
 
 
+def _speed() -> dict:
+    """CPU seconds of Cholesky + solve at each size (this process's MKL setting)."""
+    import time
+
+    import torch
+
+    g, out = torch.Generator().manual_seed(0), {}
+    for m in (30, 100, 300, 1000):
+        a = torch.randn(m, m, generator=g, dtype=torch.float64)
+        a = a @ a.T + m * torch.eye(m, dtype=torch.float64)  # (m, m)
+        b = torch.randn(m, 70, generator=g, dtype=torch.float64)  # (m, N)
+        t = time.process_time()
+        for _ in range(max(1, 3000 // m)):
+            torch.cholesky_solve(b, torch.linalg.cholesky(a))
+        out[str(m)] = time.process_time() - t
+    return out
+
+
 def _run(variant: str, what: list[str]) -> dict:
     env = {k: v for k, v in os.environ.items() if k not in ("MKL_CBWR", "ATEN_CPU_CAPABILITY", "OMP_NUM_THREADS")}
     threads = 1
@@ -71,7 +93,7 @@ def _run(variant: str, what: list[str]) -> dict:
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")])
     out = {}
     for name in what:
-        cmd = ([sys.executable, __file__, "--ops-here", str(threads)] if name == "ops"
+        cmd = ([sys.executable, __file__, f"--{name}-here", str(threads)] if name in ("ops", "speed")
                else [sys.executable, "-m", "tests.small_runs", name, str(threads)])
         proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, check=True)
         out.update({f"{name}: {k}": v for k, v in json.loads(proc.stdout.strip().splitlines()[-1]).items()})
@@ -83,17 +105,25 @@ def main() -> None:
     ap.add_argument("--experiments", nargs="+", default=["arm_reach", "point_particle"])
     ap.add_argument("--variants", nargs="+", default=VARIANTS)
     ap.add_argument("--ops", action="store_true", help="single operations instead of runs")
-    ap.add_argument("--ops-here", type=int, help=argparse.SUPPRESS)  # the child process of --ops
+    ap.add_argument("--speed", action="store_true", help="MKL_CBWR=AVX2 against MKL's own choice, timed")
+    ap.add_argument("--ops-here", type=int, help=argparse.SUPPRESS)  # the child processes
+    ap.add_argument("--speed-here", type=int, help=argparse.SUPPRESS)
     args = ap.parse_args()
-    if args.ops_here is not None:
+    if args.ops_here is not None or args.speed_here is not None:
         import torch
 
-        torch.set_num_threads(args.ops_here)
-        print(json.dumps(_ops()))
+        torch.set_num_threads(args.ops_here or args.speed_here)
+        print(json.dumps(_ops() if args.ops_here is not None else _speed()))
         return
     import torch
 
     print(f"torch {torch.__version__}, this CPU's ATen capability {torch.backends.cpu.get_cpu_capability()}")
+    if args.speed:
+        for r in range(3):
+            own, pinned = _run("t=1", ["speed"]), _run("t=1,MKL_CBWR=AVX2", ["speed"])
+            print(f"round {r + 1}: MKL_CBWR=AVX2 / MKL's own choice, CPU time of Cholesky + solve: "
+                  + ", ".join(f"{k.split(': ')[1]} envs {pinned[k] / own[k]:.2f}x" for k in own))
+        return
     what = ["ops"] if args.ops else args.experiments
     first, base = args.variants[0], None
     for variant in args.variants:

@@ -108,6 +108,10 @@ def test_data_set_grows_and_every_environment_is_tried_once(batch_size):
     assert res.metrics[-1]["success_rate"] == sum(r["success"] for r in res.metrics[1:]) / 10
     # the loop improves on what the GP guessed
     assert sum(r["success"] for r in res.metrics[1:]) >= sum(r["initial_success"] for r in res.metrics[1:])
+    # rollouts: PRO's samples per active iteration, O = 2 objectives' batches and a relevance batch of 20 each
+    for r in res.metrics[1:]:
+        per_iteration = (2 + 1) * 20
+        assert r["rollouts"] % 20 == 0 and 0 < r["rollouts"] <= r["batch"] * KW["max_iter"] * per_iteration
     # deterministic in the seed
     again = loop(task, promp, setup()[2], batch_size=batch_size, add_only="all")
     assert again.tried == res.tried and torch.equal(again.dataset.mean, res.dataset.mean)

@@ -91,21 +91,25 @@ def _shape(x) -> str:
     return _dims(*x.shape)
 
 
-def _call(task, method: str, traj: Tensor, env: Tensor):
+def _returned(task, method: str, traj: Tensor, env: Tensor, must: str) -> tuple[str, Tensor, tuple, str]:
+    """``(where, what task.method(traj, env) returned, the batch shape, what it must return)``; a
+    raise or a return that is no tensor is refused here. ``must`` is formatted with ``{lead}``."""
     where = f"task {type(task).__module__}.{type(task).__qualname__}: {method}(traj {_shape(traj)}, env {_shape(env)})"
+    lead = tuple(traj.shape[:-2])
+    must = must.format(lead=_dims(*lead), lead_o=_dims(*lead, "O"))
     try:
-        return where, getattr(task, method)(traj, env)
+        out = getattr(task, method)(traj, env)
     except Exception as exc:  # the task's own error, on one line, with where it happened
         text = " ".join(str(exc).split())
         raise TaskContractError(f"{where} raised {type(exc).__name__}: {text}") from exc
+    if not isinstance(out, Tensor):
+        raise TaskContractError(f"{where} returned a {type(out).__name__}; {must}")
+    return where, out, lead, must
 
 
 def _check_costs(task, traj: Tensor, env: Tensor) -> int:
-    where, c = _call(task, "costs", traj, env)
-    lead = tuple(traj.shape[:-2])
-    must = f"it must return {_dims(*lead, 'O')} with O >= 1 (one column per objective)"
-    if not isinstance(c, Tensor):
-        raise TaskContractError(f"{where} returned a {type(c).__name__}; {must}")
+    where, c, lead, must = _returned(task, "costs", traj, env,
+                                     "it must return {lead_o} with O >= 1 (one column per objective)")
     if c.ndim != len(lead) + 1 or tuple(c.shape[:-1]) != lead or c.shape[-1] < 1:
         raise TaskContractError(f"{where} returned shape {_shape(c)}; {must}")
     if not c.is_floating_point():
@@ -122,11 +126,7 @@ def _check_costs(task, traj: Tensor, env: Tensor) -> int:
 
 
 def _check_success(task, traj: Tensor, env: Tensor) -> None:
-    where, ok = _call(task, "success", traj, env)
-    lead = tuple(traj.shape[:-2])
-    must = f"it must return {_dims(*lead)} bool (one flag per trajectory)"
-    if not isinstance(ok, Tensor):
-        raise TaskContractError(f"{where} returned a {type(ok).__name__}; {must}")
+    where, ok, lead, must = _returned(task, "success", traj, env, "it must return {lead} bool (one flag per trajectory)")
     if tuple(ok.shape) != lead or ok.dtype != torch.bool:
         raise TaskContractError(f"{where} returned shape {_shape(ok)}, dtype {ok.dtype}; {must}")
 

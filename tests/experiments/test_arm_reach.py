@@ -105,6 +105,7 @@ def test_bad_settings_are_refused_before_any_work(tmp_path, override, match):
     assert not checkpoint_path(tmp_path).exists()
 
 
+@pytest.mark.slow
 def test_prepare_builds_labelled_demonstrations_and_priors():
     c = cfg()
     s = c["settings"]

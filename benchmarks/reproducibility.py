@@ -54,7 +54,8 @@ def _ops() -> dict:
                     f"sum {n}": fp(a.sum(-1)), f"sum of 140k {n}": fp(a.sum()), f"norm {n}": fp(a.norm(dim=-1)),
                     f"exp {n}": fp(a.exp()), f"sin {n}": fp(a.sin()), f"atan2 {n}": fp(torch.atan2(a, a.flip(-1))),
                     f"sigmoid {n}": fp(a.sigmoid()), f"cdist {n}": fp(torch.cdist(a[0], a[1])),
-                    f"cholesky {n}": fp(torch.linalg.cholesky(spd)), f"solve {n}": fp(torch.linalg.solve(spd, a[0, :70]))})
+                    f"cholesky {n}": fp(torch.linalg.cholesky(spd)),
+                    f"solve {n}": fp(torch.linalg.solve(spd, a[0, :70]))})
     task, promp = ArmReachTask(), ProMP(7, 10, 100, dtype=torch.float32)
     traj = promp.trajectory(0.3 * torch.randn(20, 50, 70, generator=g))  # (20, 50, T, 7) float32
     env = task.sample_envs(20, g, dtype=torch.float32)[:, None]  # (20, 1, 4)

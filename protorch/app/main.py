@@ -7,7 +7,8 @@ summary (headline numbers, status, run folder, wall times) as its last lines, th
 ``protorch`` logger, so the run folder's ``main.log`` holds them too. A refused value (a bad
 setting, a task breaking its contract) is one line on stderr, exit status 2, and leaves no run
 folder; a failed run is one line on stderr, exit status 1, its traceback in ``main.log`` and
-``status.json`` (``HYDRA_FULL_ERROR=1`` raises instead). Nothing else in the package imports Hydra. The app returns the number named by the config's ``objective`` key (e.g.
+``status.json`` (``HYDRA_FULL_ERROR=1`` raises instead). Nothing else in the package imports
+Hydra. The app returns the number named by the config's ``objective`` key (e.g.
 ``test.success_rate`` for ``experiment=point_particle``), which is what a sweeper such as Optuna
 optimises.
 """

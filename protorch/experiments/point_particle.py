@@ -271,7 +271,8 @@ def _figures(out_dir, task, model, test_envs, loops, metrics, episode, seed) -> 
             ax.axis("off")
             continue
         plot_point_particle(ax, task, test_envs[pick[i]])
-        plot_trajectories(ax, samples[i], color="tab:blue", lw=0.6, alpha=0.35, label="samples of the map's distribution")
+        plot_trajectories(ax, samples[i], color="tab:blue", lw=0.6, alpha=0.35,
+                          label="samples of the map's distribution")
         plot_trajectories(ax, means[i], color="k", lw=1.8, label="mean")
         ax.set_title(f"test env {int(pick[i])}: {'success' if ok[i] else 'FAILURE'}", fontsize=8,
                      color="k" if ok[i] else "tab:red")

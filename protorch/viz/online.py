@@ -68,7 +68,8 @@ def draw_online_frame(ax, positions, envs, means, markers=None, *, t: int, dt: f
             ax.add_patch(Rectangle((x0, y_lo), w, y_hi - y_lo, facecolor="0.6", edgecolor="0.2",
                                    lw=1, zorder=1, label="wall (now)"))
     ax.plot([wx], [hy], "+", color="0.2", ms=8, zorder=2, label="hole centre")
-    ax.add_patch(Circle((gx, gy), goal_tol, fill=False, edgecolor="r", ls=":", lw=1, zorder=2, label="goal tolerance"))
+    ax.add_patch(Circle((gx, gy), goal_tol, fill=False, edgecolor="r", ls=":", lw=1, zorder=2,
+                        label="goal tolerance"))
     ax.plot(sx, sy, "x", color="g", ms=9, mew=2, zorder=3, label="start")
     ax.plot(gx, gy, "x", color="r", ms=9, mew=2, zorder=3, label="goal")
     ax.plot(means[t, :, 0], means[t, :, 1], "-", color="tab:red", lw=1.2, zorder=4, label="ProMP mean")

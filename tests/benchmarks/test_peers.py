@@ -50,6 +50,7 @@ def one_thread():
     torch.set_num_threads(before)
 
 
+@pytest.mark.slow
 def test_pro_keeps_the_std_the_peers_collapse(peers, one_thread):
     (p,) = peers.window_problems(1)
     budget = 3000

@@ -33,6 +33,7 @@ def test_matches_eq7_eq8(backend, m):
     assert mu.dtype == torch.float64 and var.shape == (9, 5)
 
 
+@pytest.mark.slow
 def test_matches_eq7_eq8_at_2024(backend):
     """The paper's largest data set (IV-C: 20 x 3 demonstrations + 2004 priors, M = 2024);
     GPyTorch would leave Cholesky above 800 points without the exactness settings."""

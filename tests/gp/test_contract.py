@@ -262,6 +262,7 @@ def test_bad_options_and_queries(backend):
         gp.predict(torch.full((1, 4), float("nan"), dtype=torch.float64))
 
 
+@pytest.mark.slow
 # ------------------------------------------------------------------ approximate variance
 def test_approx_variance(backend):
     E, MU, VAR = make_data(250, 4, seed=31)

@@ -127,6 +127,7 @@ def test_fig3_toy_pro_keeps_irrelevant_std_and_rwr_collapses_it():
     assert bool(((pro_reward - rwr_reward).abs() <= 0.1 * rwr_reward).all())
 
 
+@pytest.mark.slow
 def test_fig3_toy_without_noise_floor_drains_the_irrelevant_variance():
     # the paper's relevance as written: sampling noise in rho shrinks the irrelevant variance
     kw = {"beta": 10.0, "num_samples": 200, "max_iter": 300, "tol": 0.0, "seed": 0}

@@ -286,6 +286,7 @@ def test_approx_variance(backend):
         assert gp32.groups["0"].nys_H.dtype == torch.float32
 
 
+@pytest.mark.slow
 def test_torch_nystrom_variance_on_smooth_data():
     """Where the kernel is numerically low rank (environments within about one length scale),
     few pivots give the variance to 1e-6."""

@@ -263,6 +263,7 @@ def test_checkpoints_are_atomic_loadable_and_match_the_csv(tmp_path, monkeypatch
     assert [int(r["step"]) for r in csv.DictReader((run2 / METRICS_FILE).open())] == [0, 1]
 
 
+@pytest.mark.slow
 def test_resume_after_a_crash_equals_an_uninterrupted_run(tmp_path):
     task, promp, ds = setup()
     whole = loop(task, promp, ds, num_envs=12, batch_size=3)

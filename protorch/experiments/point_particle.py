@@ -24,6 +24,7 @@ import torch
 from ..checks import check_int
 from ..control.particle import run_episodes
 from ..tasks import PointParticleTask, load_human_demos
+from ..viz.common import legend_below
 from ..viz.online import plot_episode_frames, write_episode_gif
 from ..viz.paper import plot_point_particle, plot_trajectories, save_figure
 from .common import baseline_spec, optimizer_label
@@ -270,7 +271,8 @@ def _figures(out_dir, task, model, test_envs, loops, metrics, episode, seed) -> 
             ax.axis("off")
             continue
         plot_point_particle(ax, task, test_envs[pick[i]])
-        plot_trajectories(ax, samples[i], color="tab:blue", lw=0.6, alpha=0.35)
+        plot_trajectories(ax, samples[i], color="tab:blue", lw=0.6, alpha=0.35,
+                          label="samples of the map's distribution")
         plot_trajectories(ax, means[i], color="k", lw=1.8, label="mean")
         ax.set_title(f"test env {int(pick[i])}: {'success' if ok[i] else 'FAILURE'}", fontsize=8,
                      color="k" if ok[i] else "tab:red")
@@ -278,6 +280,7 @@ def _figures(out_dir, task, model, test_envs, loops, metrics, episode, seed) -> 
     fig.suptitle(f"held-out environments, failures first ({failures} of {all_ok.numel()} fail): 10 samples (blue) "
                  f"and the mean (black); test success {metrics['test']['success_rate']:.3f}", fontsize=10)
     fig.tight_layout()
+    legend_below(fig, axes)  # every marker: wall, hole centre, start, goal, samples, mean
     save_figure(fig, Path(out_dir) / "test_grid.png")
 
     # one moving episode (Fig. 6): frames and a GIF (protorch.viz.online)

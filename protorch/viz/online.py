@@ -17,7 +17,7 @@ from pathlib import Path
 
 from .common import atomic_save, frame_indices, legend_below, new_figure, to_numpy
 
-__all__ = ["draw_online_frame", "plot_episode_frames", "write_episode_gif"]
+__all__ = ["draw_online_frame", "past_path_split", "plot_episode_frames", "write_episode_gif"]
 
 _WALL_HALF_WIDTH = 1.0  # as protorch.tasks.point_particle
 _HOLE_HALF_HEIGHT = 1.0
@@ -38,11 +38,23 @@ def _check(positions, envs, means, markers):
     return positions, envs, means, markers
 
 
+def past_path_split(envs, t: int, recent: int) -> int:
+    """The first instant of the path drawn solid at ``t``: the last ``recent`` steps, and any
+    earlier ones while the environment (the wall, its hole) stood where it stands at ``t``; the
+    path before it was drawn next to a wall that has moved since, so it is drawn faded."""
+    start = max(0, t - recent)
+    while start > 0 and (envs[start - 1, 2:4] == envs[t, 2:4]).all():
+        start -= 1
+    return start
+
+
 def draw_online_frame(ax, positions, envs, means, markers=None, *, t: int, dt: float = 0.01,
-                      goal_tol: float = 0.2, legend: bool = False):
+                      goal_tol: float = 0.2, legend: bool = False, recent: float = 0.1):
     """Draw instant ``t`` of an episode on ``ax``: the wall (grey) with its hole, start (green x),
     goal (red x) with its ``goal_tol`` circle, the particle's path so far (blue) and position,
-    the current ProMP mean (red) and marker (black star). Returns ``ax``."""
+    the current ProMP mean (red) and marker (black star). The wall is drawn where it is at ``t``;
+    the path from before the wall last moved, older than ``recent`` seconds, is faded (it passed
+    the wall where the wall was then, :func:`past_path_split`). Returns ``ax``."""
     from matplotlib.patches import Circle, Rectangle
 
     positions, envs, means, markers = _check(positions, envs, means, markers)
@@ -54,13 +66,18 @@ def draw_online_frame(ax, positions, envs, means, markers=None, *, t: int, dt: f
     for y_lo, y_hi in ((lo, hy - _HOLE_HALF_HEIGHT), (hy + _HOLE_HALF_HEIGHT, hi)):
         if y_hi > y_lo:
             ax.add_patch(Rectangle((x0, y_lo), w, y_hi - y_lo, facecolor="0.6", edgecolor="0.2",
-                                   lw=1, zorder=1))
-    ax.plot([wx], [hy], "+", color="0.2", ms=8, zorder=2)
-    ax.add_patch(Circle((gx, gy), goal_tol, fill=False, edgecolor="r", ls=":", lw=1, zorder=2))
+                                   lw=1, zorder=1, label="wall (now)"))
+    ax.plot([wx], [hy], "+", color="0.2", ms=8, zorder=2, label="hole centre")
+    ax.add_patch(Circle((gx, gy), goal_tol, fill=False, edgecolor="r", ls=":", lw=1, zorder=2,
+                        label="goal tolerance"))
     ax.plot(sx, sy, "x", color="g", ms=9, mew=2, zorder=3, label="start")
     ax.plot(gx, gy, "x", color="r", ms=9, mew=2, zorder=3, label="goal")
     ax.plot(means[t, :, 0], means[t, :, 1], "-", color="tab:red", lw=1.2, zorder=4, label="ProMP mean")
-    ax.plot(positions[: t + 1, 0], positions[: t + 1, 1], "-", color="tab:blue", lw=1.5, zorder=5,
+    split = past_path_split(envs, t, max(1, int(round(recent / dt))))
+    if split > 0:  # before the wall moved to where it is now
+        ax.plot(positions[: split + 1, 0], positions[: split + 1, 1], "-", color="tab:blue", lw=1.0, alpha=0.3,
+                zorder=5, label="path earlier, faded: the wall has moved since")
+    ax.plot(positions[split: t + 1, 0], positions[split: t + 1, 1], "-", color="tab:blue", lw=1.5, zorder=5,
             label="path")
     ax.plot(positions[t, 0], positions[t, 1], "o", color="m", ms=7, zorder=6, label="particle")
     if markers is not None:

@@ -46,6 +46,7 @@ def test_config_holds_the_papers_settings():
     assert full.task.prior_grid == "rectangles" and full.task.region == "rectangles"
 
 
+@pytest.mark.slow
 def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     m = run_experiment(cfg(), tmp_path)
     for path in (("test", "success_rate"), ("dynamic", "success_rate"), ("loop", "seconds"),
@@ -104,6 +105,7 @@ def test_bad_settings_are_refused_before_any_work(tmp_path, override, match):
     assert not checkpoint_path(tmp_path).exists()
 
 
+@pytest.mark.slow
 def test_prepare_builds_labelled_demonstrations_and_priors():
     c = cfg()
     s = c["settings"]
@@ -118,6 +120,7 @@ def test_prepare_builds_labelled_demonstrations_and_priors():
     assert torch.equal(setup.task.side(traj, setup.prior_envs), setup.prior_labels)
 
 
+@pytest.mark.slow
 def test_loop_over_the_table_grid_iterates_the_initial_data_and_tests_both_regions(tmp_path):
     c = cfg("task.prior_grid=table", "settings.loop.choice=dataset", "settings.loop.num_envs=12",
             "settings.baselines=[labels_off]")

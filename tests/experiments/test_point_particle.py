@@ -72,6 +72,7 @@ def test_config_holds_the_papers_settings():
     assert c["resume"] is False
 
 
+@pytest.mark.slow
 def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     m = run_experiment(cfg("plot=false"), tmp_path)
     for path in (("test", "success_rate"), ("dynamic", "success_rate"), ("loop", "seconds"),
@@ -97,6 +98,7 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     assert again["loop"]["resumed_from"] == 2 and again["test"] == m["test"]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not HUMAN.is_dir(), reason="the authors' human demonstrations are not in ../shared/data")
 def test_cli_with_the_human_demonstrations_and_figures(tmp_path):
     run_cli(["experiment=point_particle", *TINY, f"task.demos={HUMAN}", f"hydra.run.dir={tmp_path}"])
@@ -124,6 +126,7 @@ def test_bad_settings_are_refused_before_any_work(tmp_path, override, error, mes
     assert not checkpoint_path(tmp_path).exists() and not (tmp_path / "metrics.json").exists()
 
 
+@pytest.mark.slow
 def test_sigkill_mid_loop_then_resume_completes_with_every_finished_environment(tmp_path):
     run = tmp_path / "run"
     args = ["experiment=point_particle", "settings.loop.num_envs=200", "settings.loop.batch_size=2",
@@ -155,6 +158,7 @@ def test_sigkill_mid_loop_then_resume_completes_with_every_finished_environment(
     assert [int(r["step"]) for r in rows] == list(range(101))
 
 
+@pytest.mark.slow
 def test_cli_loop_with_epro_at_its_own_defaults_is_named_after_it(tmp_path):
     proc = run_cli(["experiment=point_particle", "optimizer=epro", *TINY_ANY, "settings.dynamic_paper.episodes=2",
                     "settings.baselines=[rwr]", "plot=false", f"hydra.run.dir={tmp_path}"])
@@ -174,6 +178,7 @@ def test_cli_loop_with_epro_at_its_own_defaults_is_named_after_it(tmp_path):
     ("cem", []),
     ("rwpo", ["optimizer.relevance_iters=2", "optimizer.theta_samples=4", "optimizer.trajectory_samples=3"]),
 ])
+@pytest.mark.slow
 def test_loop_runs_with_other_optimisers(tmp_path, option, extra):
     # CEM takes no beta; RWPO learns its relevance from the task's objectives and the ProMP's basis
     m = run_experiment(cfg_any(f"optimizer={option}", *extra, "settings.loop.num_envs=10",

@@ -32,6 +32,7 @@ def cli(args, env=None):
                           timeout=120, env={**os.environ, **(env or {})})
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("override, line", BAD)
 def test_a_bad_value_is_one_line_and_no_results(override, line, tmp_path):
     proc = cli(["experiment=point_particle", override, f"hydra.run.dir={tmp_path}"])
@@ -42,6 +43,7 @@ def test_a_bad_value_is_one_line_and_no_results(override, line, tmp_path):
     assert not (tmp_path / "checkpoint").exists()
 
 
+@pytest.mark.slow
 def test_hydra_full_error_shows_the_traceback(tmp_path):
     proc = cli(["experiment=point_particle", "optimizer.beta=abc", f"hydra.run.dir={tmp_path}"],
                env={"HYDRA_FULL_ERROR": "1"})

@@ -83,7 +83,7 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
             v = v[k]
         assert isinstance(v, float) and v >= 0, path
     assert m["test"]["num_envs"] == 10 and m["dynamic"]["episodes"] == 3 and m["loop"]["envs_tried"] == 20
-    assert m["demos"] == {"source": "synthetic", "count": 90, "envs": 30}
+    assert m["demos"] == {"source": "synthetic", "count": 90, "envs": 30, "marked": 0}
     assert json.loads((tmp_path / "metrics.json").read_text())["test"] == m["test"]
     model = protorch.load(tmp_path)  # the trained map, without Hydra
     assert model.env_map.num_points == m["loop"]["dataset_size"] and model.task_name == "point_particle"

@@ -17,10 +17,11 @@ from protorch import ProMP, demonstration_dataset, save_model
 from protorch.data.dataset import TrajectoryDataset
 from protorch.data.demos import PARTICLE_FORMAT, load_human_demos, read_demos, read_marks
 from protorch.experiments import arm_reach, point_particle
+from protorch.gp.model import label_aware_mean
 from protorch.primitives.promp import resample
 from protorch.tasks import PointParticleTask
 from protorch.tasks.arm_demos import arm_demo_format
-from protorch.view.__main__ import parse_args, teach_session
+from protorch.view.__main__ import main, parse_args, teach_session
 from protorch.view.scene import open_run
 from protorch.view.teach import TeachSession, failing_envs
 from protorch.view.teach_server import board_point, teach_markdown
@@ -287,3 +288,32 @@ def test_a_taught_particle_folder_with_a_lone_demonstration_is_refused(session):
     with pytest.raises(ValueError, match=r"env0\.out: this environment has 1 demonstration\(s\) \(traj0\.out\)"):
         point_particle.prepare(optimizer={"beta": 20.0}, task={"demos": str(session.folder)}, test={"num_envs": 2},
                                dynamic={"episodes": 0}, dynamic_paper={"episodes": 0})
+
+
+def test_the_arm_run_proposes_its_label_aware_failures_first(arm_teach, tmp_path):
+    """A map of 4 environments holding the exact straight-path weights (IK), the can beside the
+    path: it succeeds there, and fails at random environments."""
+    task, promp = arm_teach.task, ProMP(7, num_basis=10, num_steps=100)
+    known = torch.tensor([[0.56, -0.12, 0.70, 0.20], [0.56, 0.12, 0.70, -0.20], [0.52, -0.10, 0.66, 0.12],
+                          [0.60, 0.10, 0.72, -0.16]], dtype=torch.float64)
+    q, _ = task.ik_path(task.straight_paths(known, promp.num_steps))  # (4, T, 7)
+    ds = TrajectoryDataset(promp, 4, task_name=task.name)
+    w = promp.weights(q)
+    ds.append(known, w, torch.full_like(w, 1e-8), label=task.side(q, known), origin="prior", converged=True)
+    save_model(tmp_path, ds, backend="torch", alpha=30.0)
+    run = open_run(tmp_path)
+    envs = torch.cat([known, task.sample_envs(8, torch.Generator().manual_seed(2))])  # (12, 4)
+    out = failing_envs(run, envs)
+    best = label_aware_mean(run.model.env_map, run.model.promp, run.task, out, dtype=torch.float64)
+    ok = run.task.success(run.model.promp.trajectory(best.mean), out)
+    n_fail = int((~ok).sum())
+    assert 4 <= n_fail <= 8 and not bool(ok[:n_fail].any()) and bool(ok[n_fail:].all())
+    assert sorted(out.tolist()) == sorted(envs.tolist())
+
+
+def test_the_command_line_refuses_a_bad_folder_naming_file_and_line(tmp_path, capsys):
+    (tmp_path / "traj0.out").write_text("1,2\nnan,4\n")
+    (tmp_path / "env0.out").write_text("1\n2\n5\n5\n8\n8\n")
+    assert main(["--teach", "point_particle", "--out", str(tmp_path)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("protorch view --teach: ") and "traj0.out:2: NaN or infinite value" in err

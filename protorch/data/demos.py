@@ -190,13 +190,15 @@ def write_demo(folder: str | Path, k: int, traj, env) -> tuple[Path, Path]:
     traj = torch.as_tensor(traj, dtype=torch.float64).detach().cpu()
     env = torch.as_tensor(env, dtype=torch.float64).detach().cpu()
     if traj.ndim != 2 or traj.shape[0] < 2 or env.ndim != 1:
-        raise ValueError(f"write_demo needs traj (T >= 2, D) and env (E,), got {tuple(traj.shape)} and {tuple(env.shape)}")
+        raise ValueError(f"write_demo needs traj (T >= 2, D) and env (E,), got {tuple(traj.shape)} and "
+                         f"{tuple(env.shape)}")
     if not (bool(torch.isfinite(traj).all()) and bool(torch.isfinite(env).all())):
         raise ValueError("write_demo: traj and env must be finite")
     if int(k) < 0:
         raise ValueError(f"write_demo: k must be >= 0, got {k}")
     folder = Path(folder)
-    env_path = atomic_write_bytes(folder / f"env{int(k)}.out", "".join(_number(v) + "\n" for v in env.tolist()).encode())
+    env_text = "".join(_number(v) + "\n" for v in env.tolist())
+    env_path = atomic_write_bytes(folder / f"env{int(k)}.out", env_text.encode())
     text = "".join(",".join(map(_number, row)) + "\n" for row in traj.tolist())
     traj_path = atomic_write_bytes(folder / f"traj{int(k)}.out", text.encode())
     return traj_path, env_path

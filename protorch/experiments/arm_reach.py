@@ -69,8 +69,8 @@ class ArmReachExperiment(SelfImprovementExperiment):
     target, the labels-off baselines, the figures, the per-phase timings. ``benchmarks/arm.py``
     times :meth:`run_loop`."""
 
-    task_keys = frozenset({"_target_", "demos", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin", "goal_tol",
-                           "start_tol", "can_radius", "can_height", "clearance", "urdf", "deviation",
+    task_keys = frozenset({"_target_", "demos", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin",
+                           "goal_tol", "start_tol", "can_radius", "can_height", "clearance", "urdf", "deviation",
                            "prior_grid", "region", "reach"})
     loop_keys = frozenset({"labels", "each_label"})
     dynamic_keys = frozenset({"seed", "episodes", "duration", "hold", "dt", "kp", "moves", "move_window",
@@ -147,7 +147,8 @@ class ArmReachExperiment(SelfImprovementExperiment):
     def describe(self) -> dict:
         lk, opt, data0 = self.loop_kwargs, self.optimizer_cfg, self.initial_data()
         return {
-            "demos": {"source": str(self.source), "marked": self.demo_marked, "count": len(self.demos), "envs": int(self.demo_envs.unique(dim=0).shape[0]),
+            "demos": {"source": str(self.source), "marked": self.demo_marked, "count": len(self.demos),
+                      "envs": int(self.demo_envs.unique(dim=0).shape[0]),
                       "entries": int((data0.origin == 0).sum()), "left": int((self.demo_labels == LEFT).sum()),
                       "right": int((self.demo_labels == RIGHT).sum()), "success_rate": self.demo_success()},
             "priors": {"count": int(self.prior_envs.shape[0]), "left": int((self.prior_labels == LEFT).sum()),
@@ -271,8 +272,8 @@ def run(
 
     ``task``: ``demos`` (``synthetic``, or a folder of ``trajK.out`` joint-angle rows and ``envK.out``
     ``can_x can_y goal_x goal_y`` files, e.g. written by ``python -m protorch.view --teach
-    arm_reach``), ``demo_envs``, ``demos_per_env`` (synthetic only), ``priors`` (number of grid priors), ``prior_grid``
-    (``rectangles`` or ``table``: the region the priors' grid spans) and the
+    arm_reach``), ``demo_envs``, ``demos_per_env`` (synthetic only), ``priors`` (number of grid
+    priors), ``prior_grid`` (``rectangles`` or ``table``: the region the priors' grid spans) and the
     :class:`~protorch.tasks.ArmReachTask` options (``cost_steps``, ``margin``, ``goal_tol``,
     ``region``, ``reach``, ...).
     ``gp``: ``backend``, ``alpha``, ``var_floor``, ``nearest_k``. ``loop``: ``num_envs``,

@@ -89,7 +89,8 @@ class TeachSession:
     def __init__(self, teach, folder: str | Path, *, per_env: int = 3, num_envs: int = 30, num_steps: int = 100,
                  proposals: Tensor | None = None, seed: int = 0) -> None:
         if int(per_env) < 2 or int(num_envs) < 1 or int(num_steps) < 2:
-            raise ValueError(f"need per_env >= 2, num_envs >= 1, num_steps >= 2; got {per_env}, {num_envs}, {num_steps}")
+            raise ValueError(f"need per_env >= 2, num_envs >= 1, num_steps >= 2; "
+                             f"got {per_env}, {num_envs}, {num_steps}")
         self.teach, self.folder = teach, Path(folder)
         self.per_env, self.num_envs, self.num_steps = int(per_env), int(num_envs), int(num_steps)
         self.lock = threading.RLock()
@@ -197,10 +198,13 @@ class TeachSession:
         return sum(bool(v.get("flags")) for v in self.record_data["demos"].values())
 
     def set_env(self, env) -> None:
-        """Teach ``env (E,)`` next (refused while :attr:`locked`); drops the one on show."""
+        """Teach ``env (E,)`` next (refused while :attr:`locked`); a new environment drops the
+        demonstration on show."""
         env = torch.as_tensor(env, dtype=torch.float64).reshape(-1)
         with self.lock:
-            if self.locked and not torch.equal(env, self.env):
+            if env.shape == self.env.shape and torch.equal(env, self.env):
+                return  # unchanged: the demonstration on show stays
+            if self.locked:
                 raise ValueError(f"{self.kept_here} of {self.per_env} demonstrations are kept for this environment: "
                                  "finish it first")
             if env.shape != self.env.shape:

@@ -69,6 +69,7 @@ class Teacher:
         self.stroke: list = []
         self.ik_error = 0.0
         self.strokes = 0
+        self.note = "; ".join(session.notes)  # shown until the next action: what opening the folder repaired
         self._syncing = False
         self.eps = None if run is None else weight_noise(run.model.promp.num_weights, 1)
         self.server = viser.ViserServer(host=host, port=port, label=f"protorch teach: {self.teach.name}",
@@ -130,8 +131,9 @@ class Teacher:
         with self.session.lock:
             try:
                 action()
+                self.note = ""
             except ValueError as exc:  # a refused action (e.g. a locked environment) is shown, not raised
-                self.session.notes.append(str(exc))
+                self.note = str(exc)
             if self.teach.kind == "arm" and self.session.pending is None:
                 self._rest_arm()
             self.refresh()
@@ -237,8 +239,7 @@ class Teacher:
             self.insist_button.disabled = shown is None or shown.quality.ok
             self.discard_button.disabled = shown is None
             self._draw_paths()
-            notes = "".join(f"\n\nnote: {n}" for n in s.notes[-2:])
-            self.info.content = teach_markdown(s, verdict) + notes
+            self.info.content = teach_markdown(s, verdict) + (f"\n\nnote: {self.note}" if self.note else "")
 
     def close(self) -> None:
         self.server.stop()

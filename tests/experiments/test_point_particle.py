@@ -101,7 +101,7 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
 def test_cli_with_the_human_demonstrations_and_figures(tmp_path):
     run_cli(["experiment=point_particle", *TINY, f"task.demos={HUMAN}", f"hydra.run.dir={tmp_path}"])
     m = json.loads((tmp_path / "metrics.json").read_text())
-    assert m["demos"] == {"source": str(HUMAN), "count": 90, "envs": 30}
+    assert m["demos"] == {"source": str(HUMAN), "count": 90, "envs": 30, "marked": 0}
     for name in ("success_vs_iteration.png", "test_grid.png", "online_frames.png"):
         assert (tmp_path / name).stat().st_size > 10_000, name
     gif = (tmp_path / "online_episode.gif").read_bytes()

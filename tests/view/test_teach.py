@@ -119,6 +119,8 @@ def test_the_environment_is_locked_until_complete_then_the_next_one_comes(sessio
     with pytest.raises(ValueError, match="finish it first"):
         session.set_env(ENV + 0.1)
     session.record(stroke(HOLE))
+    session.set_env(ENV.clone())  # the same environment (a slider echo): the one on show stays
+    assert session.pending is not None
     session.discard()
     assert session.pending is None and session.kept == 1
     session.record(stroke([(1.1, 2.0), *HOLE[1:]]))

@@ -106,7 +106,7 @@ class TeachSession:
         if proposals is None:
             proposals = teach.sample_envs(4 * self.num_envs + 16, torch.Generator().manual_seed(int(seed)))
         self.proposals = torch.as_tensor(proposals, dtype=torch.float64)  # (P, E)
-        self.offered = len(self.envs)  # proposals used (one per environment started or skipped)
+        self.offered = 0  # proposals used; those already in the folder are passed over
         self.pending: Pending | None = None
         if self.envs and self.counts[-1] < self.per_env:
             self.env = self.envs[-1].clone()  # continue the last environment
@@ -157,12 +157,15 @@ class TeachSession:
 
     # ------------------------------------------------------------------ environments
     def _proposal(self) -> Tensor:
-        while self.offered >= self.proposals.shape[0]:  # more than proposed: draw on
-            more = self.teach.sample_envs(self.proposals.shape[0], torch.Generator().manual_seed(self.offered))
-            self.proposals = torch.cat([self.proposals, more.to(self.proposals)])
-        env = self.proposals[self.offered].clone()
-        self.offered += 1
-        return env
+        """The next proposed environment the folder does not hold yet."""
+        while True:
+            while self.offered >= self.proposals.shape[0]:  # more than proposed: draw on
+                more = self.teach.sample_envs(self.proposals.shape[0], torch.Generator().manual_seed(self.offered))
+                self.proposals = torch.cat([self.proposals, more.to(self.proposals)])
+            env = self.proposals[self.offered].clone()
+            self.offered += 1
+            if not any(torch.equal(env, e) for e in self.envs):
+                return env
 
     def _index(self) -> int | None:
         return next((j for j, f in enumerate(self.envs) if torch.equal(f, self.env)), None)

@@ -144,8 +144,17 @@ def test_a_reopened_folder_continues_where_it_stopped(session, tmp_path):
     assert len(again.kept_paths()) == 1 and again.pending is None
     again.record(stroke(HOLE))
     assert again.keep() == 1 and again.envs_done == 1
-    # the proposals go on where the first session's would have: environment 2 of the seed's list
-    assert torch.equal(again.env, TeachSession(ParticleTeach(), tmp_path / "other", seed=1).proposals[1])
+    assert torch.equal(again.env, again.proposals[0])  # ENV was set by hand: the proposals start over
+
+
+def test_a_reopened_folder_proposes_no_environment_it_holds(tmp_path):
+    first = TeachSession(ParticleTeach(), tmp_path, per_env=2, seed=4)
+    for _ in range(2):
+        first.record(stroke(HOLE))
+        first.keep(insist=True)  # (the stroke is not for this environment: flagged, kept anyway)
+    assert torch.equal(first.env, first.proposals[1])
+    again = TeachSession(ParticleTeach(), tmp_path, per_env=2, seed=4)
+    assert torch.equal(again.env, first.proposals[1]) and again.marked == 2
 
 
 def test_bad_folders_are_refused_naming_file_and_line(tmp_path):

@@ -175,7 +175,7 @@ def test_the_arm_taught_by_dragging_its_hand(browser, tmp_path):
     teacher = Teacher(session, port=0)
     grab = (0.243 * 0.15, 0.243 * 0.15, 0.0)  # the centre of the control's x-y square (drei's PivotControls)
     hand = np.asarray(teacher.follower.hand)
-    at = lambda p: float(np.abs(np.asarray(teacher.hand.position) - p).max()) < 0.004
+    at = lambda p: float(np.abs(np.asarray(teacher.hand.position) - p).max()) < 0.012  # a pixel is ~3 mm there
     try:
         page = open_page(browser, teacher)
         px = to_page(page, teacher)

@@ -84,7 +84,7 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
             v = v[k]
         assert isinstance(v, float) and v >= 0, path
     assert m["test"]["num_envs"] == 10 and m["dynamic"]["episodes"] == 3 and m["loop"]["envs_tried"] == 20
-    assert m["demos"] == {"source": "synthetic", "count": 90, "envs": 30}
+    assert m["demos"] == {"source": "synthetic", "count": 90, "envs": 30, "marked": 0}
     assert json.loads((tmp_path / "metrics.json").read_text())["test"] == m["test"]
     model = protorch.load(tmp_path)  # the trained map, without Hydra
     assert model.env_map.num_points == m["loop"]["dataset_size"] and model.task_name == "point_particle"
@@ -103,7 +103,7 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
 def test_cli_with_the_human_demonstrations_and_figures(tmp_path):
     run_cli(["experiment=point_particle", *TINY, f"task.demos={HUMAN}", f"hydra.run.dir={tmp_path}"])
     m = json.loads((tmp_path / "metrics.json").read_text())
-    assert m["demos"] == {"source": str(HUMAN), "count": 90, "envs": 30}
+    assert m["demos"] == {"source": str(HUMAN), "count": 90, "envs": 30, "marked": 0}
     for name in ("success_vs_iteration.png", "test_grid.png", "online_frames.png"):
         assert (tmp_path / name).stat().st_size > 10_000, name
     gif = (tmp_path / "online_episode.gif").read_bytes()

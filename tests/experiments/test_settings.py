@@ -9,8 +9,12 @@ import sys
 from pathlib import Path
 
 import pytest
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 
+from protorch.app.main import config_dir
 from protorch.experiments import check_config
+from protorch.experiments.arm_reach import ArmReachExperiment
 from protorch.experiments.settings import OPTIMIZER_SCHEMAS, PointParticleSettings, SettingsError, describe
 from protorch.optim import OPTIMIZERS
 
@@ -64,3 +68,24 @@ def test_every_key_has_a_one_line_meaning():
     helps.update({k: v for s in OPTIMIZER_SCHEMAS.values() for k, v in describe(s, "optimizer").items()})
     assert "settings.loop.num_envs" in helps and "optimizer.relevance_samples" in helps
     assert all(v and "\n" not in v for v in helps.values())
+
+
+@pytest.mark.parametrize("task, line", [
+    ({"demos": 3}, "task.demos=3 must be a string"),
+    ({"priors": -1}, "task.priors=-1 must be an int >= 0"),
+    ({"region": "floor"}, "task.region='floor' must be one of rectangles, table"),
+    ({"demo": "x"}, "task.demo is not a setting of task"),
+])
+def test_the_arm_tasks_settings_are_typed(task, line):
+    with pytest.raises(SettingsError) as exc:
+        check_config({"name": "arm_reach", "optimizer": {"beta": 200.0}, "task": task})
+    assert str(exc.value).startswith(line)
+
+
+def test_the_arm_configs_task_group_passes_its_schema(tmp_path):
+    with initialize_config_dir(config_dir=str(config_dir()), version_base=None):
+        c = compose(config_name="config", overrides=["experiment=arm_reach", f"task.demos={tmp_path}"])
+    kwargs = check_config(OmegaConf.to_container(c, resolve=True))
+    assert kwargs["task"]["demos"] == str(tmp_path) and kwargs["task"]["priors"] == 2004
+    with pytest.raises(FileNotFoundError, match=r"task.demos='/no/such/folder': no such folder"):
+        ArmReachExperiment(optimizer={"beta": 200.0}, task={"demos": "/no/such/folder"})

@@ -1,4 +1,5 @@
-"""``torch_threads``: the number inside the block, the old one restored after it (also on error)."""
+"""``torch_threads``: the number inside the block, the old one restored after it (also on error);
+a run's metrics do not depend on the number."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import pytest
 import torch
 
 from protorch.threads import torch_threads
+from tests.small_runs import SMALL, small_run
 
 
 def test_sets_and_restores_threads_even_when_the_block_raises():
@@ -63,6 +65,7 @@ def test_the_probe_counts_the_machine_busy_time_minus_its_own(monkeypatch):
     assert th.LoadProbe().other_cores() == pytest.approx(1.0)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not __import__("os").path.exists("/proc/stat"), reason="the load probe reads /proc/stat")
 def test_the_probe_sees_another_busy_process():
     import subprocess
@@ -85,6 +88,14 @@ def test_the_probe_sees_another_busy_process():
         spin.kill()
         spin.wait()
     assert other > 0.6, other  # the spinner's core (any further load only adds to it)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(SMALL))
+def test_a_runs_metrics_are_the_same_at_one_and_two_threads(name):
+    one, two = small_run(name, 1), small_run(name, 2)
+    assert any(k.startswith("checkpoint:") for k in one)
+    assert one == two  # every metric, and the loops' data sets bit for bit
 
 
 def test_the_core_budget_and_the_threads_beside_workers():

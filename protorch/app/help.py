@@ -1,12 +1,24 @@
-"""``python -m protorch --help``: the experiments, how to see and change their settings, and what
-each key means, read from the YAML comments of ``conf/`` (``key: value  # meaning``)."""
+"""``python -m protorch --help``: the experiments and every config group's choices (``optimizer=``,
+``gp=``, ``task=``, ``tune=``), each with the first sentence of its YAML's header comment, how to
+see and change settings, and what each key means, read from the YAML comments of ``conf/``
+(``key: value  # meaning``). Lines are wrapped to the terminal, never cut."""
 
 from __future__ import annotations
 
 import re
+import shutil
+import textwrap
 from pathlib import Path
 
-__all__ = ["wants_help", "experiment_lines", "key_meanings", "help_text"]
+__all__ = ["wants_help", "experiment_lines", "group_choices", "first_sentence", "key_meanings", "help_text", "GROUPS"]
+
+# the config groups a command line chooses from, in the order the help lists them
+GROUPS = (("experiment", "the experiment (sets every group below to its own choices)"),
+          ("optimizer", "the loop's optimiser; optimizer.<key>=... changes one setting"),
+          ("gp", "the environment map's backend"),
+          ("task", "the task (custom: your own class, task._target_=my_module.MyTask)"),
+          ("tune", "a hyperparameter search preset (with -m)"))
+_SENTENCE_END = re.compile(r"(?<!\bSec)(?<!\bFig)(?<!\be\.g)(?<!\bi\.e)(?<!\bvs)(?<!\bEq)(?<!\bal)\.(?=\s|$)|:$")
 
 # Hydra's own informational flags: passed through to Hydra, never answered with our help
 HYDRA_FLAGS = ("--hydra-help", "--info", "-i", "--version", "--shell-completion", "-sc")
@@ -31,20 +43,36 @@ def wants_help(argv: list[str]) -> bool:
     return "--help" in argv or "-h" in argv or chosen_experiment(argv) is None
 
 
+def first_sentence(path: Path) -> str:
+    """The first sentence of a YAML file's header comment (after ``@package``), whole however many
+    lines it spans (abbreviations such as "Sec." and "Fig." do not end it; a trailing colon does)."""
+    text = []
+    for line in path.read_text().splitlines():
+        m = _COMMENT.match(line)
+        if m is None or (text and (not m["text"].strip() or m["text"].startswith(" "))):
+            break  # the header ends, or a blank comment line / an indented example follows
+        if not m["text"].startswith("@package"):
+            text.append(m["text"].strip())
+    para = " ".join(text)
+    end = _SENTENCE_END.search(para)
+    return para if end is None else para[: end.start()] + ("." if end.group() == "." else "")
+
+
 def experiment_lines(conf: Path) -> dict[str, str]:
-    """``{name: the first comment line of conf/experiment/<name>.yaml}`` (after ``@package``)."""
-    out = {}
-    for path in sorted((conf / "experiment").glob("*.yaml")):
-        first = ""
-        for line in path.read_text().splitlines():
-            m = _COMMENT.match(line)
-            if m is None:
-                break
-            if not m["text"].startswith("@package"):
-                first = m["text"].strip()
-                break
-        out[path.stem] = first
-    return out
+    """``{name: the first sentence of conf/experiment/<name>.yaml}``."""
+    return group_choices(conf, "experiment")
+
+
+def group_choices(conf: Path, group: str) -> dict[str, str]:
+    """``{choice: the first sentence of conf/<group>/<choice>.yaml}`` of a config group."""
+    return {path.stem: first_sentence(path) for path in sorted((conf / group).glob("*.yaml"))}
+
+
+def _wrap(head: str, text: str, width: int, indent: int) -> list[str]:
+    """``head`` then ``text`` wrapped to ``width``, continuation lines indented by ``indent``."""
+    first = f"{head}{text}"
+    return textwrap.wrap(first, width=width, subsequent_indent=" " * indent, break_long_words=False,
+                         break_on_hyphens=False) or [head.rstrip()]
 
 
 def key_meanings(path: Path) -> list[tuple[str, str, str]]:
@@ -78,24 +106,48 @@ def key_meanings(path: Path) -> list[tuple[str, str, str]]:
     return [tuple(r) for r in rows]
 
 
-def _table(rows, indent="  ") -> list[str]:
-    width = max((len(f"{k}={v}") for k, v, _ in rows), default=0)
-    return [f"{indent}{f'{k}={v}'.ljust(width)}  {m}".rstrip() for k, v, m in rows]
+def _table(rows, width: int, indent: str = "  ", max_key: int = 36) -> list[str]:
+    """``key=value  meaning`` rows, the meanings wrapped in a column; a ``key=value`` wider than
+    ``max_key`` gets its meaning on the lines below it."""
+    col = min(max((len(f"{k}={v}") for k, v, _ in rows), default=0), max_key)
+    out = []
+    for k, v, m in rows:
+        kv = f"{k}={v}"
+        if not m:
+            out.append(f"{indent}{kv}")
+        elif len(kv) > col:
+            out.append(f"{indent}{kv}")
+            out += _wrap(" " * (len(indent) + col + 2), m, width, len(indent) + col + 2)
+        else:
+            out += _wrap(f"{indent}{kv.ljust(col)}  ", m, width, len(indent) + col + 2)
+    return out
+
+
+def _choices(conf: Path, width: int) -> list[str]:
+    """Every group's choices, ``group=NAME  first sentence``, wrapped."""
+    lines = []
+    for group, meaning in GROUPS:
+        choices = group_choices(conf, group)
+        if not choices:
+            continue
+        lines += ["", f"{group}=NAME: {meaning} (conf/{group}/NAME.yaml)"]
+        col = max(map(len, choices))
+        for name, text in choices.items():
+            lines += _wrap(f"  {name.ljust(col)}  ", text, width, col + 4)
+    return lines
 
 
 def help_text(conf: Path, argv: list[str]) -> str:
     """The help: experiments one line each, how to see / change / sweep settings, the shared
     keys of ``config.yaml`` and, for ``experiment=X --help``, the keys of ``X``'s yaml."""
     names = experiment_lines(conf)
-    width = max(map(len, names), default=0)
+    width = max(60, min(shutil.get_terminal_size((100, 24)).columns, 120) - 1)
     chosen = chosen_experiment(argv)
     lines = [
         "protorch: PRO policy search (Ewerton et al., IROS 2019) and the paper's experiments.",
         "",
-        "usage: python -m protorch experiment=NAME [key=value ...]",
-        "",
-        "experiments (conf/experiment/NAME.yaml):",
-        *(f"  {n.ljust(width)}  {t}" for n, t in names.items()),
+        "usage: python -m protorch experiment=NAME [group=CHOICE ...] [key=value ...]",
+        *_choices(conf, width),
         "",
         "  python -m protorch experiment=NAME --cfg job      show every setting of NAME (resolved)",
         "  python -m protorch experiment=NAME --help         this help plus what NAME's keys mean",
@@ -107,14 +159,14 @@ def help_text(conf: Path, argv: list[str]) -> str:
         "figures into hydra.run.dir (default runs/NAME__SEED__TIME) and prints a summary as its last lines.",
         "",
         "shared settings (conf/config.yaml):",
-        *_table([r for r in key_meanings(conf / "config.yaml") if r[0] != "name"]),
+        *_table([r for r in key_meanings(conf / "config.yaml") if r[0] != "name"], width),
     ]
     if chosen is not None:
         path = conf / "experiment" / f"{chosen}.yaml"
         if not path.is_file():
             lines += ["", f"unknown experiment {chosen!r}; choose one of {sorted(names)}"]
         else:
-            lines += ["", f"settings of experiment={chosen} ({path.relative_to(conf.parent)}; "
-                      "keys without a comment are listed by --cfg job):",
-                      *_table([r for r in key_meanings(path) if r[2]])]
+            lines += ["", *_wrap(f"settings of experiment={chosen} ({path.relative_to(conf.parent)}; ",
+                                 "keys without a comment are listed by --cfg job):", width, 2),
+                      *_table([r for r in key_meanings(path) if r[2]], width)]
     return "\n".join(lines)

@@ -1,26 +1,77 @@
-"""Loading demonstrations stored in the authors' point-particle format.
+"""Demonstration folders in the authors' point-particle format, for any task.
 
 A folder holds pairs ``trajK.out`` / ``envK.out`` (``K = 0, 1, ...``): the trajectory is a CSV
-without header, one ``x,y`` row per mouse sample; the environment is 6 numbers, one per line,
-``start_x start_y wall_x hole_y goal_x goal_y`` (the authors' public repository marcoewerton/avoid_moving_walls).
+without header, one row of ``D`` comma-separated numbers per sample (the point particle: ``x,y``
+per mouse sample; the arm: the 7 joint angles in radians); the environment is ``E`` numbers, one
+per line (the point particle: ``start_x start_y wall_x hole_y goal_x goal_y``, as in the authors'
+public repository marcoewerton/avoid_moving_walls; the arm: ``can_x can_y goal_x goal_y``).
+Demonstrations whose environment files hold the same numbers form one environment.
+
+:func:`read_demos` reads and checks a folder against a :class:`DemoFormat` (column names, bounds);
+:func:`load_human_demos` is the point particle's; :func:`write_demo` writes one pair atomically,
+numbers as ``%.18e`` (what ``numpy.savetxt`` writes, exact for float64); :func:`check_demo_groups`
+refuses an environment (and label) with too few demonstrations, naming its files. Other files in
+a folder (a README, the teach page's ``teach.json``, :func:`read_marks`) are ignored by the reader.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import re
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Sequence
 
 import torch
 from torch import Tensor
 
-__all__ = ["load_human_demos", "WORKSPACE", "ENV_NAMES"]
+from .files import atomic_write_bytes
+
+__all__ = ["DemoFormat", "DemoFolder", "PARTICLE_FORMAT", "WORKSPACE", "ENV_NAMES", "MARKS_FILE", "check_demo_groups",
+           "demo_files", "load_human_demos", "read_demos", "read_marks", "write_demo"]
 
 _NAME = re.compile(r"^(traj|env)(\d+)\.out$")
 # the point-particle task's workspace, both axes (protorch.tasks.point_particle.WORKSPACE; a test
 # keeps the two equal): every sample and every environment coordinate lies in it
 WORKSPACE = (0.0, 10.0)
 ENV_NAMES = ("start_x", "start_y", "wall_x", "hole_y", "goal_x", "goal_y")
+MARKS_FILE = "teach.json"  # written by the teach page (protorch.view.teach): quality marks per K
+
+
+@dataclass(frozen=True)
+class DemoFormat:
+    """What one task's files hold: the trajectory's column names, the environment's names, and
+    optional bounds ``(lo, hi)`` per column / per environment value with the bound's name
+    (``"the workspace"``, ``"the joint limits"``) for the error messages."""
+
+    columns: tuple[str, ...]
+    env_names: tuple[str, ...]
+    column_bounds: tuple[tuple[float, float], ...] | None = None
+    env_bounds: tuple[tuple[float, float], ...] | None = None
+    column_bound_name: str = "its bounds"
+    env_bound_name: str = "its bounds"
+
+    def __post_init__(self) -> None:
+        for bounds, names, what in ((self.column_bounds, self.columns, "column_bounds"),
+                                    (self.env_bounds, self.env_names, "env_bounds")):
+            if bounds is not None and len(bounds) != len(names):
+                raise ValueError(f"{what} must hold one (lo, hi) per name {list(names)}, got {len(bounds)}")
+
+
+PARTICLE_FORMAT = DemoFormat(("x", "y"), ENV_NAMES, (WORKSPACE,) * 2, (WORKSPACE,) * 6, "the workspace",
+                             "the workspace")
+
+
+@dataclass
+class DemoFolder:
+    """A folder read by :func:`read_demos`: ``demos[i]`` ``(T_i, D)`` from ``files[i][0]``,
+    ``envs[i]`` ``(E,)`` from ``files[i][1]``, ``indices[i]`` its ``K``, in increasing ``K``."""
+
+    demos: list[Tensor]
+    envs: Tensor  # (n, E)
+    files: list[tuple[Path, Path]] = field(default_factory=list)
+    indices: list[int] = field(default_factory=list)
 
 
 def _read_text(path: Path) -> str:
@@ -30,20 +81,9 @@ def _read_text(path: Path) -> str:
         raise ValueError(f"{path} is not a text file (byte {exc.start} cannot be decoded: {exc.reason})") from None
 
 
-def _env_names(i: int) -> list[str]:
-    return [ENV_NAMES[i] if i < len(ENV_NAMES) else f"value {i + 1}"]
-
-
-def _check_workspace(values: list[float], path: Path, lineno: int, names: list[str]) -> None:
-    lo, hi = WORKSPACE
-    for v, name in zip(values, names):
-        if not lo <= v <= hi:
-            raise ValueError(f"{path}:{lineno}: {name} = {v:g} lies outside the workspace [{lo:g}, {hi:g}]")
-
-
-def _parse_floats(text: str, path: Path, per_row: int, names=None) -> list[list[float]]:
-    """Rows of ``per_row`` comma-separated finite floats inside the workspace; blank lines are
-    skipped. ``names(row_index)`` names a row's values in the error messages."""
+def _parse_floats(text: str, path: Path, per_row: int, names, bounds, bound_name: str) -> list[list[float]]:
+    """Rows of ``per_row`` comma-separated finite floats within ``bounds``; blank lines are
+    skipped. ``names(row_index)`` / ``bounds(row_index)`` name and bound a row's values."""
     rows = []
     for lineno, line in enumerate(text.splitlines(), 1):
         line = line.strip()
@@ -58,36 +98,28 @@ def _parse_floats(text: str, path: Path, per_row: int, names=None) -> list[list[
             raise ValueError(f"{path}:{lineno}: not a number: {line!r}") from None
         if not all(math.isfinite(v) for v in values):
             raise ValueError(f"{path}:{lineno}: NaN or infinite value: {line!r}")
-        _check_workspace(values, path, lineno, names(len(rows)) if names else ["value"] * per_row)
+        for v, name, bound in zip(values, names(len(rows)), bounds(len(rows))):
+            if bound is not None and not bound[0] <= v <= bound[1]:
+                raise ValueError(f"{path}:{lineno}: {name} = {v:g} lies outside {bound_name} "
+                                 f"[{bound[0]:g}, {bound[1]:g}]")
         rows.append(values)
     return rows
 
 
-def load_human_demos(
-    folder: str | Path, *, dtype: torch.dtype = torch.float64
-) -> tuple[list[Tensor], Tensor]:
-    """Read every ``trajK.out`` / ``envK.out`` pair of ``folder``, in increasing ``K``.
-
-    Returns ``(demos, envs)``: a list of ``n`` tensors ``(T_i, 2)`` and ``envs (n, 6)``, row
-    ``i`` the environment of ``demos[i]``. Other files (a README) are ignored.
-
-    Raises:
-        FileNotFoundError: ``folder`` does not exist or is not a directory.
-        ValueError: no pairs, a trajectory without its environment file or the reverse, a file
-            that is not text, a row that is not two numbers, an environment that is not 6
-            numbers, a NaN or infinite value, a sample or environment coordinate outside the
-            workspace ``[0, 10]``, or a trajectory of fewer than 2 samples. The message names the
-            file and line (and the value and bound).
-    """
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise FileNotFoundError(f"demonstration folder {folder} does not exist or is not a directory")
+def demo_files(folder: str | Path) -> tuple[dict[int, Path], dict[int, Path]]:
+    """``(traj files, env files)`` of ``folder``, each ``{K: path}`` (no pairing checked)."""
     found: dict[str, dict[int, Path]] = {"traj": {}, "env": {}}
-    for path in folder.iterdir():
+    for path in Path(folder).iterdir():
         m = _NAME.match(path.name)
         if m and path.is_file():
             found[m.group(1)][int(m.group(2))] = path
-    trajs, envs = found["traj"], found["env"]
+    return found["traj"], found["env"]
+
+
+def _pairs(folder: Path) -> tuple[dict[int, Path], dict[int, Path]]:
+    if not folder.is_dir():
+        raise FileNotFoundError(f"demonstration folder {folder} does not exist or is not a directory")
+    trajs, envs = demo_files(folder)
     if not trajs and not envs:
         raise ValueError(f"{folder} holds no trajK.out / envK.out files")
     missing_env, missing_traj = sorted(trajs.keys() - envs.keys()), sorted(envs.keys() - trajs.keys())
@@ -98,16 +130,107 @@ def load_human_demos(
         if missing_traj:
             parts.append(f"env files without traj file for K = {missing_traj}")
         raise ValueError(f"unpaired demonstration files in {folder}: " + "; ".join(parts))
-    demos, env_rows = [], []
+    return trajs, envs
+
+
+def read_demos(folder: str | Path, fmt: DemoFormat, *, dtype: torch.dtype = torch.float64) -> DemoFolder:
+    """Read every ``trajK.out`` / ``envK.out`` pair of ``folder`` in increasing ``K``, checked
+    against ``fmt``.
+
+    Raises:
+        FileNotFoundError: ``folder`` does not exist or is not a directory.
+        ValueError: no pairs, a trajectory without its environment file or the reverse, a file
+            that is not text, a row with the wrong number of values, an environment with the
+            wrong number of values, a NaN or infinite value, a value outside its bounds, or a
+            trajectory of fewer than 2 samples. The message names the file and line (and the
+            value and bound).
+    """
+    folder = Path(folder)
+    trajs, envs = _pairs(folder)
+    d, e = len(fmt.columns), len(fmt.env_names)
+    col_bounds = (lambda _: fmt.column_bounds) if fmt.column_bounds else (lambda _: [None] * d)
+    env_name = lambda i: [fmt.env_names[i] if i < e else f"value {i + 1}"]
+    env_bound = lambda i: [fmt.env_bounds[i] if fmt.env_bounds and i < e else None]
+    out = DemoFolder([], torch.zeros(0, e, dtype=dtype))
+    rows_env = []
     for k in sorted(trajs):
-        rows = _parse_floats(_read_text(trajs[k]), trajs[k], 2, lambda _: ["x", "y"])
+        rows = _parse_floats(_read_text(trajs[k]), trajs[k], d, lambda _: fmt.columns, col_bounds,
+                             fmt.column_bound_name)
         if len(rows) < 2:
             raise ValueError(f"{trajs[k]}: a trajectory needs at least 2 samples, got {len(rows)}")
-        env = [v for (v,) in _parse_floats(_read_text(envs[k]), envs[k], 1, _env_names)]
-        if len(env) != 6:
+        env = [v for (v,) in _parse_floats(_read_text(envs[k]), envs[k], 1, env_name, env_bound, fmt.env_bound_name)]
+        if len(env) != e:
+            raise ValueError(f"{envs[k]}: expected {e} numbers ({' '.join(fmt.env_names)}), got {len(env)}")
+        out.demos.append(torch.tensor(rows, dtype=dtype))  # (T_k, D)
+        out.files.append((trajs[k], envs[k]))
+        out.indices.append(k)
+        rows_env.append(env)
+    out.envs = torch.tensor(rows_env, dtype=dtype).reshape(-1, e)  # (n, E)
+    return out
+
+
+def load_human_demos(folder: str | Path, *, dtype: torch.dtype = torch.float64) -> tuple[list[Tensor], Tensor]:
+    """The point particle's folder (:data:`PARTICLE_FORMAT`: ``x,y`` rows, 6 environment numbers,
+    everything inside the workspace ``[0, 10]``): ``(demos, envs)``, a list of ``n`` tensors
+    ``(T_i, 2)`` and ``envs (n, 6)``. Errors as :func:`read_demos`."""
+    out = read_demos(folder, PARTICLE_FORMAT, dtype=dtype)
+    return out.demos, out.envs  # list of (T_k, 2), (n, 6)
+
+
+def _number(v: float) -> str:
+    return f"{float(v):.18e}"
+
+
+def write_demo(folder: str | Path, k: int, traj, env) -> tuple[Path, Path]:
+    """Write demonstration ``K = k``: ``trajK.out`` (``traj (T, D)``, one comma-separated row
+    per sample) and ``envK.out`` (``env (E,)``, one number per line), each atomically (temporary
+    file, fsync, rename). The environment file is written first, so an interrupted write leaves at
+    most an ``envK.out`` without its trajectory, never a trajectory without its environment.
+    Returns ``(traj path, env path)``."""
+    traj = torch.as_tensor(traj, dtype=torch.float64).detach().cpu()
+    env = torch.as_tensor(env, dtype=torch.float64).detach().cpu()
+    if traj.ndim != 2 or traj.shape[0] < 2 or env.ndim != 1:
+        raise ValueError(f"write_demo needs traj (T >= 2, D) and env (E,), got {tuple(traj.shape)} and "
+                         f"{tuple(env.shape)}")
+    if not (bool(torch.isfinite(traj).all()) and bool(torch.isfinite(env).all())):
+        raise ValueError("write_demo: traj and env must be finite")
+    if int(k) < 0:
+        raise ValueError(f"write_demo: k must be >= 0, got {k}")
+    folder = Path(folder)
+    env_text = "".join(_number(v) + "\n" for v in env.tolist())
+    env_path = atomic_write_bytes(folder / f"env{int(k)}.out", env_text.encode())
+    text = "".join(",".join(map(_number, row)) + "\n" for row in traj.tolist())
+    traj_path = atomic_write_bytes(folder / f"traj{int(k)}.out", text.encode())
+    return traj_path, env_path
+
+
+def check_demo_groups(envs: Tensor, files: Sequence[tuple[Path, Path]], labels: Tensor | None = None,
+                      *, minimum: int = 2, label_names: dict | None = None) -> None:
+    """Refuse an environment (with ``labels``: an environment and label) holding fewer than
+    ``minimum`` demonstrations (a weight variance needs 2), naming its files."""
+    keyed = envs.to(torch.float64)
+    if labels is not None:
+        keyed = torch.cat([keyed, torch.as_tensor(labels).to(torch.float64).reshape(-1, 1)], 1)
+    _, group, counts = torch.unique(keyed, dim=0, return_inverse=True, return_counts=True)
+    for i in range(len(files)):
+        if int(counts[group[i]]) < minimum:
+            members = [j for j in range(len(files)) if int(group[j]) == int(group[i])]
+            names = ", ".join(files[j][0].name for j in members)
+            side = "" if labels is None else f" passing {(label_names or {}).get(int(labels[i]), int(labels[i]))}"
             raise ValueError(
-                f"{envs[k]}: expected 6 numbers (start_x start_y wall_x hole_y goal_x goal_y), got {len(env)}"
-            )
-        demos.append(torch.tensor(rows, dtype=dtype))  # (T_k, 2)
-        env_rows.append(env)
-    return demos, torch.tensor(env_rows, dtype=dtype)  # list of (T_k, 2), (n, 6)
+                f"{files[i][1]}: this environment has {len(members)} demonstration(s){side} ({names}); each needs "
+                f">= {minimum} for a weight variance: teach more with python -m protorch.view --teach (it continues "
+                f"the folder's last environment) or remove the pair")
+
+
+def read_marks(folder: str | Path) -> dict[int, list[str]]:
+    """The quality marks the teach page recorded (``teach.json``): ``{K: [failed checks]}`` for
+    the demonstrations kept although a check failed; ``{}`` without that file."""
+    path = Path(folder) / MARKS_FILE
+    if not path.is_file():
+        return {}
+    try:
+        data = json.loads(path.read_text())
+        return {int(k): list(v.get("flags", [])) for k, v in data.get("demos", {}).items() if v.get("flags")}
+    except (ValueError, AttributeError, TypeError) as exc:
+        raise ValueError(f"{path}: not a teach-page record ({exc})") from None

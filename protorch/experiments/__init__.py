@@ -18,15 +18,16 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
+from ..data.files import atomic_write_bytes
 from ..gp import BACKENDS
 from ..optim import OPTIMIZERS, BaseOptimizer
-from ..tasks import TASKS, task_class
+from ..tasks import TASKS, TaskContractError, task_class
 from . import arm_reach, beam_window, fig3_toy, fig4_window, point_particle, self_improve
 from .common import metric_value, per_method_form, resolve_device, resolve_dtype, write_json
 from .settings import GP, OPTIMIZER_SCHEMAS, SETTINGS_SCHEMAS, TASK_SCHEMAS, SettingsError, validate
 from ..threads import torch_threads
-from .run_folder import check_run_folder, write_status
-from .summary import build_summary
+from .run_folder import STATUS_FILE, check_run_folder, write_status
+from .summary import baseline_settings, build_summary
 
 EXPERIMENTS: dict[str, Callable[..., dict]] = {
     "fig3_toy": fig3_toy.run,
@@ -45,7 +46,12 @@ GROUP_OPTIMIZER = {"point_particle", "arm_reach", "self_improve"}
 
 _DOTTED = re.compile(r"[A-Za-z_][\w-]*(\.[\w-]+)*")
 
-__all__ = ["EXPERIMENTS", "run_experiment", "check_config", "metric_value", "SettingsError"]
+# a value refused before any work: a setting (checked against its schema) or what a task's costs or
+# success return (checked on the demonstrations); the app prints its one line, with no traceback
+REFUSED = (SettingsError, TaskContractError)
+
+__all__ = ["EXPERIMENTS", "run_experiment", "check_config", "metric_value", "SettingsError", "TaskContractError",
+           "REFUSED"]
 
 
 def _check_optimizer_group(group: dict, where: str) -> dict:
@@ -143,7 +149,9 @@ def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
     torch's setting), write ``metrics.json`` with its headline numbers under ``"summary"``
     (:mod:`~protorch.experiments.summary`) and ``status.json`` (``running``, then ``ok`` or
     ``failed`` with the error); return the metrics. A folder holding another experiment's results
-    is refused before any work (:func:`~protorch.experiments.run_folder.check_run_folder`).
+    is refused before any work (:func:`~protorch.experiments.run_folder.check_run_folder`), and a
+    value refused by the experiment before its work (:data:`REFUSED`, e.g. a task whose ``costs``
+    returns the wrong shape) leaves a folder this call found empty as it was.
 
     ``cfg``: ``name``, ``seed``, ``device``, ``dtype``, ``plot``, ``resume``, the ``optimizer``
     group (``{"name": "pro", "beta": ..., ...}``, conf/optimizer/), ``baseline_optimizer`` (the
@@ -157,7 +165,10 @@ def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
     name, objective = cfg["name"], cfg.get("objective")
     out_dir = Path(out_dir)
     check_run_folder(out_dir, name)  # another experiment's results are refused before any work
+    created = not out_dir.exists()
+    status_before = (out_dir / STATUS_FILE).read_bytes() if (out_dir / STATUS_FILE).is_file() else None
     out_dir.mkdir(parents=True, exist_ok=True)
+    baseline = baseline_settings(cfg.get("optimizer"), cfg.get("baseline_optimizer"))
     # provenance, so a sweep's report can tell where and when each run ran (host, process)
     run_info = {"host": socket.gethostname(), "pid": os.getpid(),
                 "started": datetime.now(timezone.utc).isoformat(timespec="milliseconds")}
@@ -166,6 +177,14 @@ def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
         with torch_threads(cfg.get("threads")):
             write_status(out_dir, name, "running")
             metrics = EXPERIMENTS[name](out_dir, **kwargs)
+    except REFUSED:  # refused before any work: the folder is left as it was found
+        if status_before is None:
+            (out_dir / STATUS_FILE).unlink(missing_ok=True)
+        else:
+            atomic_write_bytes(out_dir / STATUS_FILE, status_before)
+        if created and not any(out_dir.iterdir()):
+            out_dir.rmdir()
+        raise
     except BaseException as exc:  # the folder says the run failed, and why
         error = f"{type(exc).__name__}: {exc}"
         summary = build_summary(name, {}, run_dir=out_dir, wall_seconds=time.perf_counter() - t0,
@@ -178,7 +197,8 @@ def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
         if objective is not None:
             metrics["objective"] = {"metric": objective, "value": metric_value(metrics, objective)}
     finally:  # the run's results are kept even when the objective key is wrong
-        metrics["summary"] = build_summary(name, metrics, run_dir=out_dir, wall_seconds=time.perf_counter() - t0)
+        metrics["summary"] = build_summary(name, metrics, run_dir=out_dir, wall_seconds=time.perf_counter() - t0,
+                                           baseline=baseline)
         write_json(out_dir / "metrics.json", metrics)
         write_status(out_dir, name, "ok", summary=metrics["summary"])
     return metrics

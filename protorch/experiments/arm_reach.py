@@ -40,13 +40,16 @@ from ..checks import check_int
 from ..control.arm import run_arm_episodes
 from ..control.switches import geometric_switch_summary
 from ..data.checkpoint import load
+from ..data.demos import check_demo_groups, read_marks
 from ..gp.model import label_aware_mean
 from ..loop import LoopResult, demonstration_dataset
 from ..primitives.promp import ProMP, resample
-from ..tasks.arm_reach import LEFT, RIGHT, ArmReachTask
+from ..tasks.arm_demos import read_arm_demos
+from ..tasks.arm_reach import LEFT, RIGHT, SIDES, ArmReachTask
 from ..tasks.arm_workspace import REGIONS, check_region, prior_grid_nodes
 from ..threads import torch_threads
 from ..viz.arm import experiment_figures
+from .common import demo_source
 from .self_improvement import (
     DYNAMIC_SEED,
     TEST_SEED,
@@ -66,8 +69,8 @@ class ArmReachExperiment(SelfImprovementExperiment):
     target, the labels-off baselines, the figures, the per-phase timings. ``benchmarks/arm.py``
     times :meth:`run_loop`."""
 
-    task_keys = frozenset({"_target_", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin", "goal_tol",
-                           "start_tol", "can_radius", "can_height", "clearance", "urdf", "deviation",
+    task_keys = frozenset({"_target_", "demos", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin",
+                           "goal_tol", "start_tol", "can_radius", "can_height", "clearance", "urdf", "deviation",
                            "prior_grid", "region", "reach"})
     loop_keys = frozenset({"labels", "each_label"})
     dynamic_keys = frozenset({"seed", "episodes", "duration", "hold", "dt", "kp", "moves", "move_window",
@@ -82,6 +85,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
         for name, v in (("labels", self.labels), ("each_label", self.each_label)):
             if not isinstance(v, bool):
                 raise ValueError(f"loop.{name} must be true or false, got {v!r}")
+        self.source = demo_source(task_cfg.pop("demos", "synthetic"))
         self.demo_envs_n = check_int(task_cfg.pop("demo_envs", 20), "task.demo_envs", 1)
         self.per_env = check_int(task_cfg.pop("demos_per_env", 3), "task.demos_per_env", 2)
         self.n_priors = check_int(task_cfg.pop("priors", 2004), "task.priors", 0)
@@ -92,7 +96,14 @@ class ArmReachExperiment(SelfImprovementExperiment):
         self.task = ArmReachTask(**task_cfg).to(self.device)
 
     def make_demonstrations(self) -> None:
-        """The demonstrated environments are drawn over the rectangles whatever ``task.region``."""
+        """The demonstrated environments are drawn over the rectangles whatever ``task.region``;
+        or the folder ``task.demos`` (:func:`~protorch.tasks.arm_demos.read_arm_demos`)."""
+        if self.source != "synthetic":
+            folder, self.demo_labels = read_arm_demos(self.task, self.source)
+            check_demo_groups(folder.envs, folder.files, self.demo_labels, label_names=SIDES)
+            self.demos, self.demo_envs, self.demo_marked = folder.demos, folder.envs, len(read_marks(self.source))
+            return
+        self.demo_marked = 0
         gen = self.demo_generator()
         envs = self.task.sample_envs(self.demo_envs_n, gen, region="rectangles")
         self.demos, self.demo_envs, self.demo_labels = self.task.demonstrations(envs, self.per_env, gen)
@@ -136,7 +147,8 @@ class ArmReachExperiment(SelfImprovementExperiment):
     def describe(self) -> dict:
         lk, opt, data0 = self.loop_kwargs, self.optimizer_cfg, self.initial_data()
         return {
-            "demos": {"count": len(self.demos), "envs": int(self.demo_envs.unique(dim=0).shape[0]),
+            "demos": {"source": str(self.source), "marked": self.demo_marked, "count": len(self.demos),
+                      "envs": int(self.demo_envs.unique(dim=0).shape[0]),
                       "entries": int((data0.origin == 0).sum()), "left": int((self.demo_labels == LEFT).sum()),
                       "right": int((self.demo_labels == RIGHT).sum()), "success_rate": self.demo_success()},
             "priors": {"count": int(self.prior_envs.shape[0]), "left": int((self.prior_labels == LEFT).sum()),
@@ -258,8 +270,10 @@ def run(
 ) -> dict:
     """Run the experiment into ``out_dir``; return the metrics (module docstring).
 
-    ``task``: ``demo_envs``, ``demos_per_env``, ``priors`` (number of grid priors), ``prior_grid``
-    (``rectangles`` or ``table``: the region the priors' grid spans) and the
+    ``task``: ``demos`` (``synthetic``, or a folder of ``trajK.out`` joint-angle rows and ``envK.out``
+    ``can_x can_y goal_x goal_y`` files, e.g. written by ``python -m protorch.view --teach
+    arm_reach``), ``demo_envs``, ``demos_per_env`` (synthetic only), ``priors`` (number of grid
+    priors), ``prior_grid`` (``rectangles`` or ``table``: the region the priors' grid spans) and the
     :class:`~protorch.tasks.ArmReachTask` options (``cost_steps``, ``margin``, ``goal_tol``,
     ``region``, ``reach``, ...).
     ``gp``: ``backend``, ``alpha``, ``var_floor``, ``nearest_k``. ``loop``: ``num_envs``,

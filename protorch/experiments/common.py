@@ -24,6 +24,18 @@ def resolve_dtype(name: str | torch.dtype) -> torch.dtype:
     return DTYPES[name]
 
 
+def demo_source(value) -> str | Path:
+    """``task.demos``: ``"synthetic"``, or an existing folder (``~`` expanded) of demonstration
+    files; anything else raises naming the setting."""
+    if str(value) == "synthetic":
+        return "synthetic"
+    folder = Path(str(value)).expanduser()
+    if not folder.is_dir():
+        raise FileNotFoundError(f"task.demos={str(value)!r}: no such folder (resolved to {folder.resolve()}); "
+                                "give 'synthetic' or a folder of trajK.out / envK.out files")
+    return folder
+
+
 def resolve_device(name: str | torch.device) -> torch.device:
     dev = torch.device(name)
     if dev.type == "cuda" and not torch.cuda.is_available():

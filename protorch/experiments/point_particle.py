@@ -23,10 +23,12 @@ import torch
 
 from ..checks import check_int
 from ..control.particle import run_episodes
-from ..tasks import PointParticleTask, load_human_demos
+from ..data.demos import PARTICLE_FORMAT, check_demo_groups, read_demos, read_marks
+from ..tasks import PointParticleTask
+from ..viz.common import legend_below
 from ..viz.online import plot_episode_frames, write_episode_gif
 from ..viz.paper import plot_point_particle, plot_trajectories, save_figure
-from .common import baseline_spec, optimizer_label
+from .common import baseline_spec, demo_source, optimizer_label
 from .particle_paper import convergence_rule, evaluate_paper, hole_failures, paper_figures, paper_settings
 from .self_improvement import DEMO_SEED_OFFSET, DYNAMIC_SEED, TEST_SEED, Outcome, SelfImprovementExperiment
 
@@ -61,16 +63,11 @@ class PointParticleExperiment(SelfImprovementExperiment):
     def configure(self, task_cfg: dict, loop_cfg: dict) -> None:
         self.task = PointParticleTask(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in task_cfg.items()
                                          if k in ("objectives", "fixed_start", "infinite_wall")})
-        self.source = str(task_cfg.get("demos", "synthetic"))
+        self.source = demo_source(task_cfg.get("demos", "synthetic"))
         self.demo_envs_n = check_int(task_cfg.get("demo_envs", 30), "task.demo_envs", 1)
         self.per_env = check_int(task_cfg.get("demos_per_env", 3), "task.demos_per_env", 2)
-        if self.source != "synthetic":
-            folder = Path(self.source).expanduser()
-            if not folder.is_dir():
-                raise FileNotFoundError(f"task.demos={self.source!r}: no such folder (resolved to {folder.resolve()}); "
-                                        "give 'synthetic' or a folder of trajK.out / envK.out files")
-            if self.task.fixed_start is not None:
-                raise ValueError("the human demonstrations have 6-D environments: leave task.fixed_start unset")
+        if self.source != "synthetic" and self.task.fixed_start is not None:
+            raise ValueError("the human demonstrations have 6-D environments: leave task.fixed_start unset")
         self.stop_when_solved = loop_cfg.get("stop_when_solved", False)
         seed = int(self.seed)
         self.paper_cfg = paper_settings(self.dynamic_paper, training_seeds=(seed, seed + DEMO_SEED_OFFSET))
@@ -82,10 +79,14 @@ class PointParticleExperiment(SelfImprovementExperiment):
         return 2
 
     def make_demonstrations(self) -> None:
+        """Synthetic, or the folder ``task.demos`` (every environment with >= 2 demonstrations)."""
+        self.demo_marked = 0
         if self.source == "synthetic":
             self.demos, self.demo_envs = self.task.demonstrations(self.demo_envs_n, self.per_env, self.demo_generator())
-        else:
-            self.demos, self.demo_envs = load_human_demos(Path(self.source).expanduser())
+            return
+        folder = read_demos(self.source, PARTICLE_FORMAT)
+        check_demo_groups(folder.envs, folder.files)
+        self.demos, self.demo_envs, self.demo_marked = folder.demos, folder.envs, len(read_marks(self.source))
 
     def loop_options(self) -> dict:
         point = self.task
@@ -102,7 +103,8 @@ class PointParticleExperiment(SelfImprovementExperiment):
 
     def describe(self) -> dict:
         lk = self.loop_kwargs
-        return {"demos": {"source": self.source, "count": len(self.demos), "envs": len(self.initial_data())},
+        return {"demos": {"source": str(self.source), "count": len(self.demos), "envs": len(self.initial_data()),
+                          "marked": self.demo_marked},
                 "settings": {"num_envs": lk["num_envs"], "batch_size": lk["batch_size"], "add_only": lk["add_only"],
                              "choice": lk["choice"], "alpha": self.alpha,
                              "beta": None if self.optimizer_cfg.get("beta") is None else float(self.optimizer_cfg["beta"]), "var_floor": self.var_floor,
@@ -270,7 +272,8 @@ def _figures(out_dir, task, model, test_envs, loops, metrics, episode, seed) -> 
             ax.axis("off")
             continue
         plot_point_particle(ax, task, test_envs[pick[i]])
-        plot_trajectories(ax, samples[i], color="tab:blue", lw=0.6, alpha=0.35)
+        plot_trajectories(ax, samples[i], color="tab:blue", lw=0.6, alpha=0.35,
+                          label="samples of the map's distribution")
         plot_trajectories(ax, means[i], color="k", lw=1.8, label="mean")
         ax.set_title(f"test env {int(pick[i])}: {'success' if ok[i] else 'FAILURE'}", fontsize=8,
                      color="k" if ok[i] else "tab:red")
@@ -278,6 +281,7 @@ def _figures(out_dir, task, model, test_envs, loops, metrics, episode, seed) -> 
     fig.suptitle(f"held-out environments, failures first ({failures} of {all_ok.numel()} fail): 10 samples (blue) "
                  f"and the mean (black); test success {metrics['test']['success_rate']:.3f}", fontsize=10)
     fig.tight_layout()
+    legend_below(fig, axes)  # every marker: wall, hole centre, start, goal, samples, mean
     save_figure(fig, Path(out_dir) / "test_grid.png")
 
     # one moving episode (Fig. 6): frames and a GIF (protorch.viz.online)

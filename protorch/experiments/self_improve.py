@@ -26,6 +26,7 @@ from ..loop import LoopResult
 from ..tasks import check_task_protocol, make_task
 from ..viz.paper import save_figure
 from .self_improvement import DEMO_SEED_OFFSET, TEST_SEED, Outcome, SelfImprovementExperiment
+from .settings import SettingsError
 
 __all__ = ["run", "build_task", "GenericExperiment", "TEST_SEED", "DEMO_SEED_OFFSET"]
 
@@ -40,12 +41,13 @@ def build_task(task: dict) -> tuple[object, dict]:
     cfg = dict(task)
     target = cfg.pop("_target_", None)
     if target is None:
-        raise ValueError("task._target_ must name the task class, e.g. task._target_=my_module.MyTask")
+        raise SettingsError("task._target_ must name the task class, e.g. task._target_=my_module.MyTask")
     own = {k: cfg.pop(k) for k in _PIPELINE_KEYS if k in cfg}
     try:
         obj = make_task(target, **{k: (tuple(v) if isinstance(v, list) else v) for k, v in cfg.items()})
-    except TypeError as exc:
-        raise ValueError(f"task._target_={target!r}: {exc}") from None
+    except (TypeError, ValueError) as exc:  # not importable, not a class, or a constructor argument it lacks
+        text = str(exc) if str(exc).startswith("task") else f"task._target_={target!r}: {exc}"
+        raise SettingsError(text) from None
     source = str(own.get("demos", "generate"))
     check_task_protocol(obj, demonstrations=source == "generate")
     return obj, {"demos": source, "demo_envs": check_int(own.get("demo_envs", 30), "task.demo_envs", 1),

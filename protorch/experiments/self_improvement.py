@@ -5,8 +5,9 @@
 
 1. settings checked (every group, before any work; :meth:`~SelfImprovementExperiment.configure`
    adds the task's own checks and builds the task object);
-2. :meth:`~SelfImprovementExperiment.build`: the demonstrations (and priors) -> the ProMP -> the
-   held-out and moving-test environments -> the loop's options;
+2. :meth:`~SelfImprovementExperiment.build`: the demonstrations -> the task contract checked on
+   them (:meth:`~SelfImprovementExperiment.check_task`) -> the priors -> the held-out and
+   moving-test environments -> the loop's options;
 3. :meth:`~SelfImprovementExperiment.run`: refuse a finished run (unless ``resume``), the
    baselines that need no loop, the self-improvement loop (:func:`protorch.loop.self_improve`,
    checkpointed in ``<out_dir>/checkpoint``, resumable), the checkpoint loaded and evaluated
@@ -35,7 +36,8 @@ from ..data.checkpoint import checkpoint_path, load
 from ..gp import make_env_map
 from ..gp.model import EnvToProMP
 from ..loop import LoopResult, demonstration_dataset, self_improve
-from ..primitives.promp import ProMP
+from ..primitives.promp import ProMP, resample
+from ..tasks import check_task_outputs
 from ..threads import beside_workers, core_budget
 from .common import (check_optimizer, evaluation_settings, gp_settings, loop_settings, optimizer_spec,
                      problem_arguments)
@@ -64,9 +66,11 @@ class Outcome:
 
 
 def loop_summary(res: LoopResult) -> dict:
-    """The loop's metrics entry: time, environments tried, solutions added, success rates."""
+    """The loop's metrics entry: time, environments tried, rollouts (the optimiser's samples
+    evaluated), solutions added, success rates."""
     last = res.metrics[-1]
     return {"seconds": round(res.seconds, 3), "envs_tried": len(res.tried),
+            "rollouts": sum(int(r.get("rollouts") or 0) for r in res.metrics),
             "added": sum(int(r.get("added") or 0) for r in res.metrics), "dataset_size": len(res.dataset),
             "success_rate": res.success_rate, "final_eval_success": last.get("eval_success"),
             "steps": int(last["step"]), "resumed_from": res.resumed_from}
@@ -194,7 +198,8 @@ class SelfImprovementExperiment:
     def build(self) -> "SelfImprovementExperiment":
         """Demonstrations, priors, the ProMP, the test environments and the loop's options."""
         self.promp = ProMP(self.num_dof(), **self.promp_cfg, dtype=self.dtype, device=self.device)
-        for name, make in (("demonstrations", self.make_demonstrations), ("priors", self.make_priors)):
+        for name, make in (("demonstrations", self.make_demonstrations), ("task_check", self.check_task),
+                           ("priors", self.make_priors)):
             t0 = time.perf_counter()
             make()
             self.seconds[name] = round(time.perf_counter() - t0, 3)
@@ -203,6 +208,16 @@ class SelfImprovementExperiment:
         self.loop_kwargs.update(seed=self.seed, var_floor=self.var_floor, **self.loop_options())
         self.loop_kwargs["eval_envs"] = self.test_envs
         return self
+
+    def check_task(self) -> None:
+        """The task contract, before any work: ``costs`` and ``success`` called once on the
+        demonstrations (resampled to the ProMP's ``T`` steps) and once in the loop's batched form
+        and evaluation dtype (:func:`~protorch.tasks.check_task_outputs`; a
+        :class:`~protorch.tasks.TaskContractError` names the method and both shapes)."""
+        traj = torch.stack([resample(torch.as_tensor(d), self.promp.num_steps) for d in self.demos])  # (n, T, D)
+        traj = traj.to(self.promp.basis)
+        check_task_outputs(self.task, traj, torch.as_tensor(self.demo_envs).to(traj),
+                           dtype=self.loop_kwargs["eval_dtype"])
 
     def num_dof(self) -> int:
         return self.task.num_dof

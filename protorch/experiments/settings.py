@@ -303,4 +303,26 @@ class PointParticleTaskSettings:
     demos_per_env: int = setting(3, "synthetic only: demonstrations per environment", ge=2)
 
 
-TASK_SCHEMAS: dict[str, type] = {"point_particle": PointParticleTaskSettings}
+@dataclass
+class ArmReachTaskSettings:
+    demos: str = setting("synthetic", "synthetic, or a folder of trajK.out (7 joint angles per row) / envK.out")
+    demo_envs: int = setting(20, "synthetic only: demonstrated environments", ge=1)
+    demos_per_env: int = setting(3, "synthetic only: demonstrations per environment", ge=2)
+    priors: int = setting(2004, "straight-path prior ProMPs on a regular grid", ge=0)
+    prior_grid: str = setting("rectangles", "the priors' grid spans the sampler's rectangles or the table",
+                              choices=("rectangles", "table"))
+    region: str = setting("rectangles", "where the loop's pool and the tests draw", choices=("rectangles", "table"))
+    reach: typing.Optional[list[float]] = setting(None, "(r_min, r_max) the hand-down arm reaches on the table")
+    cost_steps: typing.Optional[int] = setting(25, "time steps the objectives are evaluated on; null = all", ge=2)
+    margin: float = setting(0.02, "clearance of the arm's skeleton to the can's surface, for success", ge=0)
+    goal_tol: float = setting(0.02, "success radius at the target (m)", gt=0)
+    start_tol: float = setting(0.02, "success radius at the start (m)", gt=0)
+    can_radius: float = setting(0.0375, "the can's radius (m)", gt=0)
+    can_height: float = setting(0.23, "the can's height (m)", gt=0)
+    clearance: float = setting(0.2, "the 0.2 of the can objective max(-min_t ||p - can||, -0.2)", gt=0)
+    urdf: typing.Optional[str] = setting(None, "the arm's URDF; null = the Panda shipped with protorch")
+    deviation: str = setting("segment", "d of the objectives: distance to the segment s -> g, or to tau_direct(t)",
+                             choices=("segment", "time"))
+
+
+TASK_SCHEMAS: dict[str, type] = {"point_particle": PointParticleTaskSettings, "arm_reach": ArmReachTaskSettings}

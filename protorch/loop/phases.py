@@ -259,14 +259,15 @@ def add(dataset: TrajectoryDataset, env_map, env: Tensor, sol: Solutions) -> Non
 def step_row(step: int, envs_done: int, dataset_size: int, problems: Problems, res, sol: Solutions) -> dict:
     """The metrics row of a step (``eval_success``, ``success_rate`` and ``seconds`` are the
     caller's). ``initial_success`` and ``success`` count environments: with ``k > 1`` labels,
-    each environment's lowest-cost problem."""
+    each environment's lowest-cost problem; ``rollouts`` the optimiser's samples evaluated."""
     k = problems.k
     success = sol.success if k == 1 else per_env(sol.success, sol.cost, k)  # (b,) the lowest-cost class's
     iters = iterations_per_problem(res, problems.mu)
     return {"step": step, "envs_done": envs_done, "dataset_size": dataset_size, "batch": problems.env.shape[0] // k,
             "added": int(sol.accept.sum()), "initial_success": int(problems.initial_success.sum()),
             "success": int(success.sum()), "converged": int(sol.converged.sum()),
-            "iterations_mean": round(float(iters.double().mean()), 3), "iterations_max": int(iters.max())}
+            "iterations_mean": round(float(iters.double().mean()), 3), "iterations_max": int(iters.max()),
+            "rollouts": None if res.rollouts is None else int(res.rollouts.sum())}
 
 
 def one_per_class(accept: Tensor, label: Tensor, cost: Tensor, k: int) -> Tensor:

@@ -36,7 +36,7 @@ METRICS_FILE = "loop_metrics.csv"
 # one row per step (step 0: the initial data set, before any environment was tried)
 METRIC_FIELDS = (
     "step", "envs_done", "dataset_size", "batch", "added", "initial_success", "success", "converged",
-    "iterations_mean", "iterations_max", "eval_success", "success_rate", "seconds",
+    "iterations_mean", "iterations_max", "rollouts", "eval_success", "success_rate", "seconds",
 )
 
 

@@ -40,7 +40,9 @@ class OptimizeResult:
     ``history`` holds per-iteration tensors stacked on a leading iteration axis:
     ``cost (I, B, O)`` (mean cost of the samples each objective was updated with),
     ``mean (I, B, N)``, ``var (I, B, N)`` and, for relevance-based optimisers,
-    ``relevance (I, B, O, N)``. The batch dimension is dropped for unbatched optimisers.
+    ``relevance (I, B, O, N)``. ``rollouts (B,)`` counts the samples told while each problem was
+    still active (the ones a caller evaluates; a converged problem's are never read). The batch
+    dimension is dropped for unbatched optimisers.
     """
 
     mean: Tensor
@@ -49,6 +51,7 @@ class OptimizeResult:
     iterations: int
     history: dict[str, Tensor] = field(default_factory=dict)
     relevance_seconds: list[float] = field(default_factory=list)
+    rollouts: Tensor | None = None
 
 
 class BaseOptimizer(nn.Module):
@@ -134,6 +137,7 @@ class BaseOptimizer(nn.Module):
         self.iteration = 0
         self.history: dict[str, list[Tensor]] = {"cost": [], "cost_min": [], "cost_max": [], "mean": [], "var": []}
         self.relevance_seconds: list[float] = []
+        self.rollouts = torch.zeros(mean2.shape[0], dtype=torch.long)  # (B,) samples told while active
         self._gen: Generator[Tensor, Tensor, None] | None = None
         self._next: Tensor | None = None
         # the objective whose costs the pending ask's update reads (None: it reads all of them);
@@ -253,6 +257,7 @@ class BaseOptimizer(nn.Module):
             raise RuntimeError("tell() called without a pending ask()")
         costs = self._checked_costs(costs)
         self._asked = None
+        self.rollouts += self.active.cpu().long() * costs.shape[1]
         try:
             self._next = self._gen.send(costs)
         except StopIteration:
@@ -296,7 +301,8 @@ class BaseOptimizer(nn.Module):
         return {"mean": self.mean.clone(), "var": self.var.clone(), "converged": self.converged.clone(),
                 "rng": self.draws.get_state(), "num_objectives": self.num_objectives,
                 "history": {k: len(v) for k, v in self.history.items()},
-                "relevance_seconds": len(self.relevance_seconds), "relevance": getattr(self, "relevance", None)}
+                "relevance_seconds": len(self.relevance_seconds), "relevance": getattr(self, "relevance", None),
+                "rollouts": self.rollouts.clone()}
 
     def _restore(self, snap: dict) -> None:
         self.mean.copy_(snap["mean"])
@@ -307,6 +313,7 @@ class BaseOptimizer(nn.Module):
         for k, n in snap["history"].items():
             del self.history[k][n:]
         del self.relevance_seconds[snap["relevance_seconds"]:]
+        self.rollouts.copy_(snap["rollouts"])
         if hasattr(self, "relevance"):
             self.relevance = snap["relevance"]
         self._gen, self._next, self._asked, self._iter_cost = None, None, None, None
@@ -369,6 +376,7 @@ class BaseOptimizer(nn.Module):
             iterations=self.iteration,
             history=hist,
             relevance_seconds=list(self.relevance_seconds),
+            rollouts=unb(self.rollouts.clone()),
         )
 
     def minimize(

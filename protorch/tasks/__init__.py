@@ -8,7 +8,8 @@ import importlib
 
 from ..data.demos import load_human_demos
 from .arm_reach import ArmReachTask
-from .base import PROTOCOL_MEMBERS, SelfImprovementTask, Task, check_task_protocol
+from .base import (PROTOCOL_MEMBERS, SelfImprovementTask, Task, TaskContractError, check_task_outputs,
+                   check_task_protocol)
 from .beam_window import BeamWindowTask, SimulatedOperator
 from .point_particle import PointParticleTask, signed_distance_to_wall, wall_collision
 from .toy import LineToy
@@ -20,7 +21,8 @@ TASKS = {
 }
 
 __all__ = [
-    "Task", "SelfImprovementTask", "check_task_protocol", "PROTOCOL_MEMBERS", "task_class", "make_task", "LineToy", "WindowTask", "PointParticleTask", "load_human_demos",
+    "Task", "SelfImprovementTask", "check_task_protocol", "check_task_outputs", "TaskContractError", "PROTOCOL_MEMBERS",
+    "task_class", "make_task", "LineToy", "WindowTask", "PointParticleTask", "load_human_demos",
     "signed_distance_to_wall", "wall_collision", "TASKS", "BeamWindowTask", "SimulatedOperator", "ArmReachTask",
 ]
 

@@ -7,10 +7,32 @@ import torch
 from torch import Tensor
 
 from ..checks import check_tensor
+from ..data.demos import DemoFolder, DemoFormat, read_demos
 from .arm_geometry import LEFT, RIGHT
 from .curves import catmull_rom, smooth_noise
 
-__all__ = ["follow_path", "ik_demonstrations"]
+__all__ = ["arm_demo_format", "follow_path", "ik_demonstrations", "read_arm_demos"]
+
+
+def arm_demo_format(task) -> DemoFormat:
+    """The arm's demonstration files (:mod:`protorch.data.demos`): ``trajK.out`` one row of the
+    7 joint angles (radians, the URDF's joint order) per sample, each inside its joint limits;
+    ``envK.out`` the 4 numbers ``can_x can_y goal_x goal_y`` (metres), each on the table."""
+    kin = task.kinematics
+    (x0, x1), (y0, y1) = task.table
+    return DemoFormat(tuple(kin.joint_names), tuple(task.env_names),
+                      tuple(zip(kin.lower.tolist(), kin.upper.tolist())), ((x0, x1), (y0, y1)) * 2,
+                      "the joint limits", "the table")
+
+
+def read_arm_demos(task, folder) -> tuple[DemoFolder, Tensor]:
+    """A folder of arm demonstrations (:func:`arm_demo_format`, errors naming file and line) and
+    the homotopy class of each demonstration (:meth:`~protorch.tasks.ArmReachTask.side`, measured
+    on its joint trajectory): ``(folder, labels (n,))``."""
+    demos = read_demos(folder, arm_demo_format(task))
+    dev = task.kinematics.lower.device
+    labels = [task.side(d.to(dev), e.to(dev)).cpu() for d, e in zip(demos.demos, demos.envs)]
+    return demos, torch.stack(labels).reshape(-1)  # (n,)
 
 
 def follow_path(task, path: Tensor, *, iters: int = 8, first_iters: int = 60) -> tuple[Tensor, Tensor]:

@@ -19,7 +19,10 @@ __all__ = [
     "draw_particle_static",
     "draw_paths",
     "draw_trace",
+    "draw_stroke",
+    "draw_teach",
     "polylines",
+    "screen_points",
     "segment_quaternion",
 ]
 
@@ -129,3 +132,41 @@ def draw_arm_ghosts(scene, links: np.ndarray, color=(150, 150, 160)) -> None:
     """Skeletons ``(P, F, 3)`` of the arm at a few phases of the mean, as thick lines."""
     segs = np.concatenate([polylines(p) for p in np.asarray(links)], 0)
     scene.add_line_segments("/ghosts", segs, color, thickness=0.012)
+
+
+# ----------------------------------------------------------------------------- teaching
+_KEPT, _OK, _FLAGGED, _LIVE = (120, 120, 130), (30, 150, 60), (220, 40, 40), (255, 0, 200)
+
+
+def draw_teach(scene, kept: list, pending: np.ndarray | None, ok: bool, *, width: float) -> None:
+    """The teach page's paths: this environment's kept demonstrations ``[(T, 3)]`` (grey) and
+    the one on show ``(T, 3)`` resampled (a line with a dot per time step; green if its checks
+    pass, red if not)."""
+    segs = np.concatenate([polylines(k) for k in kept], 0) if kept else np.zeros((1, 2, 3), np.float32)
+    scene.add_line_segments("/teach/kept", segs, _KEPT, thickness=0.5 * width, visible=bool(kept))
+    color = _OK if ok else _FLAGGED
+    show = pending is not None and len(pending) > 1
+    path = np.asarray(pending if show else np.zeros((2, 3)), dtype=np.float32)
+    scene.add_line_segments("/teach/shown", polylines(path), color, thickness=width, visible=show)
+    scene.add_point_cloud("/teach/steps", path, color, point_size=1.5 * width, point_shape="circle", visible=show)
+
+
+def draw_stroke(scene, stroke: np.ndarray | None, *, width: float) -> None:
+    """The stroke being recorded ``(n, 3)`` (magenta; hidden for ``None`` or one point)."""
+    on = stroke is not None and len(stroke) > 1
+    trace = np.asarray(stroke if on else np.zeros((2, 3)), dtype=np.float32)
+    scene.add_line_segments("/teach/live", polylines(trace), _LIVE, thickness=0.7 * width, visible=on)
+
+
+def screen_points(position, wxyz, fov: float, aspect: float, points) -> np.ndarray:
+    """Where world points ``(n, 3)`` appear on a client's canvas: ``(n, 2)`` in ``[0, 1]^2``
+    from the top left (viser's OpenCV screen convention), for the camera at ``position`` with
+    orientation ``wxyz`` (camera to world, OpenCV axes: x right, y down, z forward), vertical
+    field of view ``fov`` (radians) and width / height ``aspect``."""
+    w, x, y, z = (float(v) for v in wxyz)
+    rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                    [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                    [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    cam = (np.asarray(points, dtype=np.float64) - np.asarray(position, dtype=np.float64)) @ rot  # (n, 3)
+    f = 0.5 / np.tan(0.5 * float(fov))
+    return np.stack([0.5 + f / float(aspect) * cam[:, 0] / cam[:, 2], 0.5 + f * cam[:, 1] / cam[:, 2]], 1)

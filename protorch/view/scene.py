@@ -42,6 +42,7 @@ __all__ = [
     "particle_state",
     "run_task_name",
     "scene_state",
+    "task_params",
     "weight_noise",
 ]
 
@@ -172,6 +173,12 @@ def _arm_params(task: ArmReachTask, pad: float = 0.08) -> tuple[list[Param], Ten
     return params, torch.tensor([0.56, 0.02, 0.70, 0.06], dtype=torch.float64)
 
 
+def task_params(task) -> tuple[list[Param], Tensor]:
+    """The environment coordinates of a ``point_particle`` or ``arm_reach`` task (name, slider
+    range, step) and a starting environment ``(E,)``."""
+    return (_arm_params if isinstance(task, ArmReachTask) else _particle_params)(task)
+
+
 def open_run(run_dir: str | Path, *, device=None) -> ViewRun:
     """Load a ``point_particle`` or ``arm_reach`` run for the viewer (float64, ``device``)."""
     run_dir = Path(run_dir)
@@ -185,7 +192,7 @@ def open_run(run_dir: str | Path, *, device=None) -> ViewRun:
     task = build_task(model.task_name, cfg.get("task"))
     if device is not None and hasattr(task, "to"):
         task = task.to(device)
-    params, env0 = (_particle_params if model.task_name == "point_particle" else _arm_params)(task)
+    params, env0 = task_params(task)
     if len(params) != model.env_dim:
         raise ValueError(f"{run_dir}: the map takes {model.env_dim}-D environments, the task {len(params)}-D")
     return ViewRun(run_dir, model, task, params, env0, cfg)

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from .common import atomic_save, frame_indices, legend_below, new_figure, to_numpy
 
-__all__ = ["draw_online_frame", "plot_episode_frames", "write_episode_gif"]
+__all__ = ["draw_online_frame", "past_path_split", "plot_episode_frames", "write_episode_gif"]
 
 _WALL_HALF_WIDTH = 1.0  # as protorch.tasks.point_particle
 _HOLE_HALF_HEIGHT = 1.0
@@ -38,22 +38,37 @@ def _check(positions, envs, means, markers):
     return positions, envs, means, markers
 
 
+def past_path_split(envs, t: int, recent: int) -> int:
+    """The first instant of the path drawn solid at ``t``: the last ``recent`` steps, and any
+    earlier ones while the environment (the wall, its hole) stood where it stands at ``t``; the
+    path before it was drawn next to a wall that has moved since, so it is drawn faded."""
+    start = max(0, t - recent)
+    while start > 0 and (envs[start - 1, 2:4] == envs[t, 2:4]).all():
+        start -= 1
+    return start
+
+
 class _EpisodeArtists:
     """The artists of an episode frame on ``ax`` (the wall, its hole, start, goal and its circle,
-    the mean, the path, the particle and the marker), created once and moved to instant ``t`` by
-    :meth:`show`, so an animation redraws only what moves (see :func:`write_episode_gif`)."""
+    the mean, the path earlier (faded) and now, the particle and the marker), created once and
+    moved to instant ``t`` by :meth:`show`, so an animation redraws only what moves (see
+    :func:`write_episode_gif`)."""
 
-    def __init__(self, ax, positions, envs, means, markers, *, goal_tol: float, legend: bool):
+    def __init__(self, ax, positions, envs, means, markers, *, goal_tol: float, legend: bool, recent: int):
         from matplotlib.patches import Circle, Rectangle
 
         self.ax, self.positions, self.envs, self.means, self.markers = ax, positions, envs, means, markers
+        self.recent = recent
         self.walls = [ax.add_patch(Rectangle((0, 0), 2 * _WALL_HALF_WIDTH, 0, facecolor="0.6", edgecolor="0.2",
-                                             lw=1, zorder=1)) for _ in range(2)]
-        (self.hole,) = ax.plot([], [], "+", color="0.2", ms=8, zorder=2)
-        self.ring = ax.add_patch(Circle((0, 0), goal_tol, fill=False, edgecolor="r", ls=":", lw=1, zorder=2))
+                                             lw=1, zorder=1, label=label)) for label in ("wall (now)", "_")]
+        (self.hole,) = ax.plot([], [], "+", color="0.2", ms=8, zorder=2, label="hole centre")
+        self.ring = ax.add_patch(Circle((0, 0), goal_tol, fill=False, edgecolor="r", ls=":", lw=1, zorder=2,
+                                        label="goal tolerance"))
         (self.start,) = ax.plot([], [], "x", color="g", ms=9, mew=2, zorder=3, label="start")
         (self.goal,) = ax.plot([], [], "x", color="r", ms=9, mew=2, zorder=3, label="goal")
         (self.mean,) = ax.plot([], [], "-", color="tab:red", lw=1.2, zorder=4, label="ProMP mean")
+        (self.earlier,) = ax.plot([], [], "-", color="tab:blue", lw=1.0, alpha=0.3, zorder=5,
+                                  label="path earlier, faded: the wall has moved since")
         (self.path,) = ax.plot([], [], "-", color="tab:blue", lw=1.5, zorder=5, label="path")
         (self.particle,) = ax.plot([], [], "o", color="m", ms=7, zorder=6, label="particle")
         self.marker = None if markers is None else ax.plot([], [], "*", color="k", ms=9, zorder=7, label="marker")[0]
@@ -70,7 +85,8 @@ class _EpisodeArtists:
     @property
     def moving(self) -> list:
         """The artists :meth:`show` changes, in drawing order (the axes' title last)."""
-        arts = [*self.walls, self.hole, self.ring, self.start, self.goal, self.mean, self.path, self.particle]
+        arts = [*self.walls, self.hole, self.ring, self.start, self.goal, self.mean, self.earlier, self.path,
+                self.particle]
         return arts + ([] if self.marker is None else [self.marker]) + [self.ax.title]
 
     def show(self, t: int, title: str) -> None:
@@ -86,7 +102,10 @@ class _EpisodeArtists:
         self.start.set_data([sx], [sy])
         self.goal.set_data([gx], [gy])
         self.mean.set_data(self.means[t, :, 0], self.means[t, :, 1])
-        self.path.set_data(self.positions[: t + 1, 0], self.positions[: t + 1, 1])
+        split = past_path_split(self.envs, t, self.recent)
+        self.earlier.set_data(self.positions[: split + 1, 0], self.positions[: split + 1, 1])
+        self.earlier.set_visible(split > 0)  # only once the wall has moved
+        self.path.set_data(self.positions[split: t + 1, 0], self.positions[split: t + 1, 1])
         self.particle.set_data([self.positions[t, 0]], [self.positions[t, 1]])
         if self.marker is not None:
             self.marker.set_data([self.markers[t, 0]], [self.markers[t, 1]])
@@ -94,14 +113,23 @@ class _EpisodeArtists:
 
 
 def draw_online_frame(ax, positions, envs, means, markers=None, *, t: int, dt: float = 0.01,
-                      goal_tol: float = 0.2, legend: bool = False):
+                      goal_tol: float = 0.2, legend: bool = False, recent: float = 0.1):
     """Draw instant ``t`` of an episode on ``ax``: the wall (grey) with its hole, start (green x),
     goal (red x) with its ``goal_tol`` circle, the particle's path so far (blue) and position,
-    the current ProMP mean (red) and marker (black star). Returns ``ax``."""
+    the current ProMP mean (red) and marker (black star). The wall is drawn where it is at ``t``;
+    the path from before the wall last moved, older than ``recent`` seconds, is faded (it passed
+    the wall where the wall was then, :func:`past_path_split`). Returns ``ax``."""
     positions, envs, means, markers = _check(positions, envs, means, markers)
     if not 0 <= t < positions.shape[0]:
         raise ValueError(f"t must be in [0, {positions.shape[0] - 1}], got {t}")
-    _EpisodeArtists(ax, positions, envs, means, markers, goal_tol=goal_tol, legend=legend).show(t, f"t = {t * dt:.2f} s")
+    arts = _EpisodeArtists(ax, positions, envs, means, markers, goal_tol=goal_tol, legend=False,
+                           recent=max(1, int(round(recent / dt))))
+    arts.show(t, f"t = {t * dt:.2f} s")
+    for a in arts.moving:
+        if not a.get_visible():
+            a.remove()  # an empty wall rectangle, the faded path before the wall first moved
+    if legend:  # outside the axes, on the right: the wall and the goal can be anywhere inside
+        ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False)
     return ax
 
 

@@ -60,17 +60,18 @@ def plot_window(ax, task):
 
 def plot_point_particle(ax, task, env):
     """Wall rectangles, hole centre, start (green x) and goal (red x) of one point-particle
-    environment ``env (E,)`` in the workspace ``[0, 10]^2``."""
+    environment ``env (E,)`` in the workspace ``[0, 10]^2``, each labelled for a legend."""
     from matplotlib.patches import Rectangle
 
     rects = to_numpy(task.wall_rectangles(env))  # (2, 4) x_min, x_max, y_min, y_max
     for x0, x1, y0, y1 in rects:
         if y1 > y0:
-            ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, facecolor="0.65", edgecolor="0.2", lw=1))
+            ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, facecolor="0.65", edgecolor="0.2", lw=1,
+                                   label="wall"))
     e = to_numpy(task.full_env(env))  # (6,)
-    ax.plot(e[2], e[3], "+", color="0.2", ms=8)
-    ax.plot(e[0], e[1], "gx", ms=9, mew=2)
-    ax.plot(e[4], e[5], "rx", ms=9, mew=2)
+    ax.plot(e[2], e[3], "+", color="0.2", ms=8, label="hole centre")
+    ax.plot(e[0], e[1], "gx", ms=9, mew=2, label="start")
+    ax.plot(e[4], e[5], "rx", ms=9, mew=2, label="goal")
     ax.set_xlim(0, 10)
     ax.set_ylim(0, 10)
     ax.set_aspect("equal")

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import pytest
+
 import subprocess
 import sys
 from pathlib import Path
 
-from protorch.app.help import chosen_experiment, experiment_lines, help_text, key_meanings, wants_help
+from protorch.app.help import (GROUPS, chosen_experiment, experiment_lines, first_sentence, group_choices, help_text,
+                               key_meanings, wants_help)
 from protorch.app.main import config_dir
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -18,15 +21,40 @@ def _cli(*args):
                           timeout=120)
 
 
-def test_help_lists_every_experiment_with_its_first_comment_line():
-    names = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
+def _unwrapped(text: str) -> str:
+    return " ".join(text.split())
+
+
+def test_help_lists_every_choice_of_every_group_with_its_whole_first_sentence():
+    text = _unwrapped(help_text(CONF, ["--help"]))
+    for group, _ in GROUPS:
+        names = sorted(p.stem for p in (CONF / group).glob("*.yaml"))
+        lines = group_choices(CONF, group)
+        assert sorted(lines) == names and names
+        assert f"{group}=NAME" in text
+        for name, first in lines.items():
+            assert first and f"{name} {first}" in text  # wrapped, never cut
+            assert first.endswith((".", ")")) or group in ("tune", "experiment"), (group, name, first)
+    assert {"epro", "pro", "cmaes"} <= set(group_choices(CONF, "optimizer")) and "custom" in group_choices(CONF, "task")
     lines = experiment_lines(CONF)
-    assert sorted(lines) == names
     assert lines["fig4_window"].startswith("Fig. 4:") and lines["point_particle"].startswith("Sec. IV-B")
-    text = help_text(CONF, ["--help"])
-    for name, first in lines.items():
-        assert f"{name}" in text and first in text
     assert "--cfg job" in text and "key=value" in text
+
+
+def test_first_sentence_spans_lines_and_abbreviations(tmp_path):
+    y = tmp_path / "x.yaml"
+    y.write_text("# @package _global_\n# Sec. IV-C: an arm (Ewerton et al. 2019) reaches\n# around a can. Then more.\nname: x\n")
+    assert first_sentence(y) == "Sec. IV-C: an arm (Ewerton et al. 2019) reaches around a can."
+    y.write_text("# Your own task, the whole pipeline:\n#   python -m protorch ...\nname: x\n")
+    assert first_sentence(y) == "Your own task, the whole pipeline"
+
+
+def test_help_lines_fit_the_terminal_and_keep_every_word():
+    text = help_text(CONF, ["experiment=point_particle", "--help"])
+    assert max(len(line) for line in text.splitlines()) <= 120
+    rows = key_meanings(CONF / "experiment" / "point_particle.yaml")
+    flat = _unwrapped(text)
+    assert all(_unwrapped(m) in flat for _, _, m in rows if m)
 
 
 def test_key_meanings_are_dotted_by_indentation_and_continue_onto_comment_lines():
@@ -49,13 +77,15 @@ def test_which_command_lines_get_the_help():
     assert chosen_experiment(["experiment=null"]) is None
 
 
+@pytest.mark.slow
 def test_bare_command_prints_the_help_and_exits_0_without_running(tmp_path):
     proc = _cli(f"hydra.run.dir={tmp_path / 'run'}")
     assert proc.returncode == 0, proc.stderr
-    assert "experiments (conf/experiment/NAME.yaml)" in proc.stdout and "fig4_window" in proc.stdout
+    assert "experiment=NAME" in proc.stdout and "fig4_window" in proc.stdout and "optimizer=NAME" in proc.stdout
     assert not (tmp_path / "run").exists()
 
 
+@pytest.mark.slow
 def test_help_of_one_experiment_lists_its_keys_meanings():
     proc = _cli("experiment=point_particle", "--help")
     assert proc.returncode == 0, proc.stderr

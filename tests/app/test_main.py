@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
@@ -69,6 +70,7 @@ def test_experiment_config_composes(name):
     assert cfg.seed == 0 and cfg.dtype in ("float32", "float64")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", EXPERIMENTS)
 def test_experiment_runs_end_to_end_at_a_tiny_budget(name, tmp_path):
     run_cli([f"experiment={name}", *TINY[name], f"hydra.run.dir={tmp_path}"])
@@ -86,6 +88,7 @@ def test_bad_beta_is_refused_with_a_clear_error(tmp_path):
     assert not (tmp_path / "metrics.json").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("launcher", ["basic", "joblib"])
 def test_beta_sweep(launcher, tmp_path):
     args = ["-m", "experiment=fig4_window", "optimizer.beta=1,10,20", *TINY["fig4_window"], "plot=false",
@@ -99,6 +102,7 @@ def test_beta_sweep(launcher, tmp_path):
     assert betas == [1.0, 10.0, 20.0]
 
 
+@pytest.mark.slow
 def test_app_runs_from_a_built_wheel_outside_the_source_tree(tmp_path):
     wheels = tmp_path / "wheels"
     subprocess.run(
@@ -126,12 +130,14 @@ def test_app_runs_from_a_built_wheel_outside_the_source_tree(tmp_path):
     assert json.loads((work / "out" / "metrics.json").read_text())["experiment"] == "fig3_toy"
 
 
+@pytest.mark.slow
 def test_run_prints_a_summary_last_and_refuses_another_experiments_folder(tmp_path):
     proc = run_cli(["experiment=fig4_window", *TINY["fig4_window"], "plot=false", f"hydra.run.dir={tmp_path}"])
     last = proc.stdout.strip().splitlines()
-    assert last[0] == "[protorch] fig4_window summary" and "relevance time [s]" in proc.stdout
-    assert "84.47" in proc.stdout and last[-1] == f"  run folder {tmp_path}"
-    assert (tmp_path / "main.log").read_text() == ""  # no stray log lines
+    assert last[0] == "[protorch] fig4_window summary" and "relevance time" in proc.stdout
+    assert "84.5 s" in proc.stdout and last[-1] == f"  run folder {tmp_path}"
+    log = (tmp_path / "main.log").read_text()  # the run's log: its start, then the summary, with times
+    assert "[protorch] fig4_window: seed 0" in log and all(line in log for line in last)
     before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
     proc = run_cli(["experiment=point_particle", *TINY["point_particle"], f"hydra.run.dir={tmp_path}"], check=False)
     assert proc.returncode == 2 and "holds results of experiment 'fig4_window'" in proc.stderr
@@ -140,10 +146,71 @@ def test_run_prints_a_summary_last_and_refuses_another_experiments_folder(tmp_pa
     assert after == {k: v for k, v in before.items() if k != "main.log"}
 
 
-def test_a_failed_run_says_failed_in_its_last_line_and_status(tmp_path):
+@pytest.mark.slow
+def test_a_failed_run_says_failed_once_with_its_traceback_in_main_log(tmp_path):
     proc = run_cli(["experiment=point_particle", *TINY["point_particle"], "task.demos=/nonexistent/demos",
                     f"hydra.run.dir={tmp_path}"], check=False)
     assert proc.returncode == 1
     assert "FAILED" in proc.stderr.strip().splitlines()[-1]
+    out = proc.stdout + proc.stderr
+    assert out.count("no such folder") == 1 and "Traceback" not in out  # printed once
     assert json.loads((tmp_path / "status.json").read_text())["status"] == "failed"
+    assert "Traceback" in (tmp_path / "main.log").read_text()
     assert not (tmp_path / "metrics.json").exists()
+
+
+BROKEN_TASKS = {  # a task breaking its contract, and what the one line must name
+    "Summed": ("return super().costs(traj, env).sum(-1)",
+               "costs(traj (12, 100, 2), env (12, 4)) returned shape (12,); it must return (12, O) with O >= 1"),
+    "Negative": ("return super().costs(traj, env) - 1.0", "costs(traj (12, 100, 2), env (12, 4)) returned -1"),
+    "NotBroadcasting": ("return super().costs(traj, env.expand(traj.shape[0], 4))",
+                        "costs(traj (12, 2, 100, 2), env (12, 1, 4)) raised"),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(BROKEN_TASKS))
+def test_a_task_breaking_its_contract_is_refused_in_one_line_and_leaves_no_folder(name, tmp_path):
+    body, expected = BROKEN_TASKS[name]
+    (tmp_path / "broken.py").write_text(
+        "from examples.reach_around_a_disc import ReachAroundADisc\n\n"
+        f"class {name}(ReachAroundADisc):\n    def costs(self, traj, env):\n        {body}\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(ROOT)])}
+    proc = run_cli(["experiment=self_improve", f"task._target_=broken.{name}", "task.demo_envs=4",
+                    "hydra.run.dir=runs/refused"], cwd=tmp_path, env=env, check=False)
+    assert proc.returncode == 2
+    assert proc.stdout == "" and proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+    assert proc.stderr.startswith(f"error: task broken.{name}: ") and expected in proc.stderr
+    assert not (tmp_path / "runs").exists()  # no run folder, not even an empty one
+
+
+CHOLESKY = ("import hashlib, torch; a = torch.randn(70, 70, generator=torch.Generator().manual_seed(0), "
+            "dtype=torch.float64); a = a @ a.T + 70 * torch.eye(70, dtype=torch.float64); "
+            "print(hashlib.sha256(torch.linalg.cholesky(a).numpy().tobytes()).hexdigest())")
+
+
+def _python(code: str, **env_vars) -> str:
+    env = {k: v for k, v in os.environ.items() if k not in ("MKL_CBWR", "ATEN_CPU_CAPABILITY")}
+    env.update(PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1", **env_vars)
+    return subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
+                          check=True, timeout=600).stdout.strip().splitlines()[-1]
+
+
+@pytest.mark.slow
+def test_the_app_pins_mkl_before_its_first_call():
+    # the app sets MKL_CBWR after protorch's imports: they must not have called MKL yet
+    pinned = _python("from protorch.app.main import pin_mkl_code_path; assert pin_mkl_code_path() == 'AVX2'; "
+                     + CHOLESKY)
+    assert pinned == _python(CHOLESKY, MKL_CBWR="AVX2")  # set before the interpreter started
+    assert _python("from protorch.app.main import pin_mkl_code_path; print(pin_mkl_code_path())",
+                   MKL_CBWR="COMPATIBLE") == "COMPATIBLE"  # the user's choice is kept
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(torch.backends.cpu.get_cpu_capability() != "AVX512", reason="this CPU has no AVX-512 path to compare")
+@pytest.mark.parametrize("name", ["arm_reach", "point_particle"])
+def test_an_avx2_and_an_avx512_cpu_give_the_same_run(name):
+    code = ("import json; from protorch.app.main import pin_mkl_code_path; pin_mkl_code_path(); "
+            f"from tests.small_runs import small_run; print(json.dumps(small_run({name!r}, 1)))")
+    avx512, avx2 = (json.loads(_python(code, ATEN_CPU_CAPABILITY=isa)) for isa in ("avx512", "avx2"))
+    assert avx512 == avx2  # every metric, and the loops' data sets bit for bit

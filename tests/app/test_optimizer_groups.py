@@ -65,7 +65,8 @@ def test_each_optimizer_option_gets_its_own_defaults(experiment, option):
         assert cfg["optimizer"]["beta"] == {"point_particle": 20.0, "arm_reach": 200.0}[experiment]
 
 
-@pytest.mark.parametrize("experiment", sorted(EXPERIMENTS))
+@pytest.mark.parametrize("experiment", [pytest.param(e, marks=pytest.mark.slow) if e == "arm_reach" else e
+                                        for e in sorted(EXPERIMENTS)])  # the arm builds IK demonstrations: ~10 s
 @pytest.mark.parametrize("option", OPTIONS)
 def test_each_optimizer_option_builds_through_the_registry(experiment, option):
     module = EXPERIMENTS[experiment]

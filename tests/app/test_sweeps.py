@@ -94,6 +94,7 @@ def overlapping(metrics: list[dict]) -> bool:
     return any(b[0] < a[1] for a, b in zip(spans, spans[1:]))
 
 
+@pytest.mark.slow
 def test_joblib_runs_the_grid_in_parallel_processes(joblib_sweep):
     metrics = check_grid(joblib_sweep)
     pids = {m["run"]["pid"] for m in metrics}
@@ -102,6 +103,7 @@ def test_joblib_runs_the_grid_in_parallel_processes(joblib_sweep):
     assert overlapping(metrics)  # ... which ran at the same time
 
 
+@pytest.mark.slow
 def test_submitit_runs_the_grid_as_separate_jobs(submitit_sweep):
     metrics = check_grid(submitit_sweep)
     assert len({m["run"]["pid"] for m in metrics}) == 6  # one process per job, as on SLURM
@@ -110,14 +112,17 @@ def test_submitit_runs_the_grid_as_separate_jobs(submitit_sweep):
     assert len(logs) == 6
 
 
+@pytest.mark.slow
 def test_report_of_the_joblib_sweep(joblib_sweep, tmp_path):
     check_report(joblib_sweep, tmp_path)
 
 
+@pytest.mark.slow
 def test_report_of_the_submitit_sweep(submitit_sweep, tmp_path):
     check_report(submitit_sweep, tmp_path)
 
 
+@pytest.mark.slow
 def test_optuna_tunes_beta_and_alpha_for_held_out_success(tmp_path):
     db = tmp_path / "study.db"
     root = tmp_path / "optuna"
@@ -155,6 +160,7 @@ def test_slurm_preset_composes_onto_the_submitit_launcher():
     assert launcher.submitit_folder.endswith("/.submitit/%j")  # inside the sweep directory
 
 
+@pytest.mark.slow
 def test_slurm_preset_submits_an_array_job_with_its_resources(tmp_path):
     """A fake ``sbatch`` on PATH keeps the script submitit hands to SLURM (then refuses it)."""
     bin_dir = tmp_path / "bin"

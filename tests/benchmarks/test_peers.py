@@ -50,6 +50,7 @@ def one_thread():
     torch.set_num_threads(before)
 
 
+@pytest.mark.slow
 def test_pro_keeps_the_std_the_peers_collapse(peers, one_thread):
     (p,) = peers.window_problems(1)
     budget = 3000
@@ -63,6 +64,7 @@ def test_pro_keeps_the_std_the_peers_collapse(peers, one_thread):
     assert [r.split(" | ")[1] for r in rows] == ["PRO", "RWR", "CEM", "CMA-ES"]
 
 
+@pytest.mark.slow
 def test_new_tasks_at_a_tiny_budget(peers, one_thread, tmp_path):
     """Beam stages and arm problems: irrelevant weights really are, every start needs improving,
     EPRO keeps the irrelevant std, and main() writes peers.md and peers.json with the issue's keys."""

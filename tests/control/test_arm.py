@@ -16,6 +16,7 @@ from protorch.robots import PANDA_MAX_ACCELERATION
 from protorch.tasks.arm_reach import LEFT, RIGHT, ArmReachTask
 
 F64 = torch.float64
+pytestmark = pytest.mark.slow  # IK demonstrations and an arm map built per module: ~15 s of CPU
 
 
 @pytest.fixture(scope="module")

@@ -95,6 +95,7 @@ class StraightModel:
         return self.promp.weights(start + s * (goal - start))  # (E, N)
 
 
+@pytest.mark.slow
 def test_episodes_run_the_walk_through_run_episodes():
     model = StraightModel()
     env0 = sample_paper_envs(TASK, 4, torch.Generator().manual_seed(4))

@@ -209,6 +209,7 @@ def test_collision_uses_the_moving_hole():
     assert bool(res.collided[0]) and not bool(res.success[0])
 
 
+@pytest.mark.slow
 def test_real_gp_map_on_straight_lines_succeeds_at_known_envs():
     p = promp()
     envs, ws = [], []

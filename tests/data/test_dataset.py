@@ -159,6 +159,7 @@ _THIS_REPO = {**os.environ, "PYTHONPATH": os.pathsep.join(
     [str(Path(__file__).resolve().parents[2]), *filter(None, [os.environ.get("PYTHONPATH")])])}
 
 
+@pytest.mark.slow
 def test_sigkill_at_random_moments_leaves_a_complete_checkpoint(tmp_path):
     path = tmp_path / "run" / "checkpoint" / "dataset.safetensors"
     script = tmp_path / "writer.py"

@@ -8,7 +8,14 @@ from pathlib import Path
 import pytest
 import torch
 
-from protorch.data.demos import load_human_demos
+from protorch.data.demos import (
+    PARTICLE_FORMAT,
+    DemoFormat,
+    check_demo_groups,
+    load_human_demos,
+    read_demos,
+    write_demo,
+)
 from protorch.tasks.point_particle import PointParticleTask
 
 HUMAN = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "point_particle_human_demos"
@@ -158,3 +165,42 @@ def test_the_workspace_is_the_point_particle_tasks():
     from protorch.tasks.point_particle import WORKSPACE as TASK_WORKSPACE
 
     assert tuple(WORKSPACE) == tuple(TASK_WORKSPACE)
+
+
+# ------------------------------------------------------------------ writing, other formats, groups
+def test_write_demo_round_trips_exactly_in_the_authors_layout(tmp_path):
+    traj = torch.rand(7, 2, dtype=torch.float64) * 10
+    env = torch.tensor([1 / 3, 2.0, 5.0, 5.5, 8.0, 8.0], dtype=torch.float64)
+    write_demo(tmp_path, 4, traj, env)
+    demos, envs = load_human_demos(tmp_path)
+    assert torch.equal(demos[0], traj) and torch.equal(envs[0], env)  # %.18e is exact for float64
+    rows = (tmp_path / "traj4.out").read_text().splitlines()
+    assert len(rows) == 7 and rows[0] == ",".join(f"{v:.18e}" for v in traj[0].tolist())
+    assert (tmp_path / "env4.out").read_text().splitlines()[0] == f"{1 / 3:.18e}"
+    assert not list(tmp_path.glob(".*.tmp"))
+    with pytest.raises(ValueError, match="finite"):
+        write_demo(tmp_path, 5, torch.full((3, 2), float("nan")), env)
+    assert not (tmp_path / "env5.out").exists()
+
+
+def test_a_format_of_other_columns_names_them(tmp_path):
+    fmt = DemoFormat(("a", "b", "c"), ("p", "q"), ((0, 1),) * 3, ((0, 10), (0, 10)), "the box", "the room")
+    (tmp_path / "traj0.out").write_text("0,0,0\n0.5,2,0\n")
+    (tmp_path / "env0.out").write_text("1\n2\n")
+    with pytest.raises(ValueError, match=r"traj0\.out:2: b = 2 lies outside the box \[0, 1\]"):
+        read_demos(tmp_path, fmt)
+    (tmp_path / "traj0.out").write_text("0,0,0\n0.5,1,0\n")
+    out = read_demos(tmp_path, fmt)
+    assert out.indices == [0] and out.envs.tolist() == [[1.0, 2.0]] and out.files[0][0].name == "traj0.out"
+    with pytest.raises(ValueError, match="one \\(lo, hi\\) per name"):
+        DemoFormat(("a",), ("p",), ((0, 1), (0, 1)))
+
+
+def test_an_environment_with_one_demonstration_is_named_by_its_files(tmp_path):
+    env = torch.tensor([1.0, 2.0, 5.0, 5.0, 8.0, 8.0], dtype=torch.float64)
+    for k in range(3):
+        write_demo(tmp_path, k, torch.rand(3, 2, dtype=torch.float64), env + (k == 2))
+    out = read_demos(tmp_path, PARTICLE_FORMAT)
+    with pytest.raises(ValueError, match=r"env2\.out: this environment has 1 demonstration\(s\) \(traj2\.out\)"):
+        check_demo_groups(out.envs, out.files)
+    check_demo_groups(out.envs[:2], out.files[:2])  # two of one environment are enough

@@ -89,6 +89,7 @@ def test_pro_stage_rollouts_counts_probes_and_objective_batches():
     assert pro_stage_rollouts({"max_iter": 3, "num_samples": 20, "pro": {"relevance_samples": 20}}) == 300
 
 
+@pytest.mark.slow
 def test_experiment_metrics_hold_every_optimiser(tmp_path):
     """The experiment's hook at a tiny budget: new keys only, PRO's guidance as the teleop's."""
     from protorch.experiments.beam_window import run

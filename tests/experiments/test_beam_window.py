@@ -39,6 +39,7 @@ def test_config_holds_the_papers_settings():
     assert cfg["settings"]["eval_samples"] == 1000
 
 
+@pytest.mark.slow
 def test_two_stage_optimisation_at_a_tiny_budget():
     task = BeamWindowTask()
     demos = SimulatedOperator().trials(task, 10, torch.Generator().manual_seed(3))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from protorch.experiments import run_experiment
@@ -31,6 +32,7 @@ def test_fig3_pro_keeps_the_irrelevant_std_and_rwr_loses_it(tmp_path):
     assert abs(r_pro - r_rwr) / max(r_pro, r_rwr) <= 0.10
 
 
+@pytest.mark.slow
 def test_fig4_both_methods_pass_start_window_and_end(tmp_path):
     m = run_experiment(_cfg("fig4_window"), tmp_path)
     # the demonstrations alone do not: their mean misses the window centre

@@ -72,6 +72,7 @@ def test_config_holds_the_papers_settings():
     assert c["resume"] is False
 
 
+@pytest.mark.slow
 def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     m = run_experiment(cfg("plot=false"), tmp_path)
     for path in (("test", "success_rate"), ("dynamic", "success_rate"), ("loop", "seconds"),
@@ -83,7 +84,7 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
             v = v[k]
         assert isinstance(v, float) and v >= 0, path
     assert m["test"]["num_envs"] == 10 and m["dynamic"]["episodes"] == 3 and m["loop"]["envs_tried"] == 20
-    assert m["demos"] == {"source": "synthetic", "count": 90, "envs": 30}
+    assert m["demos"] == {"source": "synthetic", "count": 90, "envs": 30, "marked": 0}
     assert json.loads((tmp_path / "metrics.json").read_text())["test"] == m["test"]
     model = protorch.load(tmp_path)  # the trained map, without Hydra
     assert model.env_map.num_points == m["loop"]["dataset_size"] and model.task_name == "point_particle"
@@ -97,11 +98,12 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     assert again["loop"]["resumed_from"] == 2 and again["test"] == m["test"]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not HUMAN.is_dir(), reason="the authors' human demonstrations are not in ../shared/data")
 def test_cli_with_the_human_demonstrations_and_figures(tmp_path):
     run_cli(["experiment=point_particle", *TINY, f"task.demos={HUMAN}", f"hydra.run.dir={tmp_path}"])
     m = json.loads((tmp_path / "metrics.json").read_text())
-    assert m["demos"] == {"source": str(HUMAN), "count": 90, "envs": 30}
+    assert m["demos"] == {"source": str(HUMAN), "count": 90, "envs": 30, "marked": 0}
     for name in ("success_vs_iteration.png", "test_grid.png", "online_frames.png"):
         assert (tmp_path / name).stat().st_size > 10_000, name
     gif = (tmp_path / "online_episode.gif").read_bytes()
@@ -124,6 +126,7 @@ def test_bad_settings_are_refused_before_any_work(tmp_path, override, error, mes
     assert not checkpoint_path(tmp_path).exists() and not (tmp_path / "metrics.json").exists()
 
 
+@pytest.mark.slow
 def test_sigkill_mid_loop_then_resume_completes_with_every_finished_environment(tmp_path):
     run = tmp_path / "run"
     args = ["experiment=point_particle", "settings.loop.num_envs=200", "settings.loop.batch_size=2",
@@ -155,6 +158,7 @@ def test_sigkill_mid_loop_then_resume_completes_with_every_finished_environment(
     assert [int(r["step"]) for r in rows] == list(range(101))
 
 
+@pytest.mark.slow
 def test_cli_loop_with_epro_at_its_own_defaults_is_named_after_it(tmp_path):
     proc = run_cli(["experiment=point_particle", "optimizer=epro", *TINY_ANY, "settings.dynamic_paper.episodes=2",
                     "settings.baselines=[rwr]", "plot=false", f"hydra.run.dir={tmp_path}"])
@@ -174,6 +178,7 @@ def test_cli_loop_with_epro_at_its_own_defaults_is_named_after_it(tmp_path):
     ("cem", []),
     ("rwpo", ["optimizer.relevance_iters=2", "optimizer.theta_samples=4", "optimizer.trajectory_samples=3"]),
 ])
+@pytest.mark.slow
 def test_loop_runs_with_other_optimisers(tmp_path, option, extra):
     # CEM takes no beta; RWPO learns its relevance from the task's objectives and the ProMP's basis
     m = run_experiment(cfg_any(f"optimizer={option}", *extra, "settings.loop.num_envs=10",

@@ -32,6 +32,7 @@ def cli(args, tmp_path, check=True):
     return proc
 
 
+@pytest.mark.slow
 def test_a_task_outside_protorch_runs_the_whole_pipeline(tmp_path):
     (tmp_path / "my_disc_task.py").write_text(EXAMPLE.read_text())  # a module protorch has never seen
     run = tmp_path / "run"
@@ -55,6 +56,7 @@ def test_a_task_outside_protorch_runs_the_whole_pipeline(tmp_path):
     assert float(ok.double().mean()) == m["test"]["success_rate"]
 
 
+@pytest.mark.slow
 def test_a_task_missing_a_member_is_refused_naming_it(tmp_path):
     (tmp_path / "half_task.py").write_text(
         "class Half:\n    name = 'half'\n    num_dof = 2\n    env_dim = 1\n"
@@ -83,3 +85,21 @@ def test_the_example_follows_the_protocol():
 def test_an_unknown_task_path_is_a_clear_error():
     with pytest.raises(ValueError, match="cannot import 'no_such_module'"):
         task_class("no_such_module.Task")
+
+
+def test_a_task_breaking_its_contract_is_refused_before_any_work_and_leaves_no_folder(tmp_path):
+    from protorch.experiments import run_experiment
+    from protorch.tasks import TaskContractError
+
+    (tmp_path / "summed_task.py").write_text(
+        "from examples.reach_around_a_disc import ReachAroundADisc\n\n"
+        "class Summed(ReachAroundADisc):\n    def costs(self, traj, env):\n        return super().costs(traj, env).sum(-1)\n")
+    sys.path[:0] = [str(tmp_path), str(ROOT)]
+    try:
+        cfg = {"name": "self_improve", "seed": 0, "threads": 1, "plot": False,
+               "task": {"_target_": "summed_task.Summed", "demo_envs": 3}, "optimizer": {"name": "pro", "beta": 10.0}}
+        with pytest.raises(TaskContractError, match=r"costs\(traj \(9, 100, 2\), env \(9, 4\)\) returned shape \(9,\)"):
+            run_experiment(cfg, tmp_path / "run")
+    finally:
+        del sys.path[:2]
+    assert not (tmp_path / "run").exists()

@@ -33,6 +33,7 @@ def test_matches_eq7_eq8(backend, m):
     assert mu.dtype == torch.float64 and var.shape == (9, 5)
 
 
+@pytest.mark.slow
 def test_matches_eq7_eq8_at_2024(backend):
     """The paper's largest data set (IV-C: 20 x 3 demonstrations + 2004 priors, M = 2024);
     GPyTorch would leave Cholesky above 800 points without the exactness settings."""
@@ -261,6 +262,7 @@ def test_bad_options_and_queries(backend):
         gp.predict(torch.full((1, 4), float("nan"), dtype=torch.float64))
 
 
+@pytest.mark.slow
 # ------------------------------------------------------------------ approximate variance
 def test_approx_variance(backend):
     E, MU, VAR = make_data(250, 4, seed=31)
@@ -284,6 +286,7 @@ def test_approx_variance(backend):
         assert gp32.groups["0"].nys_H.dtype == torch.float32
 
 
+@pytest.mark.slow
 def test_torch_nystrom_variance_on_smooth_data():
     """Where the kernel is numerically low rank (environments within about one length scale),
     few pivots give the variance to 1e-6."""

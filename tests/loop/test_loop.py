@@ -108,6 +108,10 @@ def test_data_set_grows_and_every_environment_is_tried_once(batch_size):
     assert res.metrics[-1]["success_rate"] == sum(r["success"] for r in res.metrics[1:]) / 10
     # the loop improves on what the GP guessed
     assert sum(r["success"] for r in res.metrics[1:]) >= sum(r["initial_success"] for r in res.metrics[1:])
+    # rollouts: PRO's samples per active iteration, O = 2 objectives' batches and a relevance batch of 20 each
+    for r in res.metrics[1:]:
+        per_iteration = (2 + 1) * 20
+        assert r["rollouts"] % 20 == 0 and 0 < r["rollouts"] <= r["batch"] * KW["max_iter"] * per_iteration
     # deterministic in the seed
     again = loop(task, promp, setup()[2], batch_size=batch_size, add_only="all")
     assert again.tried == res.tried and torch.equal(again.dataset.mean, res.dataset.mean)
@@ -259,6 +263,7 @@ def test_checkpoints_are_atomic_loadable_and_match_the_csv(tmp_path, monkeypatch
     assert [int(r["step"]) for r in csv.DictReader((run2 / METRICS_FILE).open())] == [0, 1]
 
 
+@pytest.mark.slow
 def test_resume_after_a_crash_equals_an_uninterrupted_run(tmp_path):
     task, promp, ds = setup()
     whole = loop(task, promp, ds, num_envs=12, batch_size=3)
@@ -310,6 +315,7 @@ SCRIPT = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_sigkill_mid_loop_then_resume_keeps_every_finished_environment(tmp_path):
     run = tmp_path / "run"
     script = tmp_path / "job.py"

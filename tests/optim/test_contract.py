@@ -254,6 +254,20 @@ def test_costs_of_inactive_problems_are_never_read(make):
     assert torch.equal(runs[0].mean, runs[1].mean) and torch.equal(runs[0].var, runs[1].var)
 
 
+def test_rollouts_count_the_samples_told_while_a_problem_was_active(make):
+    opt = make(torch.zeros(3, 4, dtype=F64), max_iter=4, tol=0.0)
+    opt.mark_converged(torch.tensor([False, True, False]))
+    told = torch.zeros(3, dtype=torch.long)
+    while not opt.stop():
+        w = opt.ask()  # (B, S, N)
+        told += opt.active.long() * w.shape[1]
+        opt.tell(two_objectives(w))
+    res = opt.result()
+    assert res.rollouts.tolist() == told.tolist() and res.rollouts[1] == 0 and res.rollouts[0] >= 4 * 2
+    unbatched = make(torch.zeros(4, dtype=F64), max_iter=2, tol=0.0)
+    assert int(unbatched.minimize(two_objectives).rollouts) > 0
+
+
 def test_converged_problems_stop_moving(make):
     # problem 0 has a constant cost (converges after `window` iterations), problem 1 does not
     window = 3

@@ -71,6 +71,7 @@ def run(convergence, seed=0):
     return opt.minimize(quadratic)
 
 
+@pytest.mark.slow
 def test_pro_default_is_the_mean_rule_and_the_authors_rule_stops_where_every_sample_settled():
     default, same = run("mean"), run(MeanWindow(1e-3, 5))
     assert torch.equal(default.mean, same.mean) and torch.equal(default.converged, same.converged)

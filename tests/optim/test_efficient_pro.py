@@ -229,6 +229,7 @@ def test_variance_gate_is_stricter_than_the_mean_gate():
     torch.testing.assert_close(g2, f)  # variance_floor=None: the mean's relevance for both
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", range(8))
 def test_unread_std_is_kept_long_after_convergence(seed):
     """The quadratic of the test above, 60 iterations (most of them past convergence, where every

@@ -107,6 +107,7 @@ def test_zero_relevance_weight_keeps_its_variance_exactly_over_many_iterations()
     assert bool(((res.mean[:, 0] - 1).abs() < 0.05).all()) and bool((res.var[:, 0] < 1e-2).all())
 
 
+@pytest.mark.slow
 def test_fig3_toy_pro_keeps_irrelevant_std_and_rwr_collapses_it():
     # Fig. 3 at a reduced budget (300 iterations x 200 samples), 4 independent problems at once
     b, kw = 4, {"beta": 10.0, "num_samples": 200, "max_iter": 300, "tol": 0.0, "seed": 0}
@@ -126,6 +127,7 @@ def test_fig3_toy_pro_keeps_irrelevant_std_and_rwr_collapses_it():
     assert bool(((pro_reward - rwr_reward).abs() <= 0.1 * rwr_reward).all())
 
 
+@pytest.mark.slow
 def test_fig3_toy_without_noise_floor_drains_the_irrelevant_variance():
     # the paper's relevance as written: sampling noise in rho shrinks the irrelevant variance
     kw = {"beta": 10.0, "num_samples": 200, "max_iter": 300, "tol": 0.0, "seed": 0}

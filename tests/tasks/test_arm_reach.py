@@ -115,6 +115,7 @@ def test_sampler_rectangles_separation_and_grid(task, gen):
     assert all(len(grid[:, j].unique()) == k for j in range(4)) and k**4 >= 2004
 
 
+@pytest.mark.slow
 def test_ik_demonstrator(task, gen):
     env = task.sample_envs(3, gen)
     demos, denv, lab = task.demonstrations(env, 2, gen, lengths=(40, 50))

@@ -30,6 +30,7 @@ def table_grid(task):
     return prior_grid_nodes(task, 2004, "table")
 
 
+@pytest.mark.slow
 def test_table_grid_has_the_count_the_ranges_and_only_valid_nodes(task, table_grid):
     grid, rep = table_grid
     assert grid.shape == (2004, 4) and grid.unique(dim=0).shape[0] == 2004
@@ -57,6 +58,7 @@ def test_table_grid_has_the_count_the_ranges_and_only_valid_nodes(task, table_gr
     assert float(r.min()) >= task.reach[0] and float(r.max()) <= task.reach[1]
 
 
+@pytest.mark.slow
 def test_every_table_prior_is_followed_to_its_target(task, table_grid):
     grid, _ = table_grid
     goals = grid[:, 2:].unique(dim=0)  # (G, 2) the straight path does not depend on the can
@@ -67,6 +69,7 @@ def test_every_table_prior_is_followed_to_its_target(task, table_grid):
     assert float(err.max()) <= task.goal_tol and bool(task.kinematics.within_limits(q).all())
 
 
+@pytest.mark.slow
 def test_reach_bounds_match_what_the_ik_reaches(task):
     # targets on the table just inside (r = 0.31, 0.79) and outside (r = 0.20 to 0.25, 0.86 to 0.87)
     # the reach annulus [0.30, 0.80]

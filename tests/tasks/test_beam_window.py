@@ -252,6 +252,7 @@ def test_an_operator_without_errors_always_succeeds(gen):
     assert all(bool(task.success(t)) for t in trials)
 
 
+@pytest.mark.slow
 def test_the_default_operator_mostly_fails_and_its_trials_are_valid_poses(gen):
     task = BeamWindowTask()
     op = SimulatedOperator()

@@ -375,6 +375,7 @@ def test_synthetic_demonstrator_reproducible_and_accepts_a_count():
     assert float((starts - torch.tensor([0.5, 5.0], dtype=F64)).norm(dim=-1).max()) < 0.5
 
 
+@pytest.mark.slow
 def test_pro_improves_demonstration_promps_on_the_task():
     """The task plugs into the batched optimiser: B environments at once, their environments
     broadcast against the samples with ``env[:, None]``."""

@@ -1,7 +1,12 @@
 """Small runs for the viewer's tests: a point-particle GP on 30 x 3 synthetic demonstrations
-(checkpoint + config.yaml, well under a second) and a synthetic arm map (a few seconds of IK)."""
+(checkpoint + config.yaml, well under a second) and a synthetic arm map (a few seconds of IK);
+and headless Chromium for the browser tests (``browser``: skipped, with the reason, where no
+``chromium`` is installed or playwright is missing; playwright drives the system Chromium through
+``executable_path``, ``playwright install`` is never needed)."""
 
 from __future__ import annotations
+
+import shutil
 
 import pytest
 import torch
@@ -50,3 +55,20 @@ def arm_run_dir(tmp_path_factory):
               origin="prior", converged=True)
     save_model(out, ds, backend="torch", alpha=30.0, nearest_k=30)
     return out
+
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+CHROMIUM_ARGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
+
+
+@pytest.fixture(scope="session")
+def browser():
+    """Headless Chromium (software WebGL), one per test session."""
+    pytest.importorskip("viser", reason="viser is not installed (pip install -e '.[view]')")
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install -e '.[test]')")
+    if CHROMIUM is None:
+        pytest.skip("no chromium on PATH (apt-get install -y chromium)")
+    with sync_api.sync_playwright() as pw:
+        chromium = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        yield chromium
+        chromium.close()

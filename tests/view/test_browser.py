@@ -4,13 +4,10 @@ each slider; a keyboard step on the slider thumb is checked too), and
 the server's drawn mean must have changed and the page must show the new success verdict.
 
 Skipped, with the reason, where no ``chromium`` is installed or viser / playwright are missing
-(``pip install -e ".[test]"``; ``apt-get install -y chromium``). Playwright drives the system
-Chromium (``executable_path``); ``playwright install`` is never needed.
+(conftest's ``browser``; ``pip install -e ".[test]"``; ``apt-get install -y chromium``).
 """
 
 from __future__ import annotations
-
-import shutil
 
 import numpy as np
 import pytest
@@ -20,12 +17,6 @@ from protorch.experiments import point_particle
 from protorch.view.scene import open_run, scene_state
 from protorch.view.server import Viewer
 
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-viser = pytest.importorskip("viser", reason="viser is not installed (pip install -e '.[view]')")
-sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install -e '.[test]')")
-pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (apt-get install -y chromium)")
-
-ARGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
 HOLE_Y = 3.5  # typed into hole_y's number box (the run starts at 6.5)
 
 
@@ -46,7 +37,7 @@ def _verdict(page) -> str:
 
 
 @pytest.mark.slow
-def test_dragging_the_hole_slider_redraws_the_mean_and_the_verdict(trained_run, tmp_path):
+def test_dragging_the_hole_slider_redraws_the_mean_and_the_verdict(browser, trained_run, tmp_path):
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     run = open_run(trained_run)
@@ -54,32 +45,31 @@ def test_dragging_the_hole_slider_redraws_the_mean_and_the_verdict(trained_run, 
     try:
         before = viewer.state
         env_before = viewer.env.clone()
-        with sync_api.sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
-            page = browser.new_page(viewport={"width": 960, "height": 640})
-            page.goto(viewer.url)
-            page.get_by_text("mean trajectory:").wait_for(timeout=30_000)
-            assert _verdict(page) == ("SUCCESS" if before.success else "FAILURE")
-            page.screenshot(path=str(tmp_path / "before.png"))
-            sliders = page.get_by_role("slider")
-            assert sliders.count() == len(run.params)
-            k = [p.name for p in run.params].index("hole_y")
-            slider = sliders.nth(k)
-            slider.focus()
-            slider.press("ArrowRight")  # one slider step (0.05) up
-            box = page.locator("input.mantine-NumberInput-input").nth(k)  # the slider's number box
-            sync_api.expect(box).to_have_value("6.55", timeout=30_000)
-            box.fill(str(HOLE_Y))
-            box.press("Enter")
-            page.wait_for_function(f"() => document.querySelectorAll('[role=slider]')[{k}]"
-                                   f".getAttribute('aria-valuenow') === '{HOLE_Y}'", timeout=30_000)
-            page.wait_for_timeout(500)  # the last redraw's markdown reaches the page
-            after = viewer.state
-            expected = "SUCCESS" if after.success else "FAILURE"
-            page.wait_for_function(f"() => document.body.innerText.includes('mean trajectory: {expected}')",
-                                   timeout=30_000)
-            page.screenshot(path=str(tmp_path / "after.png"))
-            browser.close()
+        page = browser.new_page(viewport={"width": 960, "height": 640})
+        page.goto(viewer.url)
+        page.get_by_text("mean trajectory:").wait_for(timeout=30_000)
+        assert _verdict(page) == ("SUCCESS" if before.success else "FAILURE")
+        page.screenshot(path=str(tmp_path / "before.png"))
+        sliders = page.get_by_role("slider")
+        assert sliders.count() == len(run.params)
+        k = [p.name for p in run.params].index("hole_y")
+        slider = sliders.nth(k)
+        slider.focus()
+        slider.press("ArrowRight")  # one slider step (0.05) up
+        box = page.locator("input.mantine-NumberInput-input").nth(k)  # the slider's number box
+        page.wait_for_function(f"() => document.querySelectorAll('input.mantine-NumberInput-input')[{k}]"
+                               ".value === '6.55'", timeout=30_000)
+        box.fill(str(HOLE_Y))
+        box.press("Enter")
+        page.wait_for_function(f"() => document.querySelectorAll('[role=slider]')[{k}]"
+                               f".getAttribute('aria-valuenow') === '{HOLE_Y}'", timeout=30_000)
+        page.wait_for_timeout(500)  # the last redraw's markdown reaches the page
+        after = viewer.state
+        expected = "SUCCESS" if after.success else "FAILURE"
+        page.wait_for_function(f"() => document.body.innerText.includes('mean trajectory: {expected}')",
+                               timeout=30_000)
+        page.screenshot(path=str(tmp_path / "after.png"))
+        page.close()
         assert float(viewer.env[3]) == pytest.approx(HOLE_Y) and float(env_before[3]) == 6.5
         assert torch.equal(viewer.env[[0, 1, 2, 4, 5]], env_before[[0, 1, 2, 4, 5]])  # only the hole moved
         assert not np.allclose(after.mean, before.mean, atol=1e-3)  # the drawn mean changed

@@ -87,6 +87,7 @@ def test_live_particle_tracks_a_static_environment_to_the_goal(run):
     assert p.success == (not p.collided and bool((p.pos - env[4:6]).norm() <= 0.2))
 
 
+@pytest.mark.slow
 def test_arm_state_is_the_label_aware_answer(arm_run_dir):
     run = open_run(arm_run_dir)
     assert run.kind == "arm" and [p.name for p in run.params] == ["can_x", "can_y", "goal_x", "goal_y"]

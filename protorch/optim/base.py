@@ -1,8 +1,7 @@
 """The ask / tell / stop / result contract shared by every optimiser (after pycma).
 
-An optimiser holds a diagonal Gaussian search distribution over ProMP weights for ``B``
-independent problems at once: ``mean (B, N)`` and ``var (B, N)`` are buffers. Evaluation stays
-outside::
+An optimiser holds a diagonal Gaussian over ProMP weights for ``B`` independent problems at
+once (buffers ``mean (B, N)``, ``var (B, N)``); evaluation stays outside::
 
     opt = PRO(mean, var, beta=20.0)
     while not opt.stop():
@@ -161,12 +160,9 @@ class BaseOptimizer(nn.Module):
         return self.draws.draw(shape, self.mean.dtype, self.mean.device)
 
     def draw_ahead(self) -> bool:
-        """Make each next ask's normal numbers in a background thread while the caller evaluates
-        the current ones (:class:`~protorch.optim.draws.NormalDraws`): the same numbers in the same
-        order, the generator's time off the caller's path where a core is free. Only for
-        optimisers that draw through :meth:`_randn` alone (``can_draw_ahead``) on a CPU
-        generator; returns whether it is on. The generator is then in use between asks: draw
-        from it only through the optimiser."""
+        """Draw each next ask's noise in a background thread while the caller evaluates (the same
+        numbers in the same order, :mod:`~protorch.optim.draws`; a CPU generator, ``can_draw_ahead``).
+        Returns whether it is on; the generator is then busy between asks (use it only here)."""
         if self.can_draw_ahead:
             self.draws.start_ahead()
         return self.draws.ahead
@@ -177,11 +173,9 @@ class BaseOptimizer(nn.Module):
         return eps.mul_(var.clamp_min(0).sqrt()[:, None, :]).add_(self.mean[:, None, :])  # mean + eps std
 
     def _active_rows(self) -> Tensor | None:
-        """Indices ``(r,)`` of the problems an update is computed for, or ``None`` for all: every
-        block of ``64 / itemsize`` consecutive problems that holds one still moving. Every
-        operation is per problem, but a BLAS kernel's rounding depends on the 64-byte alignment
-        of a problem's matrices; whole blocks keep each problem's alignment, so its numbers are
-        those of an update over all ``B``. :meth:`_apply_rows` commits the moving ones only."""
+        """Indices ``(r,)`` of the problems to update (``None``: all): every block of ``64 / itemsize``
+        problems holding a moving one. BLAS rounds by the 64-byte alignment of a problem's matrices,
+        which whole blocks keep: the numbers are those of an update over all ``B``."""
         moving = ~self.converged  # (B,)
         if bool(moving.all()):
             return None
@@ -191,8 +185,7 @@ class BaseOptimizer(nn.Module):
         return kept.repeat_interleave(block)[: self.batch_size].nonzero().flatten()
 
     def _apply_rows(self, rows: Tensor | None, new_mean: Tensor, new_var: Tensor) -> None:
-        """Commit an update computed for the problems ``rows`` to the moving ones among them
-        (``None``: for all problems, as :meth:`_apply`)."""
+        """Commit an update computed for ``rows`` (``None``: all, :meth:`_apply`) to its moving ones."""
         if rows is None:
             self._apply(new_mean, new_var)
             return
@@ -360,8 +353,8 @@ class BaseOptimizer(nn.Module):
     def stop(self) -> bool:
         """True once every problem converged or ``max_iter`` iterations ran."""
         done = self._asked is None and self._next is None and self.stop_reason() is not None
-        if done:
-            self.draws.cancel()  # a draw made ahead for an ask that will not come
+        if done:  # a draw made ahead for an ask that will not come
+            self.draws.cancel()
         return done
 
     def result(self) -> OptimizeResult:

@@ -178,7 +178,8 @@ def write_episode_gif(path, positions, envs, means, markers=None, *, dt: float =
     head = title or "online episode"
     if success is not None:
         head += f": {'success' if success else 'failure'}"
-    arts = _EpisodeArtists(ax, positions, envs, means, markers, goal_tol=goal_tol, legend=True)
+    arts = _EpisodeArtists(ax, positions, envs, means, markers, goal_tol=goal_tol, legend=True,
+                           recent=max(1, int(round(0.1 / dt))))  # draw_online_frame's faded path
     arts.show(idx[0], head)  # the legend and the layout see every artist once
     for a in arts.moving:
         a.set_animated(True)  # left out of the background

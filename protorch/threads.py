@@ -26,7 +26,8 @@ import torch
 
 from .checks import check_int
 
-__all__ = ["AUTO", "torch_threads", "ThreadGovernor", "LoadProbe", "available_cores", "threads_for", "core_budget", "beside_workers"]
+__all__ = ["AUTO", "torch_threads", "ThreadGovernor", "LoadProbe", "available_cores", "threads_for", "core_budget",
+           "beside_workers"]
 
 AUTO = "auto"
 _PROBE_SECONDS = 0.2  # the first reading's window (later ones: the time since the previous choice)

@@ -80,8 +80,9 @@ class LoopWorker:
         self.log = tempfile.TemporaryFile(mode="w+b")  # its stderr: warnings are passed on, errors reported
         env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": os.pathsep.join(
             [str(Path(__file__).resolve().parents[2]), *filter(None, [os.environ.get("PYTHONPATH")])])}
-        self.proc = subprocess.Popen([sys.executable, "-c", "from protorch.experiments.loop_worker import main; main()"],
-                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.log, env=env)
+        code = "from protorch.experiments.loop_worker import main; main()"
+        self.proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     stderr=self.log, env=env)
         self.proc.stdin.write(json.dumps(spec).encode())
         self.proc.stdin.close()
 

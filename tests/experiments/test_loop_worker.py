@@ -59,8 +59,9 @@ def test_a_worker_runs_the_loop_baseline_with_the_numbers_of_one_process(tmp_pat
 
 
 def test_settings_pass_to_a_worker_and_back():
-    settings = {"seed": 3, "dtype": torch.float32, "device": torch.device("cpu"), "optimizer": {"name": "pro", "beta": 2.5},
-                "task": {"fixed_start": (1.0, 2.0), "demos": "synthetic"}, "loop": None, "flag": True}
+    settings = {"seed": 3, "dtype": torch.float32, "device": torch.device("cpu"),
+                "optimizer": {"name": "pro", "beta": 2.5}, "task": {"fixed_start": (1.0, 2.0), "demos": "synthetic"},
+                "loop": None, "flag": True}
     back = decode_settings(encode_settings(settings))
     assert back == {**settings, "task": {"fixed_start": [1.0, 2.0], "demos": "synthetic"}}  # tuples come back as lists
     with pytest.raises(TypeError, match="Tensor"):

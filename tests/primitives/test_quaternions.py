@@ -24,6 +24,7 @@ def test_the_conversions_are_pytorch_kinematics_ones():
 
 
 def test_the_app_starts_without_importing_pytorch_kinematics_or_pyplot():
-    code = "import sys, protorch.app.main; print(sorted({'pytorch_kinematics', 'matplotlib.pyplot'} & set(sys.modules)))"
+    code = ("import sys, protorch.app.main; "
+            "print(sorted({'pytorch_kinematics', 'matplotlib.pyplot'} & set(sys.modules)))")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"

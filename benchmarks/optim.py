@@ -9,6 +9,10 @@
    evaluated 16 problems at a time (cache-sized chunks). What bounds each: the torch operations
    one iteration dispatches (B = 1 pays their fixed cost) and the objective's memory traffic
    against the machine's copy bandwidth (B = 256).
+
+``--dtype float32`` runs the batching part in float32 (the loop's ``eval_dtype``); ``--clock cpu``
+times it in this process's CPU seconds instead of wall seconds (on a machine other programs
+load; with ``OMP_NUM_THREADS=1`` that is one core's work).
 """
 
 from __future__ import annotations
@@ -43,16 +47,17 @@ def bench_relevance(repeats: int, device: str) -> tuple[float, float]:
     return statistics.median(pro_t), statistics.median(rwpo_t)
 
 
-def bench_batch(batch: int, iters: int, device: str, rows: int | None = None) -> tuple[float, float]:
+def bench_batch(batch: int, iters: int, device: str, rows: int | None = None, dtype=torch.float64,
+                clock=time.perf_counter) -> tuple[float, float]:
     """Seconds per PRO iteration for ``batch`` problems at once, and the part of it spent in the
-    objective (``rows``: evaluate it that many problems at a time)."""
-    task, promp, f = window_problem(device=device)
+    objective (``rows``: evaluate it that many problems at a time), on ``clock``."""
+    task, promp, f = window_problem(dtype=dtype, device=device)
     spent = [0.0]
 
     def objective(w):  # (B, S, N) -> (B, S, 3), timed
-        t = time.perf_counter()
+        t = clock()
         out = f(w) if rows is None else torch.cat([f(w[i:i + rows]) for i in range(0, w.shape[0], rows)])
-        spent[0] += time.perf_counter() - t
+        spent[0] += clock() - t
         return out
 
     mean = promp.mean.expand(batch, -1).clone()
@@ -63,12 +68,12 @@ def bench_batch(batch: int, iters: int, device: str, rows: int | None = None) ->
         while opt.iteration == it:
             opt.tell(objective(opt.ask()))
     spent[0] = 0.0
-    t0 = time.perf_counter()
+    t0 = clock()
     while not opt.stop():
         opt.tell(objective(opt.ask()))
     if device == "cuda":
         torch.cuda.synchronize()
-    return (time.perf_counter() - t0) / iters, spent[0] / iters
+    return (clock() - t0) / iters, spent[0] / iters
 
 
 def ops_per_iteration(device: str) -> int:
@@ -101,25 +106,31 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--iters", type=int, default=30)
     ap.add_argument("--device", default="cpu")
+    ap.add_argument("--dtype", choices=("float64", "float32"), default="float64", help="of the batching part")
+    ap.add_argument("--clock", choices=("wall", "cpu"), default="wall", help="of the batching part")
+    ap.add_argument("--batch-only", action="store_true", help="the batching part alone (no relevance timing)")
     args = ap.parse_args()
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, device {args.device}\n")
-    pro_s, rwpo_s = bench_relevance(args.repeats, args.device)
-    print("| relevance (window task, rollouts included) | seconds |")
-    print("|---|---|")
-    print(f"| PRO (Pearson, 200 samples) | {pro_s:.5f} |")
-    print(f"| RWPO (50 x 200 x 50 learning) | {rwpo_s:.3f} |")
-    print(f"| ratio RWPO / PRO | {rwpo_s / pro_s:,.0f}x |  (paper: 84.47 s / 0.02 s = 4,224x)\n")
-    one, one_f = bench_batch(1, args.iters, args.device)
+    dtype, clock = getattr(torch, args.dtype), (time.perf_counter if args.clock == "wall" else time.process_time)
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, device {args.device}; "
+          f"batching in {args.dtype}, {args.clock} seconds\n")
+    if not args.batch_only:
+        pro_s, rwpo_s = bench_relevance(args.repeats, args.device)
+        print("| relevance (window task, rollouts included) | seconds |")
+        print("|---|---|")
+        print(f"| PRO (Pearson, 200 samples) | {pro_s:.5f} |")
+        print(f"| RWPO (50 x 200 x 50 learning) | {rwpo_s:.3f} |")
+        print(f"| ratio RWPO / PRO | {rwpo_s / pro_s:,.0f}x |  (paper: 84.47 s / 0.02 s = 4,224x)\n")
+    one, one_f = bench_batch(1, args.iters, args.device, dtype=dtype, clock=clock)
     print("| PRO batch | s / iteration | of it the objective | per-problem speed-up | PRO alone (ask + tell): speed-up |")
     print("|---|---|---|---|---|")
     print(f"| B = 1 | {one:.4f} | {one_f:.4f} | 1.0x | 1.0x |")
     for rows, label in ((None, "objective as written"), (16, "objective 16 problems at a time")):
-        many, many_f = bench_batch(256, max(args.iters // 3, 5), args.device, rows)
+        many, many_f = bench_batch(256, max(args.iters // 3, 5), args.device, rows, dtype, clock)
         print(f"| B = 256, {label} | {many:.4f} | {many_f:.4f} | {256 * one / many:,.1f}x "
               f"| {256 * (one - one_f) / (many - many_f):,.1f}x |")
     ops = ops_per_iteration(args.device)
     # each ask's trajectories (B, S, T, 2) in the dtype: written by the ProMP, read by the costs
-    traj_gb = 256 * (200 + 3 * 100) * 100 * 2 * 8 / 1e9
+    traj_gb = 256 * (200 + 3 * 100) * 100 * 2 * dtype.itemsize / 1e9
     print(f"\nB = 1 dispatches {ops} torch operations per iteration: {1e6 * one / ops:.1f} us each, "
           f"end to end; the copy bandwidth here is {copy_bandwidth(args.device):.1f} GB/s, and B = 256 "
           f"writes {traj_gb:.2f} GB of trajectories per iteration before its costs read them.")

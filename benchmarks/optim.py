@@ -4,7 +4,15 @@
    window task (5 demonstrations, 2 DoF x 10 weights, 3 objectives), rollouts included, as the
    paper timed them (0.02 s vs 84.47 s).
 2. Batching: PRO iterations per second on the window task for B = 1 and B = 256 independent
-   problems advanced by one ask/tell per round, and the per-problem speed-up.
+   problems advanced by one ask/tell per round, and the per-problem speed-up, end to end and for
+   PRO alone (ask + tell, the objective's time taken out); with the objective as written and
+   evaluated 16 problems at a time (cache-sized chunks). What bounds each: the torch operations
+   one iteration dispatches (B = 1 pays their fixed cost) and the objective's memory traffic
+   against the machine's copy bandwidth (B = 256).
+
+``--dtype float32`` runs the batching part in float32 (the loop's ``eval_dtype``); ``--clock cpu``
+times it in this process's CPU seconds instead of wall seconds (on a machine other programs
+load; with ``OMP_NUM_THREADS=1`` that is one core's work).
 """
 
 from __future__ import annotations
@@ -39,22 +47,58 @@ def bench_relevance(repeats: int, device: str) -> tuple[float, float]:
     return statistics.median(pro_t), statistics.median(rwpo_t)
 
 
-def bench_batch(batch: int, iters: int, device: str) -> float:
-    """Seconds per PRO iteration for ``batch`` problems at once."""
-    task, promp, f = window_problem(device=device)
+def bench_batch(batch: int, iters: int, device: str, rows: int | None = None, dtype=torch.float64,
+                clock=time.perf_counter) -> tuple[float, float]:
+    """Seconds per PRO iteration for ``batch`` problems at once, and the part of it spent in the
+    objective (``rows``: evaluate it that many problems at a time), on ``clock``."""
+    task, promp, f = window_problem(dtype=dtype, device=device)
+    spent = [0.0]
+
+    def objective(w):  # (B, S, N) -> (B, S, 3), timed
+        t = clock()
+        out = f(w) if rows is None else torch.cat([f(w[i:i + rows]) for i in range(0, w.shape[0], rows)])
+        spent[0] += clock() - t
+        return out
+
     mean = promp.mean.expand(batch, -1).clone()
     var = promp.var.expand(batch, -1).clone()
     opt = PRO(mean, var, beta=20.0, num_samples=100, max_iter=iters + 2, tol=0.0, seed=0)
     for _ in range(2):  # warm-up iterations
         it = opt.iteration
         while opt.iteration == it:
-            opt.tell(f(opt.ask()))
-    t0 = time.perf_counter()
+            opt.tell(objective(opt.ask()))
+    spent[0] = 0.0
+    t0 = clock()
     while not opt.stop():
-        opt.tell(f(opt.ask()))
+        opt.tell(objective(opt.ask()))
     if device == "cuda":
         torch.cuda.synchronize()
-    return (time.perf_counter() - t0) / iters
+    return (clock() - t0) / iters, spent[0] / iters
+
+
+def ops_per_iteration(device: str) -> int:
+    """The torch operations one B = 1 PRO iteration dispatches, objective included."""
+    task, promp, f = window_problem(device=device)
+    opt = PRO(promp.mean[None], promp.var[None], beta=20.0, num_samples=100, max_iter=3, tol=0.0, seed=0)
+    opt.tell(f(opt.ask()))
+    with torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU]) as prof:
+        it = opt.iteration
+        while opt.iteration == it:
+            opt.tell(f(opt.ask()))
+    return sum(e.count for e in prof.key_averages() if not e.key.startswith(("aten::view", "aten::as_strided")))
+
+
+def copy_bandwidth(device: str) -> float:
+    """GB/s of a 256 MB tensor copy (read + write), the memory bound of elementwise work."""
+    x = torch.ones(2**26, device=device)
+    y = torch.empty_like(x)
+    y.copy_(x)
+    t = time.perf_counter()
+    for _ in range(5):
+        y.copy_(x)
+    if device == "cuda":
+        torch.cuda.synchronize()
+    return 5 * 2 * x.numel() * 4 / (time.perf_counter() - t) / 1e9
 
 
 def main() -> None:
@@ -62,21 +106,34 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--iters", type=int, default=30)
     ap.add_argument("--device", default="cpu")
+    ap.add_argument("--dtype", choices=("float64", "float32"), default="float64", help="of the batching part")
+    ap.add_argument("--clock", choices=("wall", "cpu"), default="wall", help="of the batching part")
+    ap.add_argument("--batch-only", action="store_true", help="the batching part alone (no relevance timing)")
     args = ap.parse_args()
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, device {args.device}\n")
-    pro_s, rwpo_s = bench_relevance(args.repeats, args.device)
-    print("| relevance (window task, rollouts included) | seconds |")
-    print("|---|---|")
-    print(f"| PRO (Pearson, 200 samples) | {pro_s:.5f} |")
-    print(f"| RWPO (50 x 200 x 50 learning) | {rwpo_s:.3f} |")
-    print(f"| ratio RWPO / PRO | {rwpo_s / pro_s:,.0f}x |  (paper: 84.47 s / 0.02 s = 4,224x)\n")
-    one = bench_batch(1, args.iters, args.device)
-    many = bench_batch(256, max(args.iters // 3, 5), args.device)
-    print("| PRO batch | s / iteration | problem-iterations / s | per-problem speed-up |")
-    print("|---|---|---|---|")
-    print(f"| B = 1 | {one:.4f} | {1 / one:,.0f} | 1.0x |")
-    print(f"| B = 256 | {many:.4f} | {256 / many:,.0f} | {256 * one / many:,.1f}x |")
-
+    dtype, clock = getattr(torch, args.dtype), (time.perf_counter if args.clock == "wall" else time.process_time)
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, device {args.device}; "
+          f"batching in {args.dtype}, {args.clock} seconds\n")
+    if not args.batch_only:
+        pro_s, rwpo_s = bench_relevance(args.repeats, args.device)
+        print("| relevance (window task, rollouts included) | seconds |")
+        print("|---|---|")
+        print(f"| PRO (Pearson, 200 samples) | {pro_s:.5f} |")
+        print(f"| RWPO (50 x 200 x 50 learning) | {rwpo_s:.3f} |")
+        print(f"| ratio RWPO / PRO | {rwpo_s / pro_s:,.0f}x |  (paper: 84.47 s / 0.02 s = 4,224x)\n")
+    one, one_f = bench_batch(1, args.iters, args.device, dtype=dtype, clock=clock)
+    print("| PRO batch | s / iteration | of it the objective | per-problem speed-up | PRO alone (ask + tell): speed-up |")
+    print("|---|---|---|---|---|")
+    print(f"| B = 1 | {one:.4f} | {one_f:.4f} | 1.0x | 1.0x |")
+    for rows, label in ((None, "objective as written"), (16, "objective 16 problems at a time")):
+        many, many_f = bench_batch(256, max(args.iters // 3, 5), args.device, rows, dtype, clock)
+        print(f"| B = 256, {label} | {many:.4f} | {many_f:.4f} | {256 * one / many:,.1f}x "
+              f"| {256 * (one - one_f) / (many - many_f):,.1f}x |")
+    ops = ops_per_iteration(args.device)
+    # each ask's trajectories (B, S, T, 2) in the dtype: written by the ProMP, read by the costs
+    traj_gb = 256 * (200 + 3 * 100) * 100 * 2 * dtype.itemsize / 1e9
+    print(f"\nB = 1 dispatches {ops} torch operations per iteration: {1e6 * one / ops:.1f} us each, "
+          f"end to end; the copy bandwidth here is {copy_bandwidth(args.device):.1f} GB/s, and B = 256 "
+          f"writes {traj_gb:.2f} GB of trajectories per iteration before its costs read them.")
 
 if __name__ == "__main__":
     main()

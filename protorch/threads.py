@@ -26,7 +26,8 @@ import torch
 
 from .checks import check_int
 
-__all__ = ["AUTO", "torch_threads", "ThreadGovernor", "LoadProbe", "available_cores", "threads_for"]
+__all__ = ["AUTO", "torch_threads", "ThreadGovernor", "LoadProbe", "available_cores", "threads_for", "core_budget",
+           "beside_workers"]
 
 AUTO = "auto"
 _PROBE_SECONDS = 0.2  # the first reading's window (later ones: the time since the previous choice)
@@ -73,6 +74,26 @@ class LoadProbe:
         if wall <= 0:
             return 0.0
         return max(0.0, ((busy - b0) - (ours - o0) * self.hz) / wall)
+
+
+def core_budget() -> int:
+    """The cores the enclosing thread setting lets a run use at once (threads of torch or worker
+    processes): its number when it is fixed, else (``"auto"``, torch's default, no setting) the
+    cores available to this process. ``threads=1`` keeps a run on one core."""
+    outer = _OUTER.get()
+    if outer is None or outer == AUTO or outer == 0:
+        return available_cores()
+    return int(outer)
+
+
+def beside_workers(workers: int) -> int | str:
+    """The thread setting for this process while ``workers`` one-thread worker processes run
+    beside it: ``"auto"`` stays ``"auto"`` (it measures the workers as other programs' load), a
+    fixed ``n`` becomes ``max(1, n - workers)``."""
+    outer = _OUTER.get()
+    if outer is None or outer == AUTO or outer == 0:
+        return AUTO
+    return max(1, int(outer) - int(workers))
 
 
 def threads_for(other_cores: float, cores: int) -> int:

@@ -96,3 +96,15 @@ def test_a_runs_metrics_are_the_same_at_one_and_two_threads(name):
     one, two = small_run(name, 1), small_run(name, 2)
     assert any(k.startswith("checkpoint:") for k in one)
     assert one == two  # every metric, and the loops' data sets bit for bit
+
+
+def test_the_core_budget_and_the_threads_beside_workers():
+    from protorch.threads import available_cores, beside_workers, core_budget
+
+    with torch_threads(1):
+        assert core_budget() == 1 and beside_workers(1) == 1  # one core: never fewer than one thread
+    with torch_threads(3):
+        assert core_budget() == 3 and beside_workers(1) == 2
+    with torch_threads("auto"):
+        assert core_budget() == available_cores() and beside_workers(1) == "auto"  # auto measures the workers
+    assert core_budget() == available_cores()  # no setting: the available cores

@@ -23,6 +23,7 @@ baseline without a loop of its own), ``record`` and ``figures``.
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,8 +38,10 @@ from ..gp.model import EnvToProMP
 from ..loop import LoopResult, demonstration_dataset, self_improve
 from ..primitives.promp import ProMP, resample
 from ..tasks import check_task_outputs
+from ..threads import beside_workers, core_budget
 from .common import (check_optimizer, evaluation_settings, gp_settings, loop_settings, optimizer_spec,
                      problem_arguments)
+from .loop_worker import LoopWorker, encode_settings
 
 __all__ = ["SelfImprovementExperiment", "Outcome", "TEST_SEED", "DYNAMIC_SEED", "DEMO_SEED_OFFSET",
            "GP_KEYS", "LOOP_KEYS", "loop_summary"]
@@ -87,6 +90,11 @@ class SelfImprovementExperiment:
     pre_loop_baselines: frozenset = frozenset()  # baselines computed before the loop
     loop_baselines: frozenset = frozenset()  # baselines with a loop of their own (<out_dir>/baselines/<name>)
     baseline_section: str | None = "baselines"  # where their metrics go (None: the top level)
+
+    def __new__(cls, *args, **settings):
+        self = super().__new__(cls)
+        self.constructed_with = copy.deepcopy(settings)  # what a worker process rebuilds the experiment from
+        return self
 
     def __init__(self, *, seed: int = 0, device: str | torch.device = "cpu", dtype: torch.dtype = torch.float64,
                  optimizer: dict, task: dict | None = None, gp: dict | None = None, promp: dict | None = None,
@@ -253,13 +261,36 @@ class SelfImprovementExperiment:
                 raise FileExistsError(f"{checkpoint_path(d)} already exists: add resume=true to continue that run, "
                                       "or choose another hydra.run.dir")
 
-    def run_baseline(self, name: str, out_dir: Path, model, resume: bool, progress: bool) -> tuple[dict, object]:
+    def run_baseline(self, name: str, out_dir: Path, model, resume: bool, progress: bool,
+                     worker: LoopWorker | None = None) -> tuple[dict, object]:
+        """A baseline's metrics entry and artefact; a loop baseline whose ``worker`` ran its loop
+        is read back from the worker's finished checkpoint."""
         if name not in self.loop_baselines:
             return self.baseline(name, out_dir, model)
         run_dir = out_dir / "baselines" / name
+        if worker is not None:
+            report = worker.wait()
+            resume, progress = True, False  # the loop is finished: resuming it reads its checkpoint
         res = self.run_loop(name, run_dir=run_dir, resume=resume, progress=progress)
+        if worker is not None:
+            res.resumed_from = report["resumed_from"]  # the worker's loop's, not this read-back's
         test_m, dyn_m, _ = self.evaluate(load(run_dir, device=self.device, dtype=self.dtype))
         return self.entry(test_m, dyn_m, loop=self.loop_metrics(res)), res
+
+    def start_workers(self, out_dir: Path, chosen: list[str], resume: bool) -> dict[str, LoopWorker]:
+        """One :class:`~protorch.experiments.loop_worker.LoopWorker` per chosen loop baseline when
+        the run may use more than one core (:func:`~protorch.threads.core_budget`) on the CPU and
+        the experiment's settings can be passed to a process; none otherwise (they run here,
+        after the method's loop)."""
+        names = [b for b in chosen if b in self.loop_baselines]
+        if not names or core_budget() < 2 or torch.device(self.device).type != "cpu" \
+                or type(self).__module__ == "__main__" or "<locals>" in type(self).__qualname__:
+            return {}  # (a class a child process cannot import runs its baselines here)
+        try:
+            encode_settings(self.constructed_with)
+        except TypeError:
+            return {}
+        return {b: LoopWorker(self, self.constructed_with, b, out_dir / "baselines" / b, resume) for b in names}
 
     def run(self, out_dir: Path, *, baselines: Sequence[str] | None = (), resume: bool = False,
             progress: bool = False, plot: bool = True) -> dict:
@@ -274,23 +305,31 @@ class SelfImprovementExperiment:
         section = metrics.setdefault(self.baseline_section, {}) if self.baseline_section else metrics
         artefacts: dict = {}
 
+        workers = self.start_workers(out_dir, chosen, resume)  # loop baselines beside the method's loop
+
         def baseline(name, model):
             t1 = time.perf_counter()
-            section[name], artefacts[name] = self.run_baseline(name, out_dir, model, resume, progress)
+            section[name], artefacts[name] = self.run_baseline(name, out_dir, model, resume, progress,
+                                                               workers.get(name))
             self.seconds[name] = round(time.perf_counter() - t1, 3)
 
-        for name in (b for b in chosen if b in self.pre_loop_baselines):
-            baseline(name, None)
-        res = self.run_loop(run_dir=out_dir, resume=resume, progress=progress)
-        self.seconds["loop"] = round(res.seconds, 3)
-        model = load(out_dir, device=self.device, dtype=self.dtype)  # the checkpoint is what gets evaluated
-        t1 = time.perf_counter()
-        test_m, dyn_m, episodes = self.evaluate(model)
-        self.seconds["evaluation"] = round(time.perf_counter() - t1, 3)
-        self.record(metrics, test_m, dyn_m, res)
-        metrics.update(self.extra_tests(model))
-        for name in (b for b in chosen if b not in self.pre_loop_baselines):
-            baseline(name, model)
+        try:
+            for name in (b for b in chosen if b in self.pre_loop_baselines):
+                baseline(name, None)
+            res = self.run_loop(run_dir=out_dir, resume=resume, progress=progress,
+                                **({"threads": beside_workers(len(workers))} if workers else {}))
+            self.seconds["loop"] = round(res.seconds, 3)
+            model = load(out_dir, device=self.device, dtype=self.dtype)  # the checkpoint is what gets evaluated
+            t1 = time.perf_counter()
+            test_m, dyn_m, episodes = self.evaluate(model)
+            self.seconds["evaluation"] = round(time.perf_counter() - t1, 3)
+            self.record(metrics, test_m, dyn_m, res)
+            metrics.update(self.extra_tests(model))
+            for name in (b for b in chosen if b not in self.pre_loop_baselines):
+                baseline(name, model)
+        finally:  # a failed run ends its workers
+            for w in workers.values():
+                w.stop()
         if plot:
             t1 = time.perf_counter()
             self.figures(out_dir, Outcome(model, res, episodes, artefacts), metrics)

@@ -51,7 +51,7 @@ from torch import Tensor
 
 from ..data.checkpoint import save_model
 from ..data.dataset import TrajectoryDataset
-from ..threads import ThreadGovernor
+from ..threads import ThreadGovernor, core_budget
 from .initial import dataset_pool, demonstration_dataset, group_by_env
 from .phases import Evaluator, accept, add, choose, infer, optimise, step_row
 from .settings import ADD_ONLY, CHOICES, LoopSettings
@@ -239,6 +239,8 @@ def _improve(task, promp, dataset, *, optimizer, optimizer_kwargs, env_map, num_
         pick = choose(pool, state.tried, data.env, settings.batch_size, settings.choice)  # (b,)
         problems = infer(ev, gp, pool[pick], each_label=settings.each_label, min_var=settings.min_var)
         opt = optimizer(problems.mu, problems.var, seed=settings.step_seed(state.step), **optimizer_kwargs)
+        if torch.get_num_threads() < core_budget() and callable(getattr(opt, "draw_ahead", None)):
+            opt.draw_ahead()  # a free core makes the next ask's noise while this one's costs are computed
         res = optimise(ev, problems, opt, solved)
         solutions = accept(ev, problems, res, settings)
         add(data, gp, problems.env, solutions)

@@ -10,6 +10,7 @@ optional labeller.
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -53,6 +54,19 @@ class Evaluator:
     @property
     def device(self) -> torch.device:
         return self.promp.basis.device
+
+    def sample_trajectory(self, w: Tensor, steps: tuple[int, ...] | None = None) -> Tensor:
+        """The optimiser's samples ``w (..., N)`` as trajectories on the sample grid ``(..., T, D)``,
+        or at the time indices ``steps`` only ``(..., len(steps), D)``. Those rows are taken with
+        zero rows up to 16: a BLAS product of two rows takes another code path whose rounding
+        differs in the last bit, so padding keeps every number equal to the full trajectory's."""
+        if steps is None:
+            return self.promp_sample.trajectory(w)
+        basis = self.promp_sample.basis  # (T, K)
+        rows = basis.new_zeros(max(16, len(steps)), basis.shape[1])  # (>= 16, K)
+        rows[:len(steps)] = basis[list(steps)]
+        wk = w.to(basis.dtype).unflatten(-1, (self.promp_sample.num_dof, self.promp_sample.num_basis))  # (..., D, K)
+        return torch.einsum("tk,...dk->...td", rows, wk)[..., :len(steps), :]  # (..., len(steps), D)
 
     def here(self, x: Tensor) -> Tensor:
         """``x`` in the evaluation dtype, on the ProMP's device."""
@@ -148,21 +162,52 @@ def infer(ev: Evaluator, env_map, env: Tensor, *, each_label: bool, min_var: flo
 def sample_costs(ev: Evaluator, opt, w: Tensor, env_e: Tensor) -> Tensor:
     """Costs ``(b, S, O)`` of the asked samples ``w (b, S, N)``: only the active problems' are
     evaluated (the others' are never read), and only the objective the optimiser asked for when
-    it reads one alone and the task can compute it alone (``objective_cost``)."""
+    it reads one alone and the task can compute it alone (``objective_cost``), on the time steps
+    it reads (``objective_steps``, optional). Problems are evaluated :func:`cost_chunks` at a time,
+    so the trajectories and the task's temporaries stay in the CPU's cache."""
     active = opt.active  # (b,)
     if not bool(active.any()):
         return w.new_zeros(*w.shape[:2], opt.num_objectives or 1)  # (b, S, O)
     o = getattr(opt, "asked_objective", None)
-    one_cost = getattr(ev.task, "objective_cost", None)  # optional: one objective alone, (...)
-    traj = ev.promp_sample.trajectory(w[active])  # (a, S, T, D)
-    if o is not None and one_cost is not None:
-        costs = w.new_zeros(*w.shape[:2], opt.num_objectives)  # (b, S, O)
-        costs[active, :, o] = one_cost(traj, env_e[active][:, None], o).to(w.dtype)
-        return costs
-    c = ev.task.costs(traj, env_e[active][:, None]).to(w.dtype)  # (a, S, O)
-    costs = c.new_zeros(*w.shape[:2], c.shape[-1])  # (b, S, O)
-    costs[active] = c
+    one_cost = None if o is None else getattr(ev.task, "objective_cost", None)  # optional: one objective alone, (...)
+    steps = None
+    if one_cost is not None and callable(getattr(ev.task, "objective_steps", None)):
+        steps = ev.task.objective_steps(o)
+    every = bool(active.all())  # no gather and no scatter
+    w_a, env_a = (w, env_e[:, None]) if every else (w[active], env_e[active][:, None])  # (a, S, N), (a, 1, E)
+    chunk = cost_chunks(w_a.shape[0], w_a.shape[1], ev.promp_sample.num_steps if steps is None else len(steps),
+                        ev.promp_sample.num_dof, w_a.shape[2])
+    parts = []
+    for i in range(0, w_a.shape[0], chunk):
+        traj = ev.sample_trajectory(w_a[i:i + chunk], steps)  # (c, S, T, D)
+        env = env_a[i:i + chunk]  # (c, 1, E)
+        parts.append(one_cost(traj, env, o) if one_cost is not None else ev.task.costs(traj, env))
+    c = (parts[0] if len(parts) == 1 else torch.cat(parts)).to(w.dtype)  # (a, S) or (a, S, O)
+    if one_cost is None and every:
+        return c
+    costs = c.new_zeros(*w.shape[:2], opt.num_objectives if one_cost is not None else c.shape[-1])  # (b, S, O)
+    if one_cost is None:
+        costs[active] = c
+    elif every:
+        costs[..., o] = c
+    else:
+        costs[active, :, o] = c
     return costs
+
+
+CHUNK_FLOATS = 1 << 19  # trajectory numbers per cost call (2 MB in float32): the fastest of 2^17 to 2^21
+
+
+def cost_chunks(problems: int, samples: int, steps: int, dof: int, weights: int = 0) -> int:
+    """Problems per cost call: about :data:`CHUNK_FLOATS` trajectory numbers, and a multiple of
+    ``32 / gcd(S T, 32)`` problems (and of ``32 / gcd(S N, 32)`` for ``N`` weights), so that every
+    call but the last fills torch's vectorised loops (32 floats) exactly and starts its tensors at
+    the 64-byte alignment they have in one call on all problems: the numbers that go through a
+    scalar tail (whose transcendental functions, ``hypot``, can round differently in the last
+    bit) and a BLAS kernel's alignment-dependent rounding are then those of one call, and so are
+    the costs."""
+    unit = math.lcm(*(32 // math.gcd(samples * n, 32) for n in (steps, weights) if n))
+    return min(problems, max(unit, CHUNK_FLOATS // max(samples * steps * dof, 1) // unit * unit))
 
 
 def optimise(ev: Evaluator, problems: Problems, opt, solved: Callable[[Tensor, Tensor], Tensor] | None):

@@ -1,8 +1,7 @@
 """The ask / tell / stop / result contract shared by every optimiser (after pycma).
 
-An optimiser holds a diagonal Gaussian search distribution over ProMP weights for ``B``
-independent problems at once: ``mean (B, N)`` and ``var (B, N)`` are buffers. Evaluation stays
-outside::
+An optimiser holds a diagonal Gaussian over ProMP weights for ``B`` independent problems at
+once (buffers ``mean (B, N)``, ``var (B, N)``); evaluation stays outside::
 
     opt = PRO(mean, var, beta=20.0)
     while not opt.stop():
@@ -26,8 +25,9 @@ from typing import Callable, Generator
 import torch
 from torch import Tensor, nn
 
-from ..checks import check_int, check_number, check_positive, check_tensor
+from ..checks import all_finite, check_int, check_number, check_positive, check_tensor
 from .convergence import make_rule
+from .draws import NormalDraws
 
 __all__ = ["BaseOptimizer", "OptimizeResult"]
 
@@ -71,6 +71,8 @@ class BaseOptimizer(nn.Module):
         seed: seed of the optimiser's own ``torch.Generator`` (reproducible sampling).
         dtype: dtype of the distribution (float64 default; float32 is fine for sampling).
     """
+
+    can_draw_ahead = True  # every random number comes through _randn (see draw_ahead)
 
     def __init__(
         self,
@@ -130,6 +132,7 @@ class BaseOptimizer(nn.Module):
             self.generator.manual_seed(int(seed))
         else:
             self.generator.seed()
+        self.draws = NormalDraws(self.generator)  # every sample's noise comes from here (see draw_ahead)
         self.iteration = 0
         self.history: dict[str, list[Tensor]] = {"cost": [], "cost_min": [], "cost_max": [], "mean": [], "var": []}
         self.relevance_seconds: list[float] = []
@@ -154,12 +157,41 @@ class BaseOptimizer(nn.Module):
 
     # ------------------------------------------------------------ helpers
     def _randn(self, *shape: int) -> Tensor:
-        return torch.randn(*shape, generator=self.generator, dtype=self.mean.dtype, device=self.mean.device)
+        return self.draws.draw(shape, self.mean.dtype, self.mean.device)
+
+    def draw_ahead(self) -> bool:
+        """Draw each next ask's noise in a background thread while the caller evaluates (the same
+        numbers in the same order, :mod:`~protorch.optim.draws`; a CPU generator, ``can_draw_ahead``).
+        Returns whether it is on; the generator is then busy between asks (use it only here)."""
+        if self.can_draw_ahead:
+            self.draws.start_ahead()
+        return self.draws.ahead
 
     def _sample(self, var: Tensor, num: int) -> Tensor:
         """``num`` draws from ``N(mean, diag(var))`` per problem: ``var (B, N)`` -> ``(B, num, N)``."""
         eps = self._randn(self.batch_size, num, self.num_weights)  # (B, S, N)
-        return self.mean[:, None, :] + eps * var.clamp_min(0).sqrt()[:, None, :]
+        return eps.mul_(var.clamp_min(0).sqrt()[:, None, :]).add_(self.mean[:, None, :])  # mean + eps std
+
+    def _active_rows(self) -> Tensor | None:
+        """Indices ``(r,)`` of the problems to update (``None``: all): every block of ``64 / itemsize``
+        problems holding a moving one. BLAS rounds by the 64-byte alignment of a problem's matrices,
+        which whole blocks keep: the numbers are those of an update over all ``B``."""
+        moving = ~self.converged  # (B,)
+        if bool(moving.all()):
+            return None
+        block = max(1, 64 // self.mean.element_size())
+        kept = torch.zeros((self.batch_size + block - 1) // block, dtype=torch.bool, device=moving.device)
+        kept.index_fill_(0, moving.nonzero().flatten() // block, True)  # (blocks,)
+        return kept.repeat_interleave(block)[: self.batch_size].nonzero().flatten()
+
+    def _apply_rows(self, rows: Tensor | None, new_mean: Tensor, new_var: Tensor) -> None:
+        """Commit an update computed for ``rows`` (``None``: all, :meth:`_apply`) to its moving ones."""
+        if rows is None:
+            self._apply(new_mean, new_var)
+            return
+        moving = ~self.converged[rows]  # (r,)
+        self.mean[rows[moving]] = new_mean[moving]
+        self.var[rows[moving]] = new_var[moving].clamp_min(0)
 
     def _record_cost(self, objective: int | slice, costs: Tensor) -> None:
         """Note the mean, min and max cost this iteration's update saw for ``objective``:
@@ -206,6 +238,7 @@ class BaseOptimizer(nn.Module):
             raise RuntimeError(f"the optimiser has stopped ({self.stop_reason()}); read result()")
         if self._next is None:
             self._start = self._snapshot()
+            self.draws.new_iteration()
             self._gen = self._iteration()
             self._next = next(self._gen)
         self._asked = self._next
@@ -249,7 +282,7 @@ class BaseOptimizer(nn.Module):
             raise ValueError(f"objective_weights must be ({costs.shape[-1]},) to match the costs' "
                              f"{costs.shape[-1]} objective(s), got shape {tuple(c.shape)}")
         cast = costs.to(self.mean.dtype)
-        if not bool(torch.isfinite(cast).all()):
+        if cast is not costs and not all_finite(cast):
             raise ValueError(f"costs overflow the optimiser's {self.mean.dtype} (largest |cost| "
                              f"{float(costs.abs().max()):.3g}): rescale them or use dtype=torch.float64")
         if self.num_objectives is None:
@@ -259,7 +292,7 @@ class BaseOptimizer(nn.Module):
     def _snapshot(self) -> dict:
         """What an iteration may change, to undo an iteration that failed inside ``tell``."""
         return {"mean": self.mean.clone(), "var": self.var.clone(), "converged": self.converged.clone(),
-                "rng": self.generator.get_state(), "num_objectives": self.num_objectives,
+                "rng": self.draws.get_state(), "num_objectives": self.num_objectives,
                 "history": {k: len(v) for k, v in self.history.items()},
                 "relevance_seconds": len(self.relevance_seconds), "relevance": getattr(self, "relevance", None),
                 "rollouts": self.rollouts.clone()}
@@ -268,7 +301,7 @@ class BaseOptimizer(nn.Module):
         self.mean.copy_(snap["mean"])
         self.var.copy_(snap["var"])
         self.converged.copy_(snap["converged"])
-        self.generator.set_state(snap["rng"])
+        self.draws.set_state(snap["rng"])
         self.num_objectives = snap["num_objectives"]
         for k, n in snap["history"].items():
             del self.history[k][n:]
@@ -319,7 +352,10 @@ class BaseOptimizer(nn.Module):
 
     def stop(self) -> bool:
         """True once every problem converged or ``max_iter`` iterations ran."""
-        return self._asked is None and self._next is None and self.stop_reason() is not None
+        done = self._asked is None and self._next is None and self.stop_reason() is not None
+        if done:  # a draw made ahead for an ask that will not come
+            self.draws.cancel()
+        return done
 
     def result(self) -> OptimizeResult:
         def unb(x: Tensor, axis: int = 0) -> Tensor:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -36,14 +37,19 @@ def stable_rewards(costs: Tensor, beta, dim: int = -1) -> Tensor:
     beta_t = _beta_tensor(beta, costs)
     if beta_t.ndim > 0:
         per_problem = costs.shape[:dim % costs.ndim] + costs.shape[dim % costs.ndim + 1:]
-        try:
-            torch.broadcast_shapes(beta_t.shape, per_problem)
-        except RuntimeError:
+        try:  # numpy's rule: torch.broadcast_shapes imports sympy on first use (~1.5 s per process)
+            np.broadcast_shapes(tuple(beta_t.shape), tuple(per_problem))
+        except ValueError:
             raise ValueError(f"beta of shape {tuple(beta_t.shape)} does not broadcast against the costs' problems "
                              f"{tuple(per_problem)} (costs {tuple(costs.shape)} without the sample dim)") from None
-        beta_t = beta_t.unsqueeze(dim)
+    return _shifted_rewards(costs, beta_t, dim)
+
+
+def _shifted_rewards(costs: Tensor, beta: Tensor, dim: int) -> Tensor:
+    """:func:`stable_rewards` without its checks: ``beta`` a tensor of the costs' dtype."""
+    beta = beta.unsqueeze(dim) if beta.ndim > 0 else beta
     shifted = costs - costs.amin(dim, keepdim=True)
-    return torch.exp(-beta_t * shifted)
+    return torch.exp(-beta * shifted)
 
 
 def noise_floor_threshold(num_samples: int, z: float) -> float:
@@ -134,7 +140,7 @@ def pearson_relevance(w: Tensor, costs: Tensor, *, noise_floor: float | None = N
 
 
 def pro_update(
-    mean: Tensor, var: Tensor, samples: Tensor, costs: Tensor, relevance: Tensor, beta
+    mean: Tensor, var: Tensor, samples: Tensor, costs: Tensor, relevance: Tensor, beta, *, validate: bool = True
 ) -> tuple[Tensor, Tensor]:
     """One objective's PRO step (Eq. 4, 5 around the old mean, and 6).
 
@@ -145,6 +151,10 @@ def pro_update(
         costs: ``(..., S)`` this objective's cost of each sample (``(..., S, 1)`` accepted).
         relevance: ``(..., N)`` in [0, 1] for this objective.
         beta: reward temperature > 0: a float or ``(...)`` (one per problem).
+        validate: check the inputs (finite, shapes, ``var >= 0``, relevance in [0, 1], ``beta > 0``)
+            before any work. ``False`` skips the checks for a caller whose inputs hold by
+            construction (the optimisers' own steps, where they cost as much as the update);
+            the inputs must then be floating tensors of one dtype, ``beta`` one too.
 
     Returns:
         ``(new_mean (..., N), new_var (..., N))`` with
@@ -152,6 +162,23 @@ def pro_update(
         ``C_n = sum_i R_i (w_in - mean_n)^2 / sum_i R_i`` and
         ``new_var = (1 - f_n) var_n + f_n C_n``, ``R_i = exp(-beta cost_i)``.
     """
+    if validate:
+        mean, var, samples, costs, relevance = _checked_update(mean, var, samples, costs, relevance)
+        rewards = stable_rewards(costs, beta, dim=-1)  # (..., S)
+    else:
+        if costs.ndim == samples.ndim and costs.shape[-1] == 1:
+            costs = costs[..., 0]
+        rewards = _shifted_rewards(costs, beta, -1)  # (..., S)
+    weights = rewards / rewards.sum(-1, keepdim=True)  # (..., S), sums to 1, max weight > 0
+    weights = weights.to(samples.dtype)
+    new_mean = torch.einsum("...s,...sn->...n", weights, samples)  # (..., N)
+    spread = torch.einsum("...s,...sn->...n", weights, (samples - mean.unsqueeze(-2)) ** 2)  # (..., N)
+    new_var = (1 - relevance) * var + relevance * spread  # (..., N)
+    return new_mean, new_var
+
+
+def _checked_update(mean, var, samples, costs, relevance) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """:func:`pro_update`'s inputs checked (an error naming the problem) and promoted to floats."""
     mean = check_tensor(mean, "mean", ndim_min=1)
     var = check_tensor(var, "var", ndim_min=1)
     samples = check_tensor(samples, "samples", ndim_min=2)
@@ -179,10 +206,4 @@ def pro_update(
         raise ValueError("var must be >= 0")
     if bool(((relevance < 0) | (relevance > 1)).any()):
         raise ValueError("relevance must lie in [0, 1]")
-    rewards = stable_rewards(costs, beta, dim=-1)  # (..., S)
-    weights = rewards / rewards.sum(-1, keepdim=True)  # (..., S), sums to 1, max weight > 0
-    weights = weights.to(samples.dtype)
-    new_mean = torch.einsum("...s,...sn->...n", weights, samples)  # (..., N)
-    spread = torch.einsum("...s,...sn->...n", weights, (samples - mean.unsqueeze(-2)) ** 2)  # (..., N)
-    new_var = (1 - relevance) * var + relevance * spread  # (..., N)
-    return new_mean, new_var
+    return mean, var, samples, costs, relevance

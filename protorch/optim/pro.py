@@ -67,12 +67,20 @@ class PRO(BaseOptimizer):
         return self.relevance_every > 0 and self.iteration % self.relevance_every == 0
 
     def _relevance(self) -> Generator[Tensor, Tensor, Tensor]:
-        """Ask the relevance samples and return ``f (B, O, N)`` (Sec. III A)."""
+        """Ask the relevance samples and return ``f (B, O, N)`` (Sec. III A), computed for the
+        problems still moving; a converged problem keeps its relevance (0 if it never had one)."""
         probe_var = torch.full_like(self.var, self.relevance_var)  # (B, N)
         w = self._sample(probe_var, self.relevance_samples)  # (B, S_rel, N)
         self.asked_objective = None  # the correlation reads every objective
         costs = yield w  # (B, S_rel, O)
-        return pearson_relevance(w, costs, noise_floor=self.noise_floor)  # (B, O, N)
+        rows = self._active_rows()
+        if rows is None:
+            return pearson_relevance(w, costs, noise_floor=self.noise_floor)  # (B, O, N)
+        rel = (self.relevance.clone() if self.relevance is not None
+               else w.new_zeros(self.batch_size, costs.shape[-1], self.num_weights))  # (B, O, N)
+        moving = ~self.converged[rows]  # (r,) a converged problem keeps its relevance
+        rel[rows[moving]] = pearson_relevance(w[rows], costs[rows], noise_floor=self.noise_floor)[moving]
+        return rel
 
     def _iteration(self) -> Generator[Tensor, Tensor, None]:
         if self._due():
@@ -86,5 +94,8 @@ class PRO(BaseOptimizer):
             self.asked_objective = o  # this update reads objective o only
             costs = yield w  # (B, S, O)
             self._record_cost(o, costs[..., o])
-            new_mean, new_var = pro_update(self.mean, self.var, w, costs[..., o], f, self.beta)
-            self._apply(new_mean, new_var)
+            rows = self._active_rows()  # the update of the problems still moving (all: no gather)
+            pick = (lambda x: x) if rows is None else (lambda x: x[rows])
+            new_mean, new_var = pro_update(pick(self.mean), pick(self.var), pick(w), pick(costs[..., o]), pick(f),
+                                           pick(self.beta), validate=False)
+            self._apply_rows(rows, new_mean, new_var)

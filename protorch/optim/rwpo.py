@@ -48,6 +48,8 @@ class RWPO(PRO):
         Other arguments: :class:`PRO` / :class:`BaseOptimizer`.
     """
 
+    can_draw_ahead = False  # the relevance learning draws from the generator itself
+
     def __init__(
         self,
         mean: Tensor,

@@ -35,9 +35,12 @@ class RWR(BaseOptimizer):
         w = self._sample(self.var, self.num_samples)  # (B, S, N)
         costs = yield w  # (B, S, O)
         self._record_cost(slice(None), costs)
-        total = self._total_cost(costs)  # (B, S)
-        ones = torch.ones_like(self.var)  # (B, N)
-        new_mean, new_var = pro_update(self.mean, self.var, w, total, ones, self.beta)
+        rows = self._active_rows()  # the update of the problems still moving (all: no gather)
+        pick = (lambda x: x) if rows is None else (lambda x: x[rows])
+        mean = pick(self.mean)  # (a, N)
+        total = self._total_cost(pick(costs))  # (a, S)
+        new_mean, new_var = pro_update(mean, pick(self.var), pick(w), total, torch.ones_like(mean), pick(self.beta),
+                                       validate=False)
         if self.center == "new":  # weighted ML: E_R[(w - mean')^2] = E_R[(w - mean)^2] - (mean' - mean)^2
-            new_var = new_var - (new_mean - self.mean) ** 2
-        self._apply(new_mean, new_var)
+            new_var = new_var - (new_mean - mean) ** 2
+        self._apply_rows(rows, new_mean, new_var)

@@ -24,11 +24,11 @@ import copy
 from typing import Sequence
 
 import torch
-from pytorch_kinematics.transforms import quaternion_to_matrix
 from torch import Tensor, nn
 
 from ..checks import check_tensor
 from .promp import ProMP
+from .quaternions import quaternion_to_matrix
 
 __all__ = [
     "POSE_DIM", "PoseProMP", "check_unit_quaternion", "normalize_quaternion", "align_quaternions",

@@ -8,10 +8,10 @@ import math
 from dataclasses import dataclass
 
 import torch
-from pytorch_kinematics.transforms import axis_angle_to_quaternion, quaternion_raw_multiply
 from torch import Tensor
 
 from ..primitives.pose import align_quaternions, quaternion_slerp
+from ..primitives.quaternions import axis_angle_to_quaternion, quaternion_raw_multiply
 from .base import Task
 from .curves import catmull_rom, smooth_noise
 

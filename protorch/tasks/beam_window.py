@@ -43,7 +43,6 @@ import math
 from dataclasses import dataclass, field
 
 import torch
-from pytorch_kinematics.transforms import axis_angle_to_quaternion, quaternion_raw_multiply
 from torch import Tensor
 
 from ..checks import check_tensor
@@ -57,6 +56,7 @@ from ..primitives.pose import (
     resample_poses,
     rotation_matrix,
 )
+from ..primitives.quaternions import axis_angle_to_quaternion, quaternion_raw_multiply
 from .base import Task
 from .beam_operator import SimulatedOperator
 

@@ -95,11 +95,11 @@ def test_a_failure_inside_an_update_restarts_the_iteration(monkeypatch):
     before = _state(opt)
     real, calls = pro_module.pro_update, []
 
-    def failing_once(*args):
+    def failing_once(*args, **kwargs):
         calls.append(1)
         if len(calls) == 2:  # the second objective's update
             raise RuntimeError("boom")
-        return real(*args)
+        return real(*args, **kwargs)
 
     monkeypatch.setattr(pro_module, "pro_update", failing_once)
     opt.tell(cost(opt.ask()))

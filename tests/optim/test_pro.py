@@ -267,3 +267,28 @@ def test_asked_objective_names_the_only_column_an_update_reads():
         runs.append(opt.result())
     assert seen == [None, 0, 1] * 4
     assert torch.equal(runs[0].mean, runs[1].mean) and torch.equal(runs[0].var, runs[1].var)
+
+
+@pytest.mark.parametrize("cls, n", [(PRO, 20), (PRO, 70), (RWR, 70)])
+def test_an_update_of_the_moving_problems_gives_them_the_numbers_of_one_over_all(cls, n, monkeypatch):
+    """Updates computed for the moving problems only (whole blocks of them: a BLAS kernel's
+    rounding depends on the 64-byte alignment of each problem's matrices, and 70 float32
+    weights per sample do not fill whole 64-byte lines) equal those computed for all B."""
+    g = torch.Generator().manual_seed(0)
+    mean, var = torch.randn(40, n, generator=g), torch.rand(40, n, generator=g)  # float32, B = 40
+    done = torch.rand(40, generator=g) < 0.7
+
+    def cost(w):
+        return torch.stack([(w[..., :5] - 1).pow(2).sum(-1), w[..., 5:].abs().mean(-1), w.sum(-1).abs()], -1)
+
+    def run():
+        opt = cls(mean, var, beta=5.0, num_samples=30, max_iter=6, tol=0.0, seed=1,
+                  **({"relevance_samples": 30} if cls is PRO else {}))
+        opt.mark_converged(done)
+        return opt.minimize(cost)
+
+    part = run()
+    monkeypatch.setattr(cls, "_active_rows", lambda self: None)  # every problem, converged ones masked
+    whole = run()
+    assert torch.equal(part.mean, whole.mean) and torch.equal(part.var, whole.var)
+    assert torch.equal(part.mean[done], mean[done])  # the converged ones never moved

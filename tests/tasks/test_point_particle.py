@@ -118,6 +118,38 @@ def test_objective_cost_is_one_column_of_the_costs(objectives, gen):
         task.objective_cost(traj, env, 3)
 
 
+@pytest.mark.parametrize("objectives", ["hole", "clearance"])
+def test_an_objective_reads_only_its_time_steps_and_any_memory_layout_gives_the_same_numbers(objectives, gen):
+    task = PointParticleTask(objectives=objectives)
+    env = task.sample_envs(6, gen)[:, None]  # (6, 1, 6)
+    traj = 10 * torch.rand(6, 5, 30, 2, generator=gen, dtype=torch.float32)  # (6, 5, 30, 2)
+    planes = traj.permute(2, 3, 0, 1).contiguous().permute(2, 3, 0, 1)  # the same values, x- and y-planes in memory
+    full = task.costs(traj, env)  # (6, 5, 3)
+    assert torch.equal(task.costs(planes, env), full)  # bit for bit, not only close
+    for o in range(3):
+        steps = task.objective_steps(o)
+        part = traj if steps is None else traj[..., list(steps), :]  # only the steps it reads
+        assert torch.equal(task.objective_cost(part, env, o), full[..., o])
+    assert task.objective_steps(1) is None and task.objective_steps(0) == task.objective_steps(2) == (0, -1)
+    with pytest.raises(ValueError, match="index"):
+        task.objective_steps(3)
+
+
+def test_costs_are_differentiable_in_the_path(gen):
+    """The in-place arithmetic of the signed distance leaves autograd's graph intact."""
+    task = PointParticleTask(objectives="clearance")
+    env = ENV.expand(4, 6)
+    traj = line((1, 5), (5, 4.6), (9, 5), steps=10).expand(4, -1, -1).clone().requires_grad_()  # (4, 21, 2)
+    task.costs(traj, env)[..., 1].sum().backward()
+    ref = traj.detach().clone().requires_grad_()
+    qx = (ref[..., 0] - 5.0).abs() - 1  # the formula written out of place: wall x 5, hole y 5
+    qy = 1 - (ref[..., 1] - 5.0).abs()
+    sd = torch.hypot(qx.clamp_min(0), qy.clamp_min(0)) + torch.maximum(qx, qy).clamp_max(0)  # (4, 21)
+    (1 - sd.amin(-1)).clamp_min(0).sum().backward()
+    torch.testing.assert_close(traj.grad, ref.grad, rtol=0, atol=0)
+    assert bool(traj.grad.abs().sum() > 0)
+
+
 def test_infinite_wall_signed_distance_matches_the_two_box_formula(gen):
     """The fast path (one box, the nearer rectangle) equals the minimum over both rectangles."""
     task = PointParticleTask()

@@ -1,0 +1,172 @@
+"""Environment maps as the data set grows: memory and latency over M, every backend until it runs
+out of the machine.
+
+For each map variant and each M: build (fit) time, the peak resident memory (RSS) of a process
+that only builds and queries that map, the time of adding one environment (median and worst over
+``--adds`` adds; a sparse add that rebuilds its k-d tree is the worst), and the latency of one
+query: mean only, and mean + variance (medians). Data like the arm experiment (IV-C): 4-D
+environments uniform on a 0.6 m square table (obstacle and goal), N = 70 weights varying smoothly
+with the environment, variances in [1e-4, 1e-2], alpha = 30, one label.
+
+Every (variant, M) runs in its own subprocess under an address-space limit (``--limit-gb``,
+default 8), so a map that needs more is recorded as "out of memory" instead of taking the shared
+machine down; a variant that ran out (or took longer than ``--timeout`` s) is not tried at larger M.
+
+    python benchmarks/gp_scaling.py [--sizes 1000,2000,5000,20000,100000] [--threads 1]
+        [--variants torch,gpytorch,torch:nearest_k=30,sparse,sparse:nearest_k=30] [--limit-gb 8]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import statistics
+import subprocess
+import sys
+import time
+
+import torch
+
+from protorch.gp import make_env_map
+
+ALPHA, ENV_DIM, WEIGHTS, TABLE = 30.0, 4, 70, 0.6
+VARIANTS = "torch,gpytorch,torch:nearest_k=30,sparse,sparse:index=brute,sparse:nearest_k=30"
+
+
+def smooth_data(m: int, n: int, *, d: int = ENV_DIM, seed: int = 0, side: float = TABLE):
+    """``m`` environments uniform in ``[0, side]^d`` and ``n`` weights, each a random smooth
+    function of the environment (sines of about the kernel's length scale), with variances in
+    [1e-4, 1e-2]: ``E (m, d), MU (m, n), VAR (m, n)``."""
+    g = torch.Generator().manual_seed(seed)
+    E = side * torch.rand(m, d, generator=g, dtype=torch.float64)  # (M, d)
+    freq = 4.0 * torch.randn(8, d, generator=g, dtype=torch.float64)  # (8, d) ~ 1 / (25 cm)
+    phase = 6.3 * torch.rand(8, generator=g, dtype=torch.float64)  # (8,)
+    amp = torch.randn(8, n, generator=g, dtype=torch.float64) / 8**0.5  # (8, N)
+    MU = torch.sin(E @ freq.T + phase) @ amp  # (M, N)
+    VAR = 10 ** (-4 + 2 * torch.rand(m, n, generator=g, dtype=torch.float64))  # (M, N)
+    return E, MU, VAR
+
+
+def parse_variant(text: str) -> tuple[str, dict]:
+    """``"sparse:nearest_k=30;index=brute"`` -> ``("sparse", {"nearest_k": 30, "index": "brute"})``."""
+    backend, _, rest = text.partition(":")
+    opts = {}
+    for item in filter(None, rest.split(";")):
+        k, v = item.split("=")
+        opts[k] = int(v) if v.lstrip("-").isdigit() else v
+    return backend, opts
+
+
+def _rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: KB
+
+
+def _median_time(fn, items, budget_s: float) -> float:
+    """Median seconds of ``fn(item)`` over ``items``, stopping after ``budget_s`` (at least 3)."""
+    ts, start = [], time.perf_counter()
+    for i, item in enumerate(items):
+        t = time.perf_counter()
+        fn(item)
+        ts.append(time.perf_counter() - t)
+        if i >= 2 and time.perf_counter() - start > budget_s:
+            break
+    return statistics.median(ts)
+
+
+def worker(variant: str, m: int, adds: int, queries: int) -> dict:
+    """Build one map of ``m`` environments and time it (runs inside the limited subprocess)."""
+    backend, opts = parse_variant(variant)
+    E, MU, VAR = smooth_data(m + adds + queries, WEIGHTS)
+    Q = E[m + adds :]  # (queries, d) unseen environments
+    make_env_map(backend, ALPHA, **opts).fit(E[:40], MU[:40], VAR[:40]).predict(Q[:2])  # first-call overheads
+    rss0 = _rss_mb()
+    t = time.perf_counter()
+    gp = make_env_map(backend, ALPHA, **opts).fit(E[:m], MU[:m], VAR[:m])
+    gp.predict_mean(Q[:1])  # gpytorch solves lazily: a map is built once it has answered
+    build = time.perf_counter() - t
+    mean_t = _median_time(lambda i: gp.predict_mean(Q[i : i + 1]), range(queries), 5.0)
+    var_t = _median_time(lambda i: gp.predict(Q[i : i + 1]), range(queries), 20.0)
+    add_ts = []
+    for i in range(m, m + adds):
+        t = time.perf_counter()
+        gp.add(E[i : i + 1], MU[i : i + 1], VAR[i : i + 1])
+        add_ts.append(time.perf_counter() - t)
+        if sum(add_ts) > 30.0:
+            break
+    gp.predict(Q[:1])  # the query after the adds (gpytorch's deferred solve) counts in the peak
+    return {"variant": variant, "M": m, "build_s": build, "mean_ms": 1e3 * mean_t, "mean_var_ms": 1e3 * var_t,
+            "add_ms": 1e3 * statistics.median(add_ts), "add_max_ms": 1e3 * max(add_ts), "adds": len(add_ts),
+            "rss_before_mb": rss0, "peak_rss_mb": _rss_mb(), "threads": torch.get_num_threads()}
+
+
+def run_limited(variant: str, m: int, args) -> dict:
+    """:func:`worker` in a subprocess under ``RLIMIT_AS``; out of memory / time are results too."""
+    limit = int(args.limit_gb * 2**30)
+
+    def limit_memory():
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+    cmd = [sys.executable, __file__, "--worker", variant, "--sizes", str(m), "--threads", str(args.threads),
+           "--adds", str(args.adds), "--queries", str(args.queries)]
+    try:
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout, preexec_fn=limit_memory)
+    except subprocess.TimeoutExpired:
+        return {"variant": variant, "M": m, "failed": f"over {args.timeout:.0f} s"}
+    lines = [ln for ln in out.stdout.splitlines() if ln.startswith("{")]
+    if out.returncode == 0 and lines:
+        return json.loads(lines[-1])
+    err = out.stderr.strip().splitlines()[-1:] or [f"exit {out.returncode}"]
+    oom = any(w in out.stderr for w in ("MemoryError", "can't allocate memory", "std::bad_alloc", "out of memory"))
+    return {"variant": variant, "M": m, "failed": f"out of memory (> {args.limit_gb:g} GB)" if oom else err[0][:120]}
+
+
+def table(rows: list[dict]) -> str:
+    head = ("| map | M | peak RSS (MB) | build (s) | add one (ms, median / worst) | mean (ms) | mean + var (ms) |\n"
+            "|---|---|---|---|---|---|---|")
+    out = [head]
+    for r in rows:
+        if "failed" in r:
+            out.append(f"| {r['variant']} | {r['M']:,} | {r['failed']} | | | | |")
+        else:
+            out.append(f"| {r['variant']} | {r['M']:,} | {r['peak_rss_mb']:,.0f} | {r['build_s']:.3g} | "
+                       f"{r['add_ms']:.3g} / {r['add_max_ms']:.3g} | {r['mean_ms']:.3g} | {r['mean_var_ms']:.3g} |")
+    return "\n".join(out)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="1000,2000,5000,20000,100000")
+    ap.add_argument("--variants", default=VARIANTS, help="backend[:option=value;...], comma-separated")
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--limit-gb", type=float, default=8.0, help="address-space limit of each subprocess")
+    ap.add_argument("--timeout", type=float, default=1800.0, help="seconds per (variant, M)")
+    ap.add_argument("--adds", type=int, default=20)
+    ap.add_argument("--queries", type=int, default=50)
+    ap.add_argument("--json", default=None, help="also write the rows to this file")
+    ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    sizes = [int(s) for s in args.sizes.split(",")]
+    if args.worker:
+        print(json.dumps(worker(args.worker, sizes[0], args.adds, args.queries)), flush=True)
+        return
+    rows, dead = [], set()
+    for variant in args.variants.split(","):
+        for m in sizes:
+            r = {"variant": variant, "M": m, "failed": "not tried (failed at a smaller M)"} if variant in dead \
+                else run_limited(variant, m, args)
+            if "failed" in r:
+                dead.add(variant)
+            rows.append(r)
+            print(json.dumps(r), flush=True)
+    print(f"\nthreads={args.threads}, address-space limit {args.limit_gb:g} GB per map, N={WEIGHTS}, d={ENV_DIM}, "
+          f"alpha={ALPHA:g}\n")
+    print(table(rows))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(rows, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()

@@ -4,7 +4,9 @@ out of the machine.
 For each map variant and each M: build (fit) time, the peak resident memory (RSS) of a process
 that only builds and queries that map, the time of adding one environment (median and worst over
 ``--adds`` adds; a sparse add that rebuilds its k-d tree is the worst), and the latency of one
-query: mean only, and mean + variance (medians). Data like the arm experiment (IV-C): 4-D
+query: mean only, and mean + variance (medians; the exact variance). The torch backend gets the
+capacity for the adds up front (growing its ``(N, cap, cap)`` factors by 1.5x would otherwise
+dominate the add and the peak). Data like the arm experiment (IV-C): 4-D
 environments uniform on a 0.6 m square table (obstacle and goal), N = 70 weights varying smoothly
 with the environment, variances in [1e-4, 1e-2], alpha = 30, one label.
 
@@ -77,6 +79,8 @@ def _median_time(fn, items, budget_s: float) -> float:
 def worker(variant: str, m: int, adds: int, queries: int) -> dict:
     """Build one map of ``m`` environments and time it (runs inside the limited subprocess)."""
     backend, opts = parse_variant(variant)
+    if backend == "torch" and "nearest_k" not in opts:
+        opts.setdefault("capacity", m + adds)  # room for the adds: no regrowth of the (N, cap, cap) factors
     E, MU, VAR = smooth_data(m + adds + queries, WEIGHTS)
     Q = E[m + adds :]  # (queries, d) unseen environments
     make_env_map(backend, ALPHA, **opts).fit(E[:40], MU[:40], VAR[:40]).predict(Q[:2])  # first-call overheads

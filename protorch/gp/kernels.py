@@ -97,8 +97,8 @@ def local_gp(Es: Tensor, MUs: Tensor, VARs: Tensor, Eq: Tensor, alpha: float, *,
     those of the query's own data. Returns ``(mu (Q, N), var (Q, N) or None)``.
     """
     q, k, n = MUs.shape
-    K = rbf(Es, Es, alpha)  # (Q, k, k)
-    A = K[:, None] + torch.diag_embed(VARs.transpose(1, 2))  # (Q, N, k, k)
+    A = rbf(Es, Es, alpha)[:, None].repeat(1, n, 1, 1)  # (Q, N, k, k)
+    A.diagonal(dim1=-2, dim2=-1).add_(VARs.transpose(1, 2))  # K + diag(VAR[:, n]) per weight
     L, _ = posdef_cholesky(A)  # (Q, N, k, k)
     mu0 = MUs.mean(1) if mu0 is None else mu0  # (Q, N)
     vbar = VARs.mean(1) if vbar is None else vbar  # (Q, N)

@@ -79,11 +79,11 @@ def _median_time(fn, items, budget_s: float) -> float:
 def worker(variant: str, m: int, adds: int, queries: int) -> dict:
     """Build one map of ``m`` environments and time it (runs inside the limited subprocess)."""
     backend, opts = parse_variant(variant)
-    if backend == "torch" and "nearest_k" not in opts:
-        opts.setdefault("capacity", m + adds)  # room for the adds: no regrowth of the (N, cap, cap) factors
     E, MU, VAR = smooth_data(m + adds + queries, WEIGHTS)
     Q = E[m + adds :]  # (queries, d) unseen environments
     make_env_map(backend, ALPHA, **opts).fit(E[:40], MU[:40], VAR[:40]).predict(Q[:2])  # first-call overheads
+    if backend == "torch" and "nearest_k" not in opts:
+        opts.setdefault("capacity", m + adds)  # room for the adds: no regrowth of the (N, cap, cap) factors
     rss0 = _rss_mb()
     t = time.perf_counter()
     gp = make_env_map(backend, ALPHA, **opts).fit(E[:m], MU[:m], VAR[:m])

@@ -330,11 +330,11 @@ class EnvMap(nn.Module, ABC):
         b, m = E.shape[0], self._m
         if m == 0 or self._E.shape[0] < m + b:
             cap = max(m + b, 2 * self._E.shape[0], 16)
-            kw = dict(dtype=self.dtype, device=self.device)
-            newE = torch.zeros(cap, E.shape[1], **kw)  # (cap, d)
-            newMU = torch.zeros(cap, MU.shape[1], **kw)  # (cap, N)
-            newVAR = torch.zeros(cap, MU.shape[1], **kw)  # (cap, N)
-            newL = torch.zeros(cap, dtype=torch.long, device=self.device)  # (cap,)
+            kw = dict(dtype=self.dtype, device=self.device)  # rows past m are never read: no zero fill
+            newE = torch.empty(cap, E.shape[1], **kw)  # (cap, d)
+            newMU = torch.empty(cap, MU.shape[1], **kw)  # (cap, N)
+            newVAR = torch.empty(cap, MU.shape[1], **kw)  # (cap, N)
+            newL = torch.empty(cap, dtype=torch.long, device=self.device)  # (cap,)
             if m:
                 newE[:m], newMU[:m], newVAR[:m], newL[:m] = self.E, self.MU, self.VAR, self.labels
             self._E, self._MU, self._VAR, self._labels = newE, newMU, newVAR, newL

@@ -63,8 +63,8 @@ class NeighbourIndex(nn.Module):
         """Append ``P (B, d)`` (positions ``n .. n + B - 1``)."""
         b = P.shape[0]
         if self.n + b > self.points.shape[0]:
-            grown = torch.zeros(max(self.n + b, 2 * self.points.shape[0]), self.points.shape[1],
-                                dtype=self.points.dtype, device=self.points.device)  # (cap, d)
+            grown = torch.empty(max(self.n + b, 2 * self.points.shape[0]), self.points.shape[1],
+                                dtype=self.points.dtype, device=self.points.device)  # (cap, d), rows past n unread
             grown[: self.n] = self.stored
             self.points = grown
         self.points[self.n : self.n + b] = P

@@ -55,7 +55,7 @@ class _LabelIndex(nn.Module):
         """Append storage ``rows (B,)`` holding ``E (B, d), MU (B, N), VAR (B, N)``."""
         m, b = self.count, rows.shape[0]
         if m + b > self.rows.shape[0]:
-            grown = torch.zeros(max(m + b, 2 * self.rows.shape[0]), dtype=torch.long, device=rows.device)
+            grown = torch.empty(max(m + b, 2 * self.rows.shape[0]), dtype=torch.long, device=rows.device)
             grown[:m] = self.rows[:m]
             self.rows = grown
         self.rows[m : m + b] = rows

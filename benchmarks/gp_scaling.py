@@ -17,6 +17,7 @@ machine down; a variant that ran out (or took longer than ``--timeout`` s) is no
 
     python benchmarks/gp_scaling.py [--sizes 1000,2000,5000,20000,100000] [--threads 1]
         [--variants torch,gpytorch,torch:nearest_k=30,sparse,sparse:nearest_k=30] [--limit-gb 8]
+    python benchmarks/gp_scaling.py --search   # the nearest-neighbour search alone, both index kinds
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ import time
 import torch
 
 from protorch.gp import make_env_map
+from protorch.gp.neighbours import INDEX_KINDS, NeighbourIndex
 
 ALPHA, ENV_DIM, WEIGHTS, TABLE = 30.0, 4, 70, 0.6
 VARIANTS = "torch,gpytorch,torch:nearest_k=30,sparse,sparse:index=brute,sparse:nearest_k=30"
@@ -131,6 +133,21 @@ def run_limited(variant: str, m: int, args) -> dict:
     return {"variant": variant, "M": m, "failed": f"out of memory (> {args.limit_gb:g} GB)" if oom else err[0][:120]}
 
 
+def search(sizes: list[int], k: int = 32) -> None:
+    """The sparse map's neighbour search alone (k + 8 candidates, exact ranking): one query and
+    200 queries at once, each index kind, CPU ms (medians)."""
+    print("| M | d | index | one query (ms CPU) | 200 queries (ms CPU) |\n|---|---|---|---|---|")
+    for d in (4, 6):
+        for m in sizes:
+            E = smooth_data(m + 200, 1, d=d)[0]
+            for kind in INDEX_KINDS:
+                index = NeighbourIndex(d, kind=kind)
+                index.add(E[:m])
+                one = _times(lambda i: index.query(E[m + i : m + i + 1], k), range(200), 5.0)[1]
+                many = _times(lambda _: index.query(E[m:], k), range(5), 5.0)[1]
+                print(f"| {m:,} | {d} | {kind} | {_ms(one):.3g} | {_ms(many):.3g} |", flush=True)
+
+
 def table(rows: list[dict]) -> str:
     """Markdown; times as ``wall (CPU)``, medians, except the worst add (wall)."""
     head = ("| map | M | peak RSS (MB) | build (s) | add one (ms) | worst add (ms) | mean (ms) | mean + var (ms) "
@@ -159,12 +176,16 @@ def main() -> None:
     ap.add_argument("--adds", type=int, default=20)
     ap.add_argument("--queries", type=int, default=50)
     ap.add_argument("--json", default=None, help="also write the rows to this file")
+    ap.add_argument("--search", action="store_true", help="time the neighbour search alone")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     sizes = [int(s) for s in args.sizes.split(",")]
     if args.worker:
         print(json.dumps(worker(args.worker, sizes[0], args.adds, args.queries)), flush=True)
+        return
+    if args.search:
+        search(sizes)
         return
     rows, dead = [], set()
     for variant in args.variants.split(","):

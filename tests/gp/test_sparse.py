@@ -71,6 +71,8 @@ def test_error_against_the_exact_map_shrinks_with_the_neighbours():
         errs.append((float(((mu - exact_mu).abs() / spread).median()), _maxerr(var, exact_var)))
     assert errs[0][0] > errs[1][0] > errs[2][0] > 1e-6 > errs[3][0] and errs[3][1] < 1e-9
     assert errs[0][1] > errs[1][1] > errs[2][1]
+    # a subset of the data with the label's own prior variance: never more certain than all of it
+    assert bool((make_env_map("sparse", 30.0).fit(E, MU, VAR).predict(Q)[1] >= exact_var - 1e-12).all())
     assert errs[1][0] < 0.05  # the default's 32 neighbours: median error under 5 % of the spread
 
 

@@ -176,8 +176,13 @@ def gp_settings(gp_cfg: dict, *, alpha: float, var_floor: float, nearest_k: int 
     vf = float(gp_cfg.get("var_floor", var_floor))
     if not vf >= 0:
         raise ValueError(f"gp.var_floor must be >= 0, got {vf}")
-    k = gp_cfg.get("nearest_k", nearest_k)
-    return gp_cfg.get("backend", "torch"), a, vf, ({} if k is None else {"nearest_k": k})
+    k, backend = gp_cfg.get("nearest_k", nearest_k), gp_cfg.get("backend", "torch")
+    options = {} if k is None else {"nearest_k": k}
+    if gp_cfg.get("neighbours") is not None:
+        if backend != "sparse":
+            raise ValueError(f"gp.neighbours applies to gp=sparse only, not to gp={backend}")
+        options["neighbours"] = gp_cfg["neighbours"]
+    return backend, a, vf, options
 
 
 def loop_settings(loop_cfg: dict, *, num_envs: int) -> dict:

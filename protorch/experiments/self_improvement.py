@@ -49,7 +49,7 @@ __all__ = ["SelfImprovementExperiment", "Outcome", "TEST_SEED", "DYNAMIC_SEED", 
 TEST_SEED = 2_000_003  # the held-out test environments: fixed, never a training seed
 DYNAMIC_SEED = 3_000_017  # the moving-environment episodes (start environments and moves)
 DEMO_SEED_OFFSET = 10_007  # generated demonstrations: seed + offset (the loop's pool uses seed)
-GP_KEYS = frozenset({"backend", "alpha", "var_floor", "nearest_k"})
+GP_KEYS = frozenset({"backend", "alpha", "var_floor", "nearest_k", "neighbours"})
 LOOP_KEYS = frozenset({"num_envs", "batch_size", "add_only", "choice", "checkpoint_every", "eval_dtype", "min_var"})
 
 

@@ -179,6 +179,7 @@ class GP:
     alpha: float = setting(1.0, "kernel exp(-alpha ||e - e'||^2)", gt=0)
     var_floor: float = setting(0.0, "lower bound on a data-set entry's variance = its GP noise", ge=0)
     nearest_k: typing.Optional[int] = setting(None, "condition on the k nearest known environments; null = all", ge=1)
+    neighbours: typing.Optional[int] = setting(None, "gp=sparse: environments per solve where nearest_k is null (null: 32)", ge=1)
 
 
 @dataclass

@@ -1,7 +1,8 @@
 """Environment -> ProMP maps (Sec. III C, Eq. 7 and 8): one GP per weight, pluggable backends.
 
-``make_env_map("torch" | "gpytorch", alpha, **options)`` builds one; both share the
-:class:`EnvMap` contract (``fit``, ``add``, ``predict``, ``predict_mean``, ``save``) and
+``make_env_map("torch" | "gpytorch" | "sparse", alpha, **options)`` builds one: the exact
+closed form, GPyTorch's exact GPs, or local GPs over nearest neighbours for large data sets. All
+share the :class:`EnvMap` contract (``fit``, ``add``, ``predict``, ``predict_mean``, ``save``) and
 :func:`load_env_map` reads what ``save`` wrote.
 """
 
@@ -13,17 +14,19 @@ from ..data.files import read_safetensors
 from .base import ENV_MAP_FORMAT, ENV_MAP_SCHEMA, BestPrediction, EnvMap, EnvMapWarning, rbf
 from .closed_form import TorchEnvMap
 from .gpytorch_exact import GPyTorchEnvMap
+from .sparse import SparseEnvMap
 
-__all__ = ["EnvMap", "BestPrediction", "EnvMapWarning", "TorchEnvMap", "GPyTorchEnvMap", "BACKENDS", "make_env_map", "load_env_map", "rbf"]
+__all__ = ["EnvMap", "BestPrediction", "EnvMapWarning", "TorchEnvMap", "GPyTorchEnvMap", "SparseEnvMap", "BACKENDS", "make_env_map", "load_env_map", "rbf"]
 
-BACKENDS: dict[str, type[EnvMap]] = {"torch": TorchEnvMap, "gpytorch": GPyTorchEnvMap}
+BACKENDS: dict[str, type[EnvMap]] = {"torch": TorchEnvMap, "gpytorch": GPyTorchEnvMap, "sparse": SparseEnvMap}
 
 
 def make_env_map(backend: str = "torch", alpha: float = 1.0, **options) -> EnvMap:
-    """An empty environment map of the given backend (``"torch"`` or ``"gpytorch"``).
+    """An empty environment map of the given backend (``"torch"``, ``"gpytorch"``, ``"sparse"``).
 
     ``options``: ``nearest_k``, ``dtype``, ``device`` for every backend, plus the backend's own
-    (see :class:`TorchEnvMap`, :class:`GPyTorchEnvMap`). Unknown names raise ``TypeError``.
+    (see :class:`TorchEnvMap`, :class:`GPyTorchEnvMap`, :class:`SparseEnvMap`). Unknown names
+    raise ``TypeError``.
     """
     if backend not in BACKENDS:
         raise ValueError(f"unknown GP backend {backend!r}; choose one of {sorted(BACKENDS)}")

@@ -107,6 +107,7 @@ class EnvMap(nn.Module, ABC):
         self.register_buffer("_MU", torch.zeros(0, 0, **kw))  # (cap, N)
         self.register_buffer("_VAR", torch.zeros(0, 0, **kw))  # (cap, N)
         self.register_buffer("_labels", torch.zeros(0, dtype=torch.long, device=device))  # (cap,)
+        self.register_buffer("_known", torch.zeros(0, dtype=torch.long, device=device))  # (K,) sorted labels
 
     # ----------------------------------------------------------------- state
     @property
@@ -190,7 +191,7 @@ class EnvMap(nn.Module, ABC):
             raise ValueError(f"E must be a floating-point tensor, got {E.dtype}")
         if E.shape[1] != self.env_dim:
             raise ValueError(f"E must be (Q, {self.env_dim}), got {tuple(E.shape)}")
-        known = torch.unique(self.labels)
+        known = self._known
         if labels is None:
             if known.numel() > 1:
                 raise ValueError(
@@ -213,7 +214,7 @@ class EnvMap(nn.Module, ABC):
             self._m = 0
             self._reset_groups()
             self._append_storage(E, MU, VAR, lab)
-            if self.nearest_k is None:
+            if self._keeps_groups():
                 for g in torch.unique(lab).tolist():
                     sel = lab == g
                     self._group_fit(g, E[sel], MU[sel], VAR[sel])
@@ -230,7 +231,7 @@ class EnvMap(nn.Module, ABC):
         m = self._m
         try:
             self._append_storage(E, MU, VAR, lab)
-            if self.nearest_k is None:
+            if self._keeps_groups():
                 for g in torch.unique(lab).tolist():
                     sel = lab == g
                     if self._has_group(g):
@@ -282,7 +283,7 @@ class EnvMap(nn.Module, ABC):
         if candidates is None:
             if self._m == 0:
                 raise RuntimeError("the environment map has no data: call fit() first")
-            cand = torch.unique(self.labels)  # (K,)
+            cand = self._known  # (K,)
         else:
             cand = torch.as_tensor(candidates, device=self.device).reshape(-1)
             cand = torch.unique(_as_labels(cand, cand.numel(), self.device))  # (K,)
@@ -307,7 +308,7 @@ class EnvMap(nn.Module, ABC):
         var = torch.empty(q, n, dtype=self.dtype, device=self.device) if need_var else None  # (Q, N)
         for g in torch.unique(lab).tolist():
             sel = lab == g
-            if self.nearest_k is None:
+            if self._keeps_groups():
                 m_g, v_g = self._group_predict(g, E[sel], need_var=need_var, approx_var=approx_var)
             else:
                 m_g, v_g = self._nearest_predict(g, E[sel], need_var=need_var)
@@ -329,11 +330,11 @@ class EnvMap(nn.Module, ABC):
         b, m = E.shape[0], self._m
         if m == 0 or self._E.shape[0] < m + b:
             cap = max(m + b, 2 * self._E.shape[0], 16)
-            kw = dict(dtype=self.dtype, device=self.device)
-            newE = torch.zeros(cap, E.shape[1], **kw)  # (cap, d)
-            newMU = torch.zeros(cap, MU.shape[1], **kw)  # (cap, N)
-            newVAR = torch.zeros(cap, MU.shape[1], **kw)  # (cap, N)
-            newL = torch.zeros(cap, dtype=torch.long, device=self.device)  # (cap,)
+            kw = dict(dtype=self.dtype, device=self.device)  # rows past m are never read: no zero fill
+            newE = torch.empty(cap, E.shape[1], **kw)  # (cap, d)
+            newMU = torch.empty(cap, MU.shape[1], **kw)  # (cap, N)
+            newVAR = torch.empty(cap, MU.shape[1], **kw)  # (cap, N)
+            newL = torch.empty(cap, dtype=torch.long, device=self.device)  # (cap,)
             if m:
                 newE[:m], newMU[:m], newVAR[:m], newL[:m] = self.E, self.MU, self.VAR, self.labels
             self._E, self._MU, self._VAR, self._labels = newE, newMU, newVAR, newL
@@ -341,6 +342,8 @@ class EnvMap(nn.Module, ABC):
         self._MU[m : m + b] = MU
         self._VAR[m : m + b] = VAR
         self._labels[m : m + b] = lab
+        known = self._known if m else self._known[:0]  # (K,) the labels stored so far
+        self._known = torch.unique(torch.cat([known, lab]))  # (K',) sorted
         self._m = m + b
 
     # --------------------------------------------------------- persistence
@@ -358,6 +361,11 @@ class EnvMap(nn.Module, ABC):
         return atomic_write_safetensors(path, tensors, meta)
 
     # -------------------------------------------------------- backend hooks
+    def _keeps_groups(self) -> bool:
+        """Whether ``fit`` and ``add`` build per-label state (``_group_*``) and queries use it;
+        otherwise (``nearest_k`` set) every query solves on its neighbours (``_predict_subsets``)."""
+        return self.nearest_k is None
+
     @abstractmethod
     def _reset_groups(self) -> None:
         """Forget every fitted group."""

@@ -27,7 +27,7 @@ import torch
 from torch import Tensor, nn
 
 from .base import EnvMap
-from .kernels import posdef_cholesky, rbf, warn_if_amplified
+from .kernels import local_gp, posdef_cholesky, rbf, warn_if_amplified
 
 __all__ = ["TorchEnvMap"]
 
@@ -279,16 +279,4 @@ class TorchEnvMap(EnvMap):
         return mu, (grp.var_approx(Eq) if approx_var else grp.var_exact(Eq))
 
     def _predict_subsets(self, Es, MUs, VARs, Eq, *, need_var):
-        q, k, n = MUs.shape
-        K = rbf(Es, Es, self.alpha)  # (Q, k, k)
-        A = K[:, None] + torch.diag_embed(VARs.transpose(1, 2))  # (Q, N, k, k)
-        L, _ = posdef_cholesky(A)  # (Q, N, k, k)
-        mu0, vbar = MUs.mean(1), VARs.mean(1)  # (Q, N)
-        y = (MUs - mu0[:, None]).transpose(1, 2)[..., None]  # (Q, N, k, 1)
-        kq = rbf(Eq[:, None], Es, self.alpha)[:, 0]  # (Q, k)
-        kq4 = kq[:, None, :, None].expand(q, n, k, 1)  # (Q, N, k, 1)
-        mu = mu0 + (kq4 * torch.cholesky_solve(y, L)).sum((-1, -2))  # (Q, N)
-        if not need_var:
-            return mu, None
-        v = torch.linalg.solve_triangular(L, kq4, upper=False)  # (Q, N, k, 1)
-        return mu, (1.0 - v.square().sum((-1, -2))).clamp_min(0) + vbar  # (Q, N)
+        return local_gp(Es, MUs, VARs, Eq, self.alpha, need_var=need_var)

@@ -1,6 +1,7 @@
 """The kernel of the environment map and the linear algebra its backends share: squared
 distances, the paper's RBF kernel, a Cholesky factorisation with a minimal diagonal jitter, and
-the warning issued when an exact solve amplifies round-off into means far outside the data."""
+the warning issued when an exact solve amplifies round-off into means far outside the data, and
+Eq. 7 and 8 solved per query on its own small data set (:func:`local_gp`)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import warnings
 import torch
 from torch import Tensor
 
-__all__ = ["EnvMapWarning", "sq_dist", "rbf", "posdef_cholesky", "warn_if_amplified"]
+__all__ = ["EnvMapWarning", "sq_dist", "rbf", "posdef_cholesky", "warn_if_amplified", "local_gp"]
 
 # the bound on the mean may exceed the data's range by this factor before the map warns (valid
 # data of 2024 environments reach ~1e4; conflicting near-duplicates with zero variance ~1e12)
@@ -85,3 +86,27 @@ def warn_if_amplified(coef: Tensor, MU: Tensor, mu0: Tensor, where: str) -> None
             "ill-conditioned; give them a variance > 0 or keep one of them",
             EnvMapWarning, stacklevel=4,
         )
+
+
+def local_gp(Es: Tensor, MUs: Tensor, VARs: Tensor, Eq: Tensor, alpha: float, *, need_var: bool,
+             mu0: Tensor | None = None, vbar: Tensor | None = None) -> tuple[Tensor, Tensor | None]:
+    """Eq. 7 and 8 for each query ``q`` on its own data ``Es[q] (k, d), MUs[q] (k, N), VARs[q] (k, N)``:
+    one batched ``k x k`` Cholesky per query and weight (each weight has its own noise).
+
+    ``Eq (Q, d)``; ``mu0``, ``vbar`` ``(Q, N)``: the prior mean and average variance, by default
+    those of the query's own data. Returns ``(mu (Q, N), var (Q, N) or None)``.
+    """
+    q, k, n = MUs.shape
+    A = rbf(Es, Es, alpha)[:, None].repeat(1, n, 1, 1)  # (Q, N, k, k)
+    A.diagonal(dim1=-2, dim2=-1).add_(VARs.transpose(1, 2))  # K + diag(VAR[:, n]) per weight
+    L, _ = posdef_cholesky(A)  # (Q, N, k, k)
+    mu0 = MUs.mean(1) if mu0 is None else mu0  # (Q, N)
+    vbar = VARs.mean(1) if vbar is None else vbar  # (Q, N)
+    y = (MUs - mu0[:, None]).transpose(1, 2)[..., None]  # (Q, N, k, 1)
+    kq = rbf(Eq[:, None], Es, alpha)[:, 0]  # (Q, k)
+    kq4 = kq[:, None, :, None].expand(q, n, k, 1)  # (Q, N, k, 1)
+    mu = mu0 + (kq4 * torch.cholesky_solve(y, L)).sum((-1, -2))  # (Q, N)
+    if not need_var:
+        return mu, None
+    v = torch.linalg.solve_triangular(L, kq4, upper=False)  # (Q, N, k, 1)
+    return mu, (1.0 - v.square().sum((-1, -2))).clamp_min(0) + vbar  # (Q, N)

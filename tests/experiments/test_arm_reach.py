@@ -49,7 +49,8 @@ def test_config_holds_the_papers_settings():
 @pytest.mark.slow
 def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     m = run_experiment(cfg(), tmp_path)
-    for path in (("test", "success_rate"), ("dynamic", "success_rate"), ("loop", "seconds"),
+    assert m["loop"]["seconds"] > 0  # a duration, not a rate (over 1 s on a loaded machine)
+    for path in (("test", "success_rate"), ("dynamic", "success_rate"),
                  ("baselines", "labels_off", "test", "success_rate"),
                  ("baselines", "labels_off", "dynamic", "success_rate"),
                  ("baselines", "labels_off_loop", "test", "success_rate"),
@@ -99,11 +100,27 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     ("task.prior_grid=room", "^task.prior_grid='room' must be one of rectangles, table$"),
     ("task.region=floor", "^task.region='floor' must be one of rectangles, table$"),
     ("task.demos=/no/such/folder", "^task.demos='/no/such/folder': no such folder"),
+    ("+gp.neighbours=16", "^gp.neighbours applies to gp=sparse only, not to gp=torch$"),
 ])
 def test_bad_settings_are_refused_before_any_work(tmp_path, override, match):
     with pytest.raises((ValueError, TypeError, FileNotFoundError), match=match):
         run_experiment(cfg(override), tmp_path)
     assert not checkpoint_path(tmp_path).exists()
+
+
+@pytest.mark.slow
+def test_gp_sparse_runs_the_same_loop_as_the_exact_maps_nearest_k(tmp_path):
+    """The arm's map is the authors' local GPs (gp.nearest_k = 30): gp=sparse finds the same
+    neighbours with its k-d tree and solves the same systems, so the whole run is the same."""
+    runs = {}
+    for gp in ("torch", "sparse"):
+        m = run_experiment(cfg(f"gp={gp}", "settings.baselines=[]"), tmp_path / gp)
+        runs[gp] = m
+        assert protorch.load(tmp_path / gp).env_map.backend == gp
+    for key in ("test", "dynamic", "demos", "priors"):
+        assert runs["sparse"][key] == runs["torch"][key], key
+    loops = [{k: v for k, v in runs[gp]["loop"].items() if "second" not in k} for gp in ("torch", "sparse")]
+    assert loops[0] == loops[1]
 
 
 @pytest.mark.slow

@@ -8,10 +8,12 @@ import torch
 
 from protorch.gp import make_env_map
 
+from .reference import BACKENDS
+
 F64 = torch.float64
 
 
-@pytest.fixture(params=["torch", "gpytorch"])
+@pytest.fixture(params=BACKENDS)
 def two_class_map(request):
     """Label 0 maps every environment to weights ~ +1, label 1 to ~ -1 (same environments)."""
     e = torch.linspace(0, 1, 6, dtype=F64)[:, None]  # (6, 1)

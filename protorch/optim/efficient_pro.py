@@ -186,9 +186,10 @@ class EPRO(BaseOptimizer):
         pool: int = 10,
         noise_floor: float | None = 2.5,
         variance_floor: float | None = 3.5,
-        evidence_level: float | None = 0.01,
+        evidence_level: float | None = 0.001,
         trust_radius: float = 3.0,
         trust_iterations: int = 5,
+        provisional_step: float = 0.5,
         curvature: bool = True,
         standardize: bool = True,
         objective_weights=None,
@@ -207,6 +208,8 @@ class EPRO(BaseOptimizer):
             raise ValueError(f"evidence_level must be in (0, 1) or None, got {evidence_level}")
         if not trust_radius >= 0 or int(trust_iterations) < 1:
             raise ValueError(f"need trust_radius >= 0 and trust_iterations >= 1, got {trust_radius}, {trust_iterations}")
+        if not 0 <= provisional_step <= 1:
+            raise ValueError(f"provisional_step must be in [0, 1], got {provisional_step}")
         if self.num_samples < 3:
             raise ValueError(f"num_samples must be >= 3 for a correlation, got {self.num_samples}")
         self.adaptive = beta is None
@@ -217,6 +220,7 @@ class EPRO(BaseOptimizer):
         self.evidence_level = None if evidence_level is None else float(evidence_level)
         self.trust_radius = float(trust_radius)
         self.trust_iterations = int(trust_iterations)
+        self.provisional_step = float(provisional_step)
         self.curvature = bool(curvature)
         self.standardize = bool(standardize)
         self._set_objective_weights(objective_weights)
@@ -280,7 +284,8 @@ class EPRO(BaseOptimizer):
         else:
             radius = self.trust_radius * min(1.0, math.sqrt(self.trust_iterations / (self.iteration + 1)))
             lo, hi = self.start_mean - radius * self.start_std, self.start_mean + radius * self.start_std
-            new_mean = torch.where(read, target, torch.minimum(torch.maximum(target, lo), hi))
+            prov = self.mean + f.clamp_min(self.provisional_step) * (target - self.mean)  # (B, N)
+            new_mean = torch.where(read, target, torch.minimum(torch.maximum(prov, lo), hi))
         new_var = (1 - g) * self.var + g * spread
         flat = (total.amax(-1) <= total.amin(-1))[:, None]  # (B, 1): equal costs say nothing, nothing moves
         new_mean, new_var = torch.where(flat, self.mean, new_mean), torch.where(flat, self.var, new_var)

@@ -18,11 +18,12 @@ What it changes, each measured in benchmarks/peers.py:
    run. Evidence accumulates for a read weight, not for an unread one.
 3. **A read weight** moves its mean to the reward-weighted mean of the batch (Eq. 4) and blends
    its variance with its relevance (Eq. 6). **A weight not (yet) shown to be read** keeps its
-   variance exactly, and its mean goes to the reward-weighted mean only within a trust region
-   around its start, ``trust_radius * min(1, sqrt(trust_iterations / t))`` initial stds at
-   iteration ``t``: wide while the evidence is still coming in (read weights move from the first
-   iteration), shrinking the longer the run goes (at the defaults 1 initial std after 45
-   iterations, 0.13 after 2,500), so an unread weight ends near its start however long the run.
+   variance exactly; its mean steps ``max(f_n, provisional_step)`` of the way to the
+   reward-weighted mean (``f_n`` its relevance, item 4), but only within a trust region around its
+   start, ``trust_radius * min(1, sqrt(trust_iterations / t))`` initial stds at iteration ``t``:
+   wide while the evidence is still coming in (a read weight helps from the first iteration),
+   shrinking the longer the run goes (at the defaults 1 initial std after 45 iterations, 0.13
+   after 2,500), so an unread weight ends near its start however long the run.
 4. **Relevance from the update samples**, pooled over the last ``pool`` batches, each batch in
    its own units (the samples standardised, the costs centred on the batch's mean):
    ``rho_o(n) = max(|rho(z_n, o)|, |rho(z_n^2, o)|)`` (the second term sees a cost V-shaped
@@ -41,7 +42,7 @@ The update, ``read`` the weights shown to be read, ``m0`` and ``s0`` the start's
 
     target = sum_i R_i w_i / sum_i R_i
     mean'  = target                                                   (read)
-           = clip(target, m0 - radius_t s0, m0 + radius_t s0)          (not read)
+           = clip(mean + max(f, c) (target - mean), m0 -+ radius_t s0) (not read; c = provisional_step)
     var'   = (1 - g) * var + g * sum_i R_i (w_i - mean)^2 / sum_i R_i  (read; not read: var)
 
 ``evidence_level=None`` turns the test and the trust region off: every weight then counts as
@@ -158,11 +159,13 @@ class EPRO(BaseOptimizer):
             blended only where its ``|rho|`` reaches ``variance_floor / sqrt(P_eff)``; ``None``
             applies ``noise_floor`` to the variance too.
         evidence_level: family-wise level ``a`` of the read-weight test (:mod:`.evidence`),
-            default 0.01: an unread weight of a problem is ever declared read with probability at
+            default 0.001: an unread weight of a problem is ever declared read with probability at
             most ``a``. ``None`` turns the test and the trust region off.
         trust_radius, trust_iterations: the trust region of a weight not shown to be read is
             ``trust_radius * min(1, sqrt(trust_iterations / t))`` initial stds around its start
             mean at iteration ``t`` (defaults 3.0 and 5).
+        provisional_step: such a weight's mean steps ``max(f_n, provisional_step)`` of the way to
+            the reward-weighted mean (default 0.5; 0: its relevance alone, 1: all the way).
         curvature: also correlate ``(w_n - mean_n)^2`` with the costs (default); ``False``: the
             linear Pearson relevance alone, as the paper's PRO.
         standardize: pool each batch's samples in its own units (default); ``False`` pools the

@@ -81,7 +81,8 @@ def test_update_without_the_gate_matches_the_equations():
 def test_update_with_the_gate_matches_the_equations():
     """Defaults, the iteration after some weights were shown to be read, by hand: a read weight's
     mean goes to the reward-weighted mean and its variance blends with g; a weight not shown to be
-    read keeps its variance exactly and its mean goes there only within the trust region."""
+    read keeps its variance exactly and its mean steps max(f, 1/2) of the way there, within the
+    trust region."""
     n = 6
     fn = lambda w: torch.stack([(w[..., 0] - 3) ** 2 + (w[..., 1] - 3) ** 2, (w[..., 2] + 3) ** 2], -1)  # noqa: E731
     opt = EPRO(torch.zeros(n, dtype=F64), torch.ones(n, dtype=F64), tol=0, seed=4)
@@ -97,9 +98,10 @@ def test_update_with_the_gate_matches_the_equations():
     r = r / r.sum()
     target, spread = r @ w, r @ (w - mean) ** 2
     read = opt.read[0]
-    g = (opt.variance_relevance[0] * read).amax(0)  # (N,)
+    f, g = opt.relevance[0].amax(0), (opt.variance_relevance[0] * read).amax(0)  # (N,) each
     radius = 3.0 * min(1.0, (5 / t) ** 0.5)
-    torch.testing.assert_close(opt.mean[0], torch.where(read, target, target.clamp(-radius, radius)))
+    provisional = (mean + f.clamp_min(0.5) * (target - mean)).clamp(-radius, radius)
+    torch.testing.assert_close(opt.mean[0], torch.where(read, target, provisional))
     torch.testing.assert_close(opt.var[0], (1 - g) * var + g * spread)
     assert (opt.var[0, ~read] == 1).all() and (opt.mean[0, ~read].abs() <= radius).all()
 
@@ -178,7 +180,7 @@ def test_device_follows_the_mean(device):
     ({"ess": 0.0}, "ess"), ({"ess": 1.5}, "ess"), ({"pool": 0}, "pool"), ({"noise_floor": -1.0}, "noise_floor"),
     ({"beta": -1.0}, "beta"), ({"num_samples": 1}, "num_samples"), ({"evidence_level": 0.0}, "evidence_level"),
     ({"evidence_level": 1.0}, "evidence_level"), ({"trust_radius": -1.0}, "trust_radius"),
-    ({"trust_iterations": 0}, "trust_iterations"),
+    ({"trust_iterations": 0}, "trust_iterations"), ({"provisional_step": 1.5}, "provisional_step"),
 ])
 def test_bad_settings(kw, match):
     with pytest.raises(ValueError, match=match):
@@ -290,7 +292,7 @@ def test_unread_weights_stay_put_for_hundreds_of_iterations(gate, one_thread):
     relevance floors alone) chance correlations pile up: the same run ends with an unread std of
     0.74 and an unread mean 3.1 initial stds from its start."""
     opt = EPRO(torch.zeros(2, 8, dtype=F64), torch.ones(2, 8, dtype=F64), max_iter=LONG, tol=0, seed=0,
-               evidence_level=0.01 if gate else None)
+               **({} if gate else {"evidence_level": None}))
     res = opt.minimize(noisy_quadratic(0))
     kept, drift = res.var[:, 3:].sqrt().min().item(), res.mean[:, 3:].abs().max().item()
     if gate:

@@ -208,6 +208,18 @@ def _num(v, fmt: str = ".3f") -> str:
     return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, fmt)
 
 
+def _cells(task: str, name: str, runs: list[dict]) -> tuple[str, str]:
+    """The table cells of one row up to the rollouts to success, and from the rollouts used to the
+    mean drift."""
+    m = row_metrics(runs)
+    first = (f"{m['median_rollouts_to_success']:,.0f} ({m['solved']}/{len(runs)})" if m["solved"]
+             else f"- (0/{len(runs)})")
+    rest = (f"{statistics.median(r['rollouts'] for r in runs):,.0f} | {m['final_solved']}/{len(runs)} "
+            f"| {statistics.median(r['final_cost'] for r in runs):.4f} | {_num(m['irrelevant_std_kept'])} "
+            f"| {_num(m['std_kept_p10'])} | {_num(m['std_kept_min'])} | {_num(m['mean_drift_max'], '.2f')}")
+    return f"| {task} | {name} | {first}", rest
+
+
 def table(results: dict, repeats, budget: int, command: str, note: str = "", full: dict | None = None) -> str:
     """The markdown table of ``results[(task, optimiser)] = [run_one(...) per problem]`` and, with
     ``full`` (the same runs at ``tol = 0``), a second table at the full budget."""
@@ -228,19 +240,12 @@ def table(results: dict, repeats, budget: int, command: str, note: str = "", ful
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for (task, name), runs in results.items():
-        m = row_metrics(runs)
-        first = (f"{m['median_rollouts_to_success']:,.0f} ({m['solved']}/{len(runs)})" if m["solved"]
-                 else f"- (0/{len(runs)})")
         secs = [r["first_s"] for r in runs if r["first_s"] is not None]
         done = [r["rollouts"] / r["iterations"] for r in runs if r["iterations"] > 0]
-        lines.append(
-            f"| {task} | {name} | {first} | {_num(statistics.median(secs) if secs else None)} "
-            f"| {statistics.median(r['rollouts'] for r in runs):,.0f} | {m['final_solved']}/{len(runs)} "
-            f"| {statistics.median(r['final_cost'] for r in runs):.4f} | {_num(m['irrelevant_std_kept'])} "
-            f"| {_num(m['std_kept_p10'])} | {_num(m['std_kept_min'])} | {_num(m['mean_drift_max'], '.2f')} "
-            f"| {_num(statistics.median(r['iter_ms'] for r in runs), '.2f')} "
-            f"| {_num(statistics.median(done) if done else None, ',.0f')} |"
-        )
+        first, rest = _cells(task, name, runs)
+        lines.append(f"{first} | {_num(statistics.median(secs) if secs else None)} | {rest} "
+                     f"| {_num(statistics.median(r['iter_ms'] for r in runs), '.2f')} "
+                     f"| {_num(statistics.median(done) if done else None, ',.0f')} |")
     if full:
         lines += [
             "",
@@ -251,16 +256,7 @@ def table(results: dict, repeats, budget: int, command: str, note: str = "", ful
             "| std kept (median) | std kept p10 | std kept min | unread mean drift max (stds) |",
             "|---|---|---|---|---|---|---|---|---|---|",
         ]
-        for (task, name), runs in full.items():
-            m = row_metrics(runs)
-            first = (f"{m['median_rollouts_to_success']:,.0f} ({m['solved']}/{len(runs)})" if m["solved"]
-                     else f"- (0/{len(runs)})")
-            lines.append(
-                f"| {task} | {name} | {first} | {statistics.median(r['rollouts'] for r in runs):,.0f} "
-                f"| {m['final_solved']}/{len(runs)} | {statistics.median(r['final_cost'] for r in runs):.4f} "
-                f"| {_num(m['irrelevant_std_kept'])} | {_num(m['std_kept_p10'])} | {_num(m['std_kept_min'])} "
-                f"| {_num(m['mean_drift_max'], '.2f')} |"
-            )
+        lines += [" | ".join(_cells(task, name, runs)) + " |" for (task, name), runs in full.items()]
     return "\n".join(lines) + "\n"
 
 

@@ -41,14 +41,6 @@ def test_nuisance_weights_change_no_cost(peers):
         peers.check_nuisance(bad)
 
 
-@pytest.fixture
-def one_thread():
-    """As the benchmark runs: torch's and pycma's (numpy's) thread pools otherwise fight."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
 
 def test_pro_keeps_the_std_the_peers_collapse(peers, one_thread):
     (p,) = peers.window_problems(1)

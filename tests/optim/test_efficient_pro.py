@@ -275,14 +275,6 @@ def noisy_quadratic(seed: int):
 LONG = 600  # iterations (12,000 samples per problem), most of them past convergence
 
 
-@pytest.fixture
-def one_thread():
-    """Hundreds of small iterations: torch's thread pool only adds overhead (and contention)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
 
 @pytest.mark.parametrize("gate", [True, False], ids=["evidence", "no evidence"])
 def test_unread_weights_stay_put_for_hundreds_of_iterations(gate, one_thread):

@@ -21,8 +21,8 @@ leaves free; its mean is 0 and its initial std the median initial std of the tas
 The benchmark checks that changing those weights leaves every cost unchanged.
 
 Seeds: ``--seed S`` shifts every problem seed (demonstration draws, environments) and every
-optimiser seed by ``S * SEED_STEP`` (benchmarks/peers_tasks.py); ``S = 0`` gives the seeds the
-earlier tables used.
+optimiser seed by ``S * SEED_STEP`` (benchmarks/peers_tasks.py). EPRO's defaults were tuned on
+``S = 0``; docs/peers.md reports ``S = 1`` and ``S = 2``.
 
 Optimisers: PRO with the relevance noise floor (z = 3, the window experiment's) and, on request,
 as written (``noise_floor=None``); EPRO (protorch.optim.EPRO, its defaults: 20 samples per

@@ -122,21 +122,27 @@ def adapted(p: Problem, mean: torch.Tensor, var: torch.Tensor, changes, soft: bo
 
 
 def evaluate(p: Problem, mean: torch.Tensor, var: torch.Tensor, seed: int) -> dict:
-    """Per kind of change: successes not conditioned, conditioned exactly, conditioned softly."""
+    """Per kind of change: successes not conditioned, conditioned exactly, conditioned softly, and
+    the same counts over the cases whose original problem the mean solves (``*_of_solved``)."""
     g = torch.Generator().manual_seed(seed)
     n = p.n_task
     mean_traj = p.promp.trajectory(mean[:n])  # (T, D)
     changes = (particle_changes if p.task == "point_particle" else arm_changes)(p, mean_traj, g)
     plain = [bool(p.task_obj.success(mean_traj, env)) for _, env, _, _ in changes]
     exact, soft = adapted(p, mean, var, changes, False), adapted(p, mean, var, changes, True)
+    solved = bool(p.task_obj.success(mean_traj, p.env))
     out: dict = {}
     for i, (kind, *_rest) in enumerate(changes):
-        row = out.setdefault(kind, {"cases": 0, "not_conditioned": 0, "exact": 0, "soft": 0, "failed": 0})
+        row = out.setdefault(kind, dict.fromkeys(("cases", "not_conditioned", "exact", "soft", "failed", "cases_of_solved",
+                                                  "exact_of_solved", "soft_of_solved"), 0))
         row["cases"] += 1
         row["not_conditioned"] += plain[i]
         row["exact"] += bool(exact[i])
         row["soft"] += bool(soft[i])
         row["failed"] += (exact[i] is None) + (soft[i] is None)
+        row["cases_of_solved"] += solved
+        row["exact_of_solved"] += solved and bool(exact[i])
+        row["soft_of_solved"] += solved and bool(soft[i])
     return out
 
 
@@ -163,8 +169,9 @@ def main(argv=None) -> None:
     peers = load_peers()
     command = shlex.join(["python", "benchmarks/peers_condition.py", *(sys.argv[1:] if argv is None else argv)])
     results: dict = {}
-    print("| task | change | distribution | cases | not conditioned | conditioned, exact | conditioned, soft |")
-    print("|---|---|---|---|---|---|---|")
+    print("| task | change | distribution | cases | not conditioned | conditioned, exact | conditioned, soft "
+          "| cases whose problem the mean solves | ... conditioned, exact | ... conditioned, soft |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for task in [t for t in args.tasks.split(",") if t]:
         if task not in SHIFTS:
             ap.error(f"--tasks: conditioning is measured on {sorted(SHIFTS)}, got {task!r}")
@@ -182,8 +189,8 @@ def main(argv=None) -> None:
             total = merge(rows)
             results.setdefault(task, {})[name] = total
             for kind, c in total.items():
-                print(f"| {task} | {kind} | {name} | {c['cases']} | {c['not_conditioned']} | {c['exact']} | {c['soft']} |",
-                      flush=True)
+                print(f"| {task} | {kind} | {name} | {c['cases']} | {c['not_conditioned']} | {c['exact']} | {c['soft']} "
+                      f"| {c['cases_of_solved']} | {c['exact_of_solved']} | {c['soft_of_solved']} |", flush=True)
             print(f"{task} {name}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
     if args.json:
         body = {"command": command, "seed": args.seed, "tasks": results}

@@ -1,5 +1,5 @@
 """PRO side by side with the optimisers users would pick instead, in one run and one table
-(run on demand: ``python benchmarks/peers.py --out benchmarks/results/peers.md``).
+(run on demand: ``python benchmarks/peers.py --seed 1 --out benchmarks/results/peers_seed1.md``).
 
 Problems (each optimiser starts from the same mean and stds and gets the same rollout budget):
 
@@ -18,9 +18,11 @@ Problems (each optimiser starts from the same mean and stds and gets the same ro
 Weights that do not matter, by construction: every problem gets a third DoF (10 more weights)
 that no objective reads, like the height of a pen over the table or a wrist angle the task
 leaves free; its mean is 0 and its initial std the median initial std of the task's own weights.
-The benchmark checks that changing those weights leaves every cost unchanged. "std kept"
-(``irrelevant_std_kept`` in peers.json) is the median over those 10 weights of final std /
-initial std (1 = kept, PRO's claim; 0 = collapsed), then the median over the problems.
+The benchmark checks that changing those weights leaves every cost unchanged.
+
+Seeds: ``--seed S`` shifts every problem seed (demonstration draws, environments) and every
+optimiser seed by ``S * SEED_STEP`` (benchmarks/peers_tasks.py). EPRO's defaults were tuned on
+``S = 0``; docs/peers.md reports ``S = 1`` and ``S = 2``.
 
 Optimisers: PRO with the relevance noise floor (z = 3, the window experiment's) and, on request,
 as written (``noise_floor=None``); EPRO (protorch.optim.EPRO, its defaults: 20 samples per
@@ -30,23 +32,29 @@ theta samples x 10 trajectories per objective: 6,000 rollouts, once) and with th
 (elite 10 %); CMA-ES (pycma behind the same ask / tell contract, ``CMA_stds`` = the initial stds,
 pycma's default population for the dimension). PRO, RWPO and RWR use beta = 20 (the paper's)
 on window and point particle, 200 (the paper's) on the beam and the arm; EPRO sets its own;
-RWR, CEM and CMA-ES rank or weight the sum of the objectives. Every optimiser runs until it
-stops by the experiments' rule (every objective's mean sample cost within 1e-3 over 5
-iterations; CMA-ES also by pycma's own ``stop()``) or its next ask would exceed the budget; after
-every ``tell`` the current mean is checked against the task's success criterion (a check of the
-mean, not counted as a rollout). Each optimiser asks ``S = 100`` samples per update except
-CMA-ES, which uses pycma's default population ``4 + 3 ln N`` (14 for N = 30).
+RWR, CEM and CMA-ES rank or weight the sum of the objectives. Each optimiser asks ``S = 100``
+samples per update except EPRO (20) and CMA-ES, which uses pycma's default population
+``4 + 3 ln N`` (14 for N = 30).
 
-Columns: rollouts until the mean first meets the success criterion (median over the repeats that
-reached it, and how many did) and the wall time until then, rollouts used until the optimiser
-stopped (median), success of the final mean, the final mean's total cost (sum of the
-objectives, median), std kept in the weights that do not matter (median), wall time per
-iteration (median; ask + rollouts + tell) and rollouts per iteration. Success of the window
-task also asks the path to cross the wall inside the window (``WindowTask.success``), which no
-objective encodes: a final mean can have a near-zero cost and still fail. ``--out X.md`` also
-writes ``X.json``: per task and optimiser ``problems``, ``solved`` (the mean met the criterion
-within the budget), ``median_rollouts_to_success`` (over the solved ones, or null) and
-``irrelevant_std_kept``.
+Every optimiser runs twice per problem with the same seed: until it stops by the experiments'
+rule (every objective's mean sample cost within 1e-3 over 5 iterations; CMA-ES also by pycma's own
+``stop()``) or its next ask would exceed the budget, and to the full budget (``tol = 0``; pycma's
+own ``stop()`` still applies; ``--no-full-budget`` skips it). After every ``tell`` the current
+mean is checked against the task's success criterion (a check of the mean, not counted as a
+rollout).
+
+Columns: rollouts until the mean *first* meets the success criterion (median over the problems
+that reached it, and how many did) and the wall time until then, rollouts used (median), success
+of the *final* mean, the final mean's total cost (median), and for the weights that do not matter
+the final / initial std per (problem, unread weight): median over problems of the median over the
+weights, the 10th percentile and the minimum over all of them, and the largest drift of an
+unread weight's mean, ``|final - initial mean| / initial std``; then wall time per iteration
+(median; ask + rollouts + tell) and rollouts per iteration. Success of the window task also asks
+the path to cross the wall inside the window (``WindowTask.success``), which no objective
+encodes. ``--out X.md`` writes the tables and ``X.json`` (or ``--json F``): per task and optimiser
+the keys of :func:`row_metrics` (``problems``, ``solved``, ``median_rollouts_to_success``,
+``irrelevant_std_kept``, ``final_solved``, ``std_kept_p10``, ``std_kept_min``,
+``mean_drift_max``) and ``full_budget``, the same keys at ``tol = 0``.
 """
 
 from __future__ import annotations
@@ -82,11 +90,11 @@ from protorch.optim import CEM, CMAES, EPRO  # noqa: E402
 BETA = 20.0  # the paper's point-particle temperature, for PRO, RWPO and RWR on window and particle
 BETAS = {"window": BETA, "point_particle": BETA, "beam_position": 200.0, "beam_orientation": 200.0, "arm": 200.0}
 EFFICIENT_PRO = "EPRO"
-TASKS = {
+TASKS = {  # (repeats, seed set) -> problems
     "window": window_problems,
     "point_particle": point_particle_problems,
-    "beam_position": lambda r: beam_problems(r, "position"),
-    "beam_orientation": lambda r: beam_problems(r, "orientation"),
+    "beam_position": lambda r, seed=0: beam_problems(r, "position", seed),
+    "beam_orientation": lambda r, seed=0: beam_problems(r, "orientation", seed),
     "arm": arm_problems,
 }
 DEFAULT_REPEATS = {"window": 5, "point_particle": 20, "beam_position": 5, "beam_orientation": 5, "arm": 20}
@@ -102,8 +110,8 @@ def check_nuisance(p: Problem) -> None:
         raise AssertionError("the nuisance weights change a cost: they are not irrelevant")
 
 
-def make_optimizer(name: str, p: Problem, seed: int):
-    common = dict(num_samples=100, max_iter=10**9, tol=1e-3, window=5, seed=seed)
+def make_optimizer(name: str, p: Problem, seed: int, tol: float = 1e-3):
+    common = dict(num_samples=100, max_iter=10**9, tol=tol, window=5, seed=seed)
     beta = BETAS[p.task]
     if name == "PRO":
         return PRO(p.mean, p.var, beta=beta, relevance_samples=200, noise_floor=3.0, **common)
@@ -114,7 +122,7 @@ def make_optimizer(name: str, p: Problem, seed: int):
                     theta_samples=20, trajectory_samples=10, **common)
     if name == "RWPO (authors')":  # 50 x 200 x 50 x 3 = 1.5 M rollouts for the relevance alone
         return RWPO(p.mean, p.var, beta=beta, num_objectives=3, num_basis=p.num_basis, **common)
-    if name == EFFICIENT_PRO:  # its defaults: 20 samples, temperature set for ESS = 5, 10 batches pooled
+    if name == EFFICIENT_PRO:  # its defaults (20 samples, temperature set for its target ESS)
         return EPRO(p.mean, p.var, **{**common, "num_samples": 20})
     if name == "RWR":
         return RWR(p.mean, p.var, beta=beta, **common)
@@ -132,8 +140,9 @@ METHODS = ("PRO", EFFICIENT_PRO, "RWR", "RWPO", "CEM", "CMA-ES", "PRO (as writte
 DEFAULT_METHODS = ("PRO", EFFICIENT_PRO, "RWR", "RWPO", "CEM", "CMA-ES")  # RWPO on the window only (see main)
 
 
-def run_one(name: str, p: Problem, budget: int) -> dict:
-    opt = make_optimizer(name, p, seed=1000 + p.repeat)
+def run_one(name: str, p: Problem, budget: int, tol: float = 1e-3) -> dict:
+    """One optimiser on one problem until it stops (``tol = 0``: until the budget is spent)."""
+    opt = make_optimizer(name, p, seed=p.optimizer_seed, tol=tol)
     used, first = 0, (0 if p.success(opt.mean[0]) else None)
     first_s = 0.0 if first == 0 else None
     iter_times, spent, total, it = [], 0.0, 0.0, opt.iteration
@@ -151,30 +160,69 @@ def run_one(name: str, p: Problem, budget: int) -> dict:
         if first is None and p.success(opt.mean[0]):
             first, first_s = used, total
     mean, var = opt.mean[0], opt.var[0]
-    std_kept = (var[p.n_task:].sqrt() / p.var[p.n_task:].sqrt()).median().item()
+    std0 = p.var[p.n_task:].sqrt()  # (NUISANCE,)
+    ratios = var[p.n_task:].sqrt() / std0  # (NUISANCE,): final std / initial std of each unread weight
+    drifts = (mean[p.n_task:] - p.mean[p.n_task:]).abs() / std0  # (NUISANCE,): in initial stds
     return {
         "first": first,
         "first_s": first_s,
         "final_success": p.success(mean),
         "final_cost": float(p.costs(mean).sum()),
-        "std_kept": std_kept,
+        "std_kept": ratios.median().item(),
+        "std_ratios": ratios.tolist(),
+        "drifts": drifts.tolist(),
         "iter_ms": 1000 * statistics.median(iter_times) if iter_times else float("nan"),
         "iterations": opt.iteration,
         "rollouts": used,
         "seconds": total,
+        "mean": mean.clone(),  # (N,): the final distribution (not written to peers.json)
+        "var": var.clone(),
     }
 
 
-def _std_kept(runs: list[dict]) -> str:
-    updated = [r["std_kept"] for r in runs if r["iterations"] > 0]  # an untouched start keeps it trivially
-    return f"{statistics.median(updated):.3f}" if updated else "- (no update)"
+def row_metrics(runs: list[dict]) -> dict:
+    """The peers.json keys of one (task, optimiser) over its problems: ``solved`` (the mean met the
+    success criterion at some point within the budget), ``median_rollouts_to_success`` (over the
+    solved ones, or None), ``final_solved`` (the final mean succeeds), ``irrelevant_std_kept`` (median
+    over problems of the median over the unread weights of final / initial std), ``std_kept_p10`` and
+    ``std_kept_min`` (10th percentile and minimum of that ratio over every (problem, unread weight)),
+    ``mean_drift_max`` (largest |final - initial mean| of an unread weight, in its initial stds).
+    Problems the optimiser never updated (budget below one iteration) count in none of the std keys."""
+    reached = [r["first"] for r in runs if r["first"] is not None]
+    updated = [r for r in runs if r["iterations"] > 0]
+    ratios = torch.tensor([x for r in updated for x in r["std_ratios"]], dtype=F64)
+    drifts = [x for r in updated for x in r["drifts"]]
+    return {
+        "problems": len(runs),
+        "solved": len(reached),
+        "median_rollouts_to_success": float(statistics.median(reached)) if reached else None,
+        "irrelevant_std_kept": float(statistics.median(r["std_kept"] for r in updated)) if updated else None,
+        "final_solved": sum(bool(r["final_success"]) for r in runs),
+        "std_kept_p10": float(ratios.quantile(0.1)) if updated else None,
+        "std_kept_min": float(ratios.min()) if updated else None,
+        "mean_drift_max": float(max(drifts)) if updated else None,
+    }
 
 
-def _ms(v: float) -> str:
-    return "-" if math.isnan(v) else f"{v:.2f}"
+def _num(v, fmt: str = ".3f") -> str:
+    return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, fmt)
 
 
-def table(results: dict, repeats: int, budget: int, command: str, note: str = "") -> str:
+def _cells(task: str, name: str, runs: list[dict]) -> tuple[str, str]:
+    """The table cells of one row up to the rollouts to success, and from the rollouts used to the
+    mean drift."""
+    m = row_metrics(runs)
+    first = (f"{m['median_rollouts_to_success']:,.0f} ({m['solved']}/{len(runs)})" if m["solved"]
+             else f"- (0/{len(runs)})")
+    rest = (f"{statistics.median(r['rollouts'] for r in runs):,.0f} | {m['final_solved']}/{len(runs)} "
+            f"| {statistics.median(r['final_cost'] for r in runs):.4f} | {_num(m['irrelevant_std_kept'])} "
+            f"| {_num(m['std_kept_p10'])} | {_num(m['std_kept_min'])} | {_num(m['mean_drift_max'], '.2f')}")
+    return f"| {task} | {name} | {first}", rest
+
+
+def table(results: dict, repeats, budget: int, command: str, note: str = "", full: dict | None = None) -> str:
+    """The markdown table of ``results[(task, optimiser)] = [run_one(...) per problem]`` and, with
+    ``full`` (the same runs at ``tol = 0``), a second table at the full budget."""
     lines = [
         "# PRO and its peers",
         "",
@@ -184,84 +232,111 @@ def table(results: dict, repeats: int, budget: int, command: str, note: str = ""
         f"of {budget:,} rollouts per run, medians over the repeats. See the docstring of benchmarks/peers.py."
         + (f" {note}" if note else ""),
         "",
-        "| task | optimiser | rollouts to success | s to success | rollouts used | final mean succeeds "
-        "| final cost | std kept (irrelevant weights) | ms / iteration | rollouts / iteration |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "Stopped by the convergence rule (tol = 1e-3):",
+        "",
+        "| task | optimiser | rollouts to success | s to success | rollouts used | final mean succeeds | final cost "
+        "| std kept (median) | std kept p10 | std kept min | unread mean drift max (stds) | ms / iteration "
+        "| rollouts / iteration |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for (task, name), runs in results.items():
-        reached = [r["first"] for r in runs if r["first"] is not None]
-        first = f"{statistics.median(reached):,.0f} ({len(reached)}/{len(runs)})" if reached else f"- (0/{len(runs)})"
         secs = [r["first_s"] for r in runs if r["first_s"] is not None]
-        first_s = f"{statistics.median(secs):.3f}" if secs else "-"
-        ok = sum(r["final_success"] for r in runs)
         done = [r["rollouts"] / r["iterations"] for r in runs if r["iterations"] > 0]
-        per_iter = f"{statistics.median(done):,.0f}" if done else "-"
-        lines.append(
-            f"| {task} | {name} | {first} | {first_s} | {statistics.median(r['rollouts'] for r in runs):,.0f} "
-            f"| {ok}/{len(runs)} "
-            f"| {statistics.median(r['final_cost'] for r in runs):.4f} "
-            f"| {_std_kept(runs)} "
-            f"| {_ms(statistics.median(r['iter_ms'] for r in runs))} | {per_iter} |"
-        )
+        first, rest = _cells(task, name, runs)
+        lines.append(f"{first} | {_num(statistics.median(secs) if secs else None)} | {rest} "
+                     f"| {_num(statistics.median(r['iter_ms'] for r in runs), '.2f')} "
+                     f"| {_num(statistics.median(done) if done else None, ',.0f')} |")
+    if full:
+        lines += [
+            "",
+            f"Run to the full budget (tol = 0: every optimiser spends the {budget:,} rollouts unless its own rule stops it, "
+            "as pycma's does):",
+            "",
+            "| task | optimiser | rollouts to success | rollouts used | final mean succeeds | final cost "
+            "| std kept (median) | std kept p10 | std kept min | unread mean drift max (stds) |",
+            "|---|---|---|---|---|---|---|---|---|---|",
+        ]
+        lines += [" | ".join(_cells(task, name, runs)) + " |" for (task, name), runs in full.items()]
     return "\n".join(lines) + "\n"
 
 
-def summary(results: dict) -> dict:
-    """peers.json: per task and optimiser, problems, solved (the mean met the success criterion
-    within the budget), the median rollouts to success over the solved ones and the median
-    irrelevant_std_kept (see the module docstring)."""
+def summary(results: dict, full: dict | None = None) -> dict:
+    """peers.json: per task and optimiser the keys of :func:`row_metrics` and, when the full-budget
+    runs were made, a ``full_budget`` object with the same keys."""
     tasks: dict = {}
-    for (task, name), runs in results.items():
-        reached = [r["first"] for r in runs if r["first"] is not None]
-        updated = [r["std_kept"] for r in runs if r["iterations"] > 0]
-        tasks.setdefault(task, {})[name] = {
-            "problems": len(runs),
-            "solved": len(reached),
-            "median_rollouts_to_success": float(statistics.median(reached)) if reached else None,
-            "irrelevant_std_kept": float(statistics.median(updated)) if updated else None,
-        }
+    for key, runs in results.items():
+        row = row_metrics(runs)
+        if full and key in full:
+            row["full_budget"] = row_metrics(full[key])
+        tasks.setdefault(key[0], {})[key[1]] = row
     return {"efficient_pro": EFFICIENT_PRO, "tasks": tasks}
 
 
-def main(argv=None) -> None:
+def parse_args(argv):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seed", type=int, default=0, help="seed set: problems and optimiser seeds (0: the published ones)")
     ap.add_argument("--repeats", type=int, default=None,
                     help=f"problems per task (default {DEFAULT_REPEATS})")
     ap.add_argument("--budget", type=int, default=50_000, help="rollouts per run")
     ap.add_argument("--tasks", default=",".join(TASKS))
-    ap.add_argument("--methods", default=",".join(DEFAULT_METHODS), help=f"from {list(METHODS)}")
+    ap.add_argument("--optimizers", "--methods", dest="methods", default=",".join(DEFAULT_METHODS),
+                    help=f"from {list(METHODS)}")
+    ap.add_argument("--no-full-budget", dest="full_budget", action="store_false",
+                    help="skip the second run of every optimiser at tol = 0 (to the full budget)")
     ap.add_argument("--note", default="", help="a sentence about the machine, added to the table's header")
     ap.add_argument("--out", default=None, help="also write the table here (atomically), e.g. benchmarks/results/peers.md;"
-                    " the JSON summary goes beside it (.json)")
+                    " the JSON summary goes beside it (.json) unless --json names another file")
+    ap.add_argument("--json", default=None, help="write the JSON summary here (atomically)")
     args = ap.parse_args(argv)
-    torch.set_num_threads(1)
-    methods = [m for m in args.methods.split(",") if m]
-    bad = sorted(set(methods) - set(METHODS))
+    args.methods = [m for m in args.methods.split(",") if m]
+    bad = sorted(set(args.methods) - set(METHODS))
     if bad:
-        ap.error(f"unknown method(s) {bad}; choose from {list(METHODS)}")
-    tasks = [t for t in args.tasks.split(",") if t]
-    if set(tasks) - set(TASKS):
-        ap.error(f"unknown task(s) {sorted(set(tasks) - set(TASKS))}; choose from {list(TASKS)}")
+        ap.error(f"unknown optimiser(s) {bad}; choose from {list(METHODS)}")
+    args.tasks = [t for t in args.tasks.split(",") if t]
+    if set(args.tasks) - set(TASKS):
+        ap.error(f"unknown task(s) {sorted(set(args.tasks) - set(TASKS))}; choose from {list(TASKS)}")
+    if args.budget < 1:
+        ap.error(f"--budget must be >= 1, got {args.budget}")
+    return args
+
+
+def write(args, command: str, results: dict, full: dict) -> str:
+    """Print the tables and write them (``--out``) and the JSON (``--json``), atomically; called
+    after every (task, optimiser), so a killed run keeps what it finished."""
+    repeats = ", ".join(f"{t} {args.repeats or DEFAULT_REPEATS[t]}" for t in args.tasks)
+    note = f"Seed set {args.seed}." + (f" {args.note}" if args.note else "")
+    text = table(results, repeats, args.budget, command, note, full or None)
+    body = (json.dumps({"command": command, "seed": args.seed, "budget": args.budget,
+                        **summary(results, full or None)}, indent=1) + "\n").encode()
+    if args.out:
+        atomic_write_bytes(Path(args.out), text.encode())
+    if args.json or args.out:
+        atomic_write_bytes(Path(args.json) if args.json else Path(args.out).with_suffix(".json"), body)
+    return text
+
+
+def main(argv=None) -> None:
+    args = parse_args(argv)
+    torch.set_num_threads(1)
     command = shlex.join(["python", "benchmarks/peers.py", *(sys.argv[1:] if argv is None else argv)])
     results: dict = {}
-    for t in tasks:
-        problems = TASKS[t](args.repeats or DEFAULT_REPEATS[t])
+    full: dict = {}
+    for t in args.tasks:
+        problems = TASKS[t](args.repeats or DEFAULT_REPEATS[t], args.seed)
         for p in problems:
             check_nuisance(p)
-        for name in methods:
+        for name in args.methods:
             if name.startswith("RWPO") and t != "window":
                 continue  # its sigmoid relevance basis assumes the 2-DoF layout of the Fig. 4 task
-            t0 = time.perf_counter()
-            results[(t, name)] = [run_one(name, p, args.budget) for p in problems]
-            print(f"{t:>16} {name:<17} {time.perf_counter() - t0:7.1f} s", file=sys.stderr, flush=True)
-    repeats = ", ".join(f"{t} {args.repeats or DEFAULT_REPEATS[t]}" for t in tasks)
-    text = table(results, repeats, args.budget, command, args.note)
-    print(text)
-    if args.out:
-        out = Path(args.out)
-        atomic_write_bytes(out, text.encode())
-        body = {"command": command, **summary(results)}
-        atomic_write_bytes(out.with_suffix(".json"), (json.dumps(body, indent=1) + "\n").encode())
+            for tol, store in ((1e-3, results), (0.0, full)) if args.full_budget else ((1e-3, results),):
+                t0 = time.perf_counter()
+                store[(t, name)] = [run_one(name, p, args.budget, tol) for p in problems]
+                m = row_metrics(store[(t, name)])
+                print(f"{t:>16} {name:<17} tol={tol:g} {time.perf_counter() - t0:7.1f} s  solved {m['solved']} "
+                      f"final {m['final_solved']} median {m['median_rollouts_to_success']} p10 {_num(m['std_kept_p10'])} "
+                      f"min {_num(m['std_kept_min'])} drift {_num(m['mean_drift_max'], '.2f')}", file=sys.stderr, flush=True)
+            write(args, command, results, full)
+    print(write(args, command, results, full))
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""Shared fixtures: seeded random sources, so every test is reproducible on its own."""
+"""Shared fixtures: seeded random sources, so every test is reproducible on its own, and one torch thread."""
 
 import numpy as np
 import pytest
@@ -15,3 +15,13 @@ def gen() -> torch.Generator:
 def rng() -> np.random.Generator:
     """A seeded numpy generator, for reference computations independent of torch."""
     return np.random.default_rng(0)
+
+
+@pytest.fixture
+def one_thread():
+    """Torch at one thread for the test (restored after): many small iterations gain nothing from
+    a thread pool, and pycma's numpy and torch's pools otherwise fight over the cores."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)

@@ -41,14 +41,6 @@ def test_nuisance_weights_change_no_cost(peers):
         peers.check_nuisance(bad)
 
 
-@pytest.fixture
-def one_thread():
-    """As the benchmark runs: torch's and pycma's (numpy's) thread pools otherwise fight."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
 
 @pytest.mark.slow
 def test_pro_keeps_the_std_the_peers_collapse(peers, one_thread):
@@ -77,12 +69,37 @@ def test_new_tasks_at_a_tiny_budget(peers, one_thread, tmp_path):
         assert not p.success(p.mean)
     for p in problems:
         r = peers.run_one(peers.EFFICIENT_PRO, p, 400)
-        assert r["rollouts"] <= 400 and r["std_kept"] > 0.9, (p.task, r)
+        assert r["rollouts"] <= 400 and min(r["std_ratios"]) == 1.0, (p.task, r)  # unread: not yet read
     out = tmp_path / "peers.md"
-    peers.main(["--tasks", "window", "--repeats", "1", "--budget", "300", "--methods", "EPRO,CEM", "--out", str(out)])
-    body = json.loads(out.with_suffix(".json").read_text())
-    assert body["efficient_pro"] == "EPRO" and set(body["tasks"]["window"]) == {"EPRO", "CEM"}
-    row = body["tasks"]["window"]["EPRO"]
-    assert set(row) == {"problems", "solved", "median_rollouts_to_success", "irrelevant_std_kept"}
-    assert row["problems"] == 1 and body["command"].startswith("python benchmarks/peers.py")
-    assert "| window | EPRO |" in out.read_text()
+    peers.main(["--tasks", "window", "--repeats", "2", "--budget", "300", "--optimizers", "EPRO,CEM", "--seed", "3",
+                "--out", str(out), "--json", str(tmp_path / "rows.json")])
+    body = json.loads((tmp_path / "rows.json").read_text())
+    assert body["efficient_pro"] == "EPRO" and set(body["tasks"]["window"]) == {"EPRO", "CEM"} and body["seed"] == 3
+    keys = {"problems", "solved", "median_rollouts_to_success", "irrelevant_std_kept", "final_solved", "std_kept_p10",
+            "std_kept_min", "mean_drift_max"}
+    for row in body["tasks"]["window"].values():
+        assert set(row) == keys | {"full_budget"} and set(row["full_budget"]) == keys
+        assert row["problems"] == 2 and row["std_kept_min"] <= row["std_kept_p10"] <= row["irrelevant_std_kept"]
+    assert body["command"].startswith("python benchmarks/peers.py")
+    assert "| window | EPRO |" in out.read_text() and "full budget" in out.read_text()
+
+
+def test_row_metrics_read_every_problem_and_unread_weight(peers):
+    """p10, min and drift go over every (problem, unread weight), not over per-problem medians;
+    solved counts a first success, final_solved the last mean."""
+    runs = [{"first": 40, "final_success": False, "std_kept": 1.0, "iterations": 3, "std_ratios": [1.0] * 9 + [0.2],
+             "drifts": [0.0] * 9 + [2.5]},
+            {"first": None, "final_success": False, "std_kept": 1.0, "iterations": 3, "std_ratios": [1.0] * 10,
+             "drifts": [0.1] * 10},
+            {"first": 80, "final_success": True, "std_kept": 0.5, "iterations": 3, "std_ratios": [0.5] * 10,
+             "drifts": [0.3] * 10}]
+    m = peers.row_metrics(runs)
+    assert m["solved"] == 2 and m["final_solved"] == 1 and m["median_rollouts_to_success"] == 60
+    assert m["irrelevant_std_kept"] == 1.0  # the median of medians hides both the 0.2 and the 0.5s
+    assert m["std_kept_min"] == 0.2 and m["std_kept_p10"] == 0.5 and m["mean_drift_max"] == 2.5
+
+
+def test_seed_sets_draw_new_problems(peers):
+    a, b = peers.point_particle_problems(2, 0), peers.point_particle_problems(2, 1)
+    assert not torch.equal(a[0].env, b[0].env) and a[0].optimizer_seed != b[0].optimizer_seed
+    assert torch.equal(a[1].env, peers.point_particle_problems(2, 0)[1].env)

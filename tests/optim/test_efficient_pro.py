@@ -59,11 +59,11 @@ def test_curvature_relevance_sees_a_v_shaped_cost():
     assert f[0, 2] == 0 and f[1, 2] == 0 and f[0, 1] == 0  # w2 is read by nothing
 
 
-def test_update_matches_the_equations():
-    """One iteration by hand: ESS-tempered rewards on the summed costs, relevance from the batch,
-    mean' = mean + f (sum R w - mean), var' = (1 - f) var + f sum R (w - mean)^2."""
+def test_update_without_the_gate_matches_the_equations():
+    """``evidence_level=None``, one iteration by hand: ESS-tempered rewards on the summed costs,
+    relevance from the batch, mean' = mean + f (sum R w - mean), var' = (1 - f) var + f sum R (w - mean)^2."""
     mean, var = torch.tensor([0.5, -0.2, 0.0], dtype=F64), torch.tensor([1.0, 0.5, 2.0], dtype=F64)
-    opt = EPRO(mean, var, num_samples=30, seed=3, pool=1, ess=0.3)
+    opt = EPRO(mean, var, num_samples=30, seed=3, pool=1, ess=0.3, evidence_level=None)
     fn = lambda w: torch.stack([(w[..., 0] - 1) ** 2, (w[..., 1] + 1) ** 2], -1)  # noqa: E731
     w = opt.ask()  # (S, 3)
     c = fn(w)
@@ -78,9 +78,37 @@ def test_update_matches_the_equations():
     assert f[2] == 0 and opt.mean[0, 2] == 0 and opt.var[0, 2] == 2.0
 
 
+def test_update_with_the_gate_matches_the_equations():
+    """Defaults, the iteration after some weights were shown to be read, by hand: a read weight's
+    mean goes to the reward-weighted mean and its variance blends with g; a weight not shown to be
+    read keeps its variance exactly and its mean steps max(f, 1/2) of the way there, within the
+    trust region."""
+    n = 6
+    fn = lambda w: torch.stack([(w[..., 0] - 3) ** 2 + (w[..., 1] - 3) ** 2, (w[..., 2] + 3) ** 2], -1)  # noqa: E731
+    opt = EPRO(torch.zeros(n, dtype=F64), torch.ones(n, dtype=F64), tol=0, seed=4)
+    for _ in range(8):
+        opt.tell(fn(opt.ask()))
+    assert opt.read[0, :3].any() and not opt.read[0, 3:].any()
+    mean, var, t = opt.mean[0].clone(), opt.var[0].clone(), opt.iteration + 1
+    w = opt.ask()
+    c = fn(w)
+    opt.tell(c)
+    total = c.sum(-1)
+    r = torch.exp(-ess_temperature(total, 0.25) * (total - total.min()))
+    r = r / r.sum()
+    target, spread = r @ w, r @ (w - mean) ** 2
+    read = opt.read[0]
+    f, g = opt.relevance[0].amax(0), (opt.variance_relevance[0] * read).amax(0)  # (N,) each
+    radius = 3.0 * min(1.0, (5 / t) ** 0.5)
+    provisional = (mean + f.clamp_min(0.5) * (target - mean)).clamp(-radius, radius)
+    torch.testing.assert_close(opt.mean[0], torch.where(read, target, provisional))
+    torch.testing.assert_close(opt.var[0], (1 - g) * var + g * spread)
+    assert (opt.var[0, ~read] == 1).all() and (opt.mean[0, ~read].abs() <= radius).all()
+
+
 def test_fixed_beta_is_the_reward_temperature():
     mean, var = torch.zeros(2, dtype=F64), torch.ones(2, dtype=F64)
-    opt = EPRO(mean, var, beta=5.0, num_samples=40, seed=0, pool=1, noise_floor=None)
+    opt = EPRO(mean, var, beta=5.0, num_samples=40, seed=0, pool=1, noise_floor=None, evidence_level=None)
     w = opt.ask()
     c = (w - 1).pow(2)  # (S, 2)
     opt.tell(c)
@@ -90,15 +118,16 @@ def test_fixed_beta_is_the_reward_temperature():
 
 
 def test_irrelevant_weights_keep_their_variance_and_mean():
-    """Quadratic on 3 of 8 weights: EPRO solves it and the other 5 keep std and mean; RWR-style
-    collapse would take them down with the rest."""
+    """Quadratic on 3 of 8 weights: EPRO solves it, shows the 3 to be read and no other, and the
+    other 5 keep their std exactly and their mean within the trust region; RWR-style collapse would
+    take them down with the rest."""
     n = 8
     opt = EPRO(torch.zeros(n, dtype=F64), torch.ones(n, dtype=F64), max_iter=60, tol=0, seed=0)
     res = opt.minimize(lambda w: torch.stack([(w[..., :3] - 2).pow(2).sum(-1), (w[..., 0] - 2).abs()], -1))
     assert (res.mean[:3] - 2).abs().max() < 0.1
-    kept = res.var[3:].sqrt()
-    assert kept.min() > 0.9, kept
-    assert res.mean[3:].abs().max() < 0.3
+    assert opt.read[0].tolist() == [True] * 3 + [False] * 5
+    assert (res.var[3:] == 1).all()
+    assert res.mean[3:].abs().max() <= 3.0 * (5 / 60) ** 0.5 + 1e-12
     assert res.var[:3].sqrt().max() < 0.2  # the relevant ones did shrink
 
 
@@ -149,7 +178,9 @@ def test_device_follows_the_mean(device):
 
 @pytest.mark.parametrize("kw, match", [
     ({"ess": 0.0}, "ess"), ({"ess": 1.5}, "ess"), ({"pool": 0}, "pool"), ({"noise_floor": -1.0}, "noise_floor"),
-    ({"beta": -1.0}, "beta"), ({"num_samples": 1}, "num_samples"),
+    ({"beta": -1.0}, "beta"), ({"num_samples": 1}, "num_samples"), ({"evidence_level": 0.0}, "evidence_level"),
+    ({"evidence_level": 1.0}, "evidence_level"), ({"trust_radius": -1.0}, "trust_radius"),
+    ({"trust_iterations": 0}, "trust_iterations"), ({"provisional_step": 1.5}, "provisional_step"),
 ])
 def test_bad_settings(kw, match):
     with pytest.raises(ValueError, match=match):
@@ -229,13 +260,37 @@ def test_variance_gate_is_stricter_than_the_mean_gate():
     torch.testing.assert_close(g2, f)  # variance_floor=None: the mean's relevance for both
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("seed", range(8))
-def test_unread_std_is_kept_long_after_convergence(seed):
-    """The quadratic of the test above, 60 iterations (most of them past convergence, where every
-    correlation sits near the floor): the unread weights keep their std on every seed."""
-    n = 8
-    opt = EPRO(torch.zeros(n, dtype=F64), torch.ones(n, dtype=F64), max_iter=60, tol=0, seed=seed)
-    res = opt.minimize(lambda w: torch.stack([(w[..., :3] - 2).pow(2).sum(-1), (w[..., 0] - 2).abs()], -1))
-    assert (res.mean[:3] - 2).abs().max() < 0.1 and res.var[:3].sqrt().max() < 0.2
-    assert res.var[3:].sqrt().min() > 0.9, res.var[3:].sqrt()
+def noisy_quadratic(seed: int):
+    """Costs of 8 weights that read the first 3, plus uniform noise of width 0.1 (a stochastic
+    rollout): past convergence every correlation is noise, where chance relevance accumulates."""
+    g = torch.Generator().manual_seed(seed)
+
+    def fn(w):  # (B, S, 8) -> (B, S, 2)
+        c = torch.stack([(w[..., :3] - 2).pow(2).sum(-1), (w[..., 0] - 2).abs()], -1)
+        return c + 0.1 * torch.rand(c.shape, generator=g, dtype=c.dtype)
+
+    return fn
+
+
+LONG = 600  # iterations (12,000 samples per problem), most of them past convergence
+
+
+
+@pytest.mark.parametrize("gate", [True, False], ids=["evidence", "no evidence"])
+def test_unread_weights_stay_put_for_hundreds_of_iterations(gate, one_thread):
+    """Two problems, 600 iterations on the noisy quadratic. With the read-weight test the 5 unread
+    weights keep their std exactly and end within the trust region (0.27 initial stds at 600
+    iterations) while the 3 read ones are solved. Without it (``evidence_level=None``, the
+    relevance floors alone) chance correlations pile up: the same run ends with an unread std of
+    0.74 and an unread mean 3.1 initial stds from its start."""
+    opt = EPRO(torch.zeros(2, 8, dtype=F64), torch.ones(2, 8, dtype=F64), max_iter=LONG, tol=0, seed=0,
+               **({} if gate else {"evidence_level": None}))
+    res = opt.minimize(noisy_quadratic(0))
+    kept, drift = res.var[:, 3:].sqrt().min().item(), res.mean[:, 3:].abs().max().item()
+    if gate:
+        assert (res.mean[:, :3] - 2).abs().max() < 0.15 and res.var[:, :3].sqrt().max() < 0.1
+        assert opt.read[:, :3].all() and not opt.read[:, 3:].any()
+        assert (res.var[:, 3:] == 1).all()
+        assert drift <= 3.0 * (5 / LONG) ** 0.5 + 1e-12
+    else:
+        assert kept < 0.9 or drift > 1.0, (kept, drift)

@@ -124,7 +124,7 @@ class ArmKinematics(nn.Module):
         kinds = {f.joint.joint_type for f in frames[1:]}
         if not kinds <= {"revolute", "fixed"}:
             raise ValueError(f"only revolute and fixed joints are supported, {where} has {sorted(kinds)}")
-        self.urdf_source = where
+        self.urdf_source, self.urdf_text = where, text
         self.end_link, self.root_link = end_link, root_link or frames[0].name
         self.frame_names: list[str] = [f.name for f in frames]
         self.joint_names: list[str] = chain.get_joint_parameter_names()

@@ -24,10 +24,11 @@ straight segment from ``s`` to the target ``g``)::
     goal   ||p(T) - g|| + d
 
 Success (:meth:`ArmReachTask.success`, every step of the trajectory): the end effector starts within
-2 cm of ``s`` and ends within 2 cm of ``g``; no segment of the arm's skeleton (the segments
-between consecutive frame origins, base to tool centre point) comes closer to the can's axis
-segment than its radius plus ``margin`` (2 cm); every joint stays inside its limits; no frame
-goes below the table.
+2 cm of ``s`` and ends within 2 cm of ``g``; the arm stays more than ``margin`` (2 cm) from the
+can's surface and above the table, under the collision model ``collision``
+(:mod:`protorch.tasks.arm_collision`): ``"skeleton"`` (the segments between consecutive frame
+origins, base to tool centre point) or ``"volume"`` (the Panda's link capsules, the volumes the
+MuJoCo scene collides with); every joint stays inside its limits.
 
 Homotopy class (:meth:`ArmReachTask.side`): the signed angle the vector from the can's axis to
 the end effector sweeps along the path; negative (clockwise seen from above) is
@@ -47,6 +48,7 @@ from torch import Tensor
 from ..checks import check_tensor
 from ..robots.kinematics import ArmKinematics
 from ..robots.panda import PANDA_END_LINK
+from .arm_collision import above_table, check_collision, check_volumes, frames_gap
 from .arm_demos import follow_path, ik_demonstrations
 from .arm_deviation import DEVIATIONS, deviation
 from .arm_geometry import (
@@ -56,7 +58,7 @@ from .arm_geometry import (
     down_rotation,
     segment_axis_distance,
 )
-from .arm_workspace import check_region, prior_grid_nodes
+from .arm_workspace import check_box, check_region, prior_grid_nodes
 from .arm_workspace import sample_envs as sample_region
 from .arm_workspace import valid_envs as valid_in_region
 from .base import Task
@@ -67,17 +69,6 @@ __all__ = ["ArmReachTask", "START_Q", "LEFT", "RIGHT", "SIDES", "segment_axis_di
 START_Q = (0.0, 0.0654, 0.0, -2.7266, 0.0, 2.7921, 0.7854)
 
 
-def _box(name: str, box) -> tuple[tuple[float, float], tuple[float, float]]:
-    try:
-        (x0, x1), (y0, y1) = box
-        x0, x1, y0, y1 = float(x0), float(x1), float(y0), float(y1)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be ((x_min, x_max), (y_min, y_max)), got {box!r}") from None
-    if not (x0 < x1 and y0 < y1) or not all(map(math.isfinite, (x0, x1, y0, y1))):
-        raise ValueError(f"{name} must have x_min < x_max and y_min < y_max, got {box!r}")
-    return (x0, x1), (y0, y1)
-
-
 @dataclass
 class ArmReachTask(Task):
     """The arm-reaching task (module docstring). Every method is batched: joint trajectories
@@ -86,7 +77,8 @@ class ArmReachTask(Task):
 
     Args:
         can_radius, can_height: the can (a Pringles can: 3.75 cm, 23 cm).
-        margin: extra clearance of the arm's skeleton to the can's surface for success.
+        margin: clearance of the arm (under ``collision``) to the can's surface for success.
+        collision: ``"skeleton"`` or ``"volume"`` (:mod:`protorch.tasks.arm_collision`).
         clearance: the ``0.2`` of the paper's can objective ``max(-min_t ||p - can||, -0.2)``.
         goal_tol, start_tol: success radii of the end effector at the end and at the start.
         cost_steps: time steps the objectives are evaluated on (evenly spaced, first and last
@@ -118,6 +110,7 @@ class ArmReachTask(Task):
     urdf: str | None = None
     end_link: str = PANDA_END_LINK
     deviation: str = "segment"  # "time": to tau_direct(t) at the same instant (protorch.tasks.arm_deviation)
+    collision: str = "skeleton"  # "volume": the link capsules (protorch.tasks.arm_collision)
     name: str = "arm_reach"
     objective_names: tuple[str, ...] = field(default=("start", "can", "goal"), init=False)
     env_names: tuple[str, ...] = field(default=("can_x", "can_y", "goal_x", "goal_y"), init=False)
@@ -133,8 +126,8 @@ class ArmReachTask(Task):
             raise ValueError(f"margin must be >= 0, got {self.margin!r}")
         if self.cost_steps is not None and (isinstance(self.cost_steps, bool) or int(self.cost_steps) < 2):
             raise ValueError(f"cost_steps must be None or an int >= 2, got {self.cost_steps!r}")
-        self.can_box, self.goal_box = _box("can_box", self.can_box), _box("goal_box", self.goal_box)
-        self.table = _box("table", self.table)
+        self.can_box, self.goal_box = check_box("can_box", self.can_box), check_box("goal_box", self.goal_box)
+        self.table = check_box("table", self.table)
         check_region(self.region)
         try:
             self.reach = (float(self.reach[0]), float(self.reach[1]))
@@ -145,7 +138,10 @@ class ArmReachTask(Task):
         for name, box in (("can_box", self.can_box), ("goal_box", self.goal_box)):
             if not all(t[0] <= b[0] and b[1] <= t[1] for b, t in zip(box, self.table)):
                 raise ValueError(f"{name} {box} must lie on the table {self.table}")
+        check_collision(self.collision)
         self.kinematics = ArmKinematics(self.urdf, end_link=self.end_link)
+        if self.collision == "volume":
+            check_volumes(self.kinematics.frame_names)
         q0 = torch.tensor(self.start_q, dtype=torch.float64)
         if q0.shape != (self.kinematics.num_joints,):
             raise ValueError(f"start_q must have {self.kinematics.num_joints} joint angles, got {len(self.start_q)}")
@@ -321,18 +317,27 @@ class ArmReachTask(Task):
         can = self.clearance - near.clamp(max=self.clearance)
         return torch.stack([d_start + d, can + d, d_goal + d], -1)
 
-    def success(self, traj: Tensor, env: Tensor) -> Tensor:
-        """Start and end within tolerance, no skeleton segment within ``can_radius + margin`` of
-        the can's axis, joint limits respected, nothing below the table; every step: ``(...)``."""
+    def can_gap(self, traj: Tensor, env: Tensor) -> Tensor:
+        """Smallest distance between the arm's surface (under :attr:`collision`) and the can's over
+        all steps: ``(...)`` (success needs ``> margin``; :func:`~protorch.tasks.arm_collision.frames_gap`)."""
         traj, env = self._prepare(traj, env)
-        links = self.kinematics.link_positions(traj)  # (..., T, F, 3)
-        ee = links[..., -1, :]  # (..., T, 3)
+        return frames_gap(self, self.kinematics.frames(traj), env)
+
+    def frames_gap(self, frames: Tensor, env: Tensor) -> Tensor:
+        """:meth:`can_gap` from the chain's frames ``(..., T, F, 4, 4)``."""
+        return frames_gap(self, frames, env)
+
+    def success(self, traj: Tensor, env: Tensor) -> Tensor:
+        """Start and end within tolerance, the arm more than ``margin`` from the can and above the
+        table (under :attr:`collision`), joint limits respected; every step: ``(...)``."""
+        traj, env = self._prepare(traj, env)
+        frames = self.kinematics.frames(traj)  # (..., T, F, 4, 4)
+        ee = frames[..., -1, :3, 3]  # (..., T, 3)
         ok_start = (ee[..., 0, :] - self.start_position(ee.dtype, ee.device)).norm(dim=-1) <= self.start_tol
         ok_goal = (ee[..., -1, :] - self.goal_point(env)).norm(dim=-1) <= self.goal_tol
-        clear = self.skeleton_distance(links, env) > self.can_radius + self.margin
+        clear = frames_gap(self, frames, env) > self.margin
         limits = self.kinematics.within_limits(traj).all(-1)
-        table = (links[..., 1:, 2] >= 0).flatten(-2).all(-1)
-        return ok_start & ok_goal & clear & limits & table
+        return ok_start & ok_goal & clear & limits & above_table(self, frames)
 
     # ---------------------------------------------------------------- demonstrations
     def ik_path(self, path: Tensor, *, iters: int = 8, first_iters: int = 60) -> tuple[Tensor, Tensor]:

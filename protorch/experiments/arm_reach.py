@@ -47,6 +47,7 @@ from ..tasks.arm_reach import LEFT, RIGHT, ArmReachTask
 from ..tasks.arm_workspace import REGIONS, check_region, prior_grid_nodes
 from ..threads import torch_threads
 from ..viz.arm import experiment_figures
+from .arm_physics import check_physics, physics_section
 from .self_improvement import (
     DYNAMIC_SEED,
     TEST_SEED,
@@ -67,7 +68,8 @@ class ArmReachExperiment(SelfImprovementExperiment):
     times :meth:`run_loop`."""
 
     task_keys = frozenset({"_target_", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin", "goal_tol",
-                           "start_tol", "can_radius", "can_height", "clearance", "urdf", "deviation",
+                           "start_tol", "can_radius", "can_height", "clearance", "urdf", "deviation", "collision",
+                           "can_objective",
                            "prior_grid", "region", "reach"})
     loop_keys = frozenset({"labels", "each_label"})
     dynamic_keys = frozenset({"seed", "episodes", "duration", "hold", "dt", "kp", "moves", "move_window",
@@ -76,6 +78,20 @@ class ArmReachExperiment(SelfImprovementExperiment):
     num_envs = 2024
     baseline_names = _BASELINES
     loop_baselines = frozenset({"labels_off_loop"})
+
+    def __init__(self, *, physics: dict | None = None, **settings) -> None:
+        super().__init__(**settings)
+        self.physics_cfg = check_physics(physics, self.dyn_cfg)
+        self.last_moving, self.out_dir, self.plot = None, None, True
+
+    def run(self, out_dir: Path, **kw) -> dict:
+        """The skeleton's run; remembers where, for the physics section's files."""
+        self.out_dir, self.plot = Path(out_dir), kw.get("plot", True)
+        return super().run(out_dir, **kw)
+
+    def extra_tests(self, model) -> dict:
+        """The physics section (:mod:`protorch.experiments.arm_physics`): the trained map's motions in MuJoCo."""
+        return {"physics": physics_section(self, model, self.out_dir, self.plot)}
 
     def configure(self, task_cfg: dict, loop_cfg: dict) -> None:
         self.labels, self.each_label = loop_cfg.get("labels", True), loop_cfg.get("each_label", True)
@@ -171,6 +187,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
             return {"success_rate": float("nan"), "episodes": 0, "switches": 0}, None
         res = run_arm_episodes(model, self.task, self.dyn_env0,
                                generator=torch.Generator().manual_seed(self.dyn_seed), **self.dyn_cfg)
+        self.last_moving = res  # the physics section replays the trained map's episodes
         geometric = geometric_switch_summary(res, self.task) if res.weights is not None else {}
         return {**res.summary(), **geometric, "seed": self.dyn_seed}, res
 
@@ -213,11 +230,12 @@ def prepare(
     loop: dict | None = None,
     test: dict | None = None,
     dynamic: dict | None = None,
+    physics: dict | None = None,
 ) -> ArmReachExperiment:
     """Validate every setting (clear errors, before any work), make the demonstrations and the
     priors and draw the test environments; see :func:`run` for the settings."""
     return ArmReachExperiment(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp,
-                              promp=promp, loop=loop, test=test, dynamic=dynamic).build()
+                              promp=promp, loop=loop, test=test, dynamic=dynamic, physics=physics).build()
 
 
 def _priors(task: ArmReachTask, promp: ProMP, n: int, over: str = "rectangles"):
@@ -251,6 +269,7 @@ def run(
     loop: dict | None = None,
     test: dict | None = None,
     dynamic: dict | None = None,
+    physics: dict | None = None,
     baselines: Sequence[str] = _BASELINES,
     resume: bool = False,
     progress: bool = True,
@@ -266,7 +285,9 @@ def run(
     ``batch_size``, ``add_only``, ``choice``, ``checkpoint_every``, ``eval_dtype``, ``min_var``,
     ``labels`` (the label-aware map; false runs the paper's single map). ``test``: ``num_envs``,
     ``seed``. ``dynamic``: ``episodes`` plus :func:`~protorch.control.arm.run_arm_episodes`
-    options. ``baselines``: any of ``labels_off``, ``labels_off_loop``. ``resume``: continue the
+    options. ``physics``: ``run`` (auto, always, never), ``timestep``, ``kp``, ``kd``,
+    ``mass_scale``, ``render`` (:mod:`protorch.experiments.arm_physics`). ``baselines``: any of
+    ``labels_off``, ``labels_off_loop``. ``resume``: continue the
     loops from the checkpoints in ``out_dir``. ``threads``: torch's intra-op threads for the run
     (restored afterwards; ``None``, the default, keeps the setting around the call: the app's
     top-level ``threads``, :mod:`protorch.threads`). Every setting is validated before any work
@@ -276,7 +297,7 @@ def run(
         raise ValueError(f"threads must be None or an int >= 1, got {threads!r}")
     with torch_threads(threads):
         exp = ArmReachExperiment(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp,
-                                 promp=promp, loop=loop, test=test, dynamic=dynamic)
+                                 promp=promp, loop=loop, test=test, dynamic=dynamic, physics=physics)
         return exp.run(out_dir, baselines=baselines, resume=resume, progress=progress, plot=plot)
 
 
@@ -288,7 +309,7 @@ def _test(task: ArmReachTask, model, envs: torch.Tensor, seed: int) -> dict:
         traj = model.promp.trajectory(best.mean)  # (Q, T, 7)
         ok = task.success(traj, envs)  # (Q,)
         c = task.costs(traj, envs)  # (Q, 3)
-        clear = task.can_distance(traj, envs) > task.can_radius + task.margin
+        clear = task.can_gap(traj, envs) > task.margin
         ee = task.ee_path(traj[:, -1])
         goal_err = (ee - task.goal_point(envs)).norm(dim=-1)
         side = task.side(traj, envs)  # (Q,) the side the chosen mean actually passes on

@@ -225,6 +225,27 @@ class ArmKinematics(nn.Module):
             x, y, z = self._affine(j, x, y, z)
         return torch.stack([x, y, z], -1).reshape(*q.shape[:-1], 3)
 
+    def ee_frame(self, q: Tensor) -> Tensor:
+        """The end link's pose by the compiled path: ``(..., J) -> (..., 4, 4)``; its origin is
+        :meth:`ee_position`, its axes are carried through the same folded chain (without the
+        translations). About four times :meth:`ee_position`'s cost; equal to the last of
+        :meth:`frames` to round-off."""
+        q = self.check_joints(q, finite=False)
+        qt = q.reshape(-1, self.num_joints).T  # (J, P)
+        c, s = torch.cos(qt), torch.sin(qt)  # (J, P)
+        tail = torch.tensor(self._maps[-1], dtype=q.dtype, device=q.device)  # (3, 4) end link in the last joint's frame
+        vec = tail.T[:, :, None].expand(4, 3, qt.shape[1])  # (4, 3, P): the three axes, then the origin
+        x, y, z = vec[:, 0], vec[:, 1], vec[:, 2]  # (4, P)
+        for j in range(self.num_joints - 1, -1, -1):
+            x, y = c[j] * x - s[j] * y, s[j] * x + c[j] * y
+            xa, ya, za = self._affine(j, x, y, z)  # the origin's row (with the translation)
+            xl, yl, zl = self._affine(j, x, y, z, translate=False)  # the axes'
+            x, y, z = (torch.cat([lin[:3], aff[3:]]) for lin, aff in ((xl, xa), (yl, ya), (zl, za)))
+        out = torch.zeros(*q.shape[:-1], 4, 4, dtype=q.dtype, device=q.device)
+        out[..., :3, :] = torch.stack([x, y, z], 0).permute(2, 0, 1).reshape(*q.shape[:-1], 3, 4)
+        out[..., 3, 3] = 1.0
+        return out
+
     # ------------------------------------------------------------------- IK
     def inverse(
         self,
@@ -309,9 +330,10 @@ class ArmKinematics(nn.Module):
         self._maps = [[[_snap(float(v)) for v in row] for row in m[:3].tolist()] for m in maps]
         self._tail = [self._maps[-1][r][3] for r in range(3)]  # the end point in the last joint's frame
 
-    def _affine(self, j: int, x: Tensor, y: Tensor, z: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """Apply the fixed map ``G_j`` (before joint ``j``'s rotation) to the point ``(x, y, z)``,
-        skipping zero terms and multiplications by +-1."""
+    def _affine(self, j: int, x: Tensor, y: Tensor, z: Tensor, translate: bool = True) -> tuple[Tensor, Tensor, Tensor]:
+        """Apply the fixed map ``G_j`` (before joint ``j``'s rotation) to the point ``(x, y, z)``
+        (to a direction without its translation, ``translate=False``), skipping zero terms and
+        multiplications by +-1."""
         out = []
         for row in self._maps[j]:
             acc = None
@@ -322,5 +344,5 @@ class ArmKinematics(nn.Module):
                 acc = term if acc is None else acc + term
             if acc is None:
                 acc = torch.zeros_like(x)
-            out.append(acc + row[3] if row[3] != 0.0 else acc)
+            out.append(acc + row[3] if translate and row[3] != 0.0 else acc)
         return out[0], out[1], out[2]

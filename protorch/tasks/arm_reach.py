@@ -48,7 +48,15 @@ from torch import Tensor
 from ..checks import check_tensor
 from ..robots.kinematics import ArmKinematics
 from ..robots.panda import PANDA_END_LINK
-from .arm_collision import above_table, check_collision, check_volumes, frames_gap
+from .arm_collision import (
+    CAN_OBJECTIVES,
+    above_table,
+    check_collision,
+    check_volumes,
+    end_capsules,
+    end_volume_near,
+    frames_gap,
+)
 from .arm_demos import follow_path, ik_demonstrations
 from .arm_deviation import DEVIATIONS, deviation
 from .arm_geometry import (
@@ -58,7 +66,7 @@ from .arm_geometry import (
     down_rotation,
     segment_axis_distance,
 )
-from .arm_workspace import check_box, check_region, prior_grid_nodes
+from .arm_workspace import check_workspace, prior_grid_nodes
 from .arm_workspace import sample_envs as sample_region
 from .arm_workspace import valid_envs as valid_in_region
 from .base import Task
@@ -111,6 +119,7 @@ class ArmReachTask(Task):
     end_link: str = PANDA_END_LINK
     deviation: str = "segment"  # "time": to tau_direct(t) at the same instant (protorch.tasks.arm_deviation)
     collision: str = "skeleton"  # "volume": the link capsules (protorch.tasks.arm_collision)
+    can_objective: str = "ee"  # "volume": the hand's capsules' distance to the can (protorch.tasks.arm_collision)
     name: str = "arm_reach"
     objective_names: tuple[str, ...] = field(default=("start", "can", "goal"), init=False)
     env_names: tuple[str, ...] = field(default=("can_x", "can_y", "goal_x", "goal_y"), init=False)
@@ -126,22 +135,14 @@ class ArmReachTask(Task):
             raise ValueError(f"margin must be >= 0, got {self.margin!r}")
         if self.cost_steps is not None and (isinstance(self.cost_steps, bool) or int(self.cost_steps) < 2):
             raise ValueError(f"cost_steps must be None or an int >= 2, got {self.cost_steps!r}")
-        self.can_box, self.goal_box = check_box("can_box", self.can_box), check_box("goal_box", self.goal_box)
-        self.table = check_box("table", self.table)
-        check_region(self.region)
-        try:
-            self.reach = (float(self.reach[0]), float(self.reach[1]))
-        except (TypeError, ValueError, IndexError):
-            raise ValueError(f"reach must be (r_min, r_max), got {self.reach!r}") from None
-        if not (0 <= self.reach[0] < self.reach[1] < math.inf):
-            raise ValueError(f"reach must be (r_min, r_max) with 0 <= r_min < r_max < inf, got {self.reach!r}")
-        for name, box in (("can_box", self.can_box), ("goal_box", self.goal_box)):
-            if not all(t[0] <= b[0] and b[1] <= t[1] for b, t in zip(box, self.table)):
-                raise ValueError(f"{name} {box} must lie on the table {self.table}")
+        check_workspace(self)
         check_collision(self.collision)
+        if self.can_objective not in CAN_OBJECTIVES:
+            raise ValueError(f"can_objective must be one of {', '.join(CAN_OBJECTIVES)}, got {self.can_objective!r}")
         self.kinematics = ArmKinematics(self.urdf, end_link=self.end_link)
-        if self.collision == "volume":
+        if "volume" in (self.collision, self.can_objective):
             check_volumes(self.kinematics.frame_names)
+        self.end_capsules = end_capsules(self.kinematics) if self.can_objective == "volume" else None
         q0 = torch.tensor(self.start_q, dtype=torch.float64)
         if q0.shape != (self.kinematics.num_joints,):
             raise ValueError(f"start_q must have {self.kinematics.num_joints} joint angles, got {len(self.start_q)}")
@@ -299,21 +300,28 @@ class ArmReachTask(Task):
         idx = self.cost_indices(traj.shape[-2]).to(traj.device)
         if idx.numel() < traj.shape[-2]:
             traj = traj.index_select(-2, idx)
-        c = self.path_costs(self.ee_path(traj), env)  # (..., 3)
+        if self.end_capsules is None:
+            c = self.path_costs(self.ee_path(traj), env)  # (..., 3)
+        else:
+            frames = self.kinematics.ee_frame(traj)  # (..., T, 4, 4)
+            near = end_volume_near(frames, env, self.end_capsules).amin(-1)  # (...)
+            c = self.path_costs(frames[..., :3, 3], env, near=near)
         if not bool(torch.isfinite(c).all()):
             raise ValueError("traj contains NaN or inf values (its costs are not finite)")
         return c
 
-    def path_costs(self, path: Tensor, env: Tensor, start: Tensor | None = None) -> Tensor:
+    def path_costs(self, path: Tensor, env: Tensor, start: Tensor | None = None, near: Tensor | None = None) -> Tensor:
         """The objectives of end-effector paths ``(..., T, 3)``: ``(..., 3)``. ``start (..., 3)``
-        replaces ``s`` (the online test scores the rest of a motion from where the arm is)."""
+        replaces ``s`` (the online test scores the rest of a motion from where the arm is);
+        ``near (...)`` the path's nearest distance to the can's axis (``can_objective="volume"``)."""
         s = self.start_position(path.dtype, path.device) if start is None else start  # (..., 3)
         s = s.expand(*path.shape[:-2], 3)
         g = self.goal_point(env)  # (..., 3)
         d = deviation(self.deviation, path, s, g).mean(-1)  # (...)
         d_start = (path[..., 0, :] - s).norm(dim=-1)
         d_goal = (path[..., -1, :] - g).norm(dim=-1)
-        near = (path[..., :2] - env[..., None, 0:2]).norm(dim=-1).amin(-1)  # (...)
+        if near is None:
+            near = (path[..., :2] - env[..., None, 0:2]).norm(dim=-1).amin(-1)  # (...)
         can = self.clearance - near.clamp(max=self.clearance)
         return torch.stack([d_start + d, can + d, d_goal + d], -1)
 

@@ -282,7 +282,8 @@ def run_physics_episodes(scene, ctrl_model, system, promp, timing: Timing, envs:
                                                     dt=h)  # (E, J)
                 tau = ctrl.torques(plant.qpos, plant.qvel, q_r, v_r, a_r)  # (E, J)
                 rec.torque(tau, limits, plant.alive)
-                plant.ctrl[:] = torch.maximum(torch.minimum(tau, limits), -limits).numpy()
+                plant.alive &= torch.isfinite(tau).all(-1).numpy()  # a broken command: that simulation stops here
+                plant.ctrl[:] = torch.nan_to_num(torch.maximum(torch.minimum(tau, limits), -limits)).numpy()
                 plant.step()
                 v_r = v_r + a_r * h
                 q_r = q_r + v_r * h

@@ -16,11 +16,15 @@ The task's success asks ``gap > margin`` at every step; the moving test places a
 where ``gap > place_clearance``.
 
 The task's can objective (``can_objective``) reads the end effector's distance to the can's axis
-(``"ee"``, the paper's) or, with ``"volume"``, the horizontal distance between the can's surface
-and the capsules rigid with the end link (the hand with its fingers and link 7, the parts that
-pass beside the can; :func:`end_capsules`, :func:`end_volume_near`), computed from the end
-link's pose by the compiled kinematics (:meth:`~protorch.robots.ArmKinematics.ee_frame`, about
-three times the end-effector position's cost) so the objectives stay cheap enough for the loop.
+(``"ee"``, the paper's) or, with ``"volume"``, the distance between the can's axis segment and the
+surfaces of the capsules that come near the can: those rigid with the end link (the hand with its
+fingers, link 7), which pass beside it, and the forearm's (link 5), which passes over it when the
+hand passes beside (:func:`end_capsules`, :func:`end_volume_near`). They are placed by the compiled
+kinematics (:meth:`~protorch.robots.ArmKinematics.ee_frame`,
+:meth:`~protorch.robots.ArmKinematics.frame_points`: about six times the end effector's cost,
+where the full chain would be a hundred) so the objectives stay affordable in the loop; each
+capsule's distance is taken at its point horizontally nearest the can's axis (horizontal distance
+and height above the can's top combined: exact below the top, a cheap stand-in above it).
 """
 
 from __future__ import annotations
@@ -31,11 +35,12 @@ from torch import Tensor
 from ..robots.panda_volumes import PANDA_BASE_LINKS, PANDA_CAPSULES, capsule_index, capsule_segments
 from .arm_geometry import segment_cylinder_distance
 
-__all__ = ["COLLISIONS", "CAN_OBJECTIVES", "check_collision", "check_volumes", "frames_gap", "above_table",
+__all__ = ["COLLISIONS", "CAN_OBJECTIVES", "FOREARM_LINK", "check_collision", "check_volumes", "frames_gap", "above_table",
            "end_capsules", "end_volume_near"]
 
 COLLISIONS = ("skeleton", "volume")
 CAN_OBJECTIVES = ("ee", "volume")
+FOREARM_LINK = "panda_link5"  # its capsules pass over the can when the hand passes beside it
 
 
 def check_collision(collision: str, name: str = "collision") -> str:
@@ -77,9 +82,10 @@ def above_table(task, frames: Tensor) -> Tensor:
     return (low[..., moving] >= 0).flatten(-2).all(-1)
 
 
-def end_capsules(kinematics) -> tuple[Tensor, Tensor, Tensor]:
-    """The capsules on links rigidly attached to the end link (no joint between), in the end
-    link's frame: ``a (C', 3)``, ``b (C', 3)``, ``radius (C',)`` float64."""
+def end_capsules(kinematics) -> dict:
+    """The capsules the volume objective reads (module docstring), as ``{frame: (a (C, 3), b (C, 3),
+    radius (C,))}`` float64: those on links rigidly attached to the end link, in the end link's
+    frame (under the key ``None``), and those of the forearm (:data:`FOREARM_LINK`) in its own."""
     names = kinematics.frame_names
     fixed = [names[-1]]
     for i in range(len(names) - 1, 0, -1):  # back from the end link until the last revolute joint
@@ -87,24 +93,44 @@ def end_capsules(kinematics) -> tuple[Tensor, Tensor, Tensor]:
             fixed.append(names[i])
             break
         fixed.append(names[i - 1])
-    caps = [c for c in PANDA_CAPSULES if c.link in fixed]
     frames = kinematics.frames(torch.zeros(kinematics.num_joints, dtype=torch.float64,
                                            device=kinematics.lower.device)).cpu()  # (F, 4, 4)
     rel = torch.linalg.inv(frames[-1]) @ frames  # (F, 4, 4) every frame in the end link's
-    a, b, r = capsule_segments(rel, names, caps)
-    return a, b, r
+    out = {None: capsule_segments(rel, names, [c for c in PANDA_CAPSULES if c.link in fixed])}
+    forearm = [c for c in PANDA_CAPSULES if c.link == FOREARM_LINK]
+    if forearm:
+        eye = torch.eye(4, dtype=torch.float64).expand(len(names), 4, 4)
+        out[FOREARM_LINK] = capsule_segments(eye, names, forearm)
+    return out
 
 
-def end_volume_near(ee_frames: Tensor, env: Tensor, capsules: tuple[Tensor, Tensor, Tensor]) -> Tensor:
-    """Per step, the horizontal distance between the can's axis and the end capsules' surfaces:
-    ``ee_frames (..., T, 4, 4)``, ``env (..., 4)`` -> ``(..., T)`` (the can's radius not
-    subtracted, so that it reads like the end effector's distance to the axis)."""
-    a, b, r = (x.to(ee_frames) for x in capsules)  # (C, 3), (C, 3), (C,)
-    rot, pos = ee_frames[..., None, :2, :3], ee_frames[..., None, :2, 3]  # (..., T, 1, 2, 3), (..., T, 1, 2)
-    pa = (rot @ a[:, :, None])[..., 0] + pos  # (..., T, C, 2)
-    pb = (rot @ b[:, :, None])[..., 0] + pos
-    c = env[..., None, None, 0:2]  # (..., 1, 1, 2)
-    d = pb - pa
-    u = (((c - pa) * d).sum(-1) / d.square().sum(-1).clamp_min(1e-12)).clamp(0.0, 1.0)  # (..., T, C)
-    dist = (c - pa - u[..., None] * d).norm(dim=-1) - r  # (..., T, C)
-    return dist.amin(-1)
+def end_volume_near(kinematics, traj: Tensor, env: Tensor, capsules: dict, can_height: float) -> Tensor:
+    """Per step, the smallest distance between the can's axis segment and the surfaces of the
+    objective's capsules (:func:`end_capsules`): ``traj (..., T, J)``, ``env (..., 4)`` ->
+    ``(..., T)``; the can's radius is not subtracted, so it reads like the end effector's
+    distance to the axis. Also returns the end link's positions ``(..., T, 3)``."""
+    frames = kinematics.ee_frame(traj)  # (..., T, 4, 4)
+    axis = env[..., None, None, 0:2]  # (..., 1, 1, 2)
+    near = []
+    for frame, (a, b, r) in capsules.items():
+        a, b, r = a.to(traj), b.to(traj), r.to(traj)
+        if frame is None:
+            rot, pos = frames[..., None, :3, :3], frames[..., None, :3, 3]  # (..., T, 1, 3, 3), (..., T, 1, 3)
+            pa, pb = (rot @ a[:, :, None])[..., 0] + pos, (rot @ b[:, :, None])[..., 0] + pos  # (..., T, C, 3)
+        else:
+            ends = kinematics.frame_points(traj, frame, torch.cat([a, b]))  # (..., T, 2C, 3)
+            pa, pb = ends[..., : a.shape[0], :], ends[..., a.shape[0]:, :]
+        near.append(_axis_proxy(pa, pb, axis, can_height) - r)  # (..., T, C)
+    return torch.cat(near, -1).amin(-1), frames[..., :3, 3]
+
+
+def _axis_proxy(pa: Tensor, pb: Tensor, axis: Tensor, height: float) -> Tensor:
+    """A cheap stand-in for the distance of segments ``pa -> pb`` to the can's axis segment: at the
+    segment's point horizontally nearest the axis, the horizontal distance and the height above the
+    can's top, combined (exact for a segment below the top or level; the objective's shaping only)."""
+    d = pb - pa  # (..., 3)
+    w = axis - pa[..., :2]  # (..., 2)
+    u = ((w * d[..., :2]).sum(-1) / d[..., :2].square().sum(-1).clamp_min(1e-12)).clamp(0.0, 1.0)  # (...)
+    h = (w - u[..., None] * d[..., :2]).norm(dim=-1)
+    v = (pa[..., 2] + u * d[..., 2] - height).clamp(min=0.0)
+    return torch.sqrt(h.square() + v.square())

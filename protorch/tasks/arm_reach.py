@@ -119,7 +119,7 @@ class ArmReachTask(Task):
     end_link: str = PANDA_END_LINK
     deviation: str = "segment"  # "time": to tau_direct(t) at the same instant (protorch.tasks.arm_deviation)
     collision: str = "skeleton"  # "volume": the link capsules (protorch.tasks.arm_collision)
-    can_objective: str = "ee"  # "volume": the hand's capsules' distance to the can (protorch.tasks.arm_collision)
+    can_objective: str = "ee"  # "volume": the hand's and forearm's capsules (protorch.tasks.arm_collision)
     name: str = "arm_reach"
     objective_names: tuple[str, ...] = field(default=("start", "can", "goal"), init=False)
     env_names: tuple[str, ...] = field(default=("can_x", "can_y", "goal_x", "goal_y"), init=False)
@@ -303,9 +303,8 @@ class ArmReachTask(Task):
         if self.end_capsules is None:
             c = self.path_costs(self.ee_path(traj), env)  # (..., 3)
         else:
-            frames = self.kinematics.ee_frame(traj)  # (..., T, 4, 4)
-            near = end_volume_near(frames, env, self.end_capsules).amin(-1)  # (...)
-            c = self.path_costs(frames[..., :3, 3], env, near=near)
+            near, path = end_volume_near(self.kinematics, traj, env, self.end_capsules, self.can_height)
+            c = self.path_costs(path, env, near=near.amin(-1))
         if not bool(torch.isfinite(c).all()):
             raise ValueError("traj contains NaN or inf values (its costs are not finite)")
         return c

@@ -31,6 +31,7 @@ table around a can, and switches between passing it on the left and on the right
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Sequence
 
@@ -91,7 +92,10 @@ class ArmReachExperiment(SelfImprovementExperiment):
 
     def extra_tests(self, model) -> dict:
         """The physics section (:mod:`protorch.experiments.arm_physics`): the trained map's motions in MuJoCo."""
-        return {"physics": physics_section(self, model, self.out_dir, self.plot)}
+        t0 = time.perf_counter()
+        out = {"physics": physics_section(self, model, self.out_dir, self.plot)}
+        self.seconds["physics"] = round(time.perf_counter() - t0, 3)
+        return out
 
     def configure(self, task_cfg: dict, loop_cfg: dict) -> None:
         self.labels, self.each_label = loop_cfg.get("labels", True), loop_cfg.get("each_label", True)

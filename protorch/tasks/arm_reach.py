@@ -57,7 +57,7 @@ from .arm_collision import (
     end_volume_near,
     frames_gap,
 )
-from .arm_demos import follow_path, ik_demonstrations
+from .arm_demos import follow_path, ik_demonstrations, straight_paths
 from .arm_deviation import DEVIATIONS, deviation
 from .arm_geometry import (
     LEFT,
@@ -309,6 +309,18 @@ class ArmReachTask(Task):
             raise ValueError("traj contains NaN or inf values (its costs are not finite)")
         return c
 
+    def objective_cost(self, traj: Tensor, env: Tensor, index: int) -> Tensor:
+        """Objective ``index`` of :meth:`costs` alone, ``(...)`` (the loop asks when PRO's update
+        reads one objective): with ``can_objective="volume"`` only the can objective pays for the
+        arm's capsules, the start and goal objectives read the end effector alone."""
+        if index not in (0, 1, 2):
+            raise ValueError(f"index must be 0, 1 or 2, got {index!r}")
+        if index == 1 or self.end_capsules is None:
+            return self.costs(traj, env)[..., index]
+        traj, env = self._prepare(traj, env, finite=False)
+        idx = self.cost_indices(traj.shape[-2]).to(traj.device)
+        return self.path_costs(self.ee_path(traj.index_select(-2, idx)), env)[..., index]
+
     def path_costs(self, path: Tensor, env: Tensor, start: Tensor | None = None, near: Tensor | None = None) -> Tensor:
         """The objectives of end-effector paths ``(..., T, 3)``: ``(..., 3)``. ``start (..., 3)``
         replaces ``s`` (the online test scores the rest of a motion from where the arm is);
@@ -357,12 +369,7 @@ class ArmReachTask(Task):
     def straight_paths(self, env: Tensor, num_steps: int = 100) -> Tensor:
         """The straight end-effector path from ``s`` to the target of each environment, with a
         minimum-jerk time profile: ``(n, num_steps, 3)``."""
-        env = self.check_envs(env).to(torch.float64)
-        u = torch.linspace(0, 1, int(num_steps), dtype=torch.float64)
-        prog = u**3 * (10 - 15 * u + 6 * u**2)  # (T,)
-        s = self.start_position()
-        g = self.goal_point(env.reshape(-1, 4))  # (n, 3)
-        return s + prog[None, :, None] * (g - s)[:, None, :]  # (n, T, 3)
+        return straight_paths(self, self.check_envs(env).to(torch.float64), num_steps)
 
     def demonstrations(
         self,
@@ -378,16 +385,8 @@ class ArmReachTask(Task):
     ) -> tuple[list[Tensor], Tensor, Tensor]:
         """Imperfect, hand-guided-like demonstrations by inverse kinematics: ``per_env`` per
         environment, all passing the can on the side ``sides[i]`` (default: alternating
-        :data:`LEFT`, :data:`RIGHT` over the environments).
-
-        Each end-effector path is a Catmull-Rom curve through ``s``, a point beside the can at a
-        random ``pass_distance`` from its axis (perpendicular to the start-target line), and the
-        target missed by ``goal_noise`` (std per horizontal coordinate); it rises a little in the
-        middle, gets a smooth hand tremor of std ``tremor``, a minimum-jerk speed profile with a
-        random skew and a random number of samples in ``lengths``; the joint trajectory follows
-        it by :meth:`ik_path`.
-
-        Returns ``(demos, demo_envs, labels)``: ``M * per_env`` joint trajectories ``(T_i, 7)``,
+        :data:`LEFT`, :data:`RIGHT`); the paths and their parameters are those of
+        :func:`~protorch.tasks.arm_demos.ik_demonstrations`. Returns ``(demos, demo_envs, labels)``: ``M * per_env`` joint trajectories ``(T_i, 7)``,
         their environments ``(M * per_env, 4)`` and the homotopy class of each (measured on
         the joint trajectory with :meth:`side`, not assumed).
         """

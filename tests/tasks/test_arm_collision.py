@@ -86,3 +86,15 @@ def test_bad_collision_settings_are_refused():
         ArmReachTask(collision="mesh")
     with pytest.raises(ValueError, match="can_objective must be one of ee, volume"):
         ArmReachTask(can_objective="hand")
+
+
+@pytest.mark.parametrize("can_objective", ["ee", "volume"])
+def test_one_objective_alone_equals_its_column_of_the_costs(can_objective, gen):
+    task = ArmReachTask(can_objective=can_objective)
+    q = task.start_config() + 0.2 * torch.randn(3, 100, 7, generator=gen, dtype=torch.float64)
+    env = task.sample_envs(3, gen)
+    c = task.costs(q, env)
+    for i in range(3):
+        assert torch.equal(task.objective_cost(q, env, i), c[..., i])
+    with pytest.raises(ValueError, match="index must be 0, 1 or 2"):
+        task.objective_cost(q, env, 3)

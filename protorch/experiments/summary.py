@@ -75,6 +75,9 @@ HEADLINES: dict[str, list[Headline]] = {
         Headline("side switches (geometric)", "dynamic.switches_geometric", "{optimizer} loop, labels",
                  (("labels dropped", "baselines.labels_off.dynamic.switches_geometric"),
                   ("loop without labels", "baselines.labels_off_loop.dynamic.switches_geometric"))),
+        Headline("held-out success in MuJoCo", "physics.test.success_rate", "{optimizer} loop, labels"),
+        Headline("moving success in MuJoCo", "physics.dynamic.success_rate", "{optimizer} loop, labels"),
+        Headline("MuJoCo episodes with a contact", "physics.dynamic.contacts", "{optimizer} loop, labels"),
     ],
 }
 

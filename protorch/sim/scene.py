@@ -48,6 +48,7 @@ __all__ = ["PandaScene", "build_scene", "controller_model", "ARM_BITS", "WORLD_B
 ARM_BITS = (1, 2)  # (contype, conaffinity) of the arm's capsules: they touch the world, not each other
 WORLD_BITS = (2, 1)  # the table and the can
 _COMPILER = '<mujoco><compiler fusestatic="false" discardvisual="false" balanceinertia="false"/></mujoco>'
+_CONTACT_SENSOR = [1 | 8, 1, 1]  # data: found | dist (bit flags), reduce: mindist, num: 1 -> (count, distance)
 _TABLE_THICKNESS = 0.02
 _CAN_RGBA = (0.75, 0.15, 0.12, 1.0)
 _ARM_RGBA = (0.92, 0.92, 0.9, 1.0)
@@ -143,13 +144,13 @@ def _add_world(spec, task) -> None:
     root = task.kinematics.frame_names[1]  # the first moving link: its subtree is the arm
     for name, other in (("arm_can", "can"), ("arm_table", "world")):
         spec.add_sensor(name=name, type=mujoco.mjtSensor.mjSENS_CONTACT, objtype=mujoco.mjtObj.mjOBJ_XBODY,
-                        objname=root, reftype=mujoco.mjtObj.mjOBJ_BODY, refname=other, intprm=[9, 1, 1])
+                        objname=root, reftype=mujoco.mjtObj.mjOBJ_BODY, refname=other, intprm=_CONTACT_SENSOR)
 
 
 def build_scene(task, *, timestep: float = 0.002, mass_scale: float = 1.0) -> PandaScene:
     """The plant (module docstring) for an :class:`~protorch.tasks.ArmReachTask` with the Panda;
     ``timestep`` is MuJoCo's step (s)."""
-    mujoco = load_mujoco()
+    load_mujoco()  # one line naming the extra where MuJoCo is missing
     spec = _arm_spec(task, mass_scale, timestep)
     _add_world(spec, task)
     spec.visual.global_.offwidth, spec.visual.global_.offheight = 960, 720

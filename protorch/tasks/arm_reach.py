@@ -119,7 +119,7 @@ class ArmReachTask(Task):
     end_link: str = PANDA_END_LINK
     deviation: str = "segment"  # "time": to tau_direct(t) at the same instant (protorch.tasks.arm_deviation)
     collision: str = "skeleton"  # "volume": the link capsules (protorch.tasks.arm_collision)
-    can_objective: str = "ee"  # "volume": the hand's and forearm's capsules (protorch.tasks.arm_collision)
+    can_objective: str = "auto"  # ee | volume (the hand's, forearm's capsules) | auto: as `collision` plans
     name: str = "arm_reach"
     objective_names: tuple[str, ...] = field(default=("start", "can", "goal"), init=False)
     env_names: tuple[str, ...] = field(default=("can_x", "can_y", "goal_x", "goal_y"), init=False)
@@ -137,8 +137,10 @@ class ArmReachTask(Task):
             raise ValueError(f"cost_steps must be None or an int >= 2, got {self.cost_steps!r}")
         check_workspace(self)
         check_collision(self.collision)
-        if self.can_objective not in CAN_OBJECTIVES:
-            raise ValueError(f"can_objective must be one of {', '.join(CAN_OBJECTIVES)}, got {self.can_objective!r}")
+        if self.can_objective not in (*CAN_OBJECTIVES, "auto"):
+            raise ValueError(f"can_objective must be one of {', '.join(CAN_OBJECTIVES)}, auto, got {self.can_objective!r}")
+        if self.can_objective == "auto":
+            self.can_objective = "volume" if self.collision == "volume" else "ee"
         self.kinematics = ArmKinematics(self.urdf, end_link=self.end_link)
         if "volume" in (self.collision, self.can_objective):
             check_volumes(self.kinematics.frame_names)

@@ -84,8 +84,10 @@ def test_the_volume_objective_reads_the_hand_and_forearm_capsules(gen):
 def test_bad_collision_settings_are_refused():
     with pytest.raises(ValueError, match="collision must be one of skeleton, volume"):
         ArmReachTask(collision="mesh")
-    with pytest.raises(ValueError, match="can_objective must be one of ee, volume"):
+    with pytest.raises(ValueError, match="can_objective must be one of ee, volume, auto"):
         ArmReachTask(can_objective="hand")
+    assert ArmReachTask().can_objective == "ee" and ArmReachTask(collision="volume").can_objective == "volume"
+    assert ArmReachTask(collision="volume", can_objective="ee").can_objective == "ee"
 
 
 @pytest.mark.parametrize("can_objective", ["ee", "volume"])

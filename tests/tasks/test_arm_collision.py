@@ -63,8 +63,11 @@ def test_the_volume_objective_reads_the_hand_and_forearm_capsules(gen):
     task = ArmReachTask(can_objective="volume")
     q = task.start_config() + 0.3 * torch.randn(5, 7, generator=gen, dtype=torch.float64)
     env = task.sample_envs(1, gen)[0]
-    near, path = end_volume_near(task.kinematics, q, env, task.end_capsules, task.can_height)  # (5,), (5, 3)
-    assert torch.allclose(path, task.kinematics.ee_position(q), atol=1e-12)
+    near, path = end_volume_near(task.kinematics, q[:, None], env, task.end_capsules, task.can_height)  # (5, 1)
+    near = near[:, 0]
+    assert torch.allclose(path[:, 0], task.kinematics.ee_position(q), atol=1e-12)
+    traj = q[None]  # one trajectory of 5 steps: the distance at every other step
+    assert end_volume_near(task.kinematics, traj, env, task.end_capsules, task.can_height)[0].shape == (1, 3)
     # the same capsules placed by the full chain, their distance to the can's axis segment by sampling
     a, b, r = capsule_segments(task.kinematics.frames(q), task.kinematics.frame_names)
     keep = torch.tensor([c.link in ("panda_link5", "panda_link7", "panda_link8", "panda_hand") for c in PANDA_CAPSULES])
@@ -87,6 +90,7 @@ def test_bad_collision_settings_are_refused():
     with pytest.raises(ValueError, match="can_objective must be one of ee, volume, auto"):
         ArmReachTask(can_objective="hand")
     assert ArmReachTask().can_objective == "ee" and ArmReachTask(collision="volume").can_objective == "volume"
+    assert ArmReachTask().margin == 0.02 and ArmReachTask(collision="volume").margin == 0.01
     assert ArmReachTask(collision="volume", can_objective="ee").can_objective == "ee"
 
 

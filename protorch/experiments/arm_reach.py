@@ -31,7 +31,6 @@ table around a can, and switches between passing it on the left and on the right
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Sequence
 
@@ -70,7 +69,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
 
     task_keys = frozenset({"_target_", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin", "goal_tol",
                            "start_tol", "can_radius", "can_height", "clearance", "urdf", "deviation", "collision",
-                           "can_objective",
+                           "can_objective", "prior_clear",
                            "prior_grid", "region", "reach"})
     loop_keys = frozenset({"labels", "each_label"})
     dynamic_keys = frozenset({"seed", "episodes", "duration", "hold", "dt", "kp", "moves", "move_window",
@@ -92,9 +91,10 @@ class ArmReachExperiment(SelfImprovementExperiment):
 
     def extra_tests(self, model) -> dict:
         """The physics section (:mod:`protorch.experiments.arm_physics`): the trained map's motions in MuJoCo."""
-        t0 = time.perf_counter()
         out = {"physics": physics_section(self, model, self.out_dir, self.plot)}
-        self.seconds["physics"] = round(time.perf_counter() - t0, 3)
+        for key in ("seconds", "render_seconds"):
+            if key in out["physics"]:
+                self.seconds["physics" if key == "seconds" else "physics_render"] = out["physics"][key]
         return out
 
     def configure(self, task_cfg: dict, loop_cfg: dict) -> None:
@@ -106,10 +106,15 @@ class ArmReachExperiment(SelfImprovementExperiment):
         self.per_env = check_int(task_cfg.pop("demos_per_env", 3), "task.demos_per_env", 2)
         self.n_priors = check_int(task_cfg.pop("priors", 2004), "task.priors", 0)
         self.prior_over = check_region(task_cfg.pop("prior_grid", "rectangles"), "task.prior_grid")
+        self.prior_clear = task_cfg.pop("prior_clear", "auto")
+        if self.prior_clear not in (True, False, "auto"):
+            raise ValueError(f"task.prior_clear must be true, false or auto, got {self.prior_clear!r}")
         check_region(task_cfg.get("region", "rectangles"), "task.region")
         self.nearest_k = self.map_options.get("nearest_k")
         task_cfg.pop("_target_", None)
         self.task = ArmReachTask(**task_cfg).to(self.device)
+        if self.prior_clear == "auto":
+            self.prior_clear = self.task.collision == "volume"
 
     def make_demonstrations(self) -> None:
         """The demonstrated environments are drawn over the rectangles whatever ``task.region``."""
@@ -119,7 +124,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
 
     def make_priors(self) -> None:
         self.prior_envs, self.prior_mean, self.prior_labels, self.prior_report = _priors(
-            self.task, self.promp, self.n_priors, self.prior_over)
+            self.task, self.promp, self.n_priors, self.prior_over, clear=self.prior_clear)
 
     def build(self) -> "ArmReachExperiment":
         """The skeleton's build, plus the held-out environments of the other region when either
@@ -242,10 +247,11 @@ def prepare(
                               promp=promp, loop=loop, test=test, dynamic=dynamic, physics=physics).build()
 
 
-def _priors(task: ArmReachTask, promp: ProMP, n: int, over: str = "rectangles"):
+def _priors(task: ArmReachTask, promp: ProMP, n: int, over: str = "rectangles", clear: bool = False):
     """``n`` environments on a grid over ``over`` with the straight end-effector path to their
-    target (by IK, one per distinct target): ``(envs (n, 4), weight means (n, N), labels (n,),
-    the grid's counts)``."""
+    target (by IK, one per distinct target): ``(envs (P, 4), weight means (P, N), labels (P,),
+    the grid's counts)``; ``P = n``, or with ``clear`` only the priors whose mean succeeds under
+    the task's collision model (``report["clear"]`` of ``report["kept"]``)."""
     if n == 0:
         return torch.zeros(0, 4, dtype=torch.float64), torch.zeros(0, promp.num_weights, dtype=torch.float64), \
             torch.zeros(0, dtype=torch.long), {"over": over, "kept": 0}
@@ -256,7 +262,11 @@ def _priors(task: ArmReachTask, promp: ProMP, n: int, over: str = "rectangles"):
     q = q.to(promp.basis)
     w = promp.weights(q).cpu().to(torch.float64)  # (G, N)
     labels = task.side(q[inverse.to(q.device)], grid.to(q)).cpu()  # (n,) which side the straight path passes
-    return grid, w[inverse], labels, report
+    w = w[inverse]  # (n, N)
+    if clear:  # a prior that hits the can under the task's own check teaches the map a colliding mean
+        ok = task.success(promp.trajectory(w.to(promp.basis)), grid.to(promp.basis)).cpu()  # (n,)
+        grid, w, labels, report = grid[ok], w[ok], labels[ok], report | {"clear": int(ok.sum())}
+    return grid, w, labels, report
 
 
 def run(
@@ -281,7 +291,7 @@ def run(
 ) -> dict:
     """Run the experiment into ``out_dir``; return the metrics (module docstring).
 
-    ``task``: ``demo_envs``, ``demos_per_env``, ``priors`` (number of grid priors), ``prior_grid``
+    ``task``: ``demo_envs``, ``demos_per_env``, ``priors`` (number of grid priors), ``prior_clear`` (keep only the priors that succeed under ``collision``; ``auto``: with ``volume``), ``prior_grid``
     (``rectangles`` or ``table``: the region the priors' grid spans) and the
     :class:`~protorch.tasks.ArmReachTask` options (``cost_steps``, ``margin``, ``goal_tol``,
     ``region``, ``reach``, ...).

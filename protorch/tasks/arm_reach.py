@@ -49,15 +49,8 @@ from torch import Tensor
 from ..checks import check_tensor
 from ..robots.kinematics import ArmKinematics
 from ..robots.panda import PANDA_END_LINK
-from .arm_collision import (
-    CAN_OBJECTIVES,
-    above_table,
-    check_collision,
-    check_volumes,
-    end_capsules,
-    end_volume_near,
-    frames_gap,
-)
+from .arm_collision import (CAN_OBJECTIVES, above_table, check_collision, check_volumes, end_capsules,
+                            end_volume_near, frames_gap)
 from .arm_demos import follow_path, ik_demonstrations, straight_paths
 from .arm_deviation import DEVIATIONS, deviation
 from .arm_geometry import (

@@ -38,6 +38,7 @@ def test_tiny_run_writes_physics_metrics_and_episodes_the_replay_agrees_with(tmp
         assert max(f["can_contact"], f["table_contact"]) <= s["contacts"] <= f["can_contact"] + f["table_contact"]
         assert s["tracking_rms"] >= 0 and s["max_torque_ratio"] > 0
     assert p["settings"]["collision"] == "volume" and p["dynamic"]["map_queries"] > 0
+    assert m["seconds"]["physics"] == p["seconds"] > 0 and "physics_render" not in m["seconds"]  # plot=false
     with np.load(tmp_path / p["episodes_file"]) as f:
         e = {k: f[k] for k in f.files}
     steps = int(round((1.0 + 0.2) / 0.02)) + 1

@@ -9,7 +9,7 @@
 2. With ``--run RUN_DIR`` (a finished ``experiment=arm_reach`` run): the run's own physics
    section timed again on its trained map, its held-out environments and its moving episodes
    (200 + 100 by default), for each thread count, and its share of that run
-   (``metrics.json``: ``seconds.physics / seconds.total``).
+   (``metrics.json``: ``physics.seconds / seconds.total``, the renders apart).
 
 The machine's load changes absolute times: compare the rows of one run.
 """
@@ -117,10 +117,12 @@ def main() -> None:
               f"{s['tracking_rms']:>14.2e}")
     if a.run is not None:
         metrics = json.loads((a.run / "metrics.json").read_text())
-        sec = metrics.get("seconds", {})
-        print(f"\nthe run {a.run}: total {sec.get('total', float('nan')):.1f} s, its physics section "
-              f"{sec.get('physics', float('nan')):.1f} s "
-              f"({100 * sec.get('physics', np.nan) / sec.get('total', np.nan):.1f} % of the run)")
+        sec, phys = metrics.get("seconds", {}), metrics.get("physics", {})
+        own = phys.get("seconds", np.nan)  # the two tests and the episodes file (with the renders in older runs)
+        print(f"\nthe run {a.run}: total {sec.get('total', np.nan):.1f} s, its physics section {own:.1f} s "
+              f"({100 * own / sec.get('total', np.nan):.1f} % of the run; held-out "
+              f"{phys.get('test', {}).get('seconds', np.nan):.1f} s, moving {phys.get('dynamic', {}).get('seconds', np.nan):.1f} s, "
+              f"renders {phys.get('render_seconds', np.nan):.1f} s)")
         for th in a.threads:
             run_section(a.run, th)
 

@@ -8,7 +8,9 @@ now, then the class's mean end-effector path from the current phase to the end:
 :meth:`~protorch.tasks.ArmReachTask.path_costs` with the current position as start, summed), and
 the arm keeps its class unless another one scores lower by more than ``switch_margin``
 (hysteresis: two nearly equal classes, a can right on the straight line, would otherwise chatter).
-This is the label-aware inference of the self-improvement loop
+The class choice and the velocity command are :mod:`protorch.control.arm_choice`'s, shared with
+the physics test (:mod:`protorch.sim.episodes`). This is the label-aware inference of the
+self-improvement loop
 (:meth:`~protorch.gp.EnvMap.predict_best`) with the current state as the start of the objectives.
 An environment that did not change since the last step gets the map's last answer again
 (``reuse_answers``): the map is a pure function of the environment, and this makes the
@@ -23,12 +25,13 @@ q += v dt``). After ``duration`` the marker rests at the mean's end for ``hold``
 Moves: each episode gets 1 or 2 (``moves``) moves at random phases in ``move_window``; a move
 puts either the can or the target (equally likely) at a new random position of the task's
 sampler (can and target keeping their separation), as a person would: never onto the arm, i.e.
-at least ``place_clearance`` beyond the can radius from the arm's skeleton at that instant.
+the arm (under the task's collision model: its skeleton or its link volumes,
+:mod:`protorch.tasks.arm_collision`) at least ``place_clearance`` from the moved can's surface.
 The person moves things at once (a jump), which is the hardest case for the controller.
 
-Success over the whole episode, at every instant with the environment of that instant: no
-skeleton segment within ``can_radius + margin`` of the can's axis, every joint inside its limits,
-nothing below the table, and, after the hold, the end effector within ``goal_tol`` of the final
+Success over the whole episode, at every instant with the environment of that instant: the arm
+more than ``margin`` from the can's surface and above the table (under the task's collision
+model), every joint inside its limits, and, after the hold, the end effector within ``goal_tol`` of the final
 target. The arm starts at rest at the task's start configuration.
 """
 
@@ -42,6 +45,8 @@ from torch import Tensor
 
 from ..checks import check_number, check_tensor
 from ..robots.panda import PANDA_MAX_ACCELERATION
+from ..tasks.arm_collision import above_table
+from .arm_choice import ArmClassChoice, draw_moves, rest_scores, velocity_command_acceleration
 from .episodes import (
     Timing,
     check_timing,
@@ -52,9 +57,6 @@ from .episodes import (
 )
 
 __all__ = ["ArmEpisodeResult", "run_arm_episodes", "count_switches", "rest_scores"]
-
-_BRIDGE = torch.linspace(0.0, 1.0, 9, dtype=torch.float64)[:-1]  # (8,) from the arm to a class's path
-
 
 def count_switches(labels: Tensor) -> Tensor:
     """Changes of the tracked class per episode: ``labels (E, T+1) -> (E,)`` long."""
@@ -75,6 +77,7 @@ class ArmEpisodeResult:
     within_limits: Tensor  # (E,) bool
     final_goal_distance: Tensor  # (E,)
     min_can_distance: Tensor  # (E,) skeleton to can axis, over the episode
+    min_can_gap: Tensor  # (E,) the arm (task's collision model) to the can's surface, over the episode
     moves: Tensor  # (E,) long, moves that happened
     map_queries: int  # (environment, class) answers the map computed; unchanged environments reuse theirs
     dt: float
@@ -136,18 +139,6 @@ class ArmEpisodeResult:
 
         return {"links": np_(links), "ee": np_(links[:, -1]), "means": np_(means), "envs": np_(self.envs[i]),
                 "labels": np_(self.labels[i]), "dt": self.dt, "success": bool(self.success[i])}
-
-
-def _draw_moves(num: int, moving: int, moves: Sequence[int], window: tuple[float, float],
-                generator: torch.Generator | None) -> list[list[int]]:
-    """Per episode, the sorted control steps at which something is moved."""
-    lo, hi = window
-    out = []
-    counts = torch.tensor(list(moves))[torch.randint(len(moves), (num,), generator=generator)]  # (E,)
-    for c in counts.tolist():
-        z = torch.sort(lo + (hi - lo) * torch.rand(int(c), generator=generator, dtype=torch.float64)).values
-        out.append(sorted({max(1, int(round(float(v) * moving))) for v in z}))
-    return out
 
 
 def run_arm_episodes(
@@ -220,117 +211,42 @@ def run_arm_episodes(
         if env0.shape[0] < 1:
             raise ValueError(f"env0 holds no environment: shape {tuple(env0.shape)}")
         envs = env0[:, None].repeat(1, timing.total + 1, 1)  # (E, T+1, 4), rewritten by the moves
-        schedule = _draw_moves(env0.shape[0], timing.moving, moves, (lo_w, hi_w), generator)
-    arm = _ArmTracker(task, env_map, promp, envs, schedule, timing, kp=kp, max_acceleration=max_acceleration,
-                      place_clearance=place_clearance, switch_margin=switch_margin, generator=generator,
-                      reuse_answers=reuse_answers)
+        schedule = draw_moves(env0.shape[0], timing.moving, moves, (lo_w, hi_w), generator)
+    choice = ArmClassChoice(task, env_map, promp, envs, schedule, timing.total, place_clearance=place_clearance,
+                            switch_margin=switch_margin, generator=generator, reuse_answers=reuse_answers)
+    arm = _KinematicArm(choice, task, timing, kp=kp, max_acceleration=max_acceleration)
     run = track(arm, promp, timing, envs.shape[0], task.start_config(**kw), record=record, markers=False)
     q = run.positions  # (E, T+1, J)
     with torch.no_grad():
         kin = task.kinematics
-        links = kin.link_positions(q)  # (E, T+1, F, 3)
-        dist = task.skeleton_distance(links[:, :, None], envs)  # (E, T+1)
-        min_dist = dist.amin(-1)
-        collided = min_dist <= task.can_radius + task.margin
+        frames = kin.frames(q)  # (E, T+1, F, 4, 4)
+        min_dist = task.skeleton_distance(frames[:, :, None, :, :3, 3], envs).amin(-1)  # (E,)
+        gap = task.frames_gap(frames[:, :, None], envs).amin(-1)  # (E,)
+        collided = gap <= task.margin
         limits = kin.within_limits(q).all(-1)
-        table = (links[..., 1:, 2] >= 0).flatten(1).all(-1)
-        goal = (links[:, -1, -1] - task.goal_point(envs[:, -1])).norm(dim=-1)
-        success = ~collided & limits & table & (goal <= task.goal_tol)
-    return ArmEpisodeResult(q=q, qd=run.velocities, envs=envs, labels=arm.labels, weights=run.weights,
+        goal = (frames[:, -1, -1, :3, 3] - task.goal_point(envs[:, -1])).norm(dim=-1)
+        success = ~collided & limits & above_table(task, frames) & (goal <= task.goal_tol)
+    return ArmEpisodeResult(q=q, qd=run.velocities, envs=envs, labels=choice.labels, weights=run.weights,
                             success=success, collided=collided, within_limits=limits, final_goal_distance=goal,
-                            min_can_distance=min_dist, moves=arm.moved, map_queries=arm.queries, dt=timing.dt,
+                            min_can_distance=min_dist, min_can_gap=gap, moves=choice.moved,
+                            map_queries=choice.queries, dt=timing.dt,
                             duration=timing.duration, hold=timing.hold, num_moving_steps=timing.moving,
                             promp=promp, task=task)
 
 
-class _ArmTracker:
-    """The arm for :func:`~protorch.control.episodes.track`: at each instant the moves of that
-    instant, every class's answer for the current environments (reused where unchanged), the class
-    choice with hysteresis; a velocity command within the joint velocity and acceleration limits."""
+class _KinematicArm:
+    """The arm for :func:`~protorch.control.episodes.track`: the class choice
+    (:class:`~protorch.control.arm_choice.ArmClassChoice`) answers, the arm moves by the velocity
+    command within the joint velocity and acceleration limits."""
 
-    def __init__(self, task, env_map, promp, envs: Tensor, schedule: list[list[int]], timing: Timing, *,
-                 kp: float, max_acceleration, place_clearance: float, switch_margin: float, generator,
-                 reuse_answers: bool) -> None:
-        kw = dict(dtype=envs.dtype, device=envs.device)
-        self.task, self.env_map, self.promp, self.envs = task, env_map, promp, envs  # envs (E, T+1, 4)
-        self.dt, self.kp, self.generator, self.reuse = timing.dt, kp, generator, reuse_answers
-        self.place_clearance, self.switch_margin = place_clearance, switch_margin
+    def __init__(self, choice: ArmClassChoice, task, timing: Timing, *, kp: float, max_acceleration) -> None:
+        kw = dict(dtype=choice.envs.dtype, device=choice.envs.device)
+        self.choice, self.dt, self.kp = choice, timing.dt, kp
         self.vmax = task.kinematics.max_velocity.to(**kw)  # (J,)
         self.amax = torch.as_tensor(max_acceleration, **kw).expand(task.num_dof)  # (J,)
-        self.cand = torch.unique(env_map.labels)  # (K,) the classes
-        # phases the objectives of the rest of the motion are evaluated on
-        self.grid = promp.phase[task.cost_indices(promp.num_steps)].to(**kw)  # (P,)
-        n_env = envs.shape[0]
-        self.by_step: dict[int, list[int]] = {}
-        for e, steps in enumerate(schedule):
-            for s in steps:
-                self.by_step.setdefault(s, []).append(e)
-        self.labels = torch.empty(n_env, timing.total + 1, dtype=torch.long, device=envs.device)  # (E, T+1)
-        self.moved = torch.zeros(n_env, dtype=torch.long)  # (E,)
-        self.current = None  # (E,) index into cand of the tracked class
-        self.means = torch.empty(self.cand.numel(), n_env, promp.num_weights, **kw)  # (K, E, N) answers for env_t
-        self.answered = None  # (E, 4) the environments those answers are for
-        self.queries = 0
 
     def answer(self, t: int, z: float, q: Tensor) -> Tensor:
-        task, envs, n_env, k = self.task, self.envs, self.envs.shape[0], self.cand.numel()
-        if t in self.by_step:
-            _apply_moves(task, envs, q, self.by_step[t], t, self.place_clearance, self.generator, self.moved)
-        env_t = envs[:, t]  # (E, 4)
-        # ---- the map's answer for every class at the current environments (Eq. 7)
-        ask = torch.ones(n_env, dtype=torch.bool, device=envs.device) if self.answered is None or not self.reuse \
-            else (env_t != self.answered).any(-1)  # (E,) an unchanged environment has the same answer
-        if bool(ask.any()):
-            idx = torch.nonzero(ask).flatten()  # (n,)
-            mu_q = self.env_map.predict_mean(env_t[idx].repeat(k, 1), self.cand.repeat_interleave(idx.numel()))
-            self.means[:, idx] = mu_q.reshape(k, idx.numel(), -1).to(self.means)  # (K, n, N)
-            self.answered = env_t.clone()
-            self.queries += k * idx.numel()
-        # ---- each class scored on the rest of the motion from where the arm is now
-        ee = task.kinematics.ee_position(q)  # (E, 3)
-        scores = rest_scores(task, self.promp, self.means, env_t, ee, self.grid[self.grid > z])  # (K, E)
-        if self.current is not None:  # hysteresis: every other class pays the margin
-            scores = scores + self.switch_margin * (torch.arange(k, device=scores.device)[:, None] != self.current)
-        self.current = scores.argmin(0)  # (E,)
-        self.labels[:, t] = self.cand[self.current]
-        return self.means[self.current, torch.arange(n_env, device=envs.device)]  # (E, N)
+        return self.choice.answer(t, z, q)
 
     def acceleration(self, q: Tensor, qd: Tensor, m: Tensor, m_vel: Tensor) -> Tensor:
-        v_cmd = torch.maximum(torch.minimum(m_vel + self.kp * (m - q), self.vmax), -self.vmax)  # (E, J)
-        return torch.maximum(torch.minimum((v_cmd - qd) / self.dt, self.amax), -self.amax)  # (E, J)
-
-
-def rest_scores(task, promp, means: Tensor, env: Tensor, ee_now: Tensor, rest: Tensor) -> Tensor:
-    """Summed objectives of the rest of the motion for every class: the way from the end effector
-    now (``ee_now (E, 3)``) over to the class's mean path, then that path at the phases ``rest
-    (P',)``; ``means (K, E, N)`` -> ``(K, E)``."""
-    k, n_env = means.shape[:2]
-    start = ee_now.expand(k, n_env, 3)  # (K, E, 3)
-    if rest.numel():
-        path = task.ee_path(promp.trajectory(means, phase=rest))  # (K, E, P', 3)
-        # the way over, sampled densely: a switch must not cross the can
-        bridge = start[..., None, :] + _BRIDGE.to(path)[:, None] * (path[..., :1, :] - start[..., None, :])
-        path = torch.cat([bridge, path], -2)  # (K, E, 8 + P', 3)
-    else:
-        path = start[..., None, :]  # (K, E, 1, 3)
-    return task.path_costs(path, env.expand(k, n_env, 4), start=start).sum(-1)  # (K, E)
-
-
-def _apply_moves(task, envs: Tensor, q_now: Tensor, episodes: list[int], t: int, place_clearance: float,
-                 generator, moved: Tensor, tries: int = 64) -> None:
-    """Move the can or the target of ``episodes`` from instant ``t`` on (in place), never onto the arm."""
-    idx = torch.tensor(episodes)
-    n = idx.numel()
-    which = torch.rand(n, generator=generator) < 0.5  # True: the can, False: the target
-    cand = task.sample_envs(n * tries, generator, dtype=envs.dtype, device=envs.device).reshape(n, tries, 4)
-    old = envs[idx, t][:, None].expand(-1, tries, -1)  # (n, tries, 4)
-    new = torch.where(which.to(envs.device)[:, None, None], torch.cat([cand[..., :2], old[..., 2:]], -1),
-                      torch.cat([old[..., :2], cand[..., 2:]], -1))  # (n, tries, 4)
-    links = task.kinematics.link_positions(q_now[idx])[:, None, None]  # (n, 1, 1, F, 3)
-    clear = task.skeleton_distance(links, new) > task.can_radius + place_clearance  # (n, tries)
-    ok = task.valid_envs(new) & clear  # (n, tries)
-    for i, e in enumerate(episodes):
-        good = torch.nonzero(ok[i]).flatten()
-        if good.numel():
-            envs[e, t:] = new[i, int(good[0])]
-            moved[e] += 1
+        return velocity_command_acceleration(q, qd, m, m_vel, kp=self.kp, vmax=self.vmax, amax=self.amax, dt=self.dt)

@@ -23,6 +23,7 @@ from ..gp import BACKENDS
 from ..optim import OPTIMIZERS, BaseOptimizer
 from ..tasks import TASKS, TaskContractError, task_class
 from . import arm_reach, beam_window, fig3_toy, fig4_window, point_particle, self_improve
+from .arm_physics import check_physics
 from .common import metric_value, per_method_form, resolve_device, resolve_dtype, write_json
 from .settings import GP, OPTIMIZER_SCHEMAS, SETTINGS_SCHEMAS, TASK_SCHEMAS, SettingsError, validate
 from ..threads import torch_threads
@@ -118,6 +119,11 @@ def check_config(cfg: dict) -> dict:
     settings = dict(cfg.get("settings") or {})
     if name in SETTINGS_SCHEMAS:
         validate(SETTINGS_SCHEMAS[name], settings, "settings")
+    if name == "arm_reach":  # the physics settings' relations, and MuJoCo where physics.run=always
+        try:
+            check_physics(settings.get("physics"), dict(settings.get("dynamic") or {}))
+        except (ValueError, ImportError) as exc:
+            raise SettingsError(f"settings.{exc}" if str(exc).startswith("physics.") else str(exc)) from None
     gp = dict(cfg.get("gp") or {})
     if gp:
         validate(GP, gp, "gp")

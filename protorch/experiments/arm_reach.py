@@ -50,6 +50,7 @@ from ..tasks.arm_workspace import REGIONS, check_region, prior_grid_nodes
 from ..threads import torch_threads
 from ..viz.arm import experiment_figures
 from .common import demo_source
+from .arm_physics import check_physics, physics_section
 from .self_improvement import (
     DYNAMIC_SEED,
     TEST_SEED,
@@ -71,6 +72,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
 
     task_keys = frozenset({"_target_", "demos", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin",
                            "goal_tol", "start_tol", "can_radius", "can_height", "clearance", "urdf", "deviation",
+                           "collision", "can_objective", "prior_clear",
                            "prior_grid", "region", "reach"})
     loop_keys = frozenset({"labels", "each_label"})
     dynamic_keys = frozenset({"seed", "episodes", "duration", "hold", "dt", "kp", "moves", "move_window",
@@ -79,6 +81,24 @@ class ArmReachExperiment(SelfImprovementExperiment):
     num_envs = 2024
     baseline_names = _BASELINES
     loop_baselines = frozenset({"labels_off_loop"})
+
+    def __init__(self, *, physics: dict | None = None, **settings) -> None:
+        super().__init__(**settings)
+        self.physics_cfg = check_physics(physics, self.dyn_cfg)
+        self.last_moving, self.out_dir, self.plot = None, None, True
+
+    def run(self, out_dir: Path, **kw) -> dict:
+        """The skeleton's run; remembers where, for the physics section's files."""
+        self.out_dir, self.plot = Path(out_dir), kw.get("plot", True)
+        return super().run(out_dir, **kw)
+
+    def extra_tests(self, model) -> dict:
+        """The physics section (:mod:`protorch.experiments.arm_physics`): the trained map's motions in MuJoCo."""
+        out = {"physics": physics_section(self, model, self.out_dir, self.plot)}
+        for key in ("seconds", "render_seconds"):
+            if key in out["physics"]:
+                self.seconds["physics" if key == "seconds" else "physics_render"] = out["physics"][key]
+        return out
 
     def configure(self, task_cfg: dict, loop_cfg: dict) -> None:
         self.labels, self.each_label = loop_cfg.get("labels", True), loop_cfg.get("each_label", True)
@@ -90,10 +110,15 @@ class ArmReachExperiment(SelfImprovementExperiment):
         self.per_env = check_int(task_cfg.pop("demos_per_env", 3), "task.demos_per_env", 2)
         self.n_priors = check_int(task_cfg.pop("priors", 2004), "task.priors", 0)
         self.prior_over = check_region(task_cfg.pop("prior_grid", "rectangles"), "task.prior_grid")
+        self.prior_clear = task_cfg.pop("prior_clear", "auto")
+        if self.prior_clear not in (True, False, "auto"):
+            raise ValueError(f"task.prior_clear must be true, false or auto, got {self.prior_clear!r}")
         check_region(task_cfg.get("region", "rectangles"), "task.region")
         self.nearest_k = self.map_options.get("nearest_k")
         task_cfg.pop("_target_", None)
         self.task = ArmReachTask(**task_cfg).to(self.device)
+        if self.prior_clear == "auto":
+            self.prior_clear = self.task.collision == "volume"
 
     def make_demonstrations(self) -> None:
         """The demonstrated environments are drawn over the rectangles whatever ``task.region``;
@@ -110,7 +135,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
 
     def make_priors(self) -> None:
         self.prior_envs, self.prior_mean, self.prior_labels, self.prior_report = _priors(
-            self.task, self.promp, self.n_priors, self.prior_over)
+            self.task, self.promp, self.n_priors, self.prior_over, clear=self.prior_clear)
 
     def build(self) -> "ArmReachExperiment":
         """The skeleton's build, plus the held-out environments of the other region when either
@@ -183,6 +208,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
             return {"success_rate": float("nan"), "episodes": 0, "switches": 0}, None
         res = run_arm_episodes(model, self.task, self.dyn_env0,
                                generator=torch.Generator().manual_seed(self.dyn_seed), **self.dyn_cfg)
+        self.last_moving = res  # the physics section replays the trained map's episodes
         geometric = geometric_switch_summary(res, self.task) if res.weights is not None else {}
         return {**res.summary(), **geometric, "seed": self.dyn_seed}, res
 
@@ -225,17 +251,19 @@ def prepare(
     loop: dict | None = None,
     test: dict | None = None,
     dynamic: dict | None = None,
+    physics: dict | None = None,
 ) -> ArmReachExperiment:
     """Validate every setting (clear errors, before any work), make the demonstrations and the
     priors and draw the test environments; see :func:`run` for the settings."""
     return ArmReachExperiment(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp,
-                              promp=promp, loop=loop, test=test, dynamic=dynamic).build()
+                              promp=promp, loop=loop, test=test, dynamic=dynamic, physics=physics).build()
 
 
-def _priors(task: ArmReachTask, promp: ProMP, n: int, over: str = "rectangles"):
+def _priors(task: ArmReachTask, promp: ProMP, n: int, over: str = "rectangles", clear: bool = False):
     """``n`` environments on a grid over ``over`` with the straight end-effector path to their
-    target (by IK, one per distinct target): ``(envs (n, 4), weight means (n, N), labels (n,),
-    the grid's counts)``."""
+    target (by IK, one per distinct target): ``(envs (P, 4), weight means (P, N), labels (P,),
+    the grid's counts)``; ``P = n``, or with ``clear`` only the priors whose mean succeeds under
+    the task's collision model (``report["clear"]`` of ``report["kept"]``)."""
     if n == 0:
         return torch.zeros(0, 4, dtype=torch.float64), torch.zeros(0, promp.num_weights, dtype=torch.float64), \
             torch.zeros(0, dtype=torch.long), {"over": over, "kept": 0}
@@ -246,7 +274,11 @@ def _priors(task: ArmReachTask, promp: ProMP, n: int, over: str = "rectangles"):
     q = q.to(promp.basis)
     w = promp.weights(q).cpu().to(torch.float64)  # (G, N)
     labels = task.side(q[inverse.to(q.device)], grid.to(q)).cpu()  # (n,) which side the straight path passes
-    return grid, w[inverse], labels, report
+    w = w[inverse]  # (n, N)
+    if clear:  # a prior that hits the can under the task's own check teaches the map a colliding mean
+        ok = task.success(promp.trajectory(w.to(promp.basis)), grid.to(promp.basis)).cpu()  # (n,)
+        grid, w, labels, report = grid[ok], w[ok], labels[ok], report | {"clear": int(ok.sum())}
+    return grid, w, labels, report
 
 
 def run(
@@ -263,6 +295,7 @@ def run(
     loop: dict | None = None,
     test: dict | None = None,
     dynamic: dict | None = None,
+    physics: dict | None = None,
     baselines: Sequence[str] = _BASELINES,
     resume: bool = False,
     progress: bool = True,
@@ -273,14 +306,17 @@ def run(
     ``task``: ``demos`` (``synthetic``, or a folder of ``trajK.out`` joint-angle rows and ``envK.out``
     ``can_x can_y goal_x goal_y`` files, e.g. written by ``python -m protorch.view --teach
     arm_reach``), ``demo_envs``, ``demos_per_env`` (synthetic only), ``priors`` (number of grid
-    priors), ``prior_grid`` (``rectangles`` or ``table``: the region the priors' grid spans) and the
+    priors), ``prior_clear`` (keep only the priors that succeed under ``collision``; ``auto``: with
+    ``volume``), ``prior_grid`` (``rectangles`` or ``table``: the region the priors' grid spans) and the
     :class:`~protorch.tasks.ArmReachTask` options (``cost_steps``, ``margin``, ``goal_tol``,
     ``region``, ``reach``, ...).
     ``gp``: ``backend``, ``alpha``, ``var_floor``, ``nearest_k``. ``loop``: ``num_envs``,
     ``batch_size``, ``add_only``, ``choice``, ``checkpoint_every``, ``eval_dtype``, ``min_var``,
     ``labels`` (the label-aware map; false runs the paper's single map). ``test``: ``num_envs``,
     ``seed``. ``dynamic``: ``episodes`` plus :func:`~protorch.control.arm.run_arm_episodes`
-    options. ``baselines``: any of ``labels_off``, ``labels_off_loop``. ``resume``: continue the
+    options. ``physics``: ``run`` (auto, always, never), ``timestep``, ``kp``, ``kd``,
+    ``mass_scale``, ``render`` (:mod:`protorch.experiments.arm_physics`). ``baselines``: any of
+    ``labels_off``, ``labels_off_loop``. ``resume``: continue the
     loops from the checkpoints in ``out_dir``. ``threads``: torch's intra-op threads for the run
     (restored afterwards; ``None``, the default, keeps the setting around the call: the app's
     top-level ``threads``, :mod:`protorch.threads`). Every setting is validated before any work
@@ -290,7 +326,7 @@ def run(
         raise ValueError(f"threads must be None or an int >= 1, got {threads!r}")
     with torch_threads(threads):
         exp = ArmReachExperiment(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp,
-                                 promp=promp, loop=loop, test=test, dynamic=dynamic)
+                                 promp=promp, loop=loop, test=test, dynamic=dynamic, physics=physics)
         return exp.run(out_dir, baselines=baselines, resume=resume, progress=progress, plot=plot)
 
 
@@ -302,7 +338,7 @@ def _test(task: ArmReachTask, model, envs: torch.Tensor, seed: int) -> dict:
         traj = model.promp.trajectory(best.mean)  # (Q, T, 7)
         ok = task.success(traj, envs)  # (Q,)
         c = task.costs(traj, envs)  # (Q, 3)
-        clear = task.can_distance(traj, envs) > task.can_radius + task.margin
+        clear = task.can_gap(traj, envs) > task.margin
         ee = task.ee_path(traj[:, -1])
         goal_err = (ee - task.goal_point(envs)).norm(dim=-1)
         side = task.side(traj, envs)  # (Q,) the side the chosen mean actually passes on

@@ -270,11 +270,23 @@ class ArmDynamic:
 
 
 @dataclass
+class ArmPhysics:
+    run: str = setting("auto", "execute the map's motions in MuJoCo: auto (where mujoco is installed; else one line "
+                       "naming the extra) | always (refuse to start without it) | never", choices=("auto", "always", "never"))
+    timestep: float = setting(0.002, "MuJoCo's physics step (s); the control step dynamic.dt is a whole multiple", gt=0)
+    kp: float = setting(400.0, "computed-torque stiffness (1/s^2); kp h^2 + 2 kd h < 4 at the timestep h", gt=0)
+    kd: float = setting(40.0, "computed-torque damping (1/s)", ge=0)
+    mass_scale: float = setting(1.0, "the controller model's link masses and inertias / the simulated arm's", gt=0)
+    render: bool = setting(True, "render a held-out reach and a switching episode (GIF + frames; needs EGL or OSMesa)")
+
+
+@dataclass
 class ArmReachSettings:
     promp: ProMPSettings = setting(ProMPSettings(), "the ProMP's basis")
     loop: ArmLoop = setting(ArmLoop(), "the self-improvement loop")
     test: Test = setting(Test(), "the held-out test")
     dynamic: ArmDynamic = setting(ArmDynamic(), "the moving episodes")
+    physics: ArmPhysics = setting(ArmPhysics(), "the held-out and moving tests executed in MuJoCo")
     baselines: list[str] = setting(["labels_off", "labels_off_loop"], "baselines run alongside",
                                    choices=("labels_off", "labels_off_loop"))
     progress: bool = setting(True, "show progress bars")

@@ -89,6 +89,9 @@ HEADLINES: dict[str, list[Headline]] = {
                  (("loop without labels", "baselines.labels_off_loop.loop.rollouts"),)),
         Headline("loop time", "loop.seconds", "{optimizer} loop, labels",
                  (("loop without labels", "baselines.labels_off_loop.loop.seconds"),)),
+        Headline("held-out success in MuJoCo", "physics.test.success_rate", "{optimizer} loop, labels"),
+        Headline("moving success in MuJoCo", "physics.dynamic.success_rate", "{optimizer} loop, labels"),
+        Headline("moving episodes touching in MuJoCo", "physics.dynamic.contacts", "{optimizer} loop, labels"),
     ],
 }
 

@@ -124,7 +124,7 @@ class ArmKinematics(nn.Module):
         kinds = {f.joint.joint_type for f in frames[1:]}
         if not kinds <= {"revolute", "fixed"}:
             raise ValueError(f"only revolute and fixed joints are supported, {where} has {sorted(kinds)}")
-        self.urdf_source = where
+        self.urdf_source, self.urdf_text = where, text
         self.end_link, self.root_link = end_link, root_link or frames[0].name
         self.frame_names: list[str] = [f.name for f in frames]
         self.joint_names: list[str] = chain.get_joint_parameter_names()
@@ -225,6 +225,44 @@ class ArmKinematics(nn.Module):
             x, y, z = self._affine(j, x, y, z)
         return torch.stack([x, y, z], -1).reshape(*q.shape[:-1], 3)
 
+    def ee_frame(self, q: Tensor) -> Tensor:
+        """The end link's pose by the compiled path: ``(..., J) -> (..., 4, 4)``; its origin is
+        :meth:`ee_position`, its axes are carried through the same folded chain (without the
+        translations). About four times :meth:`ee_position`'s cost; equal to the last of
+        :meth:`frames` to round-off."""
+        q = self.check_joints(q, finite=False)
+        qt = q.reshape(-1, self.num_joints).T  # (J, P)
+        c, s = torch.cos(qt), torch.sin(qt)  # (J, P)
+        tail = torch.tensor(self._maps[-1], dtype=q.dtype, device=q.device)  # (3, 4) end link in the last joint's frame
+        vec = tail.T[:, :, None].expand(4, 3, qt.shape[1])  # (4, 3, P): the three axes, then the origin
+        x, y, z = vec[:, 0], vec[:, 1], vec[:, 2]  # (4, P)
+        origin = torch.tensor([[0.0], [0.0], [0.0], [1.0]], dtype=q.dtype, device=q.device)  # translate the origin only
+        for j in range(self.num_joints - 1, -1, -1):
+            x, y = c[j] * x - s[j] * y, s[j] * x + c[j] * y
+            x, y, z = self._affine(j, x, y, z, translate=origin)
+        out = torch.zeros(*q.shape[:-1], 4, 4, dtype=q.dtype, device=q.device)
+        out[..., :3, :] = torch.stack([x, y, z], 0).permute(2, 0, 1).reshape(*q.shape[:-1], 3, 4)
+        out[..., 3, 3] = 1.0
+        return out
+
+    def frame_points(self, q: Tensor, frame: str, points: Tensor) -> Tensor:
+        """Points fixed in the frame ``frame`` (``points (P, 3)``) at joints ``q (..., J)``:
+        ``(..., P, 3)``, by the compiled path through the joints before that frame only (a point
+        on link 5 costs five rotations, not seven)."""
+        if frame not in self._frame_maps:
+            raise ValueError(f"the chain has no frame {frame!r}; its frames are {self.frame_names}")
+        q = self.check_joints(q, finite=False)
+        j, fixed = self._frame_maps[frame]
+        fixed = torch.tensor(fixed, dtype=q.dtype, device=q.device)  # (3, 4)
+        p = points.to(q) @ fixed[:, :3].T + fixed[:, 3]  # (P, 3) in the frame after joint j's rotation
+        qt = q.reshape(-1, self.num_joints).T  # (J, B)
+        c, s = torch.cos(qt), torch.sin(qt)
+        x, y, z = (p[:, i, None].expand(-1, qt.shape[1]) for i in range(3))  # (P, B)
+        for k in range(j - 1, -1, -1):
+            x, y = c[k] * x - s[k] * y, s[k] * x + c[k] * y
+            x, y, z = self._affine(k, x, y, z)
+        return torch.stack([x, y, z], -1).transpose(0, 1).reshape(*q.shape[:-1], p.shape[0], 3)
+
     # ------------------------------------------------------------------- IK
     def inverse(
         self,
@@ -297,6 +335,7 @@ class ArmKinematics(nn.Module):
 
         maps: list[Tensor] = []
         acc = eye.clone()  # the fixed map accumulated since the last revolute joint
+        self._frame_maps = {frames[0].name: (0, eye[:3].tolist())}  # frame -> (joints before it, its fixed map)
         for f in frames[1:]:
             static = mat(f.link.offset) @ mat(f.joint.offset)  # as pytorch_kinematics composes them
             acc = acc @ static
@@ -305,13 +344,16 @@ class ArmKinematics(nn.Module):
                 a[:3, :3] = _z_to(f.joint.axis.to(torch.float64))
                 maps.append(acc @ a)  # ... then Rz(q) about the folded axis
                 acc = a.T.clone()  # A^T: back to the joint's own frame
+            self._frame_maps[f.name] = (len(maps), acc[:3].tolist())
         maps.append(acc)  # the tail: from the last joint to the end link
         self._maps = [[[_snap(float(v)) for v in row] for row in m[:3].tolist()] for m in maps]
         self._tail = [self._maps[-1][r][3] for r in range(3)]  # the end point in the last joint's frame
 
-    def _affine(self, j: int, x: Tensor, y: Tensor, z: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    def _affine(self, j: int, x: Tensor, y: Tensor, z: Tensor, translate: Tensor | None = None
+                ) -> tuple[Tensor, Tensor, Tensor]:
         """Apply the fixed map ``G_j`` (before joint ``j``'s rotation) to the point ``(x, y, z)``,
-        skipping zero terms and multiplications by +-1."""
+        skipping zero terms and multiplications by +-1; ``translate`` (broadcasting to ``x``)
+        weighs the translation (1: a point, 0: a direction)."""
         out = []
         for row in self._maps[j]:
             acc = None
@@ -322,5 +364,7 @@ class ArmKinematics(nn.Module):
                 acc = term if acc is None else acc + term
             if acc is None:
                 acc = torch.zeros_like(x)
-            out.append(acc + row[3] if row[3] != 0.0 else acc)
+            if row[3] != 0.0:
+                acc = acc + (row[3] if translate is None else row[3] * translate)
+            out.append(acc)
         return out[0], out[1], out[2]

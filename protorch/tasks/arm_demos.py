@@ -11,7 +11,7 @@ from ..data.demos import DemoFolder, DemoFormat, read_demos
 from .arm_geometry import LEFT, RIGHT
 from .curves import catmull_rom, smooth_noise
 
-__all__ = ["arm_demo_format", "follow_path", "ik_demonstrations", "read_arm_demos"]
+__all__ = ["arm_demo_format", "follow_path", "ik_demonstrations", "read_arm_demos", "straight_paths"]
 
 
 def arm_demo_format(task) -> DemoFormat:
@@ -52,6 +52,16 @@ def follow_path(task, path: Tensor, *, iters: int = 8, first_iters: int = 60) ->
         q, err[:, t] = kin.inverse(path[:, t], q, rotation=rot, rest=rest, iters=first_iters if t == 0 else iters)
         out[:, t] = q
     return out, err
+
+
+def straight_paths(task, env: Tensor, num_steps: int = 100) -> Tensor:
+    """The straight end-effector path from the task's start to the target of each environment
+    ``env (n, 4)``, with a minimum-jerk time profile: ``(n, num_steps, 3)``."""
+    u = torch.linspace(0, 1, int(num_steps), dtype=torch.float64)
+    prog = u**3 * (10 - 15 * u + 6 * u**2)  # (T,)
+    s = task.start_position()
+    g = task.goal_point(env.reshape(-1, 4))  # (n, 3)
+    return s + prog[None, :, None] * (g - s)[:, None, :]  # (n, T, 3)
 
 
 def ik_demonstrations(

@@ -1,13 +1,16 @@
 """Geometry of the arm-reach task (:class:`~protorch.tasks.ArmReachTask`): the homotopy
 classes, the hand's start orientation and the exact distances of a segment to the can's axis
-segment and of points to a segment."""
+segment, of a segment to the can's solid cylinder, and of points to a segment."""
 
 from __future__ import annotations
 
 import torch
 from torch import Tensor
 
-__all__ = ["LEFT", "RIGHT", "SIDES", "down_rotation", "point_segment_distance", "segment_axis_distance"]
+__all__ = ["LEFT", "RIGHT", "SIDES", "down_rotation", "point_segment_distance", "segment_axis_distance",
+           "point_cylinder_distance", "segment_cylinder_distance"]
+
+_GOLDEN = (5 ** 0.5 - 1) / 2  # 0.618...
 
 LEFT, RIGHT = 0, 1
 SIDES = {LEFT: "left", RIGHT: "right"}
@@ -56,3 +59,42 @@ def point_segment_distance(p: Tensor, s: Tensor, g: Tensor) -> Tensor:
     d = (g - s)[..., None, :]  # (..., 1, 3)
     u = ((p - s[..., None, :]) * d).sum(-1) / d.square().sum(-1).clamp_min(1e-12)  # (..., T)
     return (p - s[..., None, :] - u.clamp(0, 1)[..., None] * d).norm(dim=-1)
+
+
+def point_cylinder_distance(p: Tensor, axis_xy: Tensor, radius: float, z0: float, z1: float) -> Tensor:
+    """Signed distance of points ``p (..., 3)`` to the solid vertical cylinder of ``radius`` over
+    ``axis_xy (..., 2)`` from ``z0`` to ``z1`` (negative inside): ``(...)``."""
+    rho = (p[..., :2] - axis_xy).norm(dim=-1) - radius  # (...)
+    v = torch.maximum(z0 - p[..., 2], p[..., 2] - z1)  # (...)
+    outside = torch.sqrt(rho.clamp(min=0).square() + v.clamp(min=0).square())
+    return torch.where((rho > 0) | (v > 0), outside, torch.maximum(rho, v))
+
+
+def segment_cylinder_distance(a: Tensor, b: Tensor, axis_xy: Tensor, radius: float, z0: float, z1: float,
+                              iters: int = 40) -> Tensor:
+    """Smallest signed distance between the segments ``a -> b`` (``(..., 3)``) and the solid
+    vertical cylinder of ``radius`` over ``axis_xy (..., 2)`` from ``z0`` to ``z1``: ``(...)``.
+
+    A convex body's signed distance is convex along a segment, so a golden-section search over
+    the segment's parameter finds the minimum: after ``iters`` steps the bracket is
+    ``0.618^iters`` of the segment's length (``4e-9`` for 40), and the ends are evaluated too.
+    """
+    shape = torch.broadcast_shapes(a.shape[:-1], b.shape[:-1], axis_xy.shape[:-1])
+    a, b, axis_xy = a.expand(*shape, 3), b.expand(*shape, 3), axis_xy.expand(*shape, 2)
+    d = b - a
+
+    def f(u: Tensor) -> Tensor:
+        return point_cylinder_distance(a + u[..., None] * d, axis_xy, radius, z0, z1)
+
+    lo, hi = torch.zeros(shape, dtype=a.dtype, device=a.device), torch.ones(shape, dtype=a.dtype, device=a.device)
+    x1, x2 = hi - _GOLDEN, lo + _GOLDEN
+    f1, f2 = f(x1), f(x2)
+    for _ in range(int(iters)):
+        left = f1 < f2  # the minimum lies in [lo, x2]
+        lo, hi = torch.where(left, lo, x1), torch.where(left, x2, hi)
+        new = torch.where(left, hi - _GOLDEN * (hi - lo), lo + _GOLDEN * (hi - lo))
+        fn = f(new)
+        x1, x2 = torch.where(left, new, x2), torch.where(left, x1, new)
+        f1, f2 = torch.where(left, fn, f2), torch.where(left, f1, fn)
+    ends = torch.minimum(f(torch.zeros_like(lo)), f(torch.ones_like(lo)))
+    return torch.minimum(torch.minimum(f1, f2), ends)

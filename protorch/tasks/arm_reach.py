@@ -24,10 +24,12 @@ straight segment from ``s`` to the target ``g``)::
     goal   ||p(T) - g|| + d
 
 Success (:meth:`ArmReachTask.success`, every step of the trajectory): the end effector starts within
-2 cm of ``s`` and ends within 2 cm of ``g``; no segment of the arm's skeleton (the segments
-between consecutive frame origins, base to tool centre point) comes closer to the can's axis
-segment than its radius plus ``margin`` (2 cm); every joint stays inside its limits; no frame
-goes below the table.
+2 cm of ``s`` and ends within 2 cm of ``g``; the arm stays more than ``margin`` (2 cm for the
+skeleton, 1 cm for the exact volumes) from the
+can's surface and above the table, under the collision model ``collision``
+(:mod:`protorch.tasks.arm_collision`): ``"skeleton"`` (the segments between consecutive frame
+origins, base to tool centre point) or ``"volume"`` (the Panda's link capsules, the volumes the
+MuJoCo scene collides with); every joint stays inside its limits.
 
 Homotopy class (:meth:`ArmReachTask.side`): the signed angle the vector from the can's axis to
 the end effector sweeps along the path; negative (clockwise seen from above) is
@@ -47,7 +49,9 @@ from torch import Tensor
 from ..checks import check_tensor
 from ..robots.kinematics import ArmKinematics
 from ..robots.panda import PANDA_END_LINK
-from .arm_demos import follow_path, ik_demonstrations
+from .arm_collision import (CAN_OBJECTIVES, above_table, check_collision, check_volumes, end_capsules,
+                            end_volume_near, frames_gap)
+from .arm_demos import follow_path, ik_demonstrations, straight_paths
 from .arm_deviation import DEVIATIONS, deviation
 from .arm_geometry import (
     LEFT,
@@ -56,7 +60,7 @@ from .arm_geometry import (
     down_rotation,
     segment_axis_distance,
 )
-from .arm_workspace import check_region, prior_grid_nodes
+from .arm_workspace import check_workspace, prior_grid_nodes
 from .arm_workspace import sample_envs as sample_region
 from .arm_workspace import valid_envs as valid_in_region
 from .base import Task
@@ -67,17 +71,6 @@ __all__ = ["ArmReachTask", "START_Q", "LEFT", "RIGHT", "SIDES", "segment_axis_di
 START_Q = (0.0, 0.0654, 0.0, -2.7266, 0.0, 2.7921, 0.7854)
 
 
-def _box(name: str, box) -> tuple[tuple[float, float], tuple[float, float]]:
-    try:
-        (x0, x1), (y0, y1) = box
-        x0, x1, y0, y1 = float(x0), float(x1), float(y0), float(y1)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be ((x_min, x_max), (y_min, y_max)), got {box!r}") from None
-    if not (x0 < x1 and y0 < y1) or not all(map(math.isfinite, (x0, x1, y0, y1))):
-        raise ValueError(f"{name} must have x_min < x_max and y_min < y_max, got {box!r}")
-    return (x0, x1), (y0, y1)
-
-
 @dataclass
 class ArmReachTask(Task):
     """The arm-reaching task (module docstring). Every method is batched: joint trajectories
@@ -86,7 +79,11 @@ class ArmReachTask(Task):
 
     Args:
         can_radius, can_height: the can (a Pringles can: 3.75 cm, 23 cm).
-        margin: extra clearance of the arm's skeleton to the can's surface for success.
+        margin: clearance of the arm (under ``collision``) to the can's surface for success;
+            ``None``: 2 cm for the skeleton, 1 cm for the volumes (the exact bodies need slack for
+            tracking only; at 2 cm the hand held at its start yaw cannot stand at 16 % of the
+            sampled targets at all, at 1 cm at 2 %: docs/physics.md).
+        collision: ``"skeleton"`` or ``"volume"`` (:mod:`protorch.tasks.arm_collision`).
         clearance: the ``0.2`` of the paper's can objective ``max(-min_t ||p - can||, -0.2)``.
         goal_tol, start_tol: success radii of the end effector at the end and at the start.
         cost_steps: time steps the objectives are evaluated on (evenly spaced, first and last
@@ -103,7 +100,7 @@ class ArmReachTask(Task):
 
     can_radius: float = 0.0375
     can_height: float = 0.23
-    margin: float = 0.02
+    margin: float | None = None
     clearance: float = 0.2
     goal_tol: float = 0.02
     start_tol: float = 0.02
@@ -118,6 +115,8 @@ class ArmReachTask(Task):
     urdf: str | None = None
     end_link: str = PANDA_END_LINK
     deviation: str = "segment"  # "time": to tau_direct(t) at the same instant (protorch.tasks.arm_deviation)
+    collision: str = "skeleton"  # "volume": the link capsules (protorch.tasks.arm_collision)
+    can_objective: str = "auto"  # ee | volume (the hand's, forearm's capsules) | auto: as `collision` plans
     name: str = "arm_reach"
     objective_names: tuple[str, ...] = field(default=("start", "can", "goal"), init=False)
     env_names: tuple[str, ...] = field(default=("can_x", "can_y", "goal_x", "goal_y"), init=False)
@@ -129,23 +128,22 @@ class ArmReachTask(Task):
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be finite and > 0, got {getattr(self, name)!r}")
+        if self.margin is None:
+            self.margin = 0.01 if self.collision == "volume" else 0.02
         if not (math.isfinite(float(self.margin)) and float(self.margin) >= 0):
             raise ValueError(f"margin must be >= 0, got {self.margin!r}")
         if self.cost_steps is not None and (isinstance(self.cost_steps, bool) or int(self.cost_steps) < 2):
             raise ValueError(f"cost_steps must be None or an int >= 2, got {self.cost_steps!r}")
-        self.can_box, self.goal_box = _box("can_box", self.can_box), _box("goal_box", self.goal_box)
-        self.table = _box("table", self.table)
-        check_region(self.region)
-        try:
-            self.reach = (float(self.reach[0]), float(self.reach[1]))
-        except (TypeError, ValueError, IndexError):
-            raise ValueError(f"reach must be (r_min, r_max), got {self.reach!r}") from None
-        if not (0 <= self.reach[0] < self.reach[1] < math.inf):
-            raise ValueError(f"reach must be (r_min, r_max) with 0 <= r_min < r_max < inf, got {self.reach!r}")
-        for name, box in (("can_box", self.can_box), ("goal_box", self.goal_box)):
-            if not all(t[0] <= b[0] and b[1] <= t[1] for b, t in zip(box, self.table)):
-                raise ValueError(f"{name} {box} must lie on the table {self.table}")
+        check_workspace(self)
+        check_collision(self.collision)
+        if self.can_objective not in (*CAN_OBJECTIVES, "auto"):
+            raise ValueError(f"can_objective must be one of {', '.join(CAN_OBJECTIVES)}, auto, got {self.can_objective!r}")
+        if self.can_objective == "auto":
+            self.can_objective = "volume" if self.collision == "volume" else "ee"
         self.kinematics = ArmKinematics(self.urdf, end_link=self.end_link)
+        if "volume" in (self.collision, self.can_objective):
+            check_volumes(self.kinematics.frame_names)
+        self.end_capsules = end_capsules(self.kinematics) if self.can_objective == "volume" else None
         q0 = torch.tensor(self.start_q, dtype=torch.float64)
         if q0.shape != (self.kinematics.num_joints,):
             raise ValueError(f"start_q must have {self.kinematics.num_joints} joint angles, got {len(self.start_q)}")
@@ -303,36 +301,63 @@ class ArmReachTask(Task):
         idx = self.cost_indices(traj.shape[-2]).to(traj.device)
         if idx.numel() < traj.shape[-2]:
             traj = traj.index_select(-2, idx)
-        c = self.path_costs(self.ee_path(traj), env)  # (..., 3)
+        if self.end_capsules is None:
+            c = self.path_costs(self.ee_path(traj), env)  # (..., 3)
+        else:
+            near, path = end_volume_near(self.kinematics, traj, env, self.end_capsules, self.can_height)
+            c = self.path_costs(path, env, near=near.amin(-1))
         if not bool(torch.isfinite(c).all()):
             raise ValueError("traj contains NaN or inf values (its costs are not finite)")
         return c
 
-    def path_costs(self, path: Tensor, env: Tensor, start: Tensor | None = None) -> Tensor:
+    def objective_cost(self, traj: Tensor, env: Tensor, index: int) -> Tensor:
+        """Objective ``index`` of :meth:`costs` alone, ``(...)`` (the loop asks when PRO's update
+        reads one objective): with ``can_objective="volume"`` only the can objective pays for the
+        arm's capsules, the start and goal objectives read the end effector alone."""
+        if index not in (0, 1, 2):
+            raise ValueError(f"index must be 0, 1 or 2, got {index!r}")
+        if index == 1 or self.end_capsules is None:
+            return self.costs(traj, env)[..., index]
+        traj, env = self._prepare(traj, env, finite=False)
+        idx = self.cost_indices(traj.shape[-2]).to(traj.device)
+        return self.path_costs(self.ee_path(traj.index_select(-2, idx)), env)[..., index]
+
+    def path_costs(self, path: Tensor, env: Tensor, start: Tensor | None = None, near: Tensor | None = None) -> Tensor:
         """The objectives of end-effector paths ``(..., T, 3)``: ``(..., 3)``. ``start (..., 3)``
-        replaces ``s`` (the online test scores the rest of a motion from where the arm is)."""
+        replaces ``s`` (the online test scores the rest of a motion from where the arm is);
+        ``near (...)`` the path's nearest distance to the can's axis (``can_objective="volume"``)."""
         s = self.start_position(path.dtype, path.device) if start is None else start  # (..., 3)
         s = s.expand(*path.shape[:-2], 3)
         g = self.goal_point(env)  # (..., 3)
         d = deviation(self.deviation, path, s, g).mean(-1)  # (...)
         d_start = (path[..., 0, :] - s).norm(dim=-1)
         d_goal = (path[..., -1, :] - g).norm(dim=-1)
-        near = (path[..., :2] - env[..., None, 0:2]).norm(dim=-1).amin(-1)  # (...)
+        if near is None:
+            near = (path[..., :2] - env[..., None, 0:2]).norm(dim=-1).amin(-1)  # (...)
         can = self.clearance - near.clamp(max=self.clearance)
         return torch.stack([d_start + d, can + d, d_goal + d], -1)
 
-    def success(self, traj: Tensor, env: Tensor) -> Tensor:
-        """Start and end within tolerance, no skeleton segment within ``can_radius + margin`` of
-        the can's axis, joint limits respected, nothing below the table; every step: ``(...)``."""
+    def can_gap(self, traj: Tensor, env: Tensor) -> Tensor:
+        """Smallest distance between the arm's surface (under :attr:`collision`) and the can's over
+        all steps: ``(...)`` (success needs ``> margin``; :func:`~protorch.tasks.arm_collision.frames_gap`)."""
         traj, env = self._prepare(traj, env)
-        links = self.kinematics.link_positions(traj)  # (..., T, F, 3)
-        ee = links[..., -1, :]  # (..., T, 3)
+        return frames_gap(self, self.kinematics.frames(traj), env)
+
+    def frames_gap(self, frames: Tensor, env: Tensor) -> Tensor:
+        """:meth:`can_gap` from the chain's frames ``(..., T, F, 4, 4)``."""
+        return frames_gap(self, frames, env)
+
+    def success(self, traj: Tensor, env: Tensor) -> Tensor:
+        """Start and end within tolerance, the arm more than ``margin`` from the can and above the
+        table (under :attr:`collision`), joint limits respected; every step: ``(...)``."""
+        traj, env = self._prepare(traj, env)
+        frames = self.kinematics.frames(traj)  # (..., T, F, 4, 4)
+        ee = frames[..., -1, :3, 3]  # (..., T, 3)
         ok_start = (ee[..., 0, :] - self.start_position(ee.dtype, ee.device)).norm(dim=-1) <= self.start_tol
         ok_goal = (ee[..., -1, :] - self.goal_point(env)).norm(dim=-1) <= self.goal_tol
-        clear = self.skeleton_distance(links, env) > self.can_radius + self.margin
+        clear = frames_gap(self, frames, env) > self.margin
         limits = self.kinematics.within_limits(traj).all(-1)
-        table = (links[..., 1:, 2] >= 0).flatten(-2).all(-1)
-        return ok_start & ok_goal & clear & limits & table
+        return ok_start & ok_goal & clear & limits & above_table(self, frames)
 
     # ---------------------------------------------------------------- demonstrations
     def ik_path(self, path: Tensor, *, iters: int = 8, first_iters: int = 60) -> tuple[Tensor, Tensor]:
@@ -345,12 +370,7 @@ class ArmReachTask(Task):
     def straight_paths(self, env: Tensor, num_steps: int = 100) -> Tensor:
         """The straight end-effector path from ``s`` to the target of each environment, with a
         minimum-jerk time profile: ``(n, num_steps, 3)``."""
-        env = self.check_envs(env).to(torch.float64)
-        u = torch.linspace(0, 1, int(num_steps), dtype=torch.float64)
-        prog = u**3 * (10 - 15 * u + 6 * u**2)  # (T,)
-        s = self.start_position()
-        g = self.goal_point(env.reshape(-1, 4))  # (n, 3)
-        return s + prog[None, :, None] * (g - s)[:, None, :]  # (n, T, 3)
+        return straight_paths(self, self.check_envs(env).to(torch.float64), num_steps)
 
     def demonstrations(
         self,
@@ -366,16 +386,8 @@ class ArmReachTask(Task):
     ) -> tuple[list[Tensor], Tensor, Tensor]:
         """Imperfect, hand-guided-like demonstrations by inverse kinematics: ``per_env`` per
         environment, all passing the can on the side ``sides[i]`` (default: alternating
-        :data:`LEFT`, :data:`RIGHT` over the environments).
-
-        Each end-effector path is a Catmull-Rom curve through ``s``, a point beside the can at a
-        random ``pass_distance`` from its axis (perpendicular to the start-target line), and the
-        target missed by ``goal_noise`` (std per horizontal coordinate); it rises a little in the
-        middle, gets a smooth hand tremor of std ``tremor``, a minimum-jerk speed profile with a
-        random skew and a random number of samples in ``lengths``; the joint trajectory follows
-        it by :meth:`ik_path`.
-
-        Returns ``(demos, demo_envs, labels)``: ``M * per_env`` joint trajectories ``(T_i, 7)``,
+        :data:`LEFT`, :data:`RIGHT`); the paths and their parameters are those of
+        :func:`~protorch.tasks.arm_demos.ik_demonstrations`. Returns ``(demos, demo_envs, labels)``: ``M * per_env`` joint trajectories ``(T_i, 7)``,
         their environments ``(M * per_env, 4)`` and the homotopy class of each (measured on
         the joint trajectory with :meth:`side`, not assumed).
         """

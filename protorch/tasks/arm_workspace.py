@@ -24,10 +24,12 @@ smallest such grid with at least ``n`` are kept, with a report of every count.
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor
 
-__all__ = ["REGIONS", "check_region", "region_bounds", "valid_envs", "sample_envs", "prior_grid_nodes",
+__all__ = ["REGIONS", "check_region", "check_box", "check_workspace", "region_bounds", "valid_envs", "sample_envs", "prior_grid_nodes",
            "straight_prior_ok", "goal_in_reach", "can_clear_of_start", "separated"]
 
 REGIONS = ("rectangles", "table")
@@ -38,6 +40,35 @@ def check_region(region: str, name: str = "region") -> str:
     if region not in REGIONS:
         raise ValueError(f"{name} must be one of {', '.join(REGIONS)}, got {region!r}")
     return region
+
+
+def check_box(name: str, box) -> tuple[tuple[float, float], tuple[float, float]]:
+    """``box`` as ``((x_min, x_max), (y_min, y_max))`` floats, ``x_min < x_max``, ``y_min < y_max``."""
+    try:
+        (x0, x1), (y0, y1) = box
+        x0, x1, y0, y1 = float(x0), float(x1), float(y0), float(y1)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be ((x_min, x_max), (y_min, y_max)), got {box!r}") from None
+    if not (x0 < x1 and y0 < y1) or not all(map(math.isfinite, (x0, x1, y0, y1))):
+        raise ValueError(f"{name} must have x_min < x_max and y_min < y_max, got {box!r}")
+    return (x0, x1), (y0, y1)
+
+
+def check_workspace(task) -> None:
+    """Check and normalise (in place) a task's ``can_box``, ``goal_box``, ``table``, ``region``
+    and ``reach``: boxes as float pairs on the table, ``0 <= r_min < r_max``."""
+    task.can_box, task.goal_box = check_box("can_box", task.can_box), check_box("goal_box", task.goal_box)
+    task.table = check_box("table", task.table)
+    check_region(task.region)
+    try:
+        task.reach = (float(task.reach[0]), float(task.reach[1]))
+    except (TypeError, ValueError, IndexError):
+        raise ValueError(f"reach must be (r_min, r_max), got {task.reach!r}") from None
+    if not (0 <= task.reach[0] < task.reach[1] < math.inf):
+        raise ValueError(f"reach must be (r_min, r_max) with 0 <= r_min < r_max < inf, got {task.reach!r}")
+    for name, box in (("can_box", task.can_box), ("goal_box", task.goal_box)):
+        if not all(t[0] <= b[0] and b[1] <= t[1] for b, t in zip(box, task.table)):
+            raise ValueError(f"{name} {box} must lie on the table {task.table}")
 
 
 def region_bounds(task, region: str) -> tuple[Tensor, Tensor]:
@@ -64,9 +95,10 @@ def goal_in_reach(task, env: Tensor) -> Tensor:
 
 
 def can_clear_of_start(task, env: Tensor) -> Tensor:
-    """The arm's start posture more than ``can_radius + margin`` from the can's axis: ``(...)`` bool."""
-    links = task.kinematics.link_positions(task.start_config(env.dtype, task.kinematics.lower.device))  # (F, 3)
-    return task.skeleton_distance(links.to(env.device)[None], env) > task.can_radius + task.margin  # (...)
+    """The arm's start posture (under ``task.collision``) more than ``margin`` from the can's
+    surface: ``(...)`` bool."""
+    frames = task.kinematics.frames(task.start_config(env.dtype, task.kinematics.lower.device))  # (F, 4, 4)
+    return task.frames_gap(frames.to(env.device)[None], env) > task.margin  # (...)
 
 
 def valid_envs(task, env: Tensor, region: str) -> Tensor:

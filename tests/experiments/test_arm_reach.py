@@ -101,6 +101,7 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     ("task.region=floor", "^task.region='floor' must be one of rectangles, table$"),
     ("task.demos=/no/such/folder", "^task.demos='/no/such/folder': no such folder"),
     ("+gp.neighbours=16", "^gp.neighbours applies to gp=sparse only, not to gp=torch$"),
+    ("task.prior_clear=maybe", "^task.prior_clear must be true, false or auto, got 'maybe'$"),
 ])
 def test_bad_settings_are_refused_before_any_work(tmp_path, override, match):
     with pytest.raises((ValueError, TypeError, FileNotFoundError), match=match):
@@ -136,6 +137,25 @@ def test_prepare_builds_labelled_demonstrations_and_priors():
     # the prior's straight path passes the can on the side its label says
     traj = setup.promp.trajectory(setup.prior_mean)
     assert torch.equal(setup.task.side(traj, setup.prior_envs), setup.prior_labels)
+
+
+def test_volume_task_keeps_only_the_priors_clear_of_the_can_under_its_volumes():
+    c = cfg("task.collision=volume", "task.priors=60")
+    s = c["settings"]
+
+    def setup(clear):
+        return prepare(optimizer=c["optimizer"], task=c["task"] | {"prior_clear": clear}, gp=c["gp"],
+                       promp=s["promp"], loop=s["loop"], test=s["test"], dynamic={"episodes": 0})
+
+    auto, every = setup("auto"), setup(False)
+    assert auto.prior_clear is True and every.prior_envs.shape[0] == 60 and "clear" not in every.prior_report
+    ok = every.task.success(every.promp.trajectory(every.prior_mean), every.prior_envs)  # (60,)
+    assert 0 < int(ok.sum()) < 60  # the filter has something to drop and something to keep
+    assert auto.prior_report["clear"] == int(ok.sum()) == auto.prior_envs.shape[0]
+    assert torch.equal(auto.prior_envs, every.prior_envs[ok]) and torch.equal(auto.prior_labels, every.prior_labels[ok])
+    assert bool(auto.task.success(auto.promp.trajectory(auto.prior_mean), auto.prior_envs).all())
+    assert len(auto.initial_data()) == 2 + int(ok.sum())
+    assert cfg()["task"]["prior_clear"] == "auto"
 
 
 @pytest.mark.slow

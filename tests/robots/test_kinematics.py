@@ -184,3 +184,13 @@ def test_wrong_number_of_joints_is_refused(kin, bad):
     with pytest.raises(ValueError, match="NaN"):
         kin.frames(torch.full((7,), float("nan")))
     assert bool(kin.ee_position(torch.full((7,), float("nan"))).isnan().all())  # the unchecked hot path
+
+
+def test_compiled_end_frame_equals_the_full_chain(kin, gen):
+    lo, hi = torch.tensor(PANDA_LIMITS, dtype=F64).T
+    q = lo + (hi - lo) * torch.rand(3, 5, 7, generator=gen, dtype=F64)
+    full = kin.frames(q)[..., -1, :, :]  # (3, 5, 4, 4)
+    fast = kin.ee_frame(q)
+    assert fast.shape == (3, 5, 4, 4)
+    assert torch.allclose(fast, full, atol=1e-12)
+    assert torch.allclose(kin.ee_frame(q.float()), full.float(), atol=1e-5)

@@ -1,0 +1,132 @@
+"""The arm's online decision, shared by the kinematic test (:mod:`protorch.control.arm`) and the
+physics test (:mod:`protorch.sim.episodes`): at every control step the moves of that instant, the
+map's answer for every class at the current environments, and the class choice with hysteresis
+from where the arm is now (:class:`ArmClassChoice`); and the joint-velocity command that turns
+the chosen mean into a motion within the joint velocity and acceleration limits
+(:func:`velocity_command_acceleration`). What these do is described in
+:mod:`protorch.control.arm`.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import torch
+from torch import Tensor
+
+__all__ = ["ArmClassChoice", "rest_scores", "draw_moves", "apply_moves", "velocity_command_acceleration"]
+
+_BRIDGE = torch.linspace(0.0, 1.0, 9, dtype=torch.float64)[:-1]  # (8,) from the arm to a class's path
+
+
+def velocity_command_acceleration(q: Tensor, qd: Tensor, m: Tensor, m_vel: Tensor, *, kp: float, vmax: Tensor,
+                                  amax: Tensor, dt: float) -> Tensor:
+    """The acceleration ``(E, J)`` that reaches the commanded velocity ``m' + kp (m - q)`` (clamped
+    to ``+-vmax``) in one step of ``dt`` within ``+-amax``, at the state ``q, qd (E, J)`` with
+    the marker ``m`` moving at ``m_vel`` (``(E, J)``)."""
+    v_cmd = torch.maximum(torch.minimum(m_vel + kp * (m - q), vmax), -vmax)  # (E, J)
+    return torch.maximum(torch.minimum((v_cmd - qd) / dt, amax), -amax)  # (E, J)
+
+
+def rest_scores(task, promp, means: Tensor, env: Tensor, ee_now: Tensor, rest: Tensor) -> Tensor:
+    """Summed objectives of the rest of the motion for every class: the way from the end effector
+    now (``ee_now (E, 3)``) over to the class's mean path, then that path at the phases ``rest
+    (P',)``; ``means (K, E, N)`` -> ``(K, E)``."""
+    k, n_env = means.shape[:2]
+    start = ee_now.expand(k, n_env, 3)  # (K, E, 3)
+    if rest.numel():
+        path = task.ee_path(promp.trajectory(means, phase=rest))  # (K, E, P', 3)
+        # the way over, sampled densely: a switch must not cross the can
+        bridge = start[..., None, :] + _BRIDGE.to(path)[:, None] * (path[..., :1, :] - start[..., None, :])
+        path = torch.cat([bridge, path], -2)  # (K, E, 8 + P', 3)
+    else:
+        path = start[..., None, :]  # (K, E, 1, 3)
+    return task.path_costs(path, env.expand(k, n_env, 4), start=start).sum(-1)  # (K, E)
+
+
+def draw_moves(num: int, moving: int, moves: Sequence[int], window: tuple[float, float],
+               generator: torch.Generator | None) -> list[list[int]]:
+    """Per episode, the sorted control steps at which something is moved."""
+    lo, hi = window
+    out = []
+    counts = torch.tensor(list(moves))[torch.randint(len(moves), (num,), generator=generator)]  # (E,)
+    for c in counts.tolist():
+        z = torch.sort(lo + (hi - lo) * torch.rand(int(c), generator=generator, dtype=torch.float64)).values
+        out.append(sorted({max(1, int(round(float(v) * moving))) for v in z}))
+    return out
+
+
+def apply_moves(task, envs: Tensor, q_now: Tensor, episodes: list[int], t: int, place_clearance: float,
+                generator, moved: Tensor, tries: int = 64) -> None:
+    """Move the can or the target of ``episodes`` from instant ``t`` on (in place), never onto the
+    arm: the arm (under the task's collision model) stays more than ``place_clearance`` from the
+    moved can's surface."""
+    idx = torch.tensor(episodes)
+    n = idx.numel()
+    which = torch.rand(n, generator=generator) < 0.5  # True: the can, False: the target
+    cand = task.sample_envs(n * tries, generator, dtype=envs.dtype, device=envs.device).reshape(n, tries, 4)
+    old = envs[idx, t][:, None].expand(-1, tries, -1)  # (n, tries, 4)
+    new = torch.where(which.to(envs.device)[:, None, None], torch.cat([cand[..., :2], old[..., 2:]], -1),
+                      torch.cat([old[..., :2], cand[..., 2:]], -1))  # (n, tries, 4)
+    frames = task.kinematics.frames(q_now[idx])[:, None, None]  # (n, 1, 1, F, 4, 4)
+    clear = task.frames_gap(frames, new) > place_clearance  # (n, tries)
+    ok = task.valid_envs(new) & clear  # (n, tries)
+    for i, e in enumerate(episodes):
+        good = torch.nonzero(ok[i]).flatten()
+        if good.numel():
+            envs[e, t:] = new[i, int(good[0])]
+            moved[e] += 1
+
+
+class ArmClassChoice:
+    """The mean the arm tracks at each instant (module docstring of :mod:`protorch.control.arm`):
+    ``answer(t, z, q) -> (E, N)`` applies the moves scheduled for instant ``t`` (``schedule``, per
+    episode, drawn with ``generator``; none for a prescribed walk), asks the map for every class
+    at the current environments ``envs[:, t]`` (an unchanged environment reuses its last answer
+    when ``reuse_answers``), scores each class on the rest of the motion from the end effector
+    of ``q (E, J)`` and keeps the current class unless another one is better by more than
+    ``switch_margin``. Records ``labels (E, T+1)``, ``moved (E,)`` and ``queries``."""
+
+    def __init__(self, task, env_map, promp, envs: Tensor, schedule: list[list[int]], total: int, *,
+                 place_clearance: float, switch_margin: float, generator, reuse_answers: bool) -> None:
+        kw = dict(dtype=envs.dtype, device=envs.device)
+        self.task, self.env_map, self.promp, self.envs = task, env_map, promp, envs  # envs (E, T+1, 4)
+        self.generator, self.reuse = generator, reuse_answers
+        self.place_clearance, self.switch_margin = place_clearance, switch_margin
+        self.cand = torch.unique(env_map.labels)  # (K,) the classes
+        # phases the objectives of the rest of the motion are evaluated on
+        self.grid = promp.phase[task.cost_indices(promp.num_steps)].to(**kw)  # (P,)
+        n_env = envs.shape[0]
+        self.by_step: dict[int, list[int]] = {}
+        for e, steps in enumerate(schedule):
+            for s in steps:
+                self.by_step.setdefault(s, []).append(e)
+        self.labels = torch.empty(n_env, total + 1, dtype=torch.long, device=envs.device)  # (E, T+1)
+        self.moved = torch.zeros(n_env, dtype=torch.long)  # (E,)
+        self.current = None  # (E,) index into cand of the tracked class
+        self.means = torch.empty(self.cand.numel(), n_env, promp.num_weights, **kw)  # (K, E, N) answers for env_t
+        self.answered = None  # (E, 4) the environments those answers are for
+        self.queries = 0
+
+    def answer(self, t: int, z: float, q: Tensor) -> Tensor:
+        task, envs, n_env, k = self.task, self.envs, self.envs.shape[0], self.cand.numel()
+        if t in self.by_step:
+            apply_moves(task, envs, q, self.by_step[t], t, self.place_clearance, self.generator, self.moved)
+        env_t = envs[:, t]  # (E, 4)
+        # ---- the map's answer for every class at the current environments (Eq. 7)
+        ask = torch.ones(n_env, dtype=torch.bool, device=envs.device) if self.answered is None or not self.reuse \
+            else (env_t != self.answered).any(-1)  # (E,) an unchanged environment has the same answer
+        if bool(ask.any()):
+            idx = torch.nonzero(ask).flatten()  # (n,)
+            mu_q = self.env_map.predict_mean(env_t[idx].repeat(k, 1), self.cand.repeat_interleave(idx.numel()))
+            self.means[:, idx] = mu_q.reshape(k, idx.numel(), -1).to(self.means)  # (K, n, N)
+            self.answered = env_t.clone()
+            self.queries += k * idx.numel()
+        # ---- each class scored on the rest of the motion from where the arm is now
+        ee = task.kinematics.ee_position(q.to(self.means))  # (E, 3)
+        scores = rest_scores(task, self.promp, self.means, env_t, ee, self.grid[self.grid > z])  # (K, E)
+        if self.current is not None:  # hysteresis: every other class pays the margin
+            scores = scores + self.switch_margin * (torch.arange(k, device=scores.device)[:, None] != self.current)
+        self.current = scores.argmin(0)  # (E,)
+        self.labels[:, t] = self.cand[self.current]
+        return self.means[self.current, torch.arange(n_env, device=envs.device)]  # (E, N)

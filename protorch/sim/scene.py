@@ -1,0 +1,175 @@
+"""The MuJoCo scene of the arm experiment, built by protorch from its own description of the Panda.
+
+:func:`build_scene` reads the task's URDF (:data:`~protorch.robots.PANDA_URDF`: joints, frames
+and joint limits) with ``mujoco.MjSpec`` (the compiler keeps the fixed links, the flange, the hand
+and the tool centre point, as bodies of their own) and adds:
+
+* every link's published mass, centre of mass and inertia, the fingers as point masses on the
+  hand (:data:`~protorch.robots.panda_volumes.PANDA_INERTIALS`);
+* the link capsules as the arm's collision geometry
+  (:data:`~protorch.robots.panda_volumes.PANDA_CAPSULES`, the volumes ``collision=volume`` plans
+  with);
+* joint damping and rotor armature, and a torque motor per joint clipped to the Panda's torque
+  limits (:data:`~protorch.robots.panda_volumes.PANDA_TORQUE_LIMITS`);
+* the table top (a box whose top face is ``z = 0`` under the robot and the task's table), the can
+  (a cylinder of the task's radius and height on a *mocap* body: a person moves it, the arm
+  cannot push it, and MuJoCo reports every contact with it) and the target (a visual marker on a
+  second mocap body, no contact);
+* two contact sensors reporting the number of arm-can and arm-table contacts (and the deepest
+  one's distance), so that all episodes' contacts are read in one array.
+
+The arm collides with the can and the table only (the arm's own capsules overlap at the joints by
+construction; the base stands on the table). The controller's model (:func:`controller_model`)
+is the same arm alone, without contacts and constraints, its link masses and inertias scaled by
+``mass_scale``: the model the inverse-dynamics controller believes in.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..robots.panda_volumes import (
+    PANDA_ARMATURE,
+    PANDA_BASE_LINKS,
+    PANDA_CAPSULES,
+    PANDA_DAMPING,
+    PANDA_FINGER_MASS,
+    PANDA_FINGER_OFFSET,
+    PANDA_FINGER_OPENING,
+    PANDA_INERTIALS,
+    PANDA_TORQUE_LIMITS,
+)
+from .mj import load_mujoco
+
+__all__ = ["PandaScene", "build_scene", "controller_model", "ARM_BITS", "WORLD_BITS"]
+
+ARM_BITS = (1, 2)  # (contype, conaffinity) of the arm's capsules: they touch the world, not each other
+WORLD_BITS = (2, 1)  # the table and the can
+_COMPILER = '<mujoco><compiler fusestatic="false" discardvisual="false" balanceinertia="false"/></mujoco>'
+_CONTACT_SENSOR = [1 | 8, 1, 1]  # data: found | dist (bit flags), reduce: mindist, num: 1 -> (count, distance)
+_TABLE_THICKNESS = 0.02
+_CAN_RGBA = (0.75, 0.15, 0.12, 1.0)
+_ARM_RGBA = (0.92, 0.92, 0.9, 1.0)
+_HAND_RGBA = (0.3, 0.3, 0.32, 1.0)
+
+
+@dataclass
+class PandaScene:
+    """A compiled scene: ``model``, the arm's joints in order (``qpos`` / ``qvel`` indices), the
+    mocap indices of the can and the target, the sensor addresses of the arm-can and arm-table
+    contact counts, the torque limits ``(J,)`` and the task it was built for."""
+
+    model: object
+    qpos_index: np.ndarray  # (J,)
+    can_mocap: int
+    target_mocap: int
+    can_contact: int  # sensordata index: number of arm-can contacts (the next entry: the deepest's distance)
+    table_contact: int
+    torque_limits: np.ndarray  # (J,)
+    task: object
+
+    @property
+    def timestep(self) -> float:
+        return float(self.model.opt.timestep)
+
+
+def _arm_spec(task, mass_scale: float, timestep: float):
+    """The Panda from the task's URDF with its inertials, capsules, damping, armature and motors."""
+    mujoco = load_mujoco()
+    text = task.kinematics.urdf_text
+    head = text.index(">", text.index("<robot")) + 1
+    spec = mujoco.MjSpec.from_string(text[:head] + _COMPILER + text[head:])
+    spec.option.timestep = float(timestep)
+    for name, inertial in PANDA_INERTIALS.items():
+        body = spec.body(name)
+        body.mass = inertial.mass * mass_scale
+        body.ipos = list(inertial.com)
+        body.fullinertia = [v * mass_scale for v in inertial.inertia]
+        body.explicitinertial = True
+    hand = spec.body("panda_hand")
+    for side in (1.0, -1.0):
+        finger = hand.add_body(pos=[0.0, side * PANDA_FINGER_OPENING, PANDA_FINGER_OFFSET])
+        finger.mass, finger.explicitinertial = PANDA_FINGER_MASS * mass_scale, True
+        finger.inertia = [2.375e-6 * mass_scale, 2.375e-6 * mass_scale, 7.5e-7 * mass_scale]
+    for c in PANDA_CAPSULES:
+        rgba = _HAND_RGBA if c.link == "panda_hand" else _ARM_RGBA
+        spec.body(c.link).add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[*c.a, *c.b], size=[c.radius, 0, 0],
+                                   contype=ARM_BITS[0], conaffinity=ARM_BITS[1], rgba=list(rgba))
+    names = task.kinematics.joint_names
+    for i, name in enumerate(names):
+        joint = spec.joint(name)
+        joint.armature = PANDA_ARMATURE
+        joint.damping[0] = PANDA_DAMPING
+        lim = PANDA_TORQUE_LIMITS[i]
+        spec.add_actuator(name=f"motor{i + 1}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT,
+                          gainprm=[1.0] + [0.0] * 9, forcelimited=True, forcerange=[-lim, lim],
+                          ctrllimited=False)
+    return spec
+
+
+def _look_at(pos, target) -> list[float]:
+    """A camera's ``xyaxes`` at ``pos`` looking at ``target``, the image upright."""
+    f = np.subtract(target, pos, dtype=np.float64)
+    f /= np.linalg.norm(f)
+    x = np.cross(f, (0.0, 0.0, 1.0))
+    x /= np.linalg.norm(x)
+    return [*x.tolist(), *np.cross(x, f).tolist()]
+
+
+def _add_world(spec, task) -> None:
+    """The table, the can, the target, the contact sensors, a light and a camera."""
+    mujoco = load_mujoco()
+    world = spec.worldbody
+    (x0, x1), (y0, y1) = task.table
+    lo_x, hi_x, lo_y, hi_y = min(x0, -0.25), max(x1, 0.2), min(y0, -0.3), max(y1, 0.3)
+    world.add_geom(name="table", type=mujoco.mjtGeom.mjGEOM_BOX, rgba=[0.62, 0.5, 0.38, 1.0],
+                   size=[(hi_x - lo_x) / 2, (hi_y - lo_y) / 2, _TABLE_THICKNESS / 2],
+                   pos=[(hi_x + lo_x) / 2, (hi_y + lo_y) / 2, -_TABLE_THICKNESS / 2],
+                   contype=WORLD_BITS[0], conaffinity=WORLD_BITS[1])
+    for link in PANDA_BASE_LINKS:
+        spec.add_exclude(bodyname1="world", bodyname2=link)
+    can = world.add_body(name="can", mocap=True, pos=[0.6, 0.0, task.can_height / 2])
+    can.add_geom(name="can", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[task.can_radius, task.can_height / 2, 0],
+                 contype=WORLD_BITS[0], conaffinity=WORLD_BITS[1], rgba=list(_CAN_RGBA))
+    target = world.add_body(name="target", mocap=True, pos=[0.7, 0.0, task.ee_height])
+    target.add_geom(name="target", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.015, 0, 0], contype=0, conaffinity=0,
+                    rgba=[0.1, 0.75, 0.2, 0.8])
+    world.add_light(pos=[0.4, -0.6, 1.6], dir=[0.0, 0.35, -1.0], diffuse=[0.7, 0.7, 0.7])
+    spec.add_texture(name="sky", type=mujoco.mjtTexture.mjTEXTURE_SKYBOX, builtin=mujoco.mjtBuiltin.mjBUILTIN_GRADIENT,
+                     rgb1=[0.85, 0.9, 0.95], rgb2=[0.45, 0.5, 0.55], width=256, height=256)
+    world.add_camera(name="front", pos=[0.25, -0.95, 1.55], xyaxes=_look_at((0.25, -0.95, 1.55), (0.62, 0.05, 0.05)))
+    world.add_camera(name="top", pos=[0.5, 0.0, 1.6], xyaxes=[0.0, 1.0, 0.0, -1.0, 0.0, 0.0])
+    root = task.kinematics.frame_names[1]  # the first moving link: its subtree is the arm
+    for name, other in (("arm_can", "can"), ("arm_table", "world")):
+        spec.add_sensor(name=name, type=mujoco.mjtSensor.mjSENS_CONTACT, objtype=mujoco.mjtObj.mjOBJ_XBODY,
+                        objname=root, reftype=mujoco.mjtObj.mjOBJ_BODY, refname=other, intprm=_CONTACT_SENSOR)
+
+
+def build_scene(task, *, timestep: float = 0.002, mass_scale: float = 1.0) -> PandaScene:
+    """The plant (module docstring) for an :class:`~protorch.tasks.ArmReachTask` with the Panda;
+    ``timestep`` is MuJoCo's step (s)."""
+    load_mujoco()  # one line naming the extra where MuJoCo is missing
+    spec = _arm_spec(task, mass_scale, timestep)
+    _add_world(spec, task)
+    spec.visual.global_.offwidth, spec.visual.global_.offheight = 960, 720
+    model = spec.compile()
+    names = task.kinematics.joint_names
+    qpos_index = np.array([model.jnt_qposadr[model.joint(n).id] for n in names])
+    if not np.array_equal(qpos_index, np.arange(len(names))) or model.nv != len(names):
+        raise ValueError(f"the scene's joints {names} are not the model's only degrees of freedom")
+    return PandaScene(model=model, qpos_index=qpos_index, can_mocap=int(model.body("can").mocapid[0]),
+                      target_mocap=int(model.body("target").mocapid[0]),
+                      can_contact=int(model.sensor("arm_can").adr[0]),
+                      table_contact=int(model.sensor("arm_table").adr[0]),
+                      torque_limits=np.array(PANDA_TORQUE_LIMITS[:len(names)], dtype=np.float64), task=task)
+
+
+def controller_model(task, *, timestep: float = 0.002, mass_scale: float = 1.0):
+    """The arm alone (no table, can, contacts or constraints), link masses and inertias times
+    ``mass_scale``: what the controller computes ``M(q)`` and the bias forces with."""
+    mujoco = load_mujoco()
+    model = _arm_spec(task, mass_scale, timestep).compile()
+    model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
+    return model

@@ -1,0 +1,137 @@
+"""How close the arm comes to the can and to the table, under the task's collision model
+(:class:`~protorch.tasks.ArmReachTask`'s ``collision``).
+
+* ``"skeleton"``: the segments between consecutive frame origins (base to tool centre point),
+  zero thickness. The gap to the can is the segments' distance to the can's axis segment minus
+  the can's radius; above the table means every frame but the base at ``z >= 0``.
+* ``"volume"``: the Panda's link capsules (:data:`~protorch.robots.panda_volumes.PANDA_CAPSULES`,
+  the same volumes the MuJoCo scene collides with). A capsule's gap to the can is its segment's
+  smallest signed distance to the can's solid cylinder, flat top included
+  (:func:`~protorch.tasks.arm_geometry.segment_cylinder_distance`), minus the capsule's radius:
+  the exact distance between the two bodies, negative when they overlap. Above the table means the lowest
+  point of every capsule not on a base link (:data:`~protorch.robots.panda_volumes.PANDA_BASE_LINKS`)
+  at ``z >= 0``.
+
+The task's success asks ``gap > margin`` at every step; the moving test places a moved can only
+where ``gap > place_clearance``.
+
+The task's can objective (``can_objective``) reads the end effector's distance to the can's axis
+(``"ee"``, the paper's) or, with ``"volume"``, the distance between the can's axis segment and the
+surfaces of the capsules that come near the can: those rigid with the end link (the hand with its
+fingers, link 7), which pass beside it, and the forearm's (link 5), which passes over it when the
+hand passes beside (:func:`end_capsules`, :func:`end_volume_near`). They are placed by the compiled
+kinematics (:meth:`~protorch.robots.ArmKinematics.ee_frame`,
+:meth:`~protorch.robots.ArmKinematics.frame_points`: about six times the end effector's cost,
+where the full chain would be a hundred) so the objectives stay affordable in the loop; each
+capsule's distance is taken at its point horizontally nearest the can's axis (horizontal distance
+and height above the can's top combined: exact below the top, a cheap stand-in above it).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from ..robots.panda_volumes import PANDA_BASE_LINKS, PANDA_CAPSULES, capsule_index, capsule_segments
+from .arm_geometry import segment_cylinder_distance
+
+__all__ = ["COLLISIONS", "CAN_OBJECTIVES", "FOREARM_LINK", "check_collision", "check_volumes", "frames_gap", "above_table",
+           "end_capsules", "end_volume_near"]
+
+COLLISIONS = ("skeleton", "volume")
+CAN_OBJECTIVES = ("ee", "volume")
+FOREARM_LINK = "panda_link5"  # its capsules pass over the can when the hand passes beside it
+
+
+def check_collision(collision: str, name: str = "collision") -> str:
+    """``collision`` if it is one of :data:`COLLISIONS`, else a ``ValueError`` naming the setting."""
+    if collision not in COLLISIONS:
+        raise ValueError(f"{name} must be one of {', '.join(COLLISIONS)}, got {collision!r}")
+    return collision
+
+
+def check_volumes(frame_names) -> None:
+    """Refuse an arm whose frames do not carry the Panda's capsules (a clear error, before any work)."""
+    try:
+        capsule_index(frame_names)
+    except ValueError as exc:
+        raise ValueError(f"collision=volume needs the Panda's links: {exc}") from None
+
+
+def frames_gap(task, frames: Tensor, env: Tensor) -> Tensor:
+    """Smallest distance between the arm's surface (under ``task.collision``) and the can's, over
+    the steps and the arm's parts: ``frames (..., T, F, 4, 4)`` (e.g.
+    :meth:`~protorch.robots.ArmKinematics.frames` of ``(..., T, J)`` joints) and ``env (..., 4)``
+    -> ``(...)``; negative when they overlap."""
+    if task.collision == "skeleton":
+        return task.skeleton_distance(frames[..., :3, 3], env) - task.can_radius
+    a, b, r = capsule_segments(frames, task.kinematics.frame_names)  # (..., T, C, 3), (C,)
+    axis = env[..., None, None, 0:2]  # (..., 1, 1, 2)
+    d = segment_cylinder_distance(a, b, axis, task.can_radius, 0.0, task.can_height) - r  # (..., T, C)
+    return d.flatten(-2).amin(-1)
+
+
+def above_table(task, frames: Tensor) -> Tensor:
+    """Whether the arm (under ``task.collision``) stays above the table top ``z = 0`` at every
+    step: ``frames (..., T, F, 4, 4) -> (...)`` bool."""
+    if task.collision == "skeleton":
+        return (frames[..., 1:, 2, 3] >= 0).flatten(-2).all(-1)
+    moving = torch.tensor([c.link not in PANDA_BASE_LINKS for c in PANDA_CAPSULES], device=frames.device)
+    a, b, r = capsule_segments(frames, task.kinematics.frame_names)  # (..., T, C, 3)
+    low = torch.minimum(a[..., 2], b[..., 2]) - r  # (..., T, C)
+    return (low[..., moving] >= 0).flatten(-2).all(-1)
+
+
+def end_capsules(kinematics) -> dict:
+    """The capsules the volume objective reads (module docstring), as ``{frame: (a (C, 3), b (C, 3),
+    radius (C,))}`` float64: those on links rigidly attached to the end link, in the end link's
+    frame (under the key ``None``), and those of the forearm (:data:`FOREARM_LINK`) in its own."""
+    names = kinematics.frame_names
+    fixed = [names[-1]]
+    for i in range(len(names) - 1, 0, -1):  # back from the end link until the last revolute joint
+        if kinematics.chain.find_frame(names[i]).joint.joint_type != "fixed":
+            fixed.append(names[i])
+            break
+        fixed.append(names[i - 1])
+    frames = kinematics.frames(torch.zeros(kinematics.num_joints, dtype=torch.float64,
+                                           device=kinematics.lower.device)).cpu()  # (F, 4, 4)
+    rel = torch.linalg.inv(frames[-1]) @ frames  # (F, 4, 4) every frame in the end link's
+    out = {None: capsule_segments(rel, names, [c for c in PANDA_CAPSULES if c.link in fixed])}
+    forearm = [c for c in PANDA_CAPSULES if c.link == FOREARM_LINK]
+    if forearm:
+        eye = torch.eye(4, dtype=torch.float64).expand(len(names), 4, 4)
+        out[FOREARM_LINK] = capsule_segments(eye, names, forearm)
+    return out
+
+
+def end_volume_near(kinematics, traj: Tensor, env: Tensor, capsules: dict, can_height: float) -> Tensor:
+    """At every other step, the smallest distance between the can's axis segment and the surfaces
+    of the objective's capsules (:func:`end_capsules`): ``traj (..., T, J)``, ``env (..., 4)`` ->
+    ``(..., ceil(T / 2))``; the can's radius is not subtracted, so it reads like the end
+    effector's distance to the axis. Also returns the end link's positions at every step ``(..., T, 3)``."""
+    frames = kinematics.ee_frame(traj)  # (..., T, 4, 4)
+    axis = env[..., None, None, 0:2]  # (..., 1, 1, 2)
+    traj, coarse = traj[..., ::2, :], frames[..., ::2, :, :]  # every other step: the shaping term's cost halved
+    near = []
+    for frame, (a, b, r) in capsules.items():
+        a, b, r = a.to(traj), b.to(traj), r.to(traj)
+        if frame is None:
+            rot, pos = coarse[..., None, :3, :3], coarse[..., None, :3, 3]  # (..., T', 1, 3, 3), (..., T', 1, 3)
+            pa, pb = (rot @ a[:, :, None])[..., 0] + pos, (rot @ b[:, :, None])[..., 0] + pos  # (..., T, C, 3)
+        else:
+            ends = kinematics.frame_points(traj, frame, torch.cat([a, b]))  # (..., T, 2C, 3)
+            pa, pb = ends[..., : a.shape[0], :], ends[..., a.shape[0]:, :]
+        near.append(_axis_proxy(pa, pb, axis, can_height) - r)  # (..., T, C)
+    return torch.cat(near, -1).amin(-1), frames[..., :3, 3]
+
+
+def _axis_proxy(pa: Tensor, pb: Tensor, axis: Tensor, height: float) -> Tensor:
+    """A cheap stand-in for the distance of segments ``pa -> pb`` to the can's axis segment: at the
+    segment's point horizontally nearest the axis, the horizontal distance and the height above the
+    can's top, combined (exact for a segment below the top or level; the objective's shaping only)."""
+    d = pb - pa  # (..., 3)
+    w = axis - pa[..., :2]  # (..., 2)
+    u = ((w * d[..., :2]).sum(-1) / d[..., :2].square().sum(-1).clamp_min(1e-12)).clamp(0.0, 1.0)  # (...)
+    h = (w - u[..., None] * d[..., :2]).norm(dim=-1)
+    v = (pa[..., 2] + u * d[..., 2] - height).clamp(min=0.0)
+    return torch.sqrt(h.square() + v.square())

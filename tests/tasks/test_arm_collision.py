@@ -1,0 +1,106 @@
+"""The arm-reach task's collision models (protorch.tasks.arm_collision): the volume gap is exact
+against dense sampling, the skeleton gap is the skeleton distance minus the radius, the volume
+model is stricter than the skeleton, and the hand's volume objective follows the full frames."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from protorch.robots.panda_volumes import PANDA_CAPSULES, capsule_segments
+from protorch.tasks import ArmReachTask
+from protorch.tasks.arm_collision import end_volume_near
+from protorch.tasks.arm_geometry import point_cylinder_distance, segment_cylinder_distance
+
+
+def _sampled_gap(task, q, env):
+    """Capsules against the can's solid cylinder by dense sampling: points every 0.25 mm along
+    each capsule's segment, each point's closed-form distance to the cylinder, minus the radius."""
+    a, b, r = capsule_segments(task.kinematics.frames(q), task.kinematics.frame_names)  # (T, C, 3)
+    u = torch.linspace(0, 1, 1201, dtype=torch.float64)
+    p = a[..., None, :] + u[:, None] * (b - a)[..., None, :]  # (T, C, U, 3)
+    d = point_cylinder_distance(p, env[:2], task.can_radius, 0.0, task.can_height)  # (T, C, U)
+    return float((d - r[:, None]).min())
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_volume_gap_is_the_capsules_distance_to_the_can(seed):
+    gen = torch.Generator().manual_seed(seed)
+    task = ArmReachTask(collision="volume")
+    q = task.start_config() + 0.3 * torch.randn(6, 7, generator=gen, dtype=torch.float64)
+    env = task.sample_envs(1, gen)[0]
+    gap = float(task.can_gap(q, env))
+    assert gap == pytest.approx(_sampled_gap(task, q, env), abs=1e-6)
+
+
+def test_point_and_segment_cylinder_distances_over_the_top_beside_and_through_the_can():
+    axis = torch.tensor([0.5, 0.0], dtype=torch.float64)
+    pts = torch.tensor([[0.5, 0.0, 0.33], [0.6, 0.0, 0.1], [0.6, 0.0, 0.33], [0.51, 0.0, 0.2]], dtype=torch.float64)
+    d = point_cylinder_distance(pts, axis, 0.0375, 0.0, 0.23)
+    expect = [0.1, 0.0625, (0.0625 ** 2 + 0.1 ** 2) ** 0.5, -0.0275]  # over the top, beside, the rim, inside (the wall)
+    assert torch.allclose(d, torch.tensor(expect, dtype=torch.float64), atol=1e-12)
+    seg = torch.tensor([[0.3, 0.0, 0.30], [0.7, 0.0, 0.30]], dtype=torch.float64)  # 7 cm over the flat top
+    assert float(segment_cylinder_distance(seg[0], seg[1], axis, 0.0375, 0.0, 0.23)) == pytest.approx(0.07, abs=1e-8)
+    through = torch.tensor([[0.3, 0.01, 0.10], [0.7, 0.01, 0.10]], dtype=torch.float64)  # through the middle
+    depth = float(segment_cylinder_distance(through[0], through[1], axis, 0.0375, 0.0, 0.23))
+    assert depth == pytest.approx(-(0.0375 - 0.01), abs=1e-8)
+    beside = torch.tensor([[0.3, 0.1, 0.0], [0.7, 0.1, 0.2]], dtype=torch.float64)  # a slanted pass beside
+    assert float(segment_cylinder_distance(beside[0], beside[1], axis, 0.0375, 0.0, 0.23)) == pytest.approx(
+        0.1 - 0.0375, abs=1e-8)
+
+
+def test_skeleton_gap_and_the_stricter_volume_model():
+    skel, vol = ArmReachTask(), ArmReachTask(collision="volume")
+    q = skel.start_config()[None].expand(3, 7)
+    env = skel.sample_envs(20, torch.Generator().manual_seed(3))
+    g_s = skel.can_gap(q[None].expand(20, 3, 7), env)
+    assert torch.allclose(g_s, skel.can_distance(q[None].expand(20, 3, 7), env) - skel.can_radius)
+    g_v = vol.can_gap(q[None].expand(20, 3, 7), env)
+    assert bool((g_v < g_s).all())  # the link capsules stick out of the skeleton everywhere
+
+
+def test_the_volume_objective_reads_the_hand_and_forearm_capsules(gen):
+    task = ArmReachTask(can_objective="volume")
+    q = task.start_config() + 0.3 * torch.randn(5, 7, generator=gen, dtype=torch.float64)
+    env = task.sample_envs(1, gen)[0]
+    near, path = end_volume_near(task.kinematics, q[:, None], env, task.end_capsules, task.can_height)  # (5, 1)
+    near = near[:, 0]
+    assert torch.allclose(path[:, 0], task.kinematics.ee_position(q), atol=1e-12)
+    traj = q[None]  # one trajectory of 5 steps: the distance at every other step
+    assert end_volume_near(task.kinematics, traj, env, task.end_capsules, task.can_height)[0].shape == (1, 3)
+    # the same capsules placed by the full chain, their distance to the can's axis segment by sampling
+    a, b, r = capsule_segments(task.kinematics.frames(q), task.kinematics.frame_names)
+    keep = torch.tensor([c.link in ("panda_link5", "panda_link7", "panda_link8", "panda_hand") for c in PANDA_CAPSULES])
+    a, b, r = a[:, keep], b[:, keep], r[keep]
+    u = torch.linspace(0, 1, 2001, dtype=torch.float64)
+    p = a[..., None, :] + u[:, None] * (b - a)[..., None, :]  # (5, C, U, 3)
+    axis = torch.cat([env[:2].expand(2001, 2), torch.linspace(0, task.can_height, 2001, dtype=torch.float64)[:, None]], 1)
+    d = torch.cdist(p.reshape(5, -1, 3), axis[None]).amin(-1).reshape(p.shape[:-1])  # (5, C, U)
+    ref = (d.amin(-1) - r).amin(-1)
+    assert bool((near >= ref - 2e-4).all())  # never nearer than the exact distance (a stand-in over the top)
+    assert float((near - ref).max()) < 0.03
+    # the can objective now reads those capsules, not the tool centre point
+    plain = ArmReachTask()
+    assert not torch.allclose(task.costs(q[None], env)[..., 1], plain.costs(q[None], env)[..., 1])
+
+
+def test_bad_collision_settings_are_refused():
+    with pytest.raises(ValueError, match="collision must be one of skeleton, volume"):
+        ArmReachTask(collision="mesh")
+    with pytest.raises(ValueError, match="can_objective must be one of ee, volume, auto"):
+        ArmReachTask(can_objective="hand")
+    assert ArmReachTask().can_objective == "ee" and ArmReachTask(collision="volume").can_objective == "volume"
+    assert ArmReachTask().margin == 0.02 and ArmReachTask(collision="volume").margin == 0.01
+    assert ArmReachTask(collision="volume", can_objective="ee").can_objective == "ee"
+
+
+@pytest.mark.parametrize("can_objective", ["ee", "volume"])
+def test_one_objective_alone_equals_its_column_of_the_costs(can_objective, gen):
+    task = ArmReachTask(can_objective=can_objective)
+    q = task.start_config() + 0.2 * torch.randn(3, 100, 7, generator=gen, dtype=torch.float64)
+    env = task.sample_envs(3, gen)
+    c = task.costs(q, env)
+    for i in range(3):
+        assert torch.equal(task.objective_cost(q, env, i), c[..., i])
+    with pytest.raises(ValueError, match="index must be 0, 1 or 2"):
+        task.objective_cost(q, env, 3)

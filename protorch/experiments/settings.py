@@ -327,7 +327,8 @@ class ArmReachTaskSettings:
     region: str = setting("rectangles", "where the loop's pool and the tests draw", choices=("rectangles", "table"))
     reach: typing.Optional[list[float]] = setting(None, "(r_min, r_max) the hand-down arm reaches on the table")
     cost_steps: typing.Optional[int] = setting(25, "time steps the objectives are evaluated on; null = all", ge=2)
-    margin: float = setting(0.02, "clearance of the arm's skeleton to the can's surface, for success", ge=0)
+    margin: typing.Optional[float] = setting(None, "clearance of the arm to the can's surface, for success; "
+                                             "null = 0.02 for the skeleton, 0.01 for the volumes", ge=0)
     goal_tol: float = setting(0.02, "success radius at the target (m)", gt=0)
     start_tol: float = setting(0.02, "success radius at the start (m)", gt=0)
     can_radius: float = setting(0.0375, "the can's radius (m)", gt=0)
@@ -336,6 +337,13 @@ class ArmReachTaskSettings:
     urdf: typing.Optional[str] = setting(None, "the arm's URDF; null = the Panda shipped with protorch")
     deviation: str = setting("segment", "d of the objectives: distance to the segment s -> g, or to tau_direct(t)",
                              choices=("segment", "time"))
+    collision: str = setting("skeleton", "the arm in the success check: segments between frame origins, or the "
+                             "Panda's link capsules (as MuJoCo collides them)", choices=("skeleton", "volume"))
+    can_objective: str = setting("auto", "the can objective's distance: the end effector's (the paper's), the "
+                                 "hand's, link 7's and the forearm's capsules, or auto (volume with collision=volume)",
+                                 choices=("auto", "ee", "volume"))
+    prior_clear: typing.Any = setting("auto", "keep only the priors whose straight path succeeds under "
+                                      "collision (true, false, auto: with collision=volume)")
 
 
 TASK_SCHEMAS: dict[str, type] = {"point_particle": PointParticleTaskSettings, "arm_reach": ArmReachTaskSettings}

@@ -88,7 +88,7 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
 
 @pytest.mark.parametrize("override, match", [
     ("+task.colour=red", "^task.colour is not a setting of task"),
-    ("task.margin=-0.1", "^task.margin=-0.1 must be a number >= 0$"),
+    ("task.margin=-0.1", "^task.margin=-0.1 must be a number >= 0 or null$"),
     ("gp.alpha=0", "^gp.alpha=0 must be a number > 0$"),
     ("settings.loop.labels=maybe", "^settings.loop.labels='maybe' must be true or false$"),
     ("+settings.threads=0", "^settings.threads=0 must be an int >= 1 or null$"),

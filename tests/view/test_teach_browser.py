@@ -75,11 +75,18 @@ def drag(page, px, teacher, points, reached, *, grab=(0.0, 0.0, 0.0), release: b
     ``reached(point)``, release (or not)."""
     pts = [np.asarray(p, dtype=np.float64) for p in points]
     off = np.asarray(grab, dtype=np.float64)
-    x0, y0 = px(pts[0] + off)
-    page.mouse.move(x0, y0)
-    page.mouse.down()
-    page.mouse.move(x0 + 4, y0)  # past viser's drag threshold: the drag starts
-    wait_until(lambda: len(teacher.stroke) >= 1, "the drag to start")
+    for attempt in range(8):  # a press can land before the page has drawn the control there (2 in 6 runs
+        x0, y0 = px(pts[0] + off)  # missed it): release and press again, the camera read anew
+        page.mouse.move(x0, y0)
+        page.mouse.down()
+        page.mouse.move(x0 + 4, y0)  # past viser's drag threshold: the drag starts
+        try:
+            wait_until(lambda: len(teacher.stroke) >= 1, "the drag to start", timeout=15.0)
+            break
+        except TimeoutError:
+            page.mouse.up()
+            if attempt == 7:
+                raise
     for p in pts[1:]:
         page.mouse.move(*px(p + off), steps=2)
         wait_until(lambda: reached(p), f"the pointer at {p}")

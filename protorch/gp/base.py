@@ -28,6 +28,7 @@ from torch import Tensor, nn
 from ..checks import check_nonnegative, check_positive, check_tensor
 from ..data.files import atomic_write_safetensors
 from .kernels import EnvMapWarning, posdef_cholesky, rbf, sq_dist
+from .storage import GrowingRows
 
 __all__ = ["EnvMap", "BestPrediction", "EnvMapWarning", "rbf", "sq_dist", "posdef_cholesky", "ENV_MAP_FORMAT",
            "ENV_MAP_SCHEMA"]
@@ -102,11 +103,11 @@ class EnvMap(nn.Module, ABC):
         self.nearest_k = nearest_k
         kw = dict(dtype=dtype, device=device)
         self._m = 0  # number of stored points
-        # storage with spare capacity, so add() appends in amortised O(1) per point
-        self.register_buffer("_E", torch.zeros(0, 0, **kw))  # (cap, d)
-        self.register_buffer("_MU", torch.zeros(0, 0, **kw))  # (cap, N)
-        self.register_buffer("_VAR", torch.zeros(0, 0, **kw))  # (cap, N)
-        self.register_buffer("_labels", torch.zeros(0, dtype=torch.long, device=device))  # (cap,)
+        self._first_new = 0  # the first row of the last fit or add
+        self._d = self._n = 0  # env dim d, weights N
+        # the data in blocks that are never copied, so one add never pays for the rows before it
+        self._data = GrowingRows((0,), **kw)  # (M, d + 2N) rows [E | MU | VAR]
+        self._labels = GrowingRows((), dtype=torch.long, device=device)  # (M,)
         self.register_buffer("_known", torch.zeros(0, dtype=torch.long, device=device))  # (K,) sorted labels
 
     # ----------------------------------------------------------------- state
@@ -117,35 +118,46 @@ class EnvMap(nn.Module, ABC):
 
     @property
     def env_dim(self) -> int:
-        return self._E.shape[1]
+        return self._d
 
     @property
     def num_weights(self) -> int:
-        return self._MU.shape[1]
+        return self._n
+
+    def _columns(self, a: int, b: int) -> Tensor:
+        """Columns ``a .. b - 1`` of the stored rows ``[E | MU | VAR]``: ``(M, b - a)``, a copy."""
+        return torch.cat([v[:, a:b] for _, v in self._data.segments(0, self._m)]) if self._m \
+            else self._data.b0[:0, a:b]
 
     @property
     def E(self) -> Tensor:
-        return self._E[: self._m]  # (M, d)
+        return self._columns(0, self.env_dim)  # (M, d) a copy
 
     @property
     def MU(self) -> Tensor:
-        return self._MU[: self._m]  # (M, N)
+        return self._columns(self._d, self._d + self._n)  # (M, N) a copy
 
     @property
     def VAR(self) -> Tensor:
-        return self._VAR[: self._m]  # (M, N)
+        return self._columns(self._d + self._n, self._d + 2 * self._n)  # (M, N) a copy
 
     @property
     def labels(self) -> Tensor:
-        return self._labels[: self._m]  # (M,)
+        return self._labels.rows(0, self._m)  # (M,)
+
+    def _take(self, rows: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """Storage ``rows (...)`` -> their ``E (..., d), MU (..., N), VAR (..., N)``, contiguous."""
+        d, n = self._d, self._n
+        x = self._data.take(rows)  # (..., d + 2N)
+        return x[..., :d].contiguous(), x[..., d : d + n].contiguous(), x[..., d + n :].contiguous()
 
     @property
     def dtype(self) -> torch.dtype:
-        return self._E.dtype
+        return self._data.dtype
 
     @property
     def device(self) -> torch.device:
-        return self._E.device
+        return self._data.device
 
     def options(self) -> dict:
         """Constructor options (JSON-serialisable) that :meth:`save` records."""
@@ -209,7 +221,7 @@ class EnvMap(nn.Module, ABC):
     def fit(self, E: Tensor, MU: Tensor, VAR: Tensor, labels=None) -> "EnvMap":
         """Replace the data: ``E (M, d)``, ``MU (M, N)``, ``VAR (M, N) >= 0``, ``labels (M,)``."""
         E, MU, VAR, lab = self._validate(E, MU, VAR, labels, appending=False)
-        before = None if self._m == 0 else (self.E.clone(), self.MU.clone(), self.VAR.clone(), self.labels.clone())
+        before = None if self._m == 0 else (self.E, self.MU, self.VAR, self.labels.clone())  # copies
         try:
             self._m = 0
             self._reset_groups()
@@ -239,8 +251,8 @@ class EnvMap(nn.Module, ABC):
                     else:
                         self._group_fit(g, E[sel], MU[sel], VAR[sel])
         except BaseException:  # e.g. a factorisation that failed half-way: back to the m points
-            self._restore((self._E[:m].clone(), self._MU[:m].clone(), self._VAR[:m].clone(),
-                           self._labels[:m].clone()))
+            self._m = m  # the first m rows are untouched
+            self._restore((self.E, self.MU, self.VAR, self.labels.clone()))
             raise
         return self
 
@@ -318,33 +330,28 @@ class EnvMap(nn.Module, ABC):
         return mu, var
 
     def _nearest_predict(self, g: int, Eq: Tensor, *, need_var: bool):
-        sel = self.labels == g
-        Eg, MUg, VARg = self.E[sel], self.MU[sel], self.VAR[sel]  # (Mg, d), (Mg, N), (Mg, N)
-        k = min(self.nearest_k, Eg.shape[0])
-        d2 = sq_dist(Eq, Eg)  # (Q, Mg)
+        rows = (self.labels == g).nonzero()[:, 0]  # (Mg,) storage rows of label g
+        k = min(self.nearest_k, rows.shape[0])
+        d2 = sq_dist(Eq, self._take(rows)[0])  # (Q, Mg)
         idx = torch.sort(d2, dim=1, stable=True).indices[:, :k]  # (Q, k), ties by insertion order
-        return self._predict_subsets(Eg[idx], MUg[idx], VARg[idx], Eq, need_var=need_var)
+        return self._predict_subsets(*self._take(rows[idx]), Eq, need_var=need_var)
 
     # -------------------------------------------------------------- storage
     def _append_storage(self, E: Tensor, MU: Tensor, VAR: Tensor, lab: Tensor) -> None:
-        b, m = E.shape[0], self._m
-        if m == 0 or self._E.shape[0] < m + b:
-            cap = max(m + b, 2 * self._E.shape[0], 16)
-            kw = dict(dtype=self.dtype, device=self.device)  # rows past m are never read: no zero fill
-            newE = torch.empty(cap, E.shape[1], **kw)  # (cap, d)
-            newMU = torch.empty(cap, MU.shape[1], **kw)  # (cap, N)
-            newVAR = torch.empty(cap, MU.shape[1], **kw)  # (cap, N)
-            newL = torch.empty(cap, dtype=torch.long, device=self.device)  # (cap,)
-            if m:
-                newE[:m], newMU[:m], newVAR[:m], newL[:m] = self.E, self.MU, self.VAR, self.labels
-            self._E, self._MU, self._VAR, self._labels = newE, newMU, newVAR, newL
-        self._E[m : m + b] = E
-        self._MU[m : m + b] = MU
-        self._VAR[m : m + b] = VAR
-        self._labels[m : m + b] = lab
+        m = self._m
+        if m == 0:  # fresh blocks: the old ones may still back the caller's tensors
+            self._d, self._n = E.shape[1], MU.shape[1]
+            self._data = GrowingRows((self._d + 2 * self._n,), dtype=self.dtype, device=self.device)
+            self._labels = GrowingRows((), dtype=torch.long, device=self.device)
+        self._data.append(torch.cat([E, MU, VAR], 1))  # (B, d + 2N)
+        self._labels.append(lab)
         known = self._known if m else self._known[:0]  # (K,) the labels stored so far
         self._known = torch.unique(torch.cat([known, lab]))  # (K',) sorted
-        self._m = m + b
+        self._first_new, self._m = m, m + E.shape[0]
+
+    def _new_rows(self, g: int) -> Tensor:
+        """Storage rows ``(B_g,)`` of label ``g`` among those the running fit or add appended."""
+        return self._first_new + (self._labels.rows(self._first_new, self._m) == g).nonzero()[:, 0]
 
     # --------------------------------------------------------- persistence
     def save(self, path: str | Path) -> Path:

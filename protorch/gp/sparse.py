@@ -31,6 +31,7 @@ from torch import Tensor, nn
 from .base import EnvMap
 from .kernels import local_gp
 from .neighbours import INDEX_KINDS, NeighbourIndex
+from .storage import GrowingRows
 
 __all__ = ["SparseEnvMap"]
 
@@ -43,7 +44,7 @@ class _LabelIndex(nn.Module):
     def __init__(self, d: int, n: int, *, kind: str, dtype, device) -> None:
         super().__init__()
         self.index = NeighbourIndex(d, kind=kind, dtype=dtype, device=device)
-        self.register_buffer("rows", torch.zeros(16, dtype=torch.long, device=device))  # (cap,) storage rows
+        self.rows = GrowingRows((), dtype=torch.long, device=device)  # (count,) storage rows
         self.register_buffer("mu_sum", torch.zeros(n, dtype=dtype, device=device))  # (N,)
         self.register_buffer("var_sum", torch.zeros(n, dtype=dtype, device=device))  # (N,)
 
@@ -53,19 +54,14 @@ class _LabelIndex(nn.Module):
 
     def extend(self, rows: Tensor, E: Tensor, MU: Tensor, VAR: Tensor) -> None:
         """Append storage ``rows (B,)`` holding ``E (B, d), MU (B, N), VAR (B, N)``."""
-        m, b = self.count, rows.shape[0]
-        if m + b > self.rows.shape[0]:
-            grown = torch.empty(max(m + b, 2 * self.rows.shape[0]), dtype=torch.long, device=rows.device)
-            grown[:m] = self.rows[:m]
-            self.rows = grown
-        self.rows[m : m + b] = rows
+        self.rows.append(rows)
         self.mu_sum += MU.sum(0)
         self.var_sum += VAR.sum(0)
         self.index.add(E)
 
     def nearest_rows(self, Eq: Tensor, k: int) -> Tensor:
         """``Eq (Q, d)`` -> storage rows ``(Q, min(k, count))`` of the nearest, nearest first."""
-        return self.rows[self.index.query(Eq, k)]
+        return self.rows.take(self.index.query(Eq, k))
 
 
 class SparseEnvMap(EnvMap):
@@ -105,13 +101,11 @@ class SparseEnvMap(EnvMap):
 
     def _group_fit(self, g, E, MU, VAR) -> None:
         grp = _LabelIndex(E.shape[1], MU.shape[1], kind=self.index, dtype=self.dtype, device=self.device)
-        grp.extend((self.labels == g).nonzero()[:, 0], E, MU, VAR)
+        grp.extend(self._new_rows(g), E, MU, VAR)
         self.groups[str(g)] = grp
 
     def _group_add(self, g, E, MU, VAR) -> None:
-        grp = self.groups[str(g)]
-        rows = (self.labels == g).nonzero()[:, 0]  # (Mg,) the base class has stored the new rows
-        grp.extend(rows[grp.count :], E, MU, VAR)
+        self.groups[str(g)].extend(self._new_rows(g), E, MU, VAR)  # (B_g,) rows the base class stored
 
     def _group_predict(self, g, Eq, *, need_var, approx_var):
         grp = self.groups[str(g)]
@@ -125,8 +119,7 @@ class SparseEnvMap(EnvMap):
             e = Eq[s : s + chunk]  # (q, d)
             rows = grp.nearest_rows(e, k)  # (q, k)
             mu0, vbar = (None, None) if local else (p.expand(e.shape[0], -1) for p in prior)  # (q, N)
-            m_c, v_c = local_gp(self.E[rows], self.MU[rows], self.VAR[rows], e, self.alpha, need_var=need_var,
-                                mu0=mu0, vbar=vbar)
+            m_c, v_c = local_gp(*self._take(rows), e, self.alpha, need_var=need_var, mu0=mu0, vbar=vbar)
             mu[s : s + chunk] = m_c
             if need_var:
                 var[s : s + chunk] = v_c

@@ -113,3 +113,30 @@ def test_on_device(device, index):
     assert mu.device.type == device
     ref = local_reference(E, MU, VAR, Q, ALPHA, 16)
     assert np.abs(mu.cpu().numpy() - ref[0]).max() < 1e-9 and np.abs(var.cpu().numpy() - ref[1]).max() < 1e-9
+
+
+@pytest.mark.parametrize("nearest_k", [None, 30])
+def test_adds_across_storage_blocks_and_trees_equal_one_bulk_fit(nearest_k, tmp_path):
+    """2,600 environments added in batches of 1 to 700 (storage blocks of 1,024, 1,024, 2,048 rows;
+    a k-d tree and a brute-force tail per label) predict what one fit of them predicts: the same neighbours and solves
+    (bit for bit with nearest_k; the label prior's running sums round differently without), and
+    so does the map saved and loaded."""
+    m = 2600
+    E, MU, VAR = smooth_data(m, 3, seed=11)
+    labels = (E[:, 0] > 0.4).long()
+    Q = smooth_data(60, 1, seed=12)[0]
+    ql = torch.arange(60) % 2
+    grown = make_env_map("sparse", 30.0, nearest_k=nearest_k).fit(E[:30], MU[:30], VAR[:30], labels[:30])
+    s = 30
+    for b in [1] * 1100 + [700, 3, 500] + [1] * 267:
+        grown.add(E[s : s + b], MU[s : s + b], VAR[s : s + b], labels[s : s + b])
+        s += b
+    assert s == m and len(grown._data.blocks) == 3
+    index = grown.groups["0"].index
+    assert index.trees and index.n > index.n_tree and len(index.points.blocks) == 2  # trees, a tail, 2 blocks
+    bulk = make_env_map("sparse", 30.0, nearest_k=nearest_k).fit(E, MU, VAR, labels)
+    back = load_env_map(grown.save(tmp_path / "map.safetensors"))
+    assert torch.equal(back.E, E) and torch.equal(back.labels, labels)
+    for other in (bulk, back):
+        for a, b in zip(grown.predict(Q, ql), other.predict(Q, ql)):
+            assert torch.equal(a, b) if nearest_k else _maxerr(a, b) < 1e-12

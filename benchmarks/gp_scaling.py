@@ -2,9 +2,8 @@
 out of the machine.
 
 For each map variant and each M: build (fit) time, the peak resident memory (RSS) of a process
-that only builds and queries that map, the time of adding one environment (median and worst over
-``--adds`` adds; the worst is the add that doubles the storage, or rebuilds the sparse map's k-d
-tree), the latency of one query: mean only, and mean + variance (medians; the exact variance),
+that only builds and queries that map, the time of adding one environment (median, 99th percentile and
+worst over ``--adds`` adds after the fit), the latency of one query: mean only, and mean + variance (medians; the exact variance),
 and mean + variance of ``--queries`` queries in one call (the loop's way), per query. The torch backend gets the
 capacity for the adds up front (growing its ``(N, cap, cap)`` factors by 1.5x would otherwise
 dominate the add and the peak). Data like the arm experiment (IV-C): 4-D
@@ -18,6 +17,12 @@ machine down; a variant that ran out (or took longer than ``--timeout`` s) is no
     python benchmarks/gp_scaling.py [--sizes 1000,2000,5000,20000,100000] [--threads 1]
         [--variants torch,gpytorch,torch:nearest_k=30,sparse,sparse:nearest_k=30] [--limit-gb 8]
     python benchmarks/gp_scaling.py --search   # the nearest-neighbour search alone, both index kinds
+    python benchmarks/gp_scaling.py --growth --variants sparse   # every add from 1,000 to 100,000
+
+``--growth`` fits the first size and then adds one environment at a time up to the last, timing
+every add: median, 99th percentile and worst per range of M (the adds that allocate a storage
+block or build a k-d tree are among them), the peak RSS, and the median mean + variance query on
+the grown map at the end.
 """
 
 from __future__ import annotations
@@ -85,6 +90,11 @@ def _ms(xs: list[float]) -> float:
     return 1e3 * statistics.median(xs)
 
 
+def _p99(xs: list[float]) -> float:
+    """The 99th percentile in ms (nearest rank)."""
+    return 1e3 * sorted(xs)[min(len(xs) - 1, int(0.99 * len(xs)))]
+
+
 def worker(variant: str, m: int, adds: int, queries: int) -> dict:
     """Build one map of ``m`` environments and time it (runs inside the limited subprocess)."""
     backend, opts = parse_variant(variant)
@@ -107,12 +117,52 @@ def worker(variant: str, m: int, adds: int, queries: int) -> dict:
             "mean_ms": _ms(mean_t[0]), "mean_cpu_ms": _ms(mean_t[1]),
             "mean_var_ms": _ms(var_t[0]), "mean_var_cpu_ms": _ms(var_t[1]),
             "batch_ms": _ms(batch_t[0]) / queries, "batch_cpu_ms": _ms(batch_t[1]) / queries,
-            "add_ms": _ms(add_t[0]), "add_cpu_ms": _ms(add_t[1]), "add_max_ms": 1e3 * max(add_t[0]),
-            "add_max_cpu_ms": 1e3 * max(add_t[1]),
+            "add_ms": _ms(add_t[0]), "add_cpu_ms": _ms(add_t[1]), "add_p99_ms": _p99(add_t[0]),
+            "add_p99_cpu_ms": _p99(add_t[1]), "add_max_ms": 1e3 * max(add_t[0]), "add_max_cpu_ms": 1e3 * max(add_t[1]),
             "adds": len(add_t[0]), "rss_before_mb": rss0, "peak_rss_mb": _rss_mb(), "threads": torch.get_num_threads()}
 
 
-def run_limited(variant: str, m: int, args) -> dict:
+def growth(variant: str, sizes: list[int]) -> list[dict]:
+    """Fit ``sizes[0]`` environments, then add one at a time up to ``sizes[-1]``, timing every add;
+    one row per range ``sizes[i] .. sizes[i + 1]`` (runs inside the limited subprocess)."""
+    backend, opts = parse_variant(variant)
+    E, MU, VAR = smooth_data(sizes[-1] + 1, WEIGHTS)
+    gp = make_env_map(backend, ALPHA, **opts).fit(E[: sizes[0]], MU[: sizes[0]], VAR[: sizes[0]])
+    wall, cpu = [], []  # per add, seconds
+    for i in range(sizes[0], sizes[-1]):
+        t, c = time.perf_counter(), time.process_time()
+        gp.add(E[i : i + 1], MU[i : i + 1], VAR[i : i + 1])
+        wall.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - c)
+    Q = smooth_data(50, WEIGHTS, seed=1)[0]  # (50, d) unseen environments
+    query = _times(lambda i: gp.predict(Q[i : i + 1]), range(50), 20.0)  # on the grown map: its many trees
+    rows = []
+    for lo, hi in zip(sizes, sizes[1:]):
+        w, c = wall[lo - sizes[0] : hi - sizes[0]], cpu[lo - sizes[0] : hi - sizes[0]]
+        worst = max(range(len(c)), key=c.__getitem__)
+        rows.append({"variant": variant, "from": lo, "to": hi, "adds": len(c), "add_cpu_ms": _ms(c),
+                     "add_p99_cpu_ms": _p99(c), "add_max_cpu_ms": 1e3 * c[worst], "worst_at_M": lo + worst,
+                     "add_ms": _ms(w), "add_p99_ms": _p99(w), "add_max_ms": 1e3 * max(w),
+                     "total_cpu_s": sum(c), "peak_rss_mb": _rss_mb(), "threads": torch.get_num_threads(),
+                     "final_mean_var_cpu_ms": _ms(query[1]), "final_mean_var_ms": _ms(query[0])})
+    return rows
+
+
+def growth_table(rows: list[dict]) -> str:
+    """Markdown: CPU ms (wall ms) per range of M."""
+    out = ["| map | M | adds | median add (ms) | p99 add (ms) | worst add (ms) | worst at M | peak RSS (MB) |",
+           "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if "failed" in r:
+            out.append(f"| {r['variant']} | | | {r['failed']} | | | | |")
+            continue
+        t = {k: f"{r[k.replace('_ms', '_cpu_ms')]:.3g} ({r[k]:.3g})" for k in ("add_ms", "add_p99_ms", "add_max_ms")}
+        out.append(f"| {r['variant']} | {r['from']:,} to {r['to']:,} | {r['adds']:,} | {t['add_ms']} | "
+                   f"{t['add_p99_ms']} | {t['add_max_ms']} | {r['worst_at_M']:,} | {r['peak_rss_mb']:,.0f} |")
+    return "\n".join(out)
+
+
+def run_limited(variant: str, m, args):
     """:func:`worker` in a subprocess under ``RLIMIT_AS``; out of memory / time are results too."""
     limit = int(args.limit_gb * 2**30)
 
@@ -120,14 +170,14 @@ def run_limited(variant: str, m: int, args) -> dict:
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
 
     cmd = [sys.executable, __file__, "--worker", variant, "--sizes", str(m), "--threads", str(args.threads),
-           "--adds", str(args.adds), "--queries", str(args.queries)]
+           "--adds", str(args.adds), "--queries", str(args.queries)] + (["--growth"] if args.growth else [])
     try:
         out = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout, preexec_fn=limit_memory)
     except subprocess.TimeoutExpired:
         return {"variant": variant, "M": m, "failed": f"over {args.timeout:.0f} s"}
-    lines = [ln for ln in out.stdout.splitlines() if ln.startswith("{")]
+    lines = [ln for ln in out.stdout.splitlines() if ln.startswith(("{", "["))]
     if out.returncode == 0 and lines:
-        return json.loads(lines[-1])
+        return json.loads(lines[-1])  # growth: a list of rows
     err = out.stderr.strip().splitlines()[-1:] or [f"exit {out.returncode}"]
     oom = any(w in out.stderr for w in ("MemoryError", "can't allocate memory", "std::bad_alloc", "out of memory"))
     return {"variant": variant, "M": m, "failed": f"out of memory (> {args.limit_gb:g} GB)" if oom else err[0][:120]}
@@ -149,9 +199,9 @@ def search(sizes: list[int], k: int = 32) -> None:
 
 
 def table(rows: list[dict]) -> str:
-    """Markdown; times as ``wall (CPU)``, medians, except the worst add (wall)."""
-    head = ("| map | M | peak RSS (MB) | build (s) | add one (ms) | worst add (ms) | mean (ms) | mean + var (ms) "
-            "| mean + var in a batch (ms per query) |\n|---|---|---|---|---|---|---|---|---|")
+    """Markdown; times as ``wall (CPU)``, medians, except the p99 and worst add."""
+    head = ("| map | M | peak RSS (MB) | build (s) | add one (ms) | p99 add (ms) | worst add (ms) | mean (ms) "
+            "| mean + var (ms) | mean + var in a batch (ms per query) |\n|---|---|---|---|---|---|---|---|---|---|")
     out = [head]
 
     def t(key: str, fmt: str = ".3g") -> str:
@@ -159,10 +209,10 @@ def table(rows: list[dict]) -> str:
 
     for r in rows:
         if "failed" in r:
-            out.append(f"| {r['variant']} | {r['M']:,} | {r['failed']} | | | | | | |")
+            out.append(f"| {r['variant']} | {r['M']:,} | {r['failed']} | | | | | | | |")
         else:
             out.append(f"| {r['variant']} | {r['M']:,} | {r['peak_rss_mb']:,.0f} | {t('build_s')} | {t('add_ms')} | "
-                       f"{t('add_max_ms')} | {t('mean_ms')} | {t('mean_var_ms')} | {t('batch_ms')} |")
+                       f"{t('add_p99_ms')} | {t('add_max_ms')} | {t('mean_ms')} | {t('mean_var_ms')} | {t('batch_ms')} |")
     return "\n".join(out)
 
 
@@ -177,12 +227,26 @@ def main() -> None:
     ap.add_argument("--queries", type=int, default=50)
     ap.add_argument("--json", default=None, help="also write the rows to this file")
     ap.add_argument("--search", action="store_true", help="time the neighbour search alone")
+    ap.add_argument("--growth", action="store_true", help="time every add from the first size to the last")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     sizes = [int(s) for s in args.sizes.split(",")]
     if args.worker:
-        print(json.dumps(worker(args.worker, sizes[0], args.adds, args.queries)), flush=True)
+        rows = growth(args.worker, sizes) if args.growth else worker(args.worker, sizes[0], args.adds, args.queries)
+        print(json.dumps(rows), flush=True)
+        return
+    if args.growth:
+        rows = []
+        for variant in args.variants.split(","):
+            got = run_limited(variant, args.sizes, args)
+            rows += got if isinstance(got, list) else [got]
+            print(json.dumps(got), flush=True)
+        print(f"\nthreads={args.threads}, address-space limit {args.limit_gb:g} GB, N={WEIGHTS}, d={ENV_DIM}; "
+              f"CPU ms (wall ms) per add\n\n{growth_table(rows)}")
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump(rows, f, indent=1)
         return
     if args.search:
         search(sizes)

@@ -332,7 +332,7 @@ class EnvMap(nn.Module, ABC):
     def _nearest_predict(self, g: int, Eq: Tensor, *, need_var: bool):
         rows = (self.labels == g).nonzero()[:, 0]  # (Mg,) storage rows of label g
         k = min(self.nearest_k, rows.shape[0])
-        d2 = sq_dist(Eq, self._take(rows)[0])  # (Q, Mg)
+        d2 = sq_dist(Eq, self.E[rows])  # (Q, Mg)
         idx = torch.sort(d2, dim=1, stable=True).indices[:, :k]  # (Q, k), ties by insertion order
         return self._predict_subsets(*self._take(rows[idx]), Eq, need_var=need_var)
 
@@ -343,7 +343,7 @@ class EnvMap(nn.Module, ABC):
             self._d, self._n = E.shape[1], MU.shape[1]
             self._data = GrowingRows((self._d + 2 * self._n,), dtype=self.dtype, device=self.device)
             self._labels = GrowingRows((), dtype=torch.long, device=self.device)
-        self._data.append(torch.cat([E, MU, VAR], 1))  # (B, d + 2N)
+        self._data.append(E, MU, VAR)  # (B, d + 2N) rows
         self._labels.append(lab)
         known = self._known if m else self._known[:0]  # (K,) the labels stored so far
         self._known = torch.unique(torch.cat([known, lab]))  # (K',) sorted

@@ -1,8 +1,10 @@
 """Backend ``"sparse"``: local GPs over each query's nearest known environments of its label.
 
 Memory ``O(M (d + 2N))``: the data themselves plus, per label, the positions of its rows and a
-nearest-neighbour index (:class:`~protorch.gp.neighbours.NeighbourIndex`, a k-d tree by
-default); no ``M x M`` matrix, no factor kept. ``add`` appends (amortised ``O(B)``). A query
+nearest-neighbour index (:class:`~protorch.gp.neighbours.NeighbourIndex`, k-d trees by
+default); no ``M x M`` matrix, no factor kept. ``add`` appends to storage blocks that are never
+copied (:class:`~protorch.gp.storage.GrowingRows`) and now and then builds a k-d tree over at
+most 65,536 points, so no single add grows with ``M`` beyond that. A query
 finds its ``k`` nearest known environments of its label and solves Eq. 7 and 8 on them: one
 batched ``k x k`` Cholesky per weight (each weight has its own noise ``VAR[:, n]``), ``O(k^3 N)``
 whatever ``M``.

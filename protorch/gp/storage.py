@@ -12,6 +12,7 @@ and no add pays for copying the rows before it (a single array that doubles copi
 
 from __future__ import annotations
 
+from itertools import accumulate
 from typing import Iterator
 
 import torch
@@ -58,18 +59,28 @@ class GrowingRows(nn.Module):
     def extra_repr(self) -> str:
         return f"shape={self.shape}, n={self.n}, blocks={len(self.starts)}, capacity={self.capacity}"
 
-    def append(self, X: Tensor) -> None:
-        """Append ``X (B, *shape)`` as rows ``n .. n + B - 1``."""
-        if tuple(X.shape[1:]) != self.shape:
-            raise ValueError(f"rows must have shape (B, {', '.join(map(str, self.shape))}), got {tuple(X.shape)}")
-        done, b = 0, X.shape[0]
+    def append(self, *parts: Tensor) -> None:
+        """Append rows ``n .. n + B - 1``: ``X (B, *shape)``, or ``(B, w_i)`` parts whose columns
+        together make rows of width ``w`` (written in place, never concatenated first)."""
+        if len(parts) == 1 and tuple(parts[0].shape[1:]) == self.shape:
+            cols = [(0, None, parts[0])]  # whole rows
+        elif len(self.shape) == 1 and all(p.ndim == 2 for p in parts) and sum(p.shape[1] for p in parts) == \
+                self.shape[0] and len({p.shape[0] for p in parts}) == 1:
+            edges = [0, *accumulate(p.shape[1] for p in parts)]
+            cols = list(zip(edges, edges[1:], parts))  # (first column, end column, (B, w_i))
+        else:
+            raise ValueError(f"rows must have shape (B, {', '.join(map(str, self.shape))}), got "
+                             f"{' + '.join(str(tuple(p.shape)) for p in parts)}")
+        done, b = 0, parts[0].shape[0]
         while done < b:
             if self.n == self.capacity:
                 self._new_block(b - done)
             last = len(self.starts) - 1
             blk, s = self._buffers[f"b{last}"], self.starts[last]
             take = min(b - done, s + blk.shape[0] - self.n)
-            blk[self.n - s : self.n - s + take] = X[done : done + take]
+            rows = blk[self.n - s : self.n - s + take]  # (take, *shape) view
+            for a, z, p in cols:
+                (rows if z is None else rows[:, a:z]).copy_(p[done : done + take])
             done, self.n = done + take, self.n + take
 
     def _new_block(self, need: int) -> None:

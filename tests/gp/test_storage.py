@@ -31,6 +31,13 @@ def test_reads_equal_one_array_across_block_boundaries():
     assert store.take(torch.zeros(0, dtype=torch.long)).shape == (0, 3)
 
 
+def test_parts_append_as_their_columns_side_by_side():
+    store, ref = GrowingRows((5,), min_block=4), torch.arange(50.0, dtype=torch.float64).reshape(10, 5)
+    for s, e in [(0, 3), (3, 9), (9, 10)]:
+        store.append(ref[s:e, :1], ref[s:e, 1:3], ref[s:e, 3:])
+    assert torch.equal(store.rows(), ref)
+
+
 def test_blocks_are_never_moved_and_grow_geometrically():
     store = GrowingRows((), dtype=torch.long, min_block=8)
     store.append(torch.arange(5))
@@ -53,5 +60,7 @@ def test_bad_rows():
     store = GrowingRows((3,))
     with pytest.raises(ValueError, match=r"shape \(B, 3\)"):
         store.append(torch.zeros(2, 4))
+    with pytest.raises(ValueError, match=r"shape \(B, 3\)"):
+        store.append(torch.zeros(2, 1), torch.zeros(3, 2))  # rows differ
     with pytest.raises(ValueError, match="min_block"):
         GrowingRows((3,), min_block=0)

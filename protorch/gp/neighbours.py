@@ -110,25 +110,33 @@ class NeighbourIndex(nn.Module):
         """``(q, C)`` candidate positions holding each query's ``k`` nearest, their ``(q, C)``
         squared distances, and ``(q,)`` whether they surely hold every point tied with the
         ``k``-th (else :meth:`_full_sort` decides)."""
-        parts = []  # per part: positions (q, c_p), c_p, its size, the farthest candidate's sq. distance (q,)
-        q_np = Q.detach().to("cpu", torch.float64).numpy() if self.trees else None  # (q, d)
-        for t in self.trees:
-            ct = min(c, t.end - t.start)
-            dist, idx = t.tree.query(q_np, k=[*range(1, ct + 1)])
-            r = torch.as_tensor(np.asarray(dist)[:, -1], dtype=Q.dtype, device=Q.device) ** 2  # (q,)
-            parts.append((torch.as_tensor(np.asarray(idx), device=Q.device) + t.start, ct, t.end - t.start, r))
+        cands, cuts = [], []  # per part: positions (q, c_p) and points (q, c_p, d); if it returned fewer than all,
+        # the squared distance of its farthest candidate (q,), which must lie beyond the k-th nearest
+        if self.trees:  # all trees in numpy, one conversion
+            q_np, idx_np, cut_np = Q.detach().to("cpu", torch.float64).numpy(), [], []  # (q, d)
+            for t in self.trees:
+                ct = min(c, t.end - t.start)
+                dist, idx = t.tree.query(q_np, k=[*range(1, ct + 1)])  # (q, ct), (q, ct)
+                idx_np.append(idx + t.start)
+                if ct < t.end - t.start:
+                    cut_np.append(dist[:, -1])
+            cand = torch.as_tensor(np.concatenate(idx_np, 1), device=Q.device)  # (q, C_trees)
+            cands.append((cand, self.points.take(cand)))
+            if cut_np:
+                cuts.append(torch.as_tensor(np.min(cut_np, 0), dtype=Q.dtype, device=Q.device) ** 2)
         for start, P in self.points.segments(self.n_tree):  # the tail, per storage block
             ct = min(c, P.shape[0])
             d2, idx = _brute_topk(Q, P, ct)  # (q, ct), (q, ct)
-            parts.append((idx + start, ct, P.shape[0], d2[:, -1]))
-        cand = torch.cat([p[0] for p in parts], 1)  # (q, C)
-        d2c = sq_dist(Q[:, None], self.points.take(cand))[:, 0]  # (q, C)
+            cands.append((idx + start, P[idx]))
+            if ct < P.shape[0]:
+                cuts.append(d2[:, -1])
+        cand, pts = (torch.cat(x, 1) for x in zip(*cands)) if len(cands) > 1 else cands[0]  # (q, C), (q, C, d)
+        d2c = sq_dist(Q[:, None], pts)[:, 0]  # (q, C)
+        if not cuts:
+            return cand, d2c, torch.ones(Q.shape[0], dtype=torch.bool, device=Q.device)
         rk = torch.kthvalue(d2c, k, dim=1).values  # (q,) the k-th smallest squared distance
-        complete = torch.ones(Q.shape[0], dtype=torch.bool, device=Q.device)  # (q,)
-        for _, ct, size, r in parts:
-            if ct < size:  # a part that returned fewer than all its points: its cut-off must lie beyond rk
-                complete &= r > rk * (1 + 1e-9) + 1e-300
-        return cand, d2c, complete
+        cut = cuts[0] if len(cuts) == 1 else torch.stack(cuts).amin(0)  # (q,)
+        return cand, d2c, cut > rk * (1 + 1e-9) + 1e-300
 
     def _full_sort(self, Q: Tensor, k: int) -> Tensor:
         return torch.sort(sq_dist(Q, self.points.rows()), dim=1, stable=True).indices[:, :k]  # (b, k)

@@ -12,6 +12,7 @@ and no add pays for copying the rows before it (a single array that doubles copi
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from itertools import accumulate
 from typing import Iterator
 
@@ -54,7 +55,7 @@ class GrowingRows(nn.Module):
 
     @property
     def capacity(self) -> int:
-        return self.starts[-1] + self._buffers[f"b{len(self.starts) - 1}"].shape[0]
+        return self.capacity_of(len(self.starts) - 1)
 
     def extra_repr(self) -> str:
         return f"shape={self.shape}, n={self.n}, blocks={len(self.starts)}, capacity={self.capacity}"
@@ -111,8 +112,19 @@ class GrowingRows(nn.Module):
 
     def take(self, idx: Tensor) -> Tensor:
         """``idx (...)`` row numbers ``< n`` -> ``(..., *shape)``: one indexing per block hit."""
-        if len(self.starts) == 1 or idx.numel() == 0:
-            return self.b0[idx]
+        if len(self.starts) > 1 and idx.numel():
+            lo, hi = idx.aminmax()
+            first = bisect_right(self.starts, int(lo)) - 1
+            if int(hi) < self.capacity_of(first):  # all in one block (the common case): one indexing
+                return self._buffers[f"b{first}"][idx - self.starts[first]]
+            return self._take_blocks(idx)
+        return self.b0[idx]
+
+    def capacity_of(self, i: int) -> int:
+        """One past the last row block ``i`` can hold."""
+        return self.starts[i] + self._buffers[f"b{i}"].shape[0]
+
+    def _take_blocks(self, idx: Tensor) -> Tensor:
         flat = idx.reshape(-1)  # (I,)
         starts = torch.tensor(self.starts, device=flat.device)  # (K,)
         which = torch.searchsorted(starts, flat, right=True) - 1  # (I,) block of each row

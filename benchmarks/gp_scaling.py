@@ -2,9 +2,9 @@
 out of the machine.
 
 For each map variant and each M: build (fit) time, the peak resident memory (RSS) of a process
-that only builds and queries that map, the time of adding one environment (median, 99th percentile and
-worst over ``--adds`` adds after the fit), the latency of one query: mean only, and mean + variance (medians; the exact variance),
-and mean + variance of ``--queries`` queries in one call (the loop's way), per query. The torch backend gets the
+that only builds and queries that map, the time of adding one environment (median, 99th
+percentile and worst over ``--adds`` adds after the fit), the latency of one query: mean only,
+and mean + variance (medians; the exact variance), and mean + variance of ``--queries`` queries in one call (the loop's way), per query. The torch backend gets the
 capacity for the adds up front (growing its ``(N, cap, cap)`` factors by 1.5x would otherwise
 dominate the add and the peak). Data like the arm experiment (IV-C): 4-D
 environments uniform on a 0.6 m square table (obstacle and goal), N = 70 weights varying smoothly
@@ -159,6 +159,9 @@ def growth_table(rows: list[dict]) -> str:
         t = {k: f"{r[k.replace('_ms', '_cpu_ms')]:.3g} ({r[k]:.3g})" for k in ("add_ms", "add_p99_ms", "add_max_ms")}
         out.append(f"| {r['variant']} | {r['from']:,} to {r['to']:,} | {r['adds']:,} | {t['add_ms']} | "
                    f"{t['add_p99_ms']} | {t['add_max_ms']} | {r['worst_at_M']:,} | {r['peak_rss_mb']:,.0f} |")
+    finals = {r["variant"]: r for r in rows if "final_mean_var_cpu_ms" in r}
+    out += [f"\n{v}: one mean + var query on the grown map {r['final_mean_var_cpu_ms']:.3g} ms CPU "
+            f"({r['final_mean_var_ms']:.3g} ms wall)" for v, r in finals.items()]
     return "\n".join(out)
 
 

@@ -8,11 +8,11 @@ distance (:func:`~protorch.gp.kernels.sq_dist`), ties broken by insertion order.
 * ``"kdtree"``: :class:`scipy.spatial.cKDTree` s over consecutive runs of the points plus a tail
   of the latest points, searched by brute force (a logarithmic method). When the tail reaches
   ``min_tree`` points it gets a tree of its own, merged with the trees before it that are no
-  larger than it, as long as the merged tree holds at most ``max_tree`` points: the trees' sizes
-  fall geometrically, ``O(M / max_tree + log(max_tree / min_tree))`` of them, each point is
-  rebuilt ``O(log(max_tree / min_tree))`` times, and no add builds a tree of more than
-  ``max_tree`` points (13 ms of one core at 65,536 4-D points; one tree over 100,000 takes 21 ms
-  and grows with ``n``).
+  larger than it, as long as the merged tree holds at most ``max_tree`` points. With adds of a
+  few points the trees' sizes fall geometrically (a binary counter): ``O(M / max_tree +
+  log(max_tree / min_tree))`` trees, each point rebuilt ``O(log(max_tree / min_tree))`` times,
+  and no add builds a tree of more than ``max_tree`` points (13 ms of one core at 65,536 4-D
+  points; one tree over 100,000 takes 21 ms and grows with ``n``).
 * ``"brute"``: every distance in torch (chunked over the queries); no index to maintain, and the
   kind to use on a GPU.
 
@@ -66,7 +66,7 @@ class NeighbourIndex(nn.Module):
         if not 1 <= int(min_tree) <= int(max_tree):
             raise ValueError(f"need 1 <= min_tree <= max_tree, got {min_tree!r} and {max_tree!r}")
         self.kind, self.min_tree, self.max_tree = kind, int(min_tree), int(max_tree)
-        self.trees: list[_Tree] = []  # consecutive runs of points 0 .. n_tree - 1, sizes falling
+        self.trees: list[_Tree] = []  # consecutive runs covering the points 0 .. n_tree - 1
         self.points = GrowingRows((dim,), dtype=dtype, device=device)  # (n, d)
 
     @property

@@ -48,7 +48,8 @@ __all__ = ["PHYSICS_RUN", "PHYSICS_DEFAULTS", "MujocoMissing", "check_physics", 
            "save_episodes"]
 
 PHYSICS_RUN = ("auto", "always", "never")
-PHYSICS_DEFAULTS = {"run": "auto", "timestep": 0.002, "kp": 400.0, "kd": 40.0, "mass_scale": 1.0, "render": True}
+PHYSICS_DEFAULTS = {"run": "auto", "timestep": 0.002, "kp": 400.0, "kd": 40.0, "mass_scale": 1.0, "feasible": True,
+                    "feasible_scale": 0.9, "render": True}
 
 
 def _dynamic_defaults(dyn_cfg: dict) -> dict:
@@ -60,7 +61,9 @@ def _dynamic_defaults(dyn_cfg: dict) -> dict:
 def check_physics(physics: dict | None, dyn_cfg: dict) -> dict:
     """The ``physics.*`` settings checked (before any work): ``run`` one of :data:`PHYSICS_RUN`
     (``always`` without MuJoCo: one line naming the extra), the control step a whole multiple of
-    ``timestep``, gains stable at that timestep, ``mass_scale > 0``."""
+    ``timestep``, gains stable at that timestep, ``mass_scale > 0``, ``feasible`` a bool and
+    ``feasible_scale`` in ``(0, 1]`` (the fraction of the torque limits the torque-feasible
+    reference keeps the command within, :meth:`~protorch.sim.controller.ComputedTorque.feasible_torques`)."""
     cfg = {**PHYSICS_DEFAULTS, **dict(physics or {})}
     unknown = sorted(set(cfg) - set(PHYSICS_DEFAULTS))
     if unknown:
@@ -73,8 +76,12 @@ def check_physics(physics: dict | None, dyn_cfg: dict) -> dict:
     cfg["mass_scale"] = check_number(cfg["mass_scale"], "physics.mass_scale")
     cfg["kp"], cfg["kd"] = check_gains(cfg["kp"], cfg["kd"], cfg["timestep"])
     substeps(check_number(_dynamic_defaults(dyn_cfg)["dt"], "dynamic.dt"), cfg["timestep"])
-    if not isinstance(cfg["render"], bool):
-        raise ValueError(f"physics.render must be true or false, got {cfg['render']!r}")
+    for key in ("render", "feasible"):
+        if not isinstance(cfg[key], bool):
+            raise ValueError(f"physics.{key} must be true or false, got {cfg[key]!r}")
+    cfg["feasible_scale"] = check_number(cfg["feasible_scale"], "physics.feasible_scale")
+    if cfg["feasible_scale"] > 1:
+        raise ValueError(f"physics.feasible_scale must be in (0, 1], got {cfg['feasible_scale']}")
     return cfg
 
 
@@ -151,7 +158,7 @@ def physics_section(exp, model, out_dir: Path, plot: bool) -> dict:
     timing = check_timing(dyn["dt"], dyn["duration"], dyn["hold"])
     common = dict(kp=cfg["kp"], kd=cfg["kd"], ref_kp=float(dyn["kp"]),
                   max_acceleration=dyn.get("max_acceleration", PANDA_MAX_ACCELERATION),
-                  threads=max(1, torch.get_num_threads()))
+                  threads=max(1, torch.get_num_threads()), feasible=cfg["feasible_scale"] if cfg["feasible"] else None)
     envs = exp.test_envs
     with torch.no_grad():
         best = label_aware_mean(model.env_map, promp, task, envs, dtype=promp.basis.dtype)
@@ -172,7 +179,8 @@ def physics_section(exp, model, out_dir: Path, plot: bool) -> dict:
                           "episodes_with_switch": int((sw > 0).sum()), "map_queries": choice.queries}
     path = save_episodes(Path(out_dir) / "physics" / "episodes.npz", test, dynamic, kin_test, kin_dyn, task)
     out["episodes_file"] = str(path.relative_to(out_dir))
-    out["settings"] = {k: cfg[k] for k in ("timestep", "kp", "kd", "mass_scale")} | {"collision": task.collision}
+    out["settings"] = {k: cfg[k] for k in ("timestep", "kp", "kd", "mass_scale", "feasible", "feasible_scale")} \
+        | {"collision": task.collision}
     out["seconds"] = round(time.perf_counter() - t0, 3)  # the two tests and the file, not the pictures
     if plot and cfg["render"]:
         t1 = time.perf_counter()

@@ -6,7 +6,8 @@ table around a can, and switches between passing it on the left and on the right
    Gaussian per environment and side. Prior knowledge: 2004 environments on a grid (over the
    sampler's rectangles, or with ``task.prior_grid=table`` over the whole table within the arm's
    reach) with the straight end-effector path to the target (by IK) and the average demonstrated
-   variance.
+   variance; with ``task.collision=volume`` only those clear of the can, plus detour priors on both
+   sides (:mod:`protorch.experiments.arm_priors`).
    Every entry carries its homotopy class (:meth:`~protorch.tasks.ArmReachTask.side`) as label.
 2. The self-improvement loop (:func:`protorch.loop.self_improve`, PRO) over 2024 random
    environments with the labeller: solutions are stored with their class, the GP map keeps the
@@ -46,11 +47,12 @@ from ..loop import LoopResult, demonstration_dataset
 from ..primitives.promp import ProMP, resample
 from ..tasks.arm_demos import read_arm_demos
 from ..tasks.arm_reach import LEFT, RIGHT, SIDES, ArmReachTask
-from ..tasks.arm_workspace import REGIONS, check_region, prior_grid_nodes
+from ..tasks.arm_workspace import REGIONS, check_region
 from ..threads import torch_threads
 from ..viz.arm import experiment_figures
 from .common import demo_source
 from .arm_physics import check_physics, physics_section
+from .arm_priors import check_detours, grid_priors
 from .self_improvement import (
     DYNAMIC_SEED,
     TEST_SEED,
@@ -72,7 +74,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
 
     task_keys = frozenset({"_target_", "demos", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin",
                            "goal_tol", "start_tol", "can_radius", "can_height", "clearance", "urdf", "deviation",
-                           "collision", "can_objective", "prior_clear",
+                           "collision", "can_objective", "prior_clear", "prior_detours",
                            "prior_grid", "region", "reach"})
     loop_keys = frozenset({"labels", "each_label"})
     dynamic_keys = frozenset({"seed", "episodes", "duration", "hold", "dt", "kp", "moves", "move_window",
@@ -113,12 +115,14 @@ class ArmReachExperiment(SelfImprovementExperiment):
         self.prior_clear = task_cfg.pop("prior_clear", "auto")
         if self.prior_clear not in (True, False, "auto"):
             raise ValueError(f"task.prior_clear must be true, false or auto, got {self.prior_clear!r}")
+        detours = task_cfg.pop("prior_detours", "auto")
         check_region(task_cfg.get("region", "rectangles"), "task.region")
         self.nearest_k = self.map_options.get("nearest_k")
         task_cfg.pop("_target_", None)
         self.task = ArmReachTask(**task_cfg).to(self.device)
         if self.prior_clear == "auto":
             self.prior_clear = self.task.collision == "volume"
+        self.prior_detours = check_detours(detours, self.task.collision)
 
     def make_demonstrations(self) -> None:
         """The demonstrated environments are drawn over the rectangles whatever ``task.region``;
@@ -134,8 +138,8 @@ class ArmReachExperiment(SelfImprovementExperiment):
         self.demos, self.demo_envs, self.demo_labels = self.task.demonstrations(envs, self.per_env, gen)
 
     def make_priors(self) -> None:
-        self.prior_envs, self.prior_mean, self.prior_labels, self.prior_report = _priors(
-            self.task, self.promp, self.n_priors, self.prior_over, clear=self.prior_clear)
+        self.prior_envs, self.prior_mean, self.prior_labels, self.prior_report = grid_priors(
+            self.task, self.promp, self.n_priors, self.prior_over, clear=self.prior_clear, detours=self.prior_detours)
 
     def build(self) -> "ArmReachExperiment":
         """The skeleton's build, plus the held-out environments of the other region when either
@@ -259,28 +263,6 @@ def prepare(
                               promp=promp, loop=loop, test=test, dynamic=dynamic, physics=physics).build()
 
 
-def _priors(task: ArmReachTask, promp: ProMP, n: int, over: str = "rectangles", clear: bool = False):
-    """``n`` environments on a grid over ``over`` with the straight end-effector path to their
-    target (by IK, one per distinct target): ``(envs (P, 4), weight means (P, N), labels (P,),
-    the grid's counts)``; ``P = n``, or with ``clear`` only the priors whose mean succeeds under
-    the task's collision model (``report["clear"]`` of ``report["kept"]``)."""
-    if n == 0:
-        return torch.zeros(0, 4, dtype=torch.float64), torch.zeros(0, promp.num_weights, dtype=torch.float64), \
-            torch.zeros(0, dtype=torch.long), {"over": over, "kept": 0}
-    grid, report = prior_grid_nodes(task, n, over, promp.num_steps)  # (n, 4)
-    goals, inverse = torch.unique(grid[:, 2:], dim=0, return_inverse=True)  # (G, 2), (n,)
-    any_can = grid[:1, :2].expand(goals.shape[0], 2)  # the straight path does not depend on the can
-    q, _ = task.ik_path(task.straight_paths(torch.cat([any_can, goals], 1), promp.num_steps))  # (G, T, 7)
-    q = q.to(promp.basis)
-    w = promp.weights(q).cpu().to(torch.float64)  # (G, N)
-    labels = task.side(q[inverse.to(q.device)], grid.to(q)).cpu()  # (n,) which side the straight path passes
-    w = w[inverse]  # (n, N)
-    if clear:  # a prior that hits the can under the task's own check teaches the map a colliding mean
-        ok = task.success(promp.trajectory(w.to(promp.basis)), grid.to(promp.basis)).cpu()  # (n,)
-        grid, w, labels, report = grid[ok], w[ok], labels[ok], report | {"clear": int(ok.sum())}
-    return grid, w, labels, report
-
-
 def run(
     out_dir: Path,
     *,
@@ -307,7 +289,8 @@ def run(
     ``can_x can_y goal_x goal_y`` files, e.g. written by ``python -m protorch.view --teach
     arm_reach``), ``demo_envs``, ``demos_per_env`` (synthetic only), ``priors`` (number of grid
     priors), ``prior_clear`` (keep only the priors that succeed under ``collision``; ``auto``: with
-    ``volume``), ``prior_grid`` (``rectangles`` or ``table``: the region the priors' grid spans) and the
+    ``volume``), ``prior_detours`` (distances of the detour priors, :mod:`~protorch.experiments.arm_priors`;
+    ``auto``: 0.18 and 0.24 m with ``volume``, none with the skeleton), ``prior_grid`` (``rectangles`` or ``table``: the region the priors' grid spans) and the
     :class:`~protorch.tasks.ArmReachTask` options (``cost_steps``, ``margin``, ``goal_tol``,
     ``region``, ``reach``, ...).
     ``gp``: ``backend``, ``alpha``, ``var_floor``, ``nearest_k``. ``loop``: ``num_envs``,

@@ -277,6 +277,10 @@ class ArmPhysics:
     kp: float = setting(400.0, "computed-torque stiffness (1/s^2); kp h^2 + 2 kd h < 4 at the timestep h", gt=0)
     kd: float = setting(40.0, "computed-torque damping (1/s)", ge=0)
     mass_scale: float = setting(1.0, "the controller model's link masses and inertias / the simulated arm's", gt=0)
+    feasible: bool = setting(True, "torque-feasible reference: its acceleration scaled down where the command would "
+                             "pass feasible_scale of the torque limits (false: tracked as planned)")
+    feasible_scale: float = setting(0.9, "the fraction of the torque limits the feasible reference keeps within",
+                                    gt=0, le=1)
     render: bool = setting(True, "render a held-out reach and a switching episode (GIF + frames; needs EGL or OSMesa)")
 
 
@@ -344,6 +348,8 @@ class ArmReachTaskSettings:
                                  choices=("auto", "ee", "volume"))
     prior_clear: typing.Any = setting("auto", "keep only the priors whose straight path succeeds under "
                                       "collision (true, false, auto: with collision=volume)")
+    prior_detours: typing.Any = setting("auto", "distances (m) beside the can of the detour priors on both sides; "
+                                        "auto: [0.18, 0.24] with collision=volume, [] with the skeleton")
 
 
 TASK_SCHEMAS: dict[str, type] = {"point_particle": PointParticleTaskSettings, "arm_reach": ArmReachTaskSettings}

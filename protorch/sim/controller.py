@@ -10,7 +10,10 @@ with ``M`` the joint-space inertia matrix, ``c`` the Coriolis, centrifugal and g
 a correct model the arm's joint errors obey ``e'' + kd e' + kp e = 0``. The torque is the
 inverse dynamics ``mj_inverse`` computes for the acceleration in brackets (checked in
 ``tests/sim/test_controller.py``); it is then clipped to the torque limits, and an episode whose
-command exceeded a limit is counted *saturated* (:mod:`protorch.sim.episodes`).
+command exceeded a limit is counted *saturated* (:mod:`protorch.sim.episodes`). With a
+torque-feasible reference (:meth:`ComputedTorque.feasible_torques`, ``physics.feasible``) the
+reference's acceleration is first scaled down so that the command stays within a fraction of the
+limits: the reference slows where the motors cannot follow it.
 
 One ``mujoco.batch.Batch`` of the controller's model holds the ``E`` arms: each call loads their
 states, computes the position and velocity stages on a thread pool and reads ``M`` (sparse rows,
@@ -82,6 +85,15 @@ class ComputedTorque:
         self.batch.forward(stage=self._stage)
         return dense_mass(self.model, self._m), self._bias - self._passive
 
+    def _parts(self, q: np.ndarray, qd: np.ndarray, q_r: Tensor, v_r: Tensor, a_r: Tensor) -> tuple[Tensor, Tensor]:
+        """The torques without the reference's acceleration, ``M (kp e + kd de) + bias - passive``,
+        and the reference acceleration's own part ``M a_r``: ``(E, J)`` twice."""
+        mass, rest = self.dynamics(q, qd)  # (E, J, J), (E, J)
+        mass = torch.from_numpy(mass)
+        qt, qdt = torch.from_numpy(np.ascontiguousarray(q)), torch.from_numpy(np.ascontiguousarray(qd))
+        fb = self.kp * (q_r - qt) + self.kd * (v_r - qdt)  # (E, J) the feedback's joint acceleration
+        return torch.einsum("eij,ej->ei", mass, fb) + torch.from_numpy(rest), torch.einsum("eij,ej->ei", mass, a_r)
+
     def torques(self, q: np.ndarray, qd: np.ndarray, q_r: Tensor, v_r: Tensor, a_r: Tensor) -> Tensor:
         """The commanded torques ``(E, J)`` (float64, not yet clipped) at the measured state
         ``q, qd (E, J)`` for the references ``q_r, v_r, a_r (E, J)``."""
@@ -89,3 +101,23 @@ class ComputedTorque:
         qt, qdt = torch.from_numpy(np.ascontiguousarray(q)), torch.from_numpy(np.ascontiguousarray(qd))
         u = a_r + self.kp * (q_r - qt) + self.kd * (v_r - qdt)  # (E, J) the commanded joint acceleration
         return torch.einsum("eij,ej->ei", torch.from_numpy(mass), u) + torch.from_numpy(rest)  # (E, J)
+
+    def feasible_torques(self, q: np.ndarray, qd: np.ndarray, q_r: Tensor, v_r: Tensor, a_r: Tensor,
+                         bound: Tensor) -> tuple[Tensor, Tensor]:
+        """:meth:`torques` with the reference's acceleration scaled down, per episode, so that
+        every torque stays within ``bound (J,)`` where it can: ``a_r`` times the largest ``s`` in
+        ``[0, 1]`` with ``|base + s M a_r| <= bound`` (``base``: the feedback, bias and damping
+        torques; ``s = 1`` where the command is within the bound, ``s = 0`` where no ``s`` is).
+        The reference integrates the scaled acceleration, so it slows down where the motors could
+        not follow it (a torque-feasible time scaling of the plan) instead of commanding torques a
+        real Panda's reflex would stop. Returns ``(torques (E, J), scaled a_r (E, J))``."""
+        base, ff = self._parts(q, qd, q_r, v_r, a_r)  # (E, J) twice
+        # per joint, the s with -bound <= base + s ff <= bound: an interval [lo, hi] (all s where ff = 0 and
+        # |base| <= bound, none where ff = 0 and |base| > bound)
+        a, b = (-bound - base) / ff, (bound - base) / ff  # (E, J); where ff = 0 neither is used
+        lo = torch.where(ff > 0, a, torch.where(ff < 0, b, torch.where(base.abs() <= bound, -torch.inf, torch.inf)))
+        hi = torch.where(ff > 0, b, torch.where(ff < 0, a, torch.where(base.abs() <= bound, torch.inf, -torch.inf)))
+        lo, hi = lo.amax(-1).clamp_min(0.0), hi.amin(-1).clamp_max(1.0)  # (E,)
+        s = torch.where(lo <= hi, hi, torch.ones_like(hi))  # (E,) the largest feasible scale, else the plain command
+        s = torch.nan_to_num(s, nan=1.0)[:, None]  # (E, 1) a non-finite command stays as it is, and fails
+        return base + s * ff, s * a_r

@@ -12,8 +12,9 @@ instant has them.
 At every physics step a reference ``(q_r, v_r, a_r)`` follows the mean's marker at the current
 phase with the kinematic test's velocity command
 (:func:`~protorch.control.arm_choice.velocity_command_acceleration`: marker velocity plus ``kp``
-times the error, within the joint velocity and acceleration limits), integrated like MuJoCo's
-semi-implicit Euler step; the computed-torque controller (:mod:`protorch.sim.controller`) tracks
+times the error, within the joint velocity and acceleration limits; with ``feasible`` its
+acceleration scaled down where the torque it needs would pass that fraction of the limits),
+integrated like MuJoCo's semi-implicit Euler step; the computed-torque controller (:mod:`protorch.sim.controller`) tracks
 it, its torques clipped to the limits, and the batch of ``E`` simulations steps once.
 
 Per episode: the measured joints, the reference, the can and the target at every instant, MuJoCo's
@@ -240,7 +241,8 @@ class _Recorder:
 
 
 def run_physics_episodes(scene, ctrl_model, system, promp, timing: Timing, envs: Tensor, *, kp: float, kd: float,
-                         ref_kp: float, max_acceleration, threads: int = 1) -> PhysicsEpisodes:
+                         ref_kp: float, max_acceleration, threads: int = 1,
+                         feasible: float | None = None) -> PhysicsEpisodes:
     """Run ``E`` episodes in the environments ``envs (E, T+1, 4)`` (module docstring).
 
     ``scene``: the plant (:func:`~protorch.sim.scene.build_scene`); ``ctrl_model``: the
@@ -248,7 +250,9 @@ def run_physics_episodes(scene, ctrl_model, system, promp, timing: Timing, envs:
     the mean weights every control step; ``kp, kd``: the computed-torque gains; ``ref_kp``,
     ``max_acceleration``: the reference's velocity command (the kinematic test's ``kp`` and
     acceleration limits); ``threads``: the thread pools of the plant's and the controller's
-    batches."""
+    batches; ``feasible``: a fraction of the torque limits within which the reference's
+    acceleration is scaled to keep the command (:meth:`~protorch.sim.controller.ComputedTorque.feasible_torques`),
+    or ``None``: the reference as planned."""
     t_start = time.perf_counter()
     task, e_num, total = scene.task, envs.shape[0], timing.total
     h = scene.timestep
@@ -264,6 +268,7 @@ def run_physics_episodes(scene, ctrl_model, system, promp, timing: Timing, envs:
     rec = _Recorder(e_num, total, task.num_dof)
     q_r, v_r = q0.expand(e_num, -1).clone(), torch.zeros(e_num, task.num_dof, **kw)
     limits = torch.from_numpy(scene.torque_limits)
+    bound = None if feasible is None else float(feasible) * limits  # (J,)
     with torch.no_grad():
         for t in range(total + 1):
             plant.place(envs_np[:, t, :2], envs_np[:, t, 2:], task.ee_height, task.can_height)
@@ -280,7 +285,10 @@ def run_physics_episodes(scene, ctrl_model, system, promp, timing: Timing, envs:
             for s in range(n_sub):
                 a_r = velocity_command_acceleration(q_r, v_r, m[:, s], m_vel[:, s], kp=ref_kp, vmax=vmax, amax=amax,
                                                     dt=h)  # (E, J)
-                tau = ctrl.torques(plant.qpos, plant.qvel, q_r, v_r, a_r)  # (E, J)
+                if feasible is None:
+                    tau = ctrl.torques(plant.qpos, plant.qvel, q_r, v_r, a_r)  # (E, J)
+                else:
+                    tau, a_r = ctrl.feasible_torques(plant.qpos, plant.qvel, q_r, v_r, a_r, bound)  # (E, J) twice
                 rec.torque(tau, limits, plant.alive)
                 plant.alive &= torch.isfinite(tau).all(-1).numpy()  # a broken command: that simulation stops here
                 plant.ctrl[:] = torch.nan_to_num(torch.maximum(torch.minimum(tau, limits), -limits)).numpy()

@@ -11,7 +11,8 @@ from ..data.demos import DemoFolder, DemoFormat, read_demos
 from .arm_geometry import LEFT, RIGHT
 from .curves import catmull_rom, smooth_noise
 
-__all__ = ["arm_demo_format", "follow_path", "ik_demonstrations", "read_arm_demos", "straight_paths"]
+__all__ = ["arm_demo_format", "beside_can", "detour_paths", "follow_path", "ik_demonstrations", "read_arm_demos",
+           "straight_paths"]
 
 
 def arm_demo_format(task) -> DemoFormat:
@@ -64,6 +65,35 @@ def straight_paths(task, env: Tensor, num_steps: int = 100) -> Tensor:
     return s + prog[None, :, None] * (g - s)[:, None, :]  # (n, T, 3)
 
 
+def beside_can(task, env: Tensor, side: Tensor, distance: Tensor) -> Tensor:
+    """Points ``distance (n, 1)`` beside the can of each environment ``env (n, 4)`` on ``side (n,)``
+    (:data:`LEFT` or :data:`RIGHT` of the line from the start to the target, perpendicular to
+    it): ``(n, 2)``."""
+    line = task.goal_point(env)[:, :2] - task.start_position()[:2]  # (n, 2)
+    line = line / line.norm(dim=-1, keepdim=True)
+    normal = torch.stack([-line[:, 1], line[:, 0]], -1)  # (n, 2) to the left of the line
+    sign = torch.where(side == LEFT, 1.0, -1.0).to(env.dtype)[:, None]  # (n, 1)
+    return env[:, :2] + sign * distance * normal
+
+
+def detour_paths(task, env: Tensor, side: Tensor | int, distance: float, num_steps: int = 100) -> Tensor:
+    """The demonstrator's path without its noise: from the start through the point ``distance``
+    beside the can on ``side`` (:func:`beside_can`, at the target's height) to the target of each
+    environment ``env (n, 4)``, a Catmull-Rom curve with a minimum-jerk time profile:
+    ``(n, num_steps, 3)``. The arm's detour priors (``task.prior_detours``)."""
+    env = env.reshape(-1, 4).to(torch.float64)
+    n = env.shape[0]
+    side = torch.as_tensor(side).long().expand(n)
+    if not float(distance) > 0:
+        raise ValueError(f"a detour's distance must be > 0, got {distance}")
+    s, goal = task.start_position(), task.goal_point(env)  # (3,), (n, 3)
+    beside = beside_can(task, env, side, torch.full((n, 1), float(distance), dtype=torch.float64))
+    via = torch.stack([s.expand(n, 3), torch.cat([beside, goal[:, 2:]], -1), goal], 1)  # (n, 3, 3)
+    u = torch.linspace(0, 1, int(num_steps), dtype=torch.float64)
+    prog = u**3 * (10 - 15 * u + 6 * u**2)  # (T,)
+    return catmull_rom(via, prog.expand(n, -1))  # (n, T, 3)
+
+
 def ik_demonstrations(
     task,
     envs: Tensor | int,
@@ -96,12 +126,8 @@ def ik_demonstrations(
     n = e.shape[0]
     s = task.start_position()  # (3,)
     goal = task.goal_point(e)  # (n, 3)
-    line = goal[:, :2] - s[:2]  # (n, 2)
-    line = line / line.norm(dim=-1, keepdim=True)
-    normal = torch.stack([-line[:, 1], line[:, 0]], -1)  # (n, 2) to the left of the line
-    sign = torch.where(side == LEFT, 1.0, -1.0).to(f64)[:, None]  # (n, 1)
     dist = pass_distance[0] + (pass_distance[1] - pass_distance[0]) * torch.rand(n, 1, generator=g_, dtype=f64)
-    beside = e[:, :2] + sign * dist * normal  # (n, 2) beside the can, perpendicular to the line
+    beside = beside_can(task, e, side, dist)  # (n, 2) beside the can, perpendicular to the line
     lift = 0.03 * torch.rand(n, 1, generator=g_, dtype=f64)  # (n, 1)
     h = task.ee_height
     end = goal + torch.cat([goal_noise * torch.randn(n, 2, generator=g_, dtype=f64), torch.zeros(n, 1, dtype=f64)], -1)

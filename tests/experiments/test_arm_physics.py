@@ -56,6 +56,9 @@ def test_tiny_run_writes_physics_metrics_and_episodes_the_replay_agrees_with(tmp
     ("settings.physics.timestep=0.003", "whole multiple of the physics timestep"),
     ("settings.physics.run=sometimes", "settings.physics.run='sometimes' must be one of auto, always, never"),
     ("settings.physics.mass_scale=0", "settings.physics.mass_scale=0 must be a number > 0"),
+    ("settings.physics.feasible_scale=1.5", "settings.physics.feasible_scale=1.5 must be a number > 0 and <= 1"),
+    ("settings.physics.feasible_scale=0", "settings.physics.feasible_scale=0 must be a number > 0 and <= 1"),
+    ("settings.physics.feasible=maybe", "settings.physics.feasible"),
 ])
 def test_bad_physics_settings_are_refused_before_any_work(override, match):
     with pytest.raises(SettingsError, match=match):

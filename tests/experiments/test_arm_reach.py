@@ -102,6 +102,7 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     ("task.demos=/no/such/folder", "^task.demos='/no/such/folder': no such folder"),
     ("+gp.neighbours=16", "^gp.neighbours applies to gp=sparse only, not to gp=torch$"),
     ("task.prior_clear=maybe", "^task.prior_clear must be true, false or auto, got 'maybe'$"),
+    ("task.prior_detours=[0.2,-0.1]", r"^task.prior_detours must hold distances > 0 \(m\), got -0.1$"),
 ])
 def test_bad_settings_are_refused_before_any_work(tmp_path, override, match):
     with pytest.raises((ValueError, TypeError, FileNotFoundError), match=match):
@@ -144,7 +145,7 @@ def test_volume_task_keeps_only_the_priors_clear_of_the_can_under_its_volumes():
     s = c["settings"]
 
     def setup(clear):
-        return prepare(optimizer=c["optimizer"], task=c["task"] | {"prior_clear": clear}, gp=c["gp"],
+        return prepare(optimizer=c["optimizer"], task=c["task"] | {"prior_clear": clear, "prior_detours": []}, gp=c["gp"],
                        promp=s["promp"], loop=s["loop"], test=s["test"], dynamic={"episodes": 0})
 
     auto, every = setup("auto"), setup(False)
@@ -155,7 +156,12 @@ def test_volume_task_keeps_only_the_priors_clear_of_the_can_under_its_volumes():
     assert torch.equal(auto.prior_envs, every.prior_envs[ok]) and torch.equal(auto.prior_labels, every.prior_labels[ok])
     assert bool(auto.task.success(auto.promp.trajectory(auto.prior_mean), auto.prior_envs).all())
     assert len(auto.initial_data()) == 2 + int(ok.sum())
-    assert cfg()["task"]["prior_clear"] == "auto"
+    assert cfg()["task"]["prior_clear"] == "auto" and cfg()["task"]["prior_detours"] == "auto"
+    # the detour priors (tests/experiments/test_arm_priors.py) come after the straight ones kept
+    with_detours = prepare(optimizer=c["optimizer"], task=c["task"], gp=c["gp"], promp=s["promp"], loop=s["loop"],
+                           test=s["test"], dynamic={"episodes": 0})
+    assert with_detours.prior_detours == (0.18, 0.24) and sum(with_detours.prior_report["detours"].values()) > 0
+    assert torch.equal(with_detours.prior_envs[:auto.prior_envs.shape[0]], auto.prior_envs)
 
 
 @pytest.mark.slow

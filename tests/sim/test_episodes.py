@@ -12,6 +12,7 @@ from protorch.control.episodes import check_timing
 from protorch.robots.panda import PANDA_MAX_ACCELERATION
 from protorch.sim.episodes import FixedMeans, run_physics_episodes, substeps
 from protorch.sim.scene import build_scene, controller_model
+from protorch.tasks.arm_demos import detour_paths
 
 TIMING = check_timing(0.02, 1.5, 0.4)
 GAINS = dict(kp=400.0, kd=40.0, ref_kp=10.0, max_acceleration=PANDA_MAX_ACCELERATION)
@@ -59,6 +60,39 @@ def test_a_broken_mean_is_a_named_failure_not_a_crash(task, reach):
     s = res.summary()
     assert s["nonfinite_torque_episodes"] == 1 and s["failures"]["diverged"] + s["failures"]["saturated"] >= 1
     assert all(np.isfinite(v) for v in s.values() if isinstance(v, float))
+
+
+class _SwitchAt:
+    """A system that tracks ``first`` until control step ``k``, then ``then`` (a class switch)."""
+
+    def __init__(self, first, then, k):
+        self.first, self.then, self.k = first, then, k
+
+    def answer(self, t, z, q):
+        return self.first if t < self.k else self.then
+
+
+def test_a_torque_feasible_reference_slows_where_the_motors_cannot_follow(task, reach):
+    """A switch half way, from the straight reach to a detour on the right, with the reference's
+    acceleration limits three times the Panda's: tracked as planned the command passes the torque
+    limits (a saturation failure); with ``feasible=0.9`` the reference's acceleration is scaled
+    down, every command stays within 0.9 of the limits and the episode succeeds, tracking as well
+    as a reach within the limits."""
+    promp, w = reach
+    env = torch.tensor([[0.55, 0.30, 0.70, -0.10]], dtype=torch.float64)  # clear of both paths
+    q, _ = task.ik_path(detour_paths(task, torch.tensor([[0.50, 0.0, 0.70, -0.10]]), 1, 0.25, 100))
+    other = promp.weights(q)
+    assert task.success(promp.trajectory(torch.cat([w, other])), env.expand(2, -1)).all()
+    timing = check_timing(0.02, 2.0, 0.6)
+    walk = env[:, None].expand(-1, timing.total + 1, -1)
+    gains = GAINS | {"max_acceleration": [3 * a for a in PANDA_MAX_ACCELERATION]}
+    runs = {f: run_physics_episodes(build_scene(task), controller_model(task), _SwitchAt(w, other, 50), promp, timing,
+                                    walk, **gains, feasible=f) for f in (None, 0.9)}
+    plain, feasible = runs[None], runs[0.9]
+    assert plain.max_torque_ratio[0] > 1.0 and plain.failures["saturated"][0] and not plain.success[0]
+    assert feasible.max_torque_ratio[0] <= 0.9 + 1e-9 and feasible.success[0]
+    assert feasible.tracking_rms[0] < 1e-4 < plain.tracking_rms[0]
+    assert feasible.final_goal_distance[0] < 2e-3
 
 
 def test_the_control_step_must_be_a_whole_number_of_physics_steps():

@@ -85,33 +85,33 @@ class ComputedTorque:
         self.batch.forward(stage=self._stage)
         return dense_mass(self.model, self._m), self._bias - self._passive
 
-    def _parts(self, q: np.ndarray, qd: np.ndarray, q_r: Tensor, v_r: Tensor, a_r: Tensor) -> tuple[Tensor, Tensor]:
-        """The torques without the reference's acceleration, ``M (kp e + kd de) + bias - passive``,
-        and the reference acceleration's own part ``M a_r``: ``(E, J)`` twice."""
+    def _state(self, q: np.ndarray, qd: np.ndarray) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """``M (E, J, J)``, ``bias - passive (E, J)`` and the measured ``q, qd (E, J)`` as tensors."""
         mass, rest = self.dynamics(q, qd)  # (E, J, J), (E, J)
-        mass = torch.from_numpy(mass)
         qt, qdt = torch.from_numpy(np.ascontiguousarray(q)), torch.from_numpy(np.ascontiguousarray(qd))
-        fb = self.kp * (q_r - qt) + self.kd * (v_r - qdt)  # (E, J) the feedback's joint acceleration
-        return torch.einsum("eij,ej->ei", mass, fb) + torch.from_numpy(rest), torch.einsum("eij,ej->ei", mass, a_r)
+        return torch.from_numpy(mass), torch.from_numpy(rest), qt, qdt
 
     def torques(self, q: np.ndarray, qd: np.ndarray, q_r: Tensor, v_r: Tensor, a_r: Tensor) -> Tensor:
         """The commanded torques ``(E, J)`` (float64, not yet clipped) at the measured state
         ``q, qd (E, J)`` for the references ``q_r, v_r, a_r (E, J)``."""
-        mass, rest = self.dynamics(q, qd)  # (E, J, J), (E, J)
-        qt, qdt = torch.from_numpy(np.ascontiguousarray(q)), torch.from_numpy(np.ascontiguousarray(qd))
+        mass, rest, qt, qdt = self._state(q, qd)
         u = a_r + self.kp * (q_r - qt) + self.kd * (v_r - qdt)  # (E, J) the commanded joint acceleration
-        return torch.einsum("eij,ej->ei", torch.from_numpy(mass), u) + torch.from_numpy(rest)  # (E, J)
+        return torch.einsum("eij,ej->ei", mass, u) + rest  # (E, J)
 
     def feasible_torques(self, q: np.ndarray, qd: np.ndarray, q_r: Tensor, v_r: Tensor, a_r: Tensor,
                          bound: Tensor) -> tuple[Tensor, Tensor]:
         """:meth:`torques` with the reference's acceleration scaled down, per episode, so that
         every torque stays within ``bound (J,)`` where it can: ``a_r`` times the largest ``s`` in
         ``[0, 1]`` with ``|base + s M a_r| <= bound`` (``base``: the feedback, bias and damping
-        torques; ``s = 1`` where the command is within the bound, ``s = 0`` where no ``s`` is).
+        torques; ``s = 1`` where the command is within the bound, and where no ``s`` is: the
+        feedback and gravity alone pass it, the plain command is sent, clipped and counted).
         The reference integrates the scaled acceleration, so it slows down where the motors could
         not follow it (a torque-feasible time scaling of the plan) instead of commanding torques a
         real Panda's reflex would stop. Returns ``(torques (E, J), scaled a_r (E, J))``."""
-        base, ff = self._parts(q, qd, q_r, v_r, a_r)  # (E, J) twice
+        mass, rest, qt, qdt = self._state(q, qd)
+        fb = self.kp * (q_r - qt) + self.kd * (v_r - qdt)  # (E, J) the feedback's joint acceleration
+        base = torch.einsum("eij,ej->ei", mass, fb) + rest  # (E, J) the torques without the reference's acceleration
+        ff = torch.einsum("eij,ej->ei", mass, a_r)  # (E, J) the reference acceleration's own part
         # per joint, the s with -bound <= base + s ff <= bound: an interval [lo, hi] (all s where ff = 0 and
         # |base| <= bound, none where ff = 0 and |base| > bound)
         a, b = (-bound - base) / ff, (bound - base) / ff  # (E, J); where ff = 0 neither is used

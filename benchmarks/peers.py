@@ -67,6 +67,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse
+import inspect
 import json
 import math
 import shlex
@@ -76,6 +77,7 @@ import time
 from pathlib import Path
 
 import torch
+import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # peers_tasks beside this file
 
@@ -110,6 +112,9 @@ def check_nuisance(p: Problem) -> None:
         raise AssertionError("the nuisance weights change a cost: they are not irrelevant")
 
 
+EPRO_OPTIONS: dict = {}  # --epro KEY=VALUE: EPRO settings other than its defaults (a sensitivity run)
+
+
 def make_optimizer(name: str, p: Problem, seed: int, tol: float = 1e-3):
     common = dict(num_samples=100, max_iter=10**9, tol=tol, window=5, seed=seed)
     beta = BETAS[p.task]
@@ -123,7 +128,7 @@ def make_optimizer(name: str, p: Problem, seed: int, tol: float = 1e-3):
     if name == "RWPO (authors')":  # 50 x 200 x 50 x 3 = 1.5 M rollouts for the relevance alone
         return RWPO(p.mean, p.var, beta=beta, num_objectives=3, num_basis=p.num_basis, **common)
     if name == EFFICIENT_PRO:  # its defaults (20 samples, temperature set for its target ESS)
-        return EPRO(p.mean, p.var, **{**common, "num_samples": 20})
+        return EPRO(p.mean, p.var, **{**common, "num_samples": 20, **EPRO_OPTIONS})
     if name == "RWR":
         return RWR(p.mean, p.var, beta=beta, **common)
     if name == "CEM":
@@ -287,7 +292,18 @@ def parse_args(argv):
     ap.add_argument("--out", default=None, help="also write the table here (atomically), e.g. benchmarks/results/peers.md;"
                     " the JSON summary goes beside it (.json) unless --json names another file")
     ap.add_argument("--json", default=None, help="write the JSON summary here (atomically)")
+    ap.add_argument("--epro", action="append", default=[], metavar="KEY=VALUE",
+                    help="an EPRO setting instead of its default (repeatable), e.g. --epro provisional_step=0.75")
     args = ap.parse_args(argv)
+    args.epro_options = {}
+    for item in args.epro:
+        key, sep, value = item.partition("=")
+        if not sep or key not in inspect.signature(EPRO.__init__).parameters or key in ("mean", "var"):
+            ap.error(f"--epro {item!r}: expected KEY=VALUE with KEY an EPRO setting")
+        try:
+            args.epro_options[key] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            ap.error(f"--epro {item!r}: {value!r} is not a value")
     args.methods = [m for m in args.methods.split(",") if m]
     bad = sorted(set(args.methods) - set(METHODS))
     if bad:
@@ -317,6 +333,8 @@ def write(args, command: str, results: dict, full: dict) -> str:
 
 def main(argv=None) -> None:
     args = parse_args(argv)
+    EPRO_OPTIONS.clear()
+    EPRO_OPTIONS.update(args.epro_options)
     torch.set_num_threads(1)
     command = shlex.join(["python", "benchmarks/peers.py", *(sys.argv[1:] if argv is None else argv)])
     results: dict = {}

@@ -103,3 +103,19 @@ def test_seed_sets_draw_new_problems(peers):
     a, b = peers.point_particle_problems(2, 0), peers.point_particle_problems(2, 1)
     assert not torch.equal(a[0].env, b[0].env) and a[0].optimizer_seed != b[0].optimizer_seed
     assert torch.equal(a[1].env, peers.point_particle_problems(2, 0)[1].env)
+
+
+def test_epro_settings_from_the_command_line_reach_the_optimiser(peers):
+    args = peers.parse_args(["--optimizers", "EPRO", "--epro", "provisional_step=0.75", "--epro", "ess=0.2"])
+    assert args.epro_options == {"provisional_step": 0.75, "ess": 0.2}
+    p = peers.window_problems(1)[0]
+    try:
+        peers.EPRO_OPTIONS.update(args.epro_options)
+        opt = peers.make_optimizer(peers.EFFICIENT_PRO, p, seed=0)
+        assert opt.provisional_step == 0.75 and opt.ess == 0.2
+    finally:
+        peers.EPRO_OPTIONS.clear()
+    assert peers.make_optimizer(peers.EFFICIENT_PRO, p, seed=0).provisional_step == 0.5  # the default again
+    for bad in ("nosuch=1", "provisional_step", "mean=0"):
+        with pytest.raises(SystemExit):
+            peers.parse_args(["--epro", bad])

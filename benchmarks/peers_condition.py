@@ -163,10 +163,13 @@ def main(argv=None) -> None:
     ap.add_argument("--budget", type=int, default=50_000)
     ap.add_argument("--tasks", default="point_particle,arm")
     ap.add_argument("--optimizers", default="PRO,EPRO,RWR,CEM,CMA-ES")
+    ap.add_argument("--arm-objective", default="skeleton", choices=("skeleton", "ee", "volume"),
+                    help="the arm's can objective the optimisers read (benchmarks/peers.py --arm-objective)")
     ap.add_argument("--json", default=None, help="write the counts here (atomically)")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     peers = load_peers()
+    peers.ARM_OPTIONS["can_objective"] = args.arm_objective
     command = shlex.join(["python", "benchmarks/peers_condition.py", *(sys.argv[1:] if argv is None else argv)])
     results: dict = {}
     print("| task | change | distribution | cases | not conditioned | conditioned, exact | conditioned, soft "
@@ -193,7 +196,7 @@ def main(argv=None) -> None:
                       f"| {c['cases_of_solved']} | {c['exact_of_solved']} | {c['soft_of_solved']} |", flush=True)
             print(f"{task} {name}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
     if args.json:
-        body = {"command": command, "seed": args.seed, "tasks": results}
+        body = {"command": command, "seed": args.seed, "arm_can_objective": args.arm_objective, "tasks": results}
         atomic_write_bytes(Path(args.json), (json.dumps(body, indent=1) + "\n").encode())
 
 

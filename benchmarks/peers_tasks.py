@@ -3,6 +3,7 @@ per problem, each with ``NUISANCE`` extra weights that no objective reads (see p
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Callable
 
@@ -147,10 +148,12 @@ def beam_problems(repeats: int, stage: str, seed: int = 0) -> list[Problem]:
     return out
 
 
-def arm_problems(repeats: int, seed: int = 0, **task_overrides) -> list[Problem]:
+def arm_problems(repeats: int, seed: int = 0, can_objective: str | None = None, **task_overrides) -> list[Problem]:
     """Single arm problems (Sec. IV-C): random environments whose start, the label-aware GP map of
     the experiment's demonstrations and priors, fails; the first ``repeats`` of them.
-    ``task_overrides`` replace task settings (a test uses fewer priors)."""
+    ``task_overrides`` replace task settings (a test uses fewer priors). ``can_objective`` (``"ee"``,
+    ``"skeleton"``, ``"volume"``): the can objective the optimisers read instead of the task's; the
+    problems (environments and starts) stay those of the task's own objective."""
     from protorch.experiments.arm_reach import prepare as prepare_arm
 
     # composed as the app composes it (the experiment's yaml alone lacks PRO's beta, which lives in
@@ -166,6 +169,8 @@ def arm_problems(repeats: int, seed: int = 0, **task_overrides) -> list[Problem]
     mu, var = gp.predict(envs, label)  # (10R, N)
     failing = (~task.success(promp.trajectory(mu), envs)).nonzero()[:, 0][:repeats].tolist()
     n = mu.shape[-1]
+    if can_objective is not None:
+        task = dataclasses.replace(task, can_objective=can_objective)  # success is the same check
     out = []
     for r, i in enumerate(failing):
         env = envs[i]

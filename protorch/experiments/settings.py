@@ -344,8 +344,8 @@ class ArmReachTaskSettings:
     collision: str = setting("skeleton", "the arm in the success check: segments between frame origins, or the "
                              "Panda's link capsules (as MuJoCo collides them)", choices=("skeleton", "volume"))
     can_objective: str = setting("auto", "the can objective's distance: the end effector's (the paper's), the "
-                                 "hand's, link 7's and the forearm's capsules, or auto (volume with collision=volume)",
-                                 choices=("auto", "ee", "volume"))
+                                 "hand's, link 7's and the forearm's capsules, the arm's skeleton, or auto (volume "
+                                 "with collision=volume)", choices=("auto", "ee", "volume", "skeleton"))
     prior_clear: typing.Any = setting("auto", "keep only the priors whose straight path succeeds under "
                                       "collision (true, false, auto: with collision=volume)")
     prior_detours: typing.Any = setting("auto", "distances (m) beside the can of the detour priors on both sides; "

@@ -165,7 +165,7 @@ class EPRO(BaseOptimizer):
             ``trust_radius * min(1, sqrt(trust_iterations / t))`` initial stds around its start
             mean at iteration ``t`` (defaults 3.0 and 5).
         provisional_step: such a weight's mean steps ``max(f_n, provisional_step)`` of the way to
-            the reward-weighted mean (default 0.5; 0: its relevance alone, 1: all the way).
+            the reward-weighted mean (default 0.75; 0: its relevance alone, 1: all the way).
         curvature: also correlate ``(w_n - mean_n)^2`` with the costs (default); ``False``: the
             linear Pearson relevance alone, as the paper's PRO.
         standardize: pool each batch's samples in its own units (default); ``False`` pools the
@@ -185,14 +185,14 @@ class EPRO(BaseOptimizer):
         var: Tensor,
         *,
         beta: float | Tensor | None = None,
-        ess: float = 0.25,
+        ess: float = 0.2,
         pool: int = 10,
         noise_floor: float | None = 2.5,
         variance_floor: float | None = 3.5,
         evidence_level: float | None = 0.001,
         trust_radius: float = 3.0,
         trust_iterations: int = 5,
-        provisional_step: float = 0.5,
+        provisional_step: float = 0.75,
         curvature: bool = True,
         standardize: bool = True,
         objective_weights=None,

@@ -245,6 +245,36 @@ class ArmKinematics(nn.Module):
         out[..., 3, 3] = 1.0
         return out
 
+    def skeleton(self, q: Tensor) -> Tensor:
+        """The origins of all frames, root to end link, by the compiled path: ``(..., J) ->
+        (..., F, 3)``, equal to :meth:`link_positions` to round-off at a fraction of its cost.
+        Every origin is carried back through the joints before its frame, all frames at once
+        (the frames after joint ``k`` are a suffix of the chain: one slice per joint). Any
+        floating dtype; the shape is checked, the values are not."""
+        q = self.check_joints(q, finite=False)
+        qt = q.reshape(-1, self.num_joints).T  # (J, P)
+        c, s = torch.cos(qt), torch.sin(qt)  # (J, P)
+        joints, origins = self._skeleton_maps
+        pts = torch.tensor(origins, dtype=q.dtype, device=q.device)  # (F, 3): each origin after its joint's rotation
+        x, y, z = (pts[:, i, None].expand(-1, qt.shape[1]).clone() for i in range(3))  # (F, P)
+        for k in range(self.num_joints - 1, -1, -1):
+            lo = joints.index(k + 1) if (k + 1) in joints else None  # the first frame after joint k
+            if lo is None:
+                continue
+            xs, ys = c[k] * x[lo:] - s[k] * y[lo:], s[k] * x[lo:] + c[k] * y[lo:]  # (F - lo, P)
+            xs, ys, zs = self._affine(k, xs, ys, z[lo:])
+            x[lo:], y[lo:], z[lo:] = xs, ys, zs
+        return torch.stack([x, y, z], -1).transpose(0, 1).reshape(*q.shape[:-1], self.num_frames, 3)
+
+    @property
+    def _skeleton_maps(self) -> tuple[list[int], list[list[float]]]:
+        """Per frame, root to end link: how many joints come before it (non-decreasing) and its origin
+        in the frame after the last of them."""
+        joints = [self._frame_maps[n][0] for n in self.frame_names]
+        if joints != sorted(joints):
+            raise AssertionError(f"a serial chain's frames come after non-decreasing numbers of joints, got {joints}")
+        return joints, [[row[3] for row in self._frame_maps[n][1]] for n in self.frame_names]
+
     def frame_points(self, q: Tensor, frame: str, points: Tensor) -> Tensor:
         """Points fixed in the frame ``frame`` (``points (P, 3)``) at joints ``q (..., J)``:
         ``(..., P, 3)``, by the compiled path through the joints before that frame only (a point

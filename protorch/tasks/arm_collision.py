@@ -16,7 +16,9 @@ The task's success asks ``gap > margin`` at every step; the moving test places a
 where ``gap > place_clearance``.
 
 The task's can objective (``can_objective``) reads the end effector's distance to the can's axis
-(``"ee"``, the paper's) or, with ``"volume"``, the distance between the can's axis segment and the
+(``"ee"``, the paper's), the smallest distance of the skeleton's segments to the can's axis
+segment (``"skeleton"``: what the skeleton success check reads, its origins placed by
+:meth:`~protorch.robots.ArmKinematics.skeleton`) or, with ``"volume"``, the distance between the can's axis segment and the
 surfaces of the capsules that come near the can: those rigid with the end link (the hand with its
 fingers, link 7), which pass beside it, and the forearm's (link 5), which passes over it when the
 hand passes beside (:func:`end_capsules`, :func:`end_volume_near`). They are placed by the compiled
@@ -39,7 +41,7 @@ __all__ = ["COLLISIONS", "CAN_OBJECTIVES", "FOREARM_LINK", "check_collision", "c
            "end_capsules", "end_volume_near"]
 
 COLLISIONS = ("skeleton", "volume")
-CAN_OBJECTIVES = ("ee", "volume")
+CAN_OBJECTIVES = ("ee", "volume", "skeleton")
 FOREARM_LINK = "panda_link5"  # its capsules pass over the can when the hand passes beside it
 
 

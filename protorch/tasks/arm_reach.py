@@ -23,6 +23,11 @@ straight segment from ``s`` to the target ``g``)::
     can    max(-min_t ||p_xy(t) - can||, -0.2) + 0.2 + d      (shifted by 0.2 to be >= 0)
     goal   ||p(T) - g|| + d
 
+The can objective's distance ``min_t ||p_xy(t) - can||`` is the end effector's (``can_objective="ee"``,
+the paper's) or, with ``"skeleton"``, the smallest distance of the arm's skeleton to the can's axis
+segment (what the skeleton success check reads), with ``"volume"`` that of the hand's and forearm's
+capsules (:mod:`protorch.tasks.arm_collision`).
+
 Success (:meth:`ArmReachTask.success`, every step of the trajectory): the end effector starts within
 2 cm of ``s`` and ends within 2 cm of ``g``; the arm stays more than ``margin`` (2 cm for the
 skeleton, 1 cm for the exact volumes) from the
@@ -116,7 +121,7 @@ class ArmReachTask(Task):
     end_link: str = PANDA_END_LINK
     deviation: str = "segment"  # "time": to tau_direct(t) at the same instant (protorch.tasks.arm_deviation)
     collision: str = "skeleton"  # "volume": the link capsules (protorch.tasks.arm_collision)
-    can_objective: str = "auto"  # ee | volume (the hand's, forearm's capsules) | auto: as `collision` plans
+    can_objective: str = "auto"  # ee | volume (the hand's, forearm's capsules) | skeleton | auto: as `collision` plans
     name: str = "arm_reach"
     objective_names: tuple[str, ...] = field(default=("start", "can", "goal"), init=False)
     env_names: tuple[str, ...] = field(default=("can_x", "can_y", "goal_x", "goal_y"), init=False)
@@ -301,7 +306,10 @@ class ArmReachTask(Task):
         idx = self.cost_indices(traj.shape[-2]).to(traj.device)
         if idx.numel() < traj.shape[-2]:
             traj = traj.index_select(-2, idx)
-        if self.end_capsules is None:
+        if self.can_objective == "skeleton":
+            links = self.kinematics.skeleton(traj)  # (..., T', F, 3), the last frame the end effector
+            c = self.path_costs(links[..., -1, :], env, near=self.skeleton_distance(links, env))
+        elif self.end_capsules is None:
             c = self.path_costs(self.ee_path(traj), env)  # (..., 3)
         else:
             near, path = end_volume_near(self.kinematics, traj, env, self.end_capsules, self.can_height)
@@ -313,10 +321,11 @@ class ArmReachTask(Task):
     def objective_cost(self, traj: Tensor, env: Tensor, index: int) -> Tensor:
         """Objective ``index`` of :meth:`costs` alone, ``(...)`` (the loop asks when PRO's update
         reads one objective): with ``can_objective="volume"`` only the can objective pays for the
-        arm's capsules, the start and goal objectives read the end effector alone."""
+        arm's capsules (with ``"skeleton"`` its skeleton), the start and goal objectives read the end
+        effector alone."""
         if index not in (0, 1, 2):
             raise ValueError(f"index must be 0, 1 or 2, got {index!r}")
-        if index == 1 or self.end_capsules is None:
+        if index == 1 or self.can_objective == "ee":
             return self.costs(traj, env)[..., index]
         traj, env = self._prepare(traj, env, finite=False)
         idx = self.cost_indices(traj.shape[-2]).to(traj.device)
@@ -325,7 +334,8 @@ class ArmReachTask(Task):
     def path_costs(self, path: Tensor, env: Tensor, start: Tensor | None = None, near: Tensor | None = None) -> Tensor:
         """The objectives of end-effector paths ``(..., T, 3)``: ``(..., 3)``. ``start (..., 3)``
         replaces ``s`` (the online test scores the rest of a motion from where the arm is);
-        ``near (...)`` the path's nearest distance to the can's axis (``can_objective="volume"``)."""
+        ``near (...)`` the path's nearest distance to the can's axis (``can_objective="volume"`` or
+        ``"skeleton"``)."""
         s = self.start_position(path.dtype, path.device) if start is None else start  # (..., 3)
         s = s.expand(*path.shape[:-2], 3)
         g = self.goal_point(env)  # (..., 3)

@@ -105,17 +105,36 @@ def test_seed_sets_draw_new_problems(peers):
     assert torch.equal(a[1].env, peers.point_particle_problems(2, 0)[1].env)
 
 
+@pytest.mark.slow
+def test_the_arm_objective_changes_the_costs_not_the_problems(peers):
+    """--arm-objective: the same environments and starts, the can objective read by the optimisers
+    is the skeleton's (the default) or the paper's end effector's, the success check is the same."""
+    assert peers.parse_args([]).arm_objective == "skeleton"
+    assert peers.parse_args(["--arm-objective", "ee"]).arm_objective == "ee"
+    with pytest.raises(SystemExit):
+        peers.parse_args(["--arm-objective", "hand"])
+    (ee,) = peers.arm_problems(1, 0, can_objective="ee", priors=60, demo_envs=4)
+    (sk,) = peers.arm_problems(1, 0, can_objective="skeleton", priors=60, demo_envs=4)
+    assert torch.equal(ee.env, sk.env) and torch.equal(ee.mean, sk.mean) and torch.equal(ee.var, sk.var)
+    assert sk.task_obj.can_objective == "skeleton" and ee.task_obj.can_objective == "ee"
+    w = sk.mean + sk.var.sqrt() * torch.randn(8, sk.mean.shape[0], generator=torch.Generator().manual_seed(0),
+                                              dtype=torch.float64)  # (8, N)
+    c_ee, c_sk = ee.costs(w), sk.costs(w)  # (8, 3)
+    assert torch.equal(c_ee[:, [0, 2]], c_sk[:, [0, 2]]) and not torch.equal(c_ee[:, 1], c_sk[:, 1])
+    assert [ee.success(x) for x in w] == [sk.success(x) for x in w]
+
+
 def test_epro_settings_from_the_command_line_reach_the_optimiser(peers):
-    args = peers.parse_args(["--optimizers", "EPRO", "--epro", "provisional_step=0.75", "--epro", "ess=0.2"])
-    assert args.epro_options == {"provisional_step": 0.75, "ess": 0.2}
+    args = peers.parse_args(["--optimizers", "EPRO", "--epro", "provisional_step=0.5", "--epro", "ess=0.25"])
+    assert args.epro_options == {"provisional_step": 0.5, "ess": 0.25}
     p = peers.window_problems(1)[0]
     try:
         peers.EPRO_OPTIONS.update(args.epro_options)
         opt = peers.make_optimizer(peers.EFFICIENT_PRO, p, seed=0)
-        assert opt.provisional_step == 0.75 and opt.ess == 0.2
+        assert opt.provisional_step == 0.5 and opt.ess == 0.25
     finally:
         peers.EPRO_OPTIONS.clear()
-    assert peers.make_optimizer(peers.EFFICIENT_PRO, p, seed=0).provisional_step == 0.5  # the default again
+    assert peers.make_optimizer(peers.EFFICIENT_PRO, p, seed=0).provisional_step == 0.75  # the default again
     for bad in ("nosuch=1", "provisional_step", "mean=0"):
         with pytest.raises(SystemExit):
             peers.parse_args(["--epro", bad])

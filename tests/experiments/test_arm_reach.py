@@ -190,3 +190,24 @@ def test_loop_over_the_table_grid_iterates_the_initial_data_and_tests_both_regio
     assert data.shape[0] == m["loop"]["added"] > 0
     initial = torch.cat([setup.demo_envs, grid_envs])
     assert bool((torch.cdist(data, initial).amin(1) < 1e-6).all())  # (nodes lie 10 cm or more apart)
+
+
+def test_the_skeleton_can_objective_reaches_the_task_from_the_config(gen):
+    """task.can_objective=skeleton: the experiment's task reads the skeleton in the can objective
+    (the benchmark's choice, docs/peers.md 3d) and the end effector in the other two."""
+    c = cfg("task.can_objective=skeleton")
+    s = c["settings"]
+    setup = prepare(optimizer=c["optimizer"], task=c["task"], gp=c["gp"], promp=s["promp"], loop=s["loop"],
+                    test=s["test"], dynamic={"episodes": 0})
+    task = setup.task
+    assert task.can_objective == "skeleton" and task.collision == "skeleton"
+    env = task.sample_envs(3, gen)  # (3, 4)
+    traj = setup.promp.trajectory(setup.prior_mean[:3])  # (3, T, 7)
+    idx = task.cost_indices(traj.shape[-2])
+    near = task.can_distance(traj[:, idx], env)  # (3,)
+    c_sk = task.costs(traj, env)
+    c_ee = prepare(optimizer=c["optimizer"], task=c["task"] | {"can_objective": "ee"}, gp=c["gp"], promp=s["promp"],
+                   loop=s["loop"], test=s["test"], dynamic={"episodes": 0}).task.costs(traj, env)
+    torch.testing.assert_close(c_sk[:, [0, 2]], c_ee[:, [0, 2]])
+    d = c_sk[:, 0] - (task.ee_path(traj[:, idx])[:, 0] - task.start_position()).norm(dim=-1)  # the deviation
+    torch.testing.assert_close(c_sk[:, 1], task.clearance - near.clamp(max=task.clearance) + d)

@@ -81,7 +81,7 @@ def test_update_without_the_gate_matches_the_equations():
 def test_update_with_the_gate_matches_the_equations():
     """Defaults, the iteration after some weights were shown to be read, by hand: a read weight's
     mean goes to the reward-weighted mean and its variance blends with g; a weight not shown to be
-    read keeps its variance exactly and its mean steps max(f, 1/2) of the way there, within the
+    read keeps its variance exactly and its mean steps max(f, provisional_step) of the way there, within the
     trust region."""
     n = 6
     fn = lambda w: torch.stack([(w[..., 0] - 3) ** 2 + (w[..., 1] - 3) ** 2, (w[..., 2] + 3) ** 2], -1)  # noqa: E731
@@ -94,13 +94,14 @@ def test_update_with_the_gate_matches_the_equations():
     c = fn(w)
     opt.tell(c)
     total = c.sum(-1)
-    r = torch.exp(-ess_temperature(total, 0.25) * (total - total.min()))
+    assert (opt.ess, opt.provisional_step) == (0.2, 0.75)  # the defaults (docs/peers.md 3d)
+    r = torch.exp(-ess_temperature(total, opt.ess) * (total - total.min()))
     r = r / r.sum()
     target, spread = r @ w, r @ (w - mean) ** 2
     read = opt.read[0]
     f, g = opt.relevance[0].amax(0), (opt.variance_relevance[0] * read).amax(0)  # (N,) each
     radius = 3.0 * min(1.0, (5 / t) ** 0.5)
-    provisional = (mean + f.clamp_min(0.5) * (target - mean)).clamp(-radius, radius)
+    provisional = (mean + f.clamp_min(opt.provisional_step) * (target - mean)).clamp(-radius, radius)
     torch.testing.assert_close(opt.mean[0], torch.where(read, target, provisional))
     torch.testing.assert_close(opt.var[0], (1 - g) * var + g * spread)
     assert (opt.var[0, ~read] == 1).all() and (opt.mean[0, ~read].abs() <= radius).all()

@@ -102,6 +102,15 @@ def test_compiled_ee_path_equals_pytorch_kinematics(kin, gen, dtype, atol):
     assert fast.dtype == dtype and torch.allclose(fast.double(), ref, atol=atol)
 
 
+@pytest.mark.parametrize("dtype, atol", [(torch.float64, 1e-9), (torch.float32, 2e-5)])
+def test_compiled_skeleton_equals_pytorch_kinematics(kin, gen, dtype, atol):
+    q = random_q(300, gen).reshape(3, 100, 7)
+    ref = kin.link_positions(q)  # (3, 100, 11, 3)
+    fast = kin.skeleton(q.to(dtype))
+    assert fast.shape == ref.shape and fast.dtype == dtype and torch.allclose(fast.double(), ref, atol=atol)
+    assert torch.equal(kin.skeleton(q[0, 0]), kin.skeleton(q)[0, 0])  # unbatched, one configuration
+
+
 def test_compiled_path_folds_any_joint_axis(tmp_path, gen):
     urdf = """<robot name="toy">
       <link name="base"/><link name="l1"/><link name="l2"/><link name="tip"/>
@@ -116,6 +125,7 @@ def test_compiled_path_folds_any_joint_axis(tmp_path, gen):
     toy = ArmKinematics(path, end_link="tip")
     q = 6 * torch.rand(300, 2, generator=gen, dtype=F64) - 3
     assert torch.allclose(toy.ee_position(q), toy.link_positions(q)[:, -1], atol=1e-6)
+    assert torch.allclose(toy.skeleton(q), toy.link_positions(q), atol=1e-6)
     assert toy.num_joints == 2 and ArmKinematics(urdf, end_link="tip").num_frames == 4  # the XML text works too
 
 

@@ -87,14 +87,34 @@ def test_the_volume_objective_reads_the_hand_and_forearm_capsules(gen):
 def test_bad_collision_settings_are_refused():
     with pytest.raises(ValueError, match="collision must be one of skeleton, volume"):
         ArmReachTask(collision="mesh")
-    with pytest.raises(ValueError, match="can_objective must be one of ee, volume, auto"):
+    with pytest.raises(ValueError, match="can_objective must be one of ee, volume, skeleton, auto"):
         ArmReachTask(can_objective="hand")
     assert ArmReachTask().can_objective == "ee" and ArmReachTask(collision="volume").can_objective == "volume"
     assert ArmReachTask().margin == 0.02 and ArmReachTask(collision="volume").margin == 0.01
     assert ArmReachTask(collision="volume", can_objective="ee").can_objective == "ee"
 
 
-@pytest.mark.parametrize("can_objective", ["ee", "volume"])
+def test_the_skeleton_objective_reads_what_the_skeleton_check_reads(gen):
+    """can = clearance - min(distance of the skeleton to the can's axis over the cost steps,
+    clearance) + d; start and goal are the end effector's, as with the paper's objective."""
+    task, paper = ArmReachTask(can_objective="skeleton"), ArmReachTask()
+    q = task.start_config() + 0.3 * torch.randn(4, 100, 7, generator=gen, dtype=torch.float64)  # (4, T, 7)
+    env = task.sample_envs(4, gen)
+    c, c_ee = task.costs(q, env), paper.costs(q, env)  # (4, 3)
+    idx = task.cost_indices(100)
+    near = task.can_distance(q[:, idx], env)  # the success check's skeleton distance, before the radius
+    dev = c_ee[:, 1] - (task.clearance - _ee_near(task, q[:, idx], env).clamp(max=task.clearance))  # d, (4,)
+    expected = task.clearance - near.clamp(max=task.clearance) + dev
+    assert torch.allclose(c[:, 1], expected, atol=1e-12)
+    assert torch.allclose(c[:, [0, 2]], c_ee[:, [0, 2]], atol=1e-12)
+
+
+def _ee_near(task, q, env):
+    """The paper's distance: the end effector's horizontal distance to the can's axis, min over steps."""
+    return (task.ee_path(q)[..., :2] - env[..., None, 0:2]).norm(dim=-1).amin(-1)
+
+
+@pytest.mark.parametrize("can_objective", ["ee", "volume", "skeleton"])
 def test_one_objective_alone_equals_its_column_of_the_costs(can_objective, gen):
     task = ArmReachTask(can_objective=can_objective)
     q = task.start_config() + 0.2 * torch.randn(3, 100, 7, generator=gen, dtype=torch.float64)

@@ -23,10 +23,7 @@ straight segment from ``s`` to the target ``g``)::
     can    max(-min_t ||p_xy(t) - can||, -0.2) + 0.2 + d      (shifted by 0.2 to be >= 0)
     goal   ||p(T) - g|| + d
 
-The can objective's distance ``min_t ||p_xy(t) - can||`` is the end effector's (``can_objective="ee"``,
-the paper's) or, with ``"skeleton"``, the smallest distance of the arm's skeleton to the can's axis
-segment (what the skeleton success check reads), with ``"volume"`` that of the hand's and forearm's
-capsules (:mod:`protorch.tasks.arm_collision`).
+(``can_objective`` ``"skeleton"`` / ``"volume"``: the skeleton's / capsules' distance instead, :mod:`.arm_collision`.)
 
 Success (:meth:`ArmReachTask.success`, every step of the trajectory): the end effector starts within
 2 cm of ``s`` and ends within 2 cm of ``g``; the arm stays more than ``margin`` (2 cm for the
@@ -321,8 +318,7 @@ class ArmReachTask(Task):
     def objective_cost(self, traj: Tensor, env: Tensor, index: int) -> Tensor:
         """Objective ``index`` of :meth:`costs` alone, ``(...)`` (the loop asks when PRO's update
         reads one objective): with ``can_objective="volume"`` only the can objective pays for the
-        arm's capsules (with ``"skeleton"`` its skeleton), the start and goal objectives read the end
-        effector alone."""
+        arm's capsules (``"skeleton"``: its skeleton), the start and goal objectives the end effector."""
         if index not in (0, 1, 2):
             raise ValueError(f"index must be 0, 1 or 2, got {index!r}")
         if index == 1 or self.can_objective == "ee":
@@ -334,8 +330,7 @@ class ArmReachTask(Task):
     def path_costs(self, path: Tensor, env: Tensor, start: Tensor | None = None, near: Tensor | None = None) -> Tensor:
         """The objectives of end-effector paths ``(..., T, 3)``: ``(..., 3)``. ``start (..., 3)``
         replaces ``s`` (the online test scores the rest of a motion from where the arm is);
-        ``near (...)`` the path's nearest distance to the can's axis (``can_objective="volume"`` or
-        ``"skeleton"``)."""
+        ``near (...)`` the path's nearest distance to the can's axis (``can_objective`` volume, skeleton)."""
         s = self.start_position(path.dtype, path.device) if start is None else start  # (..., 3)
         s = s.expand(*path.shape[:-2], 3)
         g = self.goal_point(env)  # (..., 3)

@@ -91,6 +91,7 @@ from peers_tasks import (  # noqa: E402
 from protorch import PRO, RWPO, RWR  # noqa: E402
 from protorch.data.files import atomic_write_bytes  # noqa: E402
 from protorch.optim import CEM, CMAES, EPRO  # noqa: E402
+from protorch.tasks.arm_collision import CAN_OBJECTIVES  # noqa: E402
 
 BETA = 20.0  # the paper's point-particle temperature, for PRO, RWPO and RWR on window and particle
 BETAS = {"window": BETA, "point_particle": BETA, "beam_position": 200.0, "beam_orientation": 200.0, "arm": 200.0}
@@ -296,7 +297,7 @@ def parse_args(argv):
     ap.add_argument("--out", default=None, help="also write the table here (atomically), e.g. benchmarks/results/peers.md;"
                     " the JSON summary goes beside it (.json) unless --json names another file")
     ap.add_argument("--json", default=None, help="write the JSON summary here (atomically)")
-    ap.add_argument("--arm-objective", default="skeleton", choices=("skeleton", "ee", "volume"),
+    ap.add_argument("--arm-objective", default="skeleton", choices=CAN_OBJECTIVES,
                     help="the arm's can objective: the skeleton's distance to the can (what its success check reads;"
                     " the default) or the end effector's (ee, the paper's objective) or the hand's and forearm's capsules")
     ap.add_argument("--epro", action="append", default=[], metavar="KEY=VALUE",

@@ -42,6 +42,7 @@ sys.path.insert(0, str(HERE))
 from peers_tasks import F64, Problem  # noqa: E402
 
 from protorch.data.files import atomic_write_bytes  # noqa: E402
+from protorch.tasks.arm_collision import CAN_OBJECTIVES  # noqa: E402
 
 SHIFTS = {"point_particle": ("goal", "hole"), "arm": ("goal",)}
 TOL = {"point_particle": 0.05, "arm": 0.01}  # soft conditioning: the via point's std (units / rad)
@@ -163,7 +164,7 @@ def main(argv=None) -> None:
     ap.add_argument("--budget", type=int, default=50_000)
     ap.add_argument("--tasks", default="point_particle,arm")
     ap.add_argument("--optimizers", default="PRO,EPRO,RWR,CEM,CMA-ES")
-    ap.add_argument("--arm-objective", default="skeleton", choices=("skeleton", "ee", "volume"),
+    ap.add_argument("--arm-objective", default="skeleton", choices=CAN_OBJECTIVES,
                     help="the arm's can objective the optimisers read (benchmarks/peers.py --arm-objective)")
     ap.add_argument("--json", default=None, help="write the counts here (atomically)")
     args = ap.parse_args(argv)

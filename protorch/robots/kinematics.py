@@ -254,26 +254,13 @@ class ArmKinematics(nn.Module):
         q = self.check_joints(q, finite=False)
         qt = q.reshape(-1, self.num_joints).T  # (J, P)
         c, s = torch.cos(qt), torch.sin(qt)  # (J, P)
-        joints, origins = self._skeleton_maps
-        pts = torch.tensor(origins, dtype=q.dtype, device=q.device)  # (F, 3): each origin after its joint's rotation
+        pts = torch.tensor(self._origins, dtype=q.dtype, device=q.device)  # (F, 3): each origin after its joint's rotation
         x, y, z = (pts[:, i, None].expand(-1, qt.shape[1]).clone() for i in range(3))  # (F, P)
-        for k in range(self.num_joints - 1, -1, -1):
-            lo = joints.index(k + 1) if (k + 1) in joints else None  # the first frame after joint k
-            if lo is None:
-                continue
+        for k, lo in reversed(list(enumerate(self._after_joint))):  # lo: the first frame after joint k
             xs, ys = c[k] * x[lo:] - s[k] * y[lo:], s[k] * x[lo:] + c[k] * y[lo:]  # (F - lo, P)
             xs, ys, zs = self._affine(k, xs, ys, z[lo:])
             x[lo:], y[lo:], z[lo:] = xs, ys, zs
         return torch.stack([x, y, z], -1).transpose(0, 1).reshape(*q.shape[:-1], self.num_frames, 3)
-
-    @property
-    def _skeleton_maps(self) -> tuple[list[int], list[list[float]]]:
-        """Per frame, root to end link: how many joints come before it (non-decreasing) and its origin
-        in the frame after the last of them."""
-        joints = [self._frame_maps[n][0] for n in self.frame_names]
-        if joints != sorted(joints):
-            raise AssertionError(f"a serial chain's frames come after non-decreasing numbers of joints, got {joints}")
-        return joints, [[row[3] for row in self._frame_maps[n][1]] for n in self.frame_names]
 
     def frame_points(self, q: Tensor, frame: str, points: Tensor) -> Tensor:
         """Points fixed in the frame ``frame`` (``points (P, 3)``) at joints ``q (..., J)``:
@@ -376,6 +363,11 @@ class ArmKinematics(nn.Module):
                 acc = a.T.clone()  # A^T: back to the joint's own frame
             self._frame_maps[f.name] = (len(maps), acc[:3].tolist())
         maps.append(acc)  # the tail: from the last joint to the end link
+        # for skeleton(): every frame's origin in the frame after its last joint, and per joint the first
+        # frame after it (a serial chain's frames come after non-decreasing numbers of joints)
+        joints = [self._frame_maps[f.name][0] for f in frames]
+        self._origins = [[row[3] for row in self._frame_maps[f.name][1]] for f in frames]
+        self._after_joint = [joints.index(k + 1) for k in range(len(maps) - 1)]
         self._maps = [[[_snap(float(v)) for v in row] for row in m[:3].tolist()] for m in maps]
         self._tail = [self._maps[-1][r][3] for r in range(3)]  # the end point in the last joint's frame
 

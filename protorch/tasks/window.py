@@ -36,12 +36,34 @@ class WindowTask(Task):
 
     def costs(self, traj: Tensor) -> Tensor:
         """``traj (..., T, 2)`` -> ``(..., 3)``: start, window (min over t), end distances."""
+        self._check(traj)
+        return torch.stack([self._objective(traj, o) for o in range(3)], -1)  # (..., 3)
+
+    def objective_cost(self, traj: Tensor, index: int) -> Tensor:
+        """Objective ``index`` of :meth:`costs` alone, ``(...)``, the same numbers: for a caller
+        that evaluates only the objective an update reads (PRO's per-objective steps,
+        ``PRO.asked_objective``). Objectives 0 and 2 read only the first and last steps
+        (:meth:`objective_steps`), so ``traj`` may hold just those two."""
+        self._check(traj)
+        if index not in (0, 1, 2):
+            raise ValueError(f"index must be 0, 1 or 2, got {index!r}")
+        return self._objective(traj, index)
+
+    def objective_steps(self, index: int) -> tuple[int, ...] | None:
+        """The time steps objective ``index`` reads (``None``: all)."""
+        if index not in (0, 1, 2):
+            raise ValueError(f"index must be 0, 1 or 2, got {index!r}")
+        return None if index == 1 else (0, -1)
+
+    def _check(self, traj: Tensor) -> None:
         if traj.ndim < 2 or traj.shape[-1] != 2:
             raise ValueError(f"window task trajectories must be (..., T, 2), got shape {tuple(traj.shape)}")
-        d_start = (traj[..., 0, :] - self._pt(self.start, traj)).norm(dim=-1)  # (...)
-        d_window = (traj - self._pt(self.centre, traj)).norm(dim=-1).amin(-1)  # (...)
-        d_end = (traj[..., -1, :] - self._pt(self.end, traj)).norm(dim=-1)  # (...)
-        return torch.stack([d_start, d_window, d_end], -1)  # (..., 3)
+
+    def _objective(self, traj: Tensor, index: int) -> Tensor:
+        if index == 1:
+            return (traj - self._pt(self.centre, traj)).norm(dim=-1).amin(-1)  # (...)
+        point, target = (traj[..., 0, :], self.start) if index == 0 else (traj[..., -1, :], self.end)
+        return (point - self._pt(target, traj)).norm(dim=-1)  # (...)
 
     def crossing_height(self, traj: Tensor) -> Tensor:
         """``y`` where the path first crosses ``x = centre_x`` (NaN if it never does): ``(...)``."""

@@ -13,6 +13,12 @@ from .base import Task
 __all__ = ["WindowTask"]
 
 
+def _checked_index(index: int) -> int:
+    if index not in (0, 1, 2):
+        raise ValueError(f"index must be 0, 1 or 2, got {index!r}")
+    return index
+
+
 @dataclass
 class WindowTask(Task):
     """Objectives on a trajectory ``(..., T, 2)``: distance of ``tau(0)`` to ``start``, minimum
@@ -45,15 +51,11 @@ class WindowTask(Task):
         ``PRO.asked_objective``). Objectives 0 and 2 read only the first and last steps
         (:meth:`objective_steps`), so ``traj`` may hold just those two."""
         self._check(traj)
-        if index not in (0, 1, 2):
-            raise ValueError(f"index must be 0, 1 or 2, got {index!r}")
-        return self._objective(traj, index)
+        return self._objective(traj, _checked_index(index))
 
     def objective_steps(self, index: int) -> tuple[int, ...] | None:
         """The time steps objective ``index`` reads (``None``: all)."""
-        if index not in (0, 1, 2):
-            raise ValueError(f"index must be 0, 1 or 2, got {index!r}")
-        return None if index == 1 else (0, -1)
+        return None if _checked_index(index) == 1 else (0, -1)
 
     def _check(self, traj: Tensor) -> None:
         if traj.ndim < 2 or traj.shape[-1] != 2:

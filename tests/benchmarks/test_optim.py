@@ -4,26 +4,18 @@ timer runs."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 import torch
 
 from protorch import PRO
 
-ROOT = Path(__file__).resolve().parents[2]
+from . import benchmark_module
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("optim_bench", ROOT / "benchmarks" / "optim.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    yield mod
-    sys.modules.pop(spec.name, None)
+    with benchmark_module("optim.py", "optim_bench") as mod:
+        yield mod
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])

@@ -3,30 +3,17 @@ their std while the peers collapse it, and the table has a row per (task, optimi
 
 from __future__ import annotations
 
-import importlib.util
-import os
-import sys
-from pathlib import Path
 
 import pytest
 import torch
 
-ROOT = Path(__file__).resolve().parents[2]
+from . import benchmark_module
 
 
 @pytest.fixture(scope="module")
 def peers():
-    spec = importlib.util.spec_from_file_location("peers_bench", ROOT / "benchmarks" / "peers.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # dataclasses look their module up there
-    env = dict(os.environ)
-    try:
-        spec.loader.exec_module(mod)  # main() is not called: it would set this process's threads
-    finally:  # the module sets OMP_NUM_THREADS & co. for itself, not for later tests' subprocesses
-        os.environ.clear()
-        os.environ.update(env)
-    yield mod
-    sys.modules.pop(spec.name, None)
+    with benchmark_module("peers.py", "peers_bench") as mod:
+        yield mod
 
 
 def test_nuisance_weights_change_no_cost(peers):

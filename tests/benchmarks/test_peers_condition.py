@@ -3,33 +3,21 @@ goal, the arm's goal configuration reaches it, and main() writes the counts per 
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import os
-import sys
-from pathlib import Path
 
 import pytest
 import torch
 
-ROOT = Path(__file__).resolve().parents[2]
+from . import benchmark_module
 
 
 @pytest.fixture(scope="module")
 def cond():
-    spec = importlib.util.spec_from_file_location("peers_condition_bench", ROOT / "benchmarks" / "peers_condition.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    env = dict(os.environ)
-    try:
-        spec.loader.exec_module(mod)
-        mod.peers = mod.load_peers()
-    finally:  # peers.py sets OMP_NUM_THREADS & co. for itself
-        os.environ.clear()
-        os.environ.update(env)
-    yield mod
-    sys.modules.pop(spec.name, None)
-    sys.modules.pop("peers_bench", None)
+    def load(mod):
+        mod.peers = mod.load_peers()  # peers.py sets OMP_NUM_THREADS & co. for itself
+
+    with benchmark_module("peers_condition.py", "peers_condition_bench", load, also=("peers_bench",)) as mod:
+        yield mod
 
 
 def test_exact_conditioning_meets_the_moved_goal(cond):

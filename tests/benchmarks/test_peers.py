@@ -3,7 +3,6 @@ their std while the peers collapse it, and the table has a row per (task, optimi
 
 from __future__ import annotations
 
-
 import pytest
 import torch
 

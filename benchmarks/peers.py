@@ -91,7 +91,7 @@ from peers_tasks import (  # noqa: E402
 from protorch import PRO, RWPO, RWR  # noqa: E402
 from protorch.data.files import atomic_write_bytes  # noqa: E402
 from protorch.optim import CEM, CMAES, EPRO  # noqa: E402
-from protorch.tasks.arm_collision import CAN_OBJECTIVES  # noqa: E402
+from protorch.tasks.arm.collision import CAN_OBJECTIVES  # noqa: E402
 
 BETA = 20.0  # the paper's point-particle temperature, for PRO, RWPO and RWR on window and particle
 BETAS = {"window": BETA, "point_particle": BETA, "beam_position": 200.0, "beam_orientation": 200.0, "arm": 200.0}

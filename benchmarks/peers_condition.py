@@ -42,7 +42,7 @@ sys.path.insert(0, str(HERE))
 from peers_tasks import F64, Problem  # noqa: E402
 
 from protorch.data.files import atomic_write_bytes  # noqa: E402
-from protorch.tasks.arm_collision import CAN_OBJECTIVES  # noqa: E402
+from protorch.tasks.arm.collision import CAN_OBJECTIVES  # noqa: E402
 
 SHIFTS = {"point_particle": ("goal", "hole"), "arm": ("goal",)}
 TOL = {"point_particle": 0.05, "arm": 0.01}  # soft conditioning: the via point's std (units / rad)

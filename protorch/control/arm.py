@@ -26,7 +26,7 @@ Moves: each episode gets 1 or 2 (``moves``) moves at random phases in ``move_win
 puts either the can or the target (equally likely) at a new random position of the task's
 sampler (can and target keeping their separation), as a person would: never onto the arm, i.e.
 the arm (under the task's collision model: its skeleton or its link volumes,
-:mod:`protorch.tasks.arm_collision`) at least ``place_clearance`` from the moved can's surface.
+:mod:`protorch.tasks.arm.collision`) at least ``place_clearance`` from the moved can's surface.
 The person moves things at once (a jump), which is the hardest case for the controller.
 
 Success over the whole episode, at every instant with the environment of that instant: the arm
@@ -45,7 +45,7 @@ from torch import Tensor
 
 from ..checks import check_number, check_tensor
 from ..robots.panda import PANDA_MAX_ACCELERATION
-from ..tasks.arm_collision import above_table
+from ..tasks.arm.collision import above_table
 from .arm_choice import ArmClassChoice, draw_moves, rest_scores, velocity_command_acceleration
 from .episodes import (
     Timing,

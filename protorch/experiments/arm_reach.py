@@ -7,7 +7,7 @@ table around a can, and switches between passing it on the left and on the right
    sampler's rectangles, or with ``task.prior_grid=table`` over the whole table within the arm's
    reach) with the straight end-effector path to the target (by IK) and the average demonstrated
    variance; with ``task.collision=volume`` only those clear of the can, plus detour priors on both
-   sides (:mod:`protorch.experiments.arm_priors`).
+   sides (:mod:`protorch.tasks.arm.priors`).
    Every entry carries its homotopy class (:meth:`~protorch.tasks.ArmReachTask.side`) as label.
 2. The self-improvement loop (:func:`protorch.loop.self_improve`, PRO) over 2024 random
    environments with the labeller: solutions are stored with their class, the GP map keeps the
@@ -45,14 +45,14 @@ from ..data.demos import check_demo_groups, read_marks
 from ..gp.model import label_aware_mean
 from ..loop import LoopResult, demonstration_dataset
 from ..primitives.promp import ProMP, resample
-from ..tasks.arm_demos import read_arm_demos
-from ..tasks.arm_reach import LEFT, RIGHT, SIDES, ArmReachTask
-from ..tasks.arm_workspace import REGIONS, check_region
+from ..tasks.arm.demos import read_arm_demos
+from ..tasks.arm.reach import LEFT, RIGHT, SIDES, ArmReachTask
+from ..tasks.arm.workspace import REGIONS, check_region
 from ..threads import torch_threads
 from ..viz.arm import experiment_figures
 from .common import demo_source
 from .arm_physics import check_physics, physics_section
-from .arm_priors import check_detours, grid_priors
+from ..tasks.arm.priors import check_detours, grid_priors
 from .self_improvement import (
     DYNAMIC_SEED,
     TEST_SEED,
@@ -126,7 +126,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
 
     def make_demonstrations(self) -> None:
         """The demonstrated environments are drawn over the rectangles whatever ``task.region``;
-        or the folder ``task.demos`` (:func:`~protorch.tasks.arm_demos.read_arm_demos`)."""
+        or the folder ``task.demos`` (:func:`~protorch.tasks.arm.demos.read_arm_demos`)."""
         if self.source != "synthetic":
             folder, self.demo_labels = read_arm_demos(self.task, self.source)
             check_demo_groups(folder.envs, folder.files, self.demo_labels, label_names=SIDES)
@@ -289,7 +289,7 @@ def run(
     ``can_x can_y goal_x goal_y`` files, e.g. written by ``python -m protorch.view --teach
     arm_reach``), ``demo_envs``, ``demos_per_env`` (synthetic only), ``priors`` (number of grid
     priors), ``prior_clear`` (keep only the priors that succeed under ``collision``; ``auto``: with
-    ``volume``), ``prior_detours`` (distances of the detour priors, :mod:`~protorch.experiments.arm_priors`;
+    ``volume``), ``prior_detours`` (distances of the detour priors, :mod:`~protorch.tasks.arm.priors`;
     ``auto``: 0.18 and 0.24 m with ``volume``, none with the skeleton), ``prior_grid`` (``rectangles`` or ``table``: the region the priors' grid spans) and the
     :class:`~protorch.tasks.ArmReachTask` options (``cost_steps``, ``margin``, ``goal_tol``,
     ``region``, ``reach``, ...).

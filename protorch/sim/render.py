@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..data.files import atomic_write_bytes
-from ..tasks.arm_reach import ArmReachTask
+from ..tasks.arm.reach import ArmReachTask
 from .mj import load_mujoco
 from .scene import build_scene
 

@@ -7,7 +7,7 @@
 import importlib
 
 from ..data.demos import load_human_demos
-from .arm_reach import ArmReachTask
+from .arm import ArmReachTask
 from .base import (PROTOCOL_MEMBERS, SelfImprovementTask, Task, TaskContractError, check_task_outputs,
                    check_task_protocol)
 from .beam_window import BeamWindowTask, SimulatedOperator

@@ -20,7 +20,7 @@ from torch import Tensor
 from ..control.arm import rest_scores
 from ..control.particle import promp_state_at
 from ..robots.panda import PANDA_MAX_ACCELERATION
-from ..tasks.arm_reach import SIDES
+from ..tasks.arm.reach import SIDES
 
 __all__ = ["ArmPlayer", "ParticlePlayer", "make_player"]
 

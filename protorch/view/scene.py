@@ -25,7 +25,7 @@ from torch import Tensor
 from ..checks import check_tensor
 from ..data.checkpoint import checkpoint_path, load
 from ..gp.model import EnvToProMP
-from ..tasks.arm_reach import SIDES, ArmReachTask
+from ..tasks.arm.reach import SIDES, ArmReachTask
 from ..tasks.point_particle import PointParticleTask
 
 __all__ = [

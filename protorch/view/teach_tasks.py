@@ -18,8 +18,8 @@ import torch
 from torch import Tensor
 
 from ..data.demos import PARTICLE_FORMAT, DemoFormat
-from ..tasks.arm_demos import arm_demo_format
-from ..tasks.arm_reach import SIDES, ArmReachTask
+from ..tasks.arm.demos import arm_demo_format
+from ..tasks.arm.reach import SIDES, ArmReachTask
 from ..tasks.point_particle import PointParticleTask
 
 __all__ = ["ArmTeach", "HandFollower", "ParticleTeach", "Quality", "make_teach_task", "TEACH_TASKS"]

@@ -13,7 +13,7 @@ from protorch.gp import make_env_map
 from protorch.gp.model import EnvToProMP, label_aware_mean
 from protorch.loop import demonstration_dataset
 from protorch.robots import PANDA_MAX_ACCELERATION
-from protorch.tasks.arm_reach import LEFT, RIGHT, ArmReachTask
+from protorch.tasks.arm.reach import LEFT, RIGHT, ArmReachTask
 
 F64 = torch.float64
 pytestmark = pytest.mark.slow  # IK demonstrations and an arm map built per module: ~15 s of CPU

@@ -12,7 +12,7 @@ from protorch.control.switches import count_changes, geometric_sides, geometric_
 from protorch.gp import make_env_map
 from protorch.gp.model import EnvToProMP
 from protorch.loop import demonstration_dataset
-from protorch.tasks.arm_reach import LEFT, RIGHT, ArmReachTask
+from protorch.tasks.arm.reach import LEFT, RIGHT, ArmReachTask
 
 F64 = torch.float64
 A = torch.tensor([0.56, 0.05, 0.72, 0.0], dtype=F64)  # can left of the start-target line

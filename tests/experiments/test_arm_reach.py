@@ -17,7 +17,7 @@ from protorch.data.checkpoint import checkpoint_path
 from protorch.data.dataset import TrajectoryDataset
 from protorch.experiments import run_experiment
 from protorch.experiments.arm_reach import prepare
-from protorch.tasks.arm_reach import LEFT, RIGHT
+from protorch.tasks.arm.reach import LEFT, RIGHT
 
 TINY = [
     "settings.loop.num_envs=10", "settings.loop.batch_size=5", "optimizer.max_iter=3", "optimizer.num_samples=20",
@@ -158,7 +158,7 @@ def test_volume_task_keeps_only_the_priors_clear_of_the_can_under_its_volumes():
     assert bool(auto.task.success(auto.promp.trajectory(auto.prior_mean), auto.prior_envs).all())
     assert len(auto.initial_data()) == 2 + int(ok.sum())
     assert cfg()["task"]["prior_clear"] == "auto" and cfg()["task"]["prior_detours"] == "auto"
-    # the detour priors (tests/experiments/test_arm_priors.py) come after the straight ones kept
+    # the detour priors (tests/tasks/arm/test_priors.py) come after the straight ones kept
     with_detours = prepare(optimizer=c["optimizer"], task=c["task"], gp=c["gp"], promp=s["promp"], loop=s["loop"],
                            test=s["test"], dynamic={"episodes": 0})
     assert with_detours.prior_detours == (0.18, 0.24) and sum(with_detours.prior_report["detours"].values()) > 0

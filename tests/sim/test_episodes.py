@@ -12,7 +12,7 @@ from protorch.control.episodes import check_timing
 from protorch.robots.panda import PANDA_MAX_ACCELERATION
 from protorch.sim.episodes import FixedMeans, run_physics_episodes, substeps
 from protorch.sim.scene import build_scene, controller_model
-from protorch.tasks.arm_demos import detour_paths
+from protorch.tasks.arm.demos import detour_paths
 
 TIMING = check_timing(0.02, 1.5, 0.4)
 GAINS = dict(kp=400.0, kd=40.0, ref_kp=10.0, max_acceleration=PANDA_MAX_ACCELERATION)

@@ -20,7 +20,7 @@ from protorch.experiments import arm_reach, point_particle
 from protorch.gp.model import label_aware_mean
 from protorch.primitives.promp import resample
 from protorch.tasks import PointParticleTask
-from protorch.tasks.arm_demos import arm_demo_format
+from protorch.tasks.arm.demos import arm_demo_format
 from protorch.view.__main__ import main, parse_args, teach_session
 from protorch.view.scene import open_run
 from protorch.view.teach import TeachSession, failing_envs

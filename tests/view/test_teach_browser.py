@@ -19,7 +19,7 @@ import torch
 
 from protorch.data.demos import PARTICLE_FORMAT, read_demos, read_marks
 from protorch.experiments import arm_reach, point_particle
-from protorch.tasks.arm_demos import arm_demo_format
+from protorch.tasks.arm.demos import arm_demo_format
 from protorch.view.draw import screen_points
 from protorch.view.teach import TeachSession
 from protorch.view.teach_server import Teacher

@@ -1,4 +1,4 @@
-"""The arm's grid priors (protorch.experiments.arm_priors): straight priors, kept only when clear
+"""The arm's grid priors (protorch.tasks.arm.priors): straight priors, kept only when clear
 under the task's collision model, and detour priors where the straight one does not hold a side;
 every prior kept succeeds and passes on the side its label says."""
 
@@ -7,10 +7,10 @@ from __future__ import annotations
 import pytest
 import torch
 
-from protorch.experiments.arm_priors import check_detours, grid_priors
+from protorch.tasks.arm.priors import check_detours, grid_priors
 from protorch.primitives.promp import ProMP
 from protorch.tasks import ArmReachTask
-from protorch.tasks.arm_reach import LEFT, RIGHT
+from protorch.tasks.arm.reach import LEFT, RIGHT
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Where the arm's environments come from (protorch/tasks/arm_workspace.py): the prior grid over
+"""Where the arm's environments come from (protorch/tasks/arm/workspace.py): the prior grid over
 the whole table (count, ranges, every node valid and its straight prior followed by the IK), the
 reach bounds against the IK, the can clear of the start posture, the table sampler, bad settings."""
 
@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from protorch.tasks import ArmReachTask
-from protorch.tasks.arm_workspace import (
+from protorch.tasks.arm.workspace import (
     can_clear_of_start,
     goal_in_reach,
     prior_grid_nodes,

@@ -1,10 +1,10 @@
-"""The two readings of the arm objectives' deviation ``d`` (protorch.tasks.arm_deviation)."""
+"""The two readings of the arm objectives' deviation ``d`` (protorch.tasks.arm.deviation)."""
 
 import pytest
 import torch
 
-from protorch.tasks.arm_deviation import deviation, segment_deviation, time_aligned_deviation
-from protorch.tasks.arm_reach import ArmReachTask
+from protorch.tasks.arm.deviation import deviation, segment_deviation, time_aligned_deviation
+from protorch.tasks.arm.reach import ArmReachTask
 
 F64 = torch.float64
 S = torch.tensor([0.0, 0.0, 0.1], dtype=F64)

@@ -7,7 +7,7 @@
 * ``"volume"``: the Panda's link capsules (:data:`~protorch.robots.panda_volumes.PANDA_CAPSULES`,
   the same volumes the MuJoCo scene collides with). A capsule's gap to the can is its segment's
   smallest signed distance to the can's solid cylinder, flat top included
-  (:func:`~protorch.tasks.arm_geometry.segment_cylinder_distance`), minus the capsule's radius:
+  (:func:`~protorch.tasks.arm.geometry.segment_cylinder_distance`), minus the capsule's radius:
   the exact distance between the two bodies, negative when they overlap. Above the table means the lowest
   point of every capsule not on a base link (:data:`~protorch.robots.panda_volumes.PANDA_BASE_LINKS`)
   at ``z >= 0``.
@@ -34,8 +34,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ..robots.panda_volumes import PANDA_BASE_LINKS, PANDA_CAPSULES, capsule_index, capsule_segments
-from .arm_geometry import segment_cylinder_distance
+from ...robots.panda_volumes import PANDA_BASE_LINKS, PANDA_CAPSULES, capsule_index, capsule_segments
+from .geometry import segment_cylinder_distance
 
 __all__ = ["COLLISIONS", "CAN_OBJECTIVES", "FOREARM_LINK", "check_collision", "check_volumes", "frames_gap", "above_table",
            "end_capsules", "end_volume_near"]

@@ -6,7 +6,7 @@ added to the map's data before the loop with the average demonstrated variance.
   can on. With ``task.prior_clear`` only those whose mean succeeds under the task's collision
   model are kept (with the link volumes most straight paths touch the can: 322 of 2004).
 * **detour priors** (``task.prior_detours``, distances in metres): at every grid node and on each
-  side, the demonstrator's path without its noise (:func:`~protorch.tasks.arm_demos.detour_paths`:
+  side, the demonstrator's path without its noise (:func:`~protorch.tasks.arm.demos.detour_paths`:
   through a point that far beside the can) at the first of the distances whose mean succeeds
   under the task's collision model and passes on that side; none where the straight prior already
   holds that side. They give the volume-planned map a collision-free mean near every grid node on
@@ -18,10 +18,10 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ..primitives.promp import ProMP
-from ..tasks.arm_demos import detour_paths
-from ..tasks.arm_reach import LEFT, RIGHT, ArmReachTask
-from ..tasks.arm_workspace import prior_grid_nodes
+from ...primitives.promp import ProMP
+from .demos import detour_paths
+from .reach import LEFT, RIGHT, ArmReachTask
+from .workspace import prior_grid_nodes
 
 __all__ = ["grid_priors", "check_detours"]
 
@@ -51,7 +51,7 @@ def _weights(task: ArmReachTask, promp: ProMP, paths: Tensor) -> tuple[Tensor, T
 
 def grid_priors(task: ArmReachTask, promp: ProMP, n: int, over: str = "rectangles", clear: bool = False,
                 detours: tuple[float, ...] = ()):
-    """``n`` grid environments over ``over`` (:func:`~protorch.tasks.arm_workspace.prior_grid_nodes`)
+    """``n`` grid environments over ``over`` (:func:`~protorch.tasks.arm.workspace.prior_grid_nodes`)
     with their straight priors (with ``clear`` only those that succeed) and their detour priors
     (module docstring): ``(envs (P, 4), weight means (P, N), labels (P,), report)``; the report
     holds the grid's counts, ``clear`` (straight priors kept, with ``clear``) and ``detours`` (per

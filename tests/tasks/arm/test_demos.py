@@ -1,4 +1,4 @@
-"""The arm's demonstrator paths (protorch.tasks.arm_demos): the noiseless detour passes beside the
+"""The arm's demonstrator paths (protorch.tasks.arm.demos): the noiseless detour passes beside the
 can at the distance and on the side asked for, from the start to the target."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from protorch.tasks import ArmReachTask
-from protorch.tasks.arm_demos import beside_can, detour_paths
-from protorch.tasks.arm_reach import LEFT, RIGHT
+from protorch.tasks.arm.demos import beside_can, detour_paths
+from protorch.tasks.arm.reach import LEFT, RIGHT
 
 F64 = torch.float64
 

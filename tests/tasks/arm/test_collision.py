@@ -1,4 +1,4 @@
-"""The arm-reach task's collision models (protorch.tasks.arm_collision): the volume gap is exact
+"""The arm-reach task's collision models (protorch.tasks.arm.collision): the volume gap is exact
 against dense sampling, the skeleton gap is the skeleton distance minus the radius, the volume
 model is stricter than the skeleton, and the hand's volume objective follows the full frames."""
 
@@ -9,8 +9,8 @@ import torch
 
 from protorch.robots.panda_volumes import PANDA_CAPSULES, capsule_segments
 from protorch.tasks import ArmReachTask
-from protorch.tasks.arm_collision import end_volume_near
-from protorch.tasks.arm_geometry import point_cylinder_distance, segment_cylinder_distance
+from protorch.tasks.arm.collision import end_volume_near
+from protorch.tasks.arm.geometry import point_cylinder_distance, segment_cylinder_distance
 
 
 def _sampled_gap(task, q, env):

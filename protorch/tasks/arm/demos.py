@@ -6,10 +6,10 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ..checks import check_tensor
-from ..data.demos import DemoFolder, DemoFormat, read_demos
-from .arm_geometry import LEFT, RIGHT
-from .curves import catmull_rom, smooth_noise
+from ...checks import check_tensor
+from ...data.demos import DemoFolder, DemoFormat, read_demos
+from .geometry import LEFT, RIGHT
+from ..curves import catmull_rom, smooth_noise
 
 __all__ = ["arm_demo_format", "beside_can", "detour_paths", "follow_path", "ik_demonstrations", "read_arm_demos",
            "straight_paths"]

@@ -12,7 +12,7 @@ Geometry (metres, the robot's base frame: the table top is ``z = 0``, the arm fa
 * environment ``e = (can_x, can_y, goal_x, goal_y)``, sampled uniformly over the rectangles
   ``can in [0.50, 0.62] x [-0.12, 0.12]`` and ``goal in [0.66, 0.74] x [-0.24, 0.24]`` (can and
   target at least 12 cm from each other and from the start), or with ``region="table"`` over the
-  whole table within the arm's reach (:mod:`protorch.tasks.arm_workspace`); anything off the
+  whole table within the arm's reach (:mod:`protorch.tasks.arm.workspace`); anything off the
   table ``[0.2, 0.9] x [-0.5, 0.5]`` is refused.
 
 Objectives (the paper's, on the end-effector path ``p(t)`` of a joint trajectory ``(..., T, 7)``,
@@ -29,7 +29,7 @@ Success (:meth:`ArmReachTask.success`, every step of the trajectory): the end ef
 2 cm of ``s`` and ends within 2 cm of ``g``; the arm stays more than ``margin`` (2 cm for the
 skeleton, 1 cm for the exact volumes) from the
 can's surface and above the table, under the collision model ``collision``
-(:mod:`protorch.tasks.arm_collision`): ``"skeleton"`` (the segments between consecutive frame
+(:mod:`protorch.tasks.arm.collision`): ``"skeleton"`` (the segments between consecutive frame
 origins, base to tool centre point) or ``"volume"`` (the Panda's link capsules, the volumes the
 MuJoCo scene collides with); every joint stays inside its limits.
 
@@ -48,24 +48,24 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor
 
-from ..checks import check_tensor
-from ..robots.kinematics import ArmKinematics
-from ..robots.panda import PANDA_END_LINK
-from .arm_collision import (CAN_OBJECTIVES, above_table, check_collision, check_volumes, end_capsules,
+from ...checks import check_tensor
+from ...robots.kinematics import ArmKinematics
+from ...robots.panda import PANDA_END_LINK
+from .collision import (CAN_OBJECTIVES, above_table, check_collision, check_volumes, end_capsules,
                             end_volume_near, frames_gap)
-from .arm_demos import follow_path, ik_demonstrations, straight_paths
-from .arm_deviation import DEVIATIONS, deviation
-from .arm_geometry import (
+from .demos import follow_path, ik_demonstrations, straight_paths
+from .deviation import DEVIATIONS, deviation
+from .geometry import (
     LEFT,
     RIGHT,
     SIDES,
     down_rotation,
     segment_axis_distance,
 )
-from .arm_workspace import check_workspace, prior_grid_nodes
-from .arm_workspace import sample_envs as sample_region
-from .arm_workspace import valid_envs as valid_in_region
-from .base import Task
+from .workspace import check_workspace, prior_grid_nodes
+from .workspace import sample_envs as sample_region
+from .workspace import valid_envs as valid_in_region
+from ..base import Task
 
 __all__ = ["ArmReachTask", "START_Q", "LEFT", "RIGHT", "SIDES", "segment_axis_distance", "down_rotation"]
 
@@ -85,7 +85,7 @@ class ArmReachTask(Task):
             ``None``: 2 cm for the skeleton, 1 cm for the volumes (the exact bodies need slack for
             tracking only; at 2 cm the hand held at its start yaw cannot stand at 16 % of the
             sampled targets at all, at 1 cm at 2 %: docs/physics.md).
-        collision: ``"skeleton"`` or ``"volume"`` (:mod:`protorch.tasks.arm_collision`).
+        collision: ``"skeleton"`` or ``"volume"`` (:mod:`protorch.tasks.arm.collision`).
         clearance: the ``0.2`` of the paper's can objective ``max(-min_t ||p - can||, -0.2)``.
         goal_tol, start_tol: success radii of the end effector at the end and at the start.
         cost_steps: time steps the objectives are evaluated on (evenly spaced, first and last
@@ -95,7 +95,7 @@ class ArmReachTask(Task):
         region: where :meth:`sample_envs` draws: ``"rectangles"`` (``can_box``, ``goal_box``) or
             ``"table"`` (the whole table, targets within ``reach``, the can clear of the start
             posture); ``reach``: ``(r_min, r_max)``, the targets' horizontal distance from the
-            base's axis that the hand-down arm reaches (:mod:`protorch.tasks.arm_workspace`).
+            base's axis that the hand-down arm reaches (:mod:`protorch.tasks.arm.workspace`).
         start_q: the fixed start configuration (7 joint angles).
         urdf, end_link: the arm (default the Panda shipped with protorch).
     """
@@ -116,8 +116,8 @@ class ArmReachTask(Task):
     start_q: tuple = START_Q
     urdf: str | None = None
     end_link: str = PANDA_END_LINK
-    deviation: str = "segment"  # "time": to tau_direct(t) at the same instant (protorch.tasks.arm_deviation)
-    collision: str = "skeleton"  # "volume": the link capsules (protorch.tasks.arm_collision)
+    deviation: str = "segment"  # "time": to tau_direct(t) at the same instant (protorch.tasks.arm.deviation)
+    collision: str = "skeleton"  # "volume": the link capsules (protorch.tasks.arm.collision)
     can_objective: str = "auto"  # ee | volume (the hand's, forearm's capsules) | skeleton | auto: as `collision` plans
     name: str = "arm_reach"
     objective_names: tuple[str, ...] = field(default=("start", "can", "goal"), init=False)
@@ -225,7 +225,7 @@ class ArmReachTask(Task):
     def prior_grid(self, n: int = 2004, over: str = "rectangles") -> Tensor:
         """``n`` environments on a regular grid over the region ``over`` ``(n, 4)``: the smallest
         ``k^4`` grid with at least ``n`` valid nodes, of which ``n`` evenly spaced ones
-        (lexicographic order) are kept (:func:`protorch.tasks.arm_workspace.prior_grid_nodes`
+        (lexicographic order) are kept (:func:`protorch.tasks.arm.workspace.prior_grid_nodes`
         also returns the counts)."""
         return prior_grid_nodes(self, n, over)[0]
 
@@ -344,7 +344,7 @@ class ArmReachTask(Task):
 
     def can_gap(self, traj: Tensor, env: Tensor) -> Tensor:
         """Smallest distance between the arm's surface (under :attr:`collision`) and the can's over
-        all steps: ``(...)`` (success needs ``> margin``; :func:`~protorch.tasks.arm_collision.frames_gap`)."""
+        all steps: ``(...)`` (success needs ``> margin``; :func:`~protorch.tasks.arm.collision.frames_gap`)."""
         traj, env = self._prepare(traj, env)
         return frames_gap(self, self.kinematics.frames(traj), env)
 
@@ -392,7 +392,7 @@ class ArmReachTask(Task):
         """Imperfect, hand-guided-like demonstrations by inverse kinematics: ``per_env`` per
         environment, all passing the can on the side ``sides[i]`` (default: alternating
         :data:`LEFT`, :data:`RIGHT`); the paths and their parameters are those of
-        :func:`~protorch.tasks.arm_demos.ik_demonstrations`. Returns ``(demos, demo_envs, labels)``: ``M * per_env`` joint trajectories ``(T_i, 7)``,
+        :func:`~protorch.tasks.arm.demos.ik_demonstrations`. Returns ``(demos, demo_envs, labels)``: ``M * per_env`` joint trajectories ``(T_i, 7)``,
         their environments ``(M * per_env, 4)`` and the homotopy class of each (measured on
         the joint trajectory with :meth:`side`, not assumed).
         """

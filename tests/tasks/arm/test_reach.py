@@ -11,7 +11,7 @@ import torch
 
 from protorch.primitives.promp import resample
 from protorch.tasks import ArmReachTask
-from protorch.tasks.arm_reach import LEFT, RIGHT, segment_axis_distance
+from protorch.tasks.arm.reach import LEFT, RIGHT, segment_axis_distance
 
 F64 = torch.float64
 

@@ -18,7 +18,8 @@ contract's convergence rule (pycma's own ``stop()`` still applies: the mean then
 Optimisers (``--optimizers``): ``EPRO`` (its defaults; ``--epro KEY=VALUE`` overrides, repeatable),
 ``CMAES`` (pycma, ``popsize = samples``), ``CEM`` (10 % elites), ``PRO`` (the paper's, ``samples``
 per objective plus ``samples`` relevance probes an iteration, ``beta = --pro-beta`` on the costs,
-noise floor 3), and any ``EPRO:NAME`` registered in :data:`VARIANTS` (diagnosis runs).
+noise floor 3), any ``EPRO:NAME`` registered in :data:`VARIANTS` and ``CMAES:diag`` (separable
+CMA-ES: a diagonal covariance, pycma's ``CMA_diagonal``), for the diagnosis.
 
 Results: ``--json`` (written atomically after every run, so a run cut short keeps what finished):
 ``meta`` (command, commit, versions, settings) and ``runs``, one per run with its ``curve``.
@@ -87,12 +88,14 @@ def make_optimizer(name: str, n: int, start_std: float, samples: int, seed: int,
             raise SystemExit(f"unknown EPRO variant {variant!r}; choose one of {sorted(VARIANTS)}")
         return EPRO(mean, var, **{**common, **(epro or {}), **VARIANTS.get(variant, {})})
     if base == "CMAES":
-        return CMAES(mean, var, **common)
+        if variant not in ("", "diag"):
+            raise SystemExit(f"unknown CMAES variant {variant!r}; CMAES:diag is separable CMA-ES")
+        return CMAES(mean, var, cma_options={"CMA_diagonal": True} if variant else None, **common)
     if base == "CEM":
         return CEM(mean, var, elite_frac=0.1, **common)
     if base == "PRO":
         return PRO(mean, var, beta=pro_beta, relevance_samples=samples, noise_floor=3.0, **common)
-    raise SystemExit(f"unknown optimizer {name!r}; choose from {OPTIMIZERS} or EPRO:<variant>")
+    raise SystemExit(f"unknown optimizer {name!r}; choose from {OPTIMIZERS}, EPRO:<variant> or CMAES:diag")
 
 
 def diagnostics(opt) -> dict:

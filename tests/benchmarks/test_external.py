@@ -1,0 +1,112 @@
+"""benchmarks/external at tiny budgets, on a stand-in for fancy_gym's episodes (fancy_gym lives in
+its own venv: only the test at the end needs it, and skips without it)."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+
+import numpy as np
+import pytest
+
+from . import ROOT, benchmark_module
+
+sys.path.insert(0, str(ROOT / "benchmarks" / "external"))
+
+
+@pytest.fixture(scope="module")
+def run():
+    with benchmark_module("external/run.py", "external_run", also=("tasks",)) as mod:
+        yield mod
+
+
+@pytest.fixture(scope="module")
+def table():
+    with benchmark_module("external/table.py", "external_table") as mod:
+        yield mod
+
+
+class Quadratic:
+    """Episodes of a stand-in task: return ``-|w - 1|^2``, success below a cost of ``thr``; keeps
+    every batch it evaluated."""
+
+    def __init__(self, run_mod, thr: float) -> None:
+        from tasks import Outcome
+
+        self.outcome, self.thr, self.batches = Outcome, thr, []
+
+    def __call__(self, weights, context):
+        self.batches.append((np.array(weights), context))
+        cost = ((np.asarray(weights) - 1.0) ** 2).sum(-1)  # (S,)
+        return [self.outcome(-float(c), bool(c < self.thr)) for c in cost]
+
+
+@pytest.mark.parametrize("name", ["EPRO", "CMAES", "CEM", "PRO"])
+def test_run_one_counts_episodes_and_the_best_sample(run, name):
+    ev = Quadratic(run, thr=3.0)
+    opt = run.make_optimizer(name, 4, 1.0, 10, seed=0)
+    res = run.run_one(opt, ev, context=7, budget=205, eval_every=50)
+    samples = [b for b, _ in ev.batches if b.shape[0] > 1]  # the optimiser's asks; the checks of the mean are single
+    checks = [b for b, _ in ev.batches if b.shape[0] == 1]
+    assert {c for _, c in ev.batches} == {7}  # every episode in the run's context
+    assert res["episodes"] == sum(b.shape[0] for b in samples) <= 205
+    assert res["episodes"] > 205 - samples[-1].shape[0] * 2  # stopped only when the next ask would not fit
+    all_w = np.concatenate(samples)
+    costs = ((all_w - 1.0) ** 2).sum(-1)
+    assert res["best_return"] == pytest.approx(-costs.min())
+    assert res["best_at"] == int(costs.argmin()) + 1
+    hit = np.flatnonzero(costs < 3.0)
+    assert res["first_success"] == (int(hit[0]) + 1 if hit.size else None)
+    eps = [c["episodes"] for c in res["curve"]]
+    assert eps == sorted(eps) and eps[0] == 0 and eps[-1] == res["episodes"] and len(checks) == len(eps)
+    final = ((checks[-1][0] - 1.0) ** 2).sum()  # the last check is the final mean
+    assert res["final_return"] == pytest.approx(-final)
+
+
+def test_epro_variants_and_overrides(run):
+    opt = run.make_optimizer("EPRO:nogate", 3, 0.5, 10, seed=0, epro={"ess": 0.3})
+    assert opt.evidence_level is None and opt.ess == 0.3 and float(opt.var[0, 0]) == pytest.approx(0.25)
+    assert run.parse_overrides(["ess=0.5", "curvature=false", "x=abc"]) == {"ess": 0.5, "curvature": False, "x": "abc"}
+    with pytest.raises(SystemExit, match="unknown EPRO variant"):
+        run.make_optimizer("EPRO:nope", 3, 1.0, 10, seed=0)
+    diag = run.make_optimizer("CMAES:diag", 3, 1.0, 10, seed=0)
+    assert diag.strategies[0].opts["CMA_diagonal"] is True
+
+
+def _run(task, opt, ctx, seed, returns, successes, episodes_each=100):
+    curve = [{"episodes": e, "mean_return": r, "mean_success": s, "mean_pos_dist": 0.1, "mean_rot_dist": 0.2,
+              "best_return": r, "any_success": s} for e, r, s in zip(range(0, episodes_each * len(returns), episodes_each),
+                                                                    returns, successes)]
+    first = next((c["episodes"] for c in curve if c["mean_success"]), None)
+    return {"task": task, "optimizer": opt, "context": ctx, "seed": seed, "episodes": curve[-1]["episodes"],
+            "first_success": first, "stopped": None, "curve": curve}
+
+
+def test_table_reads_each_run_at_the_budget(table, tmp_path):
+    runs = [_run("box_pushing", "EPRO", 1, 0, [-200, -150, -100], [False, False, True]),
+            _run("box_pushing", "EPRO", 2, 0, [-210, -190, -180], [False, False, False]),
+            _run("box_pushing", "CMAES", 1, 0, [-200, -120, -60], [False, True, True])]
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps({"meta": {"commit": "abc", "command": "python benchmarks/external/run.py x"}, "runs": runs}))
+    loaded, _ = table.load([str(path)])
+    rows = {line.split(" | ")[1]: line for line in table.summary(loaded, 200)[2:]}
+    assert "| 1 / 2 |" in rows["EPRO"] and "-140.0" in rows["EPRO"]  # medians of -100 and -180
+    assert "| 1 / 1 |" in rows["CMAES"] and "| 100 |" in rows["CMAES"]  # its first success at episode 100
+    mid = {line.split(" | ")[1]: line for line in table.summary(loaded, 100)[2:]}
+    assert "| 0 / 2 |" in mid["EPRO"] and "-170.0" in mid["EPRO"]  # read at 100 episodes, not at the end
+    doc = tmp_path / "d.md"
+    doc.write_text("a\n<!-- t -->\nold\n<!-- /t -->\nb\n")
+    table.main([str(path), "--at", "200", "--doc", str(doc), "--marker", "t"])
+    text = doc.read_text()
+    assert text.startswith("a\n<!-- t -->\n| task") and "old" not in text and text.endswith("<!-- /t -->\nb\n")
+    assert "runs at commit(s) abc" in text
+
+
+def test_via_point_reacher_returns_are_finite():
+    pytest.importorskip("fancy_gym")
+    from tasks import make_env, run_episode
+
+    env = make_env("via_point_reacher")
+    out = run_episode(env, np.zeros(env.action_space.shape[0]), 1)
+    assert math.isfinite(out.ret) and out.ret < 0

@@ -21,7 +21,8 @@ per objective plus ``samples`` relevance probes an iteration, ``beta = --pro-bet
 noise floor 3), any ``EPRO:NAME`` registered in :data:`VARIANTS` and ``CMAES:diag`` (separable
 CMA-ES: a diagonal covariance, pycma's ``CMA_diagonal``), for the diagnosis.
 
-Results: ``--json`` (written atomically after every run, so a run cut short keeps what finished):
+Results: ``--json``, written atomically after every check of the mean (a run still going or cut
+short is there with ``"partial": true`` and the episodes it reached):
 ``meta`` (command, commit, versions, settings) and ``runs``, one per run with its ``curve``.
 ``python benchmarks/external/table.py FILES...`` turns them into the tables of docs/external.md.
 """
@@ -106,21 +107,36 @@ def diagnostics(opt) -> dict:
     return out
 
 
-def run_one(optimizer, evaluate: Callable, context: int, budget: int, eval_every: int) -> dict:
+def run_one(optimizer, evaluate: Callable, context: int, budget: int, eval_every: int,
+            progress: Callable[[dict], None] | None = None) -> dict:
     """One optimiser against ``evaluate(weights (S, N), context) -> outcomes`` until the next ask
-    would pass ``budget`` episodes; the mean is evaluated every ``eval_every`` episodes and at the end."""
+    would pass ``budget`` episodes; the mean is evaluated every ``eval_every`` episodes and at the end.
+    ``progress(partial)`` gets the run so far (``"partial": True``) after every check of the mean."""
     episodes, best_ret, best_at, first_success = 0, -math.inf, None, None
     best = None
     curve = []
     next_eval = 0
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
 
-    def checkpoint():
+    def summary() -> dict:
+        last = curve[-1]
+        return {"episodes": episodes, "iterations": optimizer.iteration, "seconds": time.perf_counter() - t0,
+                "cpu_seconds": time.process_time() - c0,  # this process's CPU (workers=1: the episodes' too)
+                "final_return": last["mean_return"], "final_success": last["mean_success"],
+                "final_pos_dist": last["mean_pos_dist"], "final_rot_dist": last["mean_rot_dist"],
+                "best_return": best_ret, "best_at": best_at, "first_success": first_success,
+                "best_pos_dist": None if best is None else best.pos_dist,
+                "best_rot_dist": None if best is None else best.rot_dist,
+                "stopped": optimizer.stop_reason(), "curve": curve}
+
+    def checkpoint(final: bool = False):
         m = evaluate(optimizer.mean[0].numpy()[None], context)[0]  # not counted: a check of the mean
         curve.append({"episodes": episodes, "mean_return": m.ret, "mean_success": m.success,
                       "mean_pos_dist": m.pos_dist, "mean_rot_dist": m.rot_dist,
                       "best_return": best_ret, "any_success": first_success is not None,
                       **diagnostics(optimizer)})
+        if progress is not None and not final:
+            progress({**summary(), "partial": True})
 
     while not optimizer.stop():
         if episodes >= next_eval and optimizer._next is None:  # between iterations
@@ -140,16 +156,8 @@ def run_one(optimizer, evaluate: Callable, context: int, budget: int, eval_every
         optimizer.tell(-returns[:, None])  # (S, 1): cost = -return
     if optimizer._asked is not None:  # the ask that would pass the budget: drop it
         optimizer._asked = None
-    checkpoint()
-    last = curve[-1]
-    return {"episodes": episodes, "iterations": optimizer.iteration, "seconds": time.perf_counter() - t0,
-            "final_return": last["mean_return"], "final_success": last["mean_success"],
-            "final_pos_dist": last["mean_pos_dist"], "final_rot_dist": last["mean_rot_dist"],
-            "best_return": best_ret, "best_at": best_at, "first_success": first_success,
-            "best_pos_dist": None if best is None else best.pos_dist,
-            "best_rot_dist": None if best is None else best.rot_dist,
-            "stopped": optimizer.stop_reason() if hasattr(optimizer, "stop_reason") else None,
-            "curve": curve}
+    checkpoint(final=True)
+    return summary()
 
 
 def commit() -> str:
@@ -204,9 +212,14 @@ def main(argv: list[str] | None = None) -> None:
                     for seed in ints(args.seeds):
                         opt = make_optimizer(name.strip(), n, args.start_std, args.samples, seed, epro=epro,
                                              pro_beta=args.pro_beta)
-                        res = run_one(opt, ev, context, args.episodes, args.eval_every)
-                        out["runs"].append({"task": short_name(tid), "optimizer": name.strip(), "context": context,
-                                            "seed": seed, **res})
+                        key = {"task": short_name(tid), "optimizer": name.strip(), "context": context, "seed": seed}
+
+                        def progress(partial, key=key):  # the run so far, so a run cut short keeps its curve
+                            atomic_write_bytes(args.json, json.dumps({**out, "runs": [*out["runs"], {**key, **partial}]},
+                                                                     indent=1).encode())
+
+                        res = run_one(opt, ev, context, args.episodes, args.eval_every, progress)
+                        out["runs"].append({**key, **res})
                         print(f"{short_name(tid)} {name} context {context} seed {seed}: final return "
                               f"{res['final_return']:.2f} success {res['final_success']}, best {res['best_return']:.2f} "
                               f"first success {res['first_success']} ({res['seconds']:.0f} s)", flush=True)

@@ -46,7 +46,8 @@ class Quadratic:
 def test_run_one_counts_episodes_and_the_best_sample(run, name):
     ev = Quadratic(run, thr=3.0)
     opt = run.make_optimizer(name, 4, 1.0, 10, seed=0)
-    res = run.run_one(opt, ev, context=7, budget=205, eval_every=50)
+    partials = []
+    res = run.run_one(opt, ev, context=7, budget=205, eval_every=50, progress=partials.append)
     samples = [b for b, _ in ev.batches if b.shape[0] > 1]  # the optimiser's asks; the checks of the mean are single
     checks = [b for b, _ in ev.batches if b.shape[0] == 1]
     assert {c for _, c in ev.batches} == {7}  # every episode in the run's context
@@ -61,6 +62,8 @@ def test_run_one_counts_episodes_and_the_best_sample(run, name):
     eps = [c["episodes"] for c in res["curve"]]
     assert eps == sorted(eps) and eps[0] == 0 and eps[-1] == res["episodes"] and len(checks) == len(eps)
     final = ((checks[-1][0] - 1.0) ** 2).sum()  # the last check is the final mean
+    assert len(partials) == len(eps) - 1 and all(p["partial"] for p in partials)  # every check but the last
+    assert [p["episodes"] for p in partials] == eps[:-1] and "partial" not in res
     assert res["final_return"] == pytest.approx(-final)
 
 

@@ -27,7 +27,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from run import diagnostics, ints, make_optimizer  # noqa: E402
+from run import diagnostics, ints, make_optimizer
 
 
 def problem(seed: int, n: int, cond: float):

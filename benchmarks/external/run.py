@@ -41,16 +41,15 @@ import shlex
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
-import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from protorch.data.files import atomic_write_bytes  # noqa: E402
-from protorch.optim import CEM, CMAES, EPRO, PRO  # noqa: E402
+from protorch.data.files import atomic_write_bytes
+from protorch.optim import CEM, CMAES, EPRO, PRO
 
 ROOT = Path(__file__).resolve().parents[2]
 OPTIMIZERS = ("EPRO", "CMAES", "CEM", "PRO")
@@ -82,7 +81,7 @@ def make_optimizer(name: str, n: int, start_std: float, samples: int, seed: int,
     """One optimiser over ``n`` weights from ``N(0, start_std^2 I)``, unbatched, ``tol = 0``."""
     mean = torch.zeros(n, dtype=torch.float64)
     var = torch.full((n,), float(start_std) ** 2, dtype=torch.float64)
-    common = dict(num_samples=samples, max_iter=10**9, tol=0.0, seed=seed)
+    common = {"num_samples": samples, "max_iter": 10**9, "tol": 0.0, "seed": seed}
     base, _, variant = name.partition(":")
     if base == "EPRO":
         if variant and variant not in VARIANTS:
@@ -162,9 +161,10 @@ def run_one(optimizer, evaluate: Callable, context: int, budget: int, eval_every
 
 def commit() -> str:
     try:
-        out = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+        out = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                             check=False)
         dirty = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--", "protorch", "benchmarks/external"],
-                               capture_output=True, text=True).stdout.strip()
+                               capture_output=True, text=True, check=False).stdout.strip()
         return out.stdout.strip() + ("+dirty" if dirty else "")
     except OSError:
         return "unknown"
@@ -190,10 +190,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--json", required=True, help="results file (rewritten after every run)")
     ap.add_argument("--note", default="", help="free text stored in meta")
     args = ap.parse_args(argv)
-    from tasks import Episodes, short_name, task_id
-
     import fancy_gym
     import mujoco
+    from tasks import Episodes, short_name, task_id
 
     torch.set_num_threads(1)
     epro = parse_overrides(args.epro)

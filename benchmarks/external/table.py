@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import shlex
 import statistics
 import sys
@@ -44,7 +45,7 @@ def at(run: dict, episodes: int) -> dict | None:
 
 
 def median(xs: list[float]) -> float | None:
-    xs = [x for x in xs if x is not None and x == x]
+    xs = [x for x in xs if x is not None and not math.isnan(x)]
     return statistics.median(xs) if xs else None
 
 
@@ -58,10 +59,10 @@ def summary(runs: list[dict], episodes: int) -> list[str]:
         c = at(r, episodes)
         if c is not None and r["episodes"] + 20 > episodes:  # the run had this budget
             groups[(r["task"], r["optimizer"])].append((r, c))
-    lines = [f"| task | optimiser | runs (contexts x seeds) | final mean succeeds | median return of the mean | "
-             f"a sample succeeded | median episode of the first success | median best sample's return | "
-             f"box: median mean's distance to goal (cm, rad) |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    head = ("| task | optimiser | runs (contexts x seeds) | final mean succeeds | median return of the mean | "
+            "a sample succeeded | median episode of the first success | median best sample's return | "
+            "box: median mean's distance to goal (cm, rad) |")
+    lines = [head, "|---|---|---|---|---|---|---|---|---|"]
     for (task, opt), items in sorted(groups.items()):
         n = len(items)
         ctx = sorted({r["context"] for r, _ in items})

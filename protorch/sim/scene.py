@@ -102,8 +102,12 @@ def _arm_spec(task, mass_scale: float, timestep: float):
     hand = hand_links(task)
     for c in robot.capsule_list():
         rgba = _HAND_RGBA if c.link in hand else _ARM_RGBA
-        spec.body(c.link).add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[*c.a, *c.b], size=[c.radius, 0, 0],
-                                   contype=ARM_BITS[0], conaffinity=ARM_BITS[1], rgba=list(rgba))
+        if c.a == c.b:  # a capsule of length 0: MuJoCo takes it as a sphere
+            shape = dict(type=mujoco.mjtGeom.mjGEOM_SPHERE, pos=list(c.a))
+        else:
+            shape = dict(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[*c.a, *c.b])
+        spec.body(c.link).add_geom(**shape, size=[c.radius, 0, 0], contype=ARM_BITS[0], conaffinity=ARM_BITS[1],
+                                   rgba=list(rgba))
     names = task.kinematics.joint_names
     for i, name in enumerate(names):
         joint = spec.joint(name)

@@ -19,7 +19,9 @@ hand and tool centre point, as bodies of their own) and adds:
   one's distance), so that all episodes' contacts are read in one array.
 
 The arm collides with the can and the table only (the arm's own capsules overlap at the joints by
-construction; the base stands on the table). The controller's model (:func:`controller_model`)
+construction; the base stands on the table), through its capsules alone: geometry of the URDF's
+own (its ``<collision>`` and ``<visual>`` elements) is kept massless and without contacts, in
+geom group 3. The controller's model (:func:`controller_model`)
 is the same arm alone, without contacts and constraints, its link masses and inertias scaled by
 ``mass_scale``: the model the inverse-dynamics controller believes in.
 """
@@ -86,6 +88,8 @@ def _arm_spec(task, mass_scale: float, timestep: float):
     head = text.index(">", text.index("<robot")) + 1
     spec = mujoco.MjSpec.from_string(text[:head] + _COMPILER + text[head:])
     spec.option.timestep = float(timestep)
+    for geom in spec.geoms:  # the URDF's own <collision> / <visual> geometry: drawn in group 3 only, no
+        geom.contype, geom.conaffinity, geom.group, geom.density = 0, 0, 3, 0.0  # contact, no mass (the capsules collide)
     frames = set(task.kinematics.frame_names)
     for name, inertial in robot.inertials.items():
         if name not in frames:

@@ -344,6 +344,11 @@ def check_robot(robot, task_cfg: dict, physics_runs: bool):
     if physics_runs:
         from ..sim.scene import build_scene
 
+        if not robot.capsule_list():
+            raise ValueError(f"robot.capsules: the {robot.name} arm has no collision volumes, which the MuJoCo test "
+                             "collides with the can and the table; give robot.capsules (or auto) or set "
+                             "settings.physics.run=never")
+
         try:
             build_scene(task)
         except Exception as exc:  # MuJoCo's own compiler errors

@@ -20,10 +20,12 @@ _JOINTS = (
 TOOL = 0.06  # tool0 beyond wrist_3's origin
 
 
-def _link(name: str, collision, mass: float | None, s: float) -> str:
+def _link(name: str, collision, mass: float | None, s: float, visual: str | None = None) -> str:
     kind, r, length, cz = collision
     geom = f'<cylinder radius="{r * s}" length="{length * s}"/>' if kind == "cylinder" else f'<sphere radius="{r * s}"/>'
     out = [f'  <link name="{name}">', f'    <collision><origin xyz="0 0 {cz * s}"/><geometry>{geom}</geometry></collision>']
+    if visual is not None:
+        out.append(f'    <visual><geometry><mesh filename="{visual}"/></geometry></visual>')
     if mass is not None:
         i = mass * (3 * (r * s) ** 2 + (length * s) ** 2) / 12  # a solid cylinder's transverse moments
         out.append(f'    <inertial><origin xyz="0 0 {cz * s}" rpy="0 0 0"/><mass value="{mass}"/>'
@@ -31,13 +33,15 @@ def _link(name: str, collision, mass: float | None, s: float) -> str:
     return "\n".join(out + ["  </link>"])
 
 
-def user_arm_urdf(*, scale: float = 1.0, inertials: bool = True, fixed: tuple[str, ...] = ()) -> str:
-    """The URDF text; ``fixed``: joints made fixed (a chain with fewer joints)."""
+def user_arm_urdf(*, scale: float = 1.0, inertials: bool = True, fixed: tuple[str, ...] = (),
+                  visual: str | None = None) -> str:
+    """The URDF text; ``fixed``: joints made fixed (a chain with fewer joints); ``visual``: a mesh
+    file drawn as the forearm's ``<visual>``."""
     s = scale
     parts = ['<?xml version="1.0"?>', '<robot name="my_arm">',
              _link("base_link", ("cylinder", 0.08, 0.1, 0.05), 4.0 if inertials else None, s)]
     for name, parent, child, axis, z, col, mass in _JOINTS:
-        parts.append(_link(child, col, mass if inertials else None, s))
+        parts.append(_link(child, col, mass if inertials else None, s, visual if child == "forearm" else None))
         kind = "fixed" if name in fixed else "revolute"
         lim = (f'<limit lower="{-math.pi}" upper="{math.pi}" velocity="2.0" effort="{150 if mass > 2 else 30}"/>'
                if kind == "revolute" else "")

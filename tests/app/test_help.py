@@ -101,4 +101,4 @@ def test_help_lists_the_robot_group_and_the_arm_experiments_robot_settings():
     for key in ("robot.urdf=???", "robot.end_link=???", "robot.home=???", "robot.max_acceleration=10.0",
                 "robot.capsules=auto"):
         assert key in text, key
-    assert "robot.urdf=" not in help_text(CONF, ["experiment=point_particle", "--help"])
+    assert "robot.urdf=???" not in help_text(CONF, ["experiment=point_particle", "--help"])

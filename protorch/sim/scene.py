@@ -1,16 +1,18 @@
-"""The MuJoCo scene of the arm experiment, built by protorch from its own description of the Panda.
+"""The MuJoCo scene of the arm experiment, built by protorch from the task's robot description.
 
-:func:`build_scene` reads the task's URDF (:data:`~protorch.robots.PANDA_URDF`: joints, frames
-and joint limits) with ``mujoco.MjSpec`` (the compiler keeps the fixed links, the flange, the hand
-and the tool centre point, as bodies of their own) and adds:
+:func:`build_scene` reads the robot's URDF (:class:`~protorch.robots.Robot`: joints, frames and
+joint limits) with ``mujoco.MjSpec`` (the compiler keeps the fixed links, e.g. the Panda's flange,
+hand and tool centre point, as bodies of their own) and adds:
 
-* every link's published mass, centre of mass and inertia, the fingers as point masses on the
-  hand (:data:`~protorch.robots.panda_volumes.PANDA_INERTIALS`);
-* the link capsules as the arm's collision geometry
-  (:data:`~protorch.robots.panda_volumes.PANDA_CAPSULES`, the volumes ``collision=volume`` plans
-  with);
-* joint damping and rotor armature, and a torque motor per joint clipped to the Panda's torque
-  limits (:data:`~protorch.robots.panda_volumes.PANDA_TORQUE_LIMITS`);
+* every link's mass, centre of mass and inertia from the URDF's ``<inertial>`` and the robot's
+  point masses (the Panda's fingers on its hand); a robot whose moving links lack them is
+  refused before any work (:func:`~protorch.robots.check_inertials`);
+* the robot's link capsules as the arm's collision geometry (the volumes ``collision=volume``
+  plans with); the URDF's own geometry is kept without contacts or mass, its ``<visual>``
+  elements (meshes resolved beside the URDF, ``package://`` by the folders above it) in geom
+  group 3, which the renders show instead of the capsules where the URDF has them;
+* the robot's joint damping and rotor armature, and a torque motor per joint clipped to its
+  torque limits (the URDF's ``<limit effort>``);
 * the table top (a box whose top face is ``z = 0`` under the robot and the task's table), the can
   (a cylinder of the task's radius and height on a *mocap* body: a person moves it, the arm
   cannot push it, and MuJoCo reports every contact with it) and the target (a visual marker on a
@@ -19,35 +21,32 @@ and the tool centre point, as bodies of their own) and adds:
   one's distance), so that all episodes' contacts are read in one array.
 
 The arm collides with the can and the table only (the arm's own capsules overlap at the joints by
-construction; the base stands on the table). The controller's model (:func:`controller_model`)
+construction; the base stands on the table), through its capsules alone: geometry of the URDF's
+own (its ``<collision>`` and ``<visual>`` elements) is kept massless and without contacts, in
+geom group 3. The controller's model (:func:`controller_model`)
 is the same arm alone, without contacts and constraints, its link masses and inertias scaled by
 ``mass_scale``: the model the inverse-dynamics controller believes in.
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from ..robots.panda_volumes import (
-    PANDA_ARMATURE,
-    PANDA_BASE_LINKS,
-    PANDA_CAPSULES,
-    PANDA_DAMPING,
-    PANDA_FINGER_MASS,
-    PANDA_FINGER_OFFSET,
-    PANDA_FINGER_OPENING,
-    PANDA_INERTIALS,
-    PANDA_TORQUE_LIMITS,
-)
+from ..robots import check_inertials
 from .mj import load_mujoco
 
-__all__ = ["PandaScene", "build_scene", "controller_model", "ARM_BITS", "WORLD_BITS"]
+__all__ = ["ArmScene", "build_scene", "hand_links", "controller_model", "ARM_BITS", "WORLD_BITS"]
 
 ARM_BITS = (1, 2)  # (contype, conaffinity) of the arm's capsules: they touch the world, not each other
 WORLD_BITS = (2, 1)  # the table and the can
-_COMPILER = '<mujoco><compiler fusestatic="false" discardvisual="false" balanceinertia="false"/></mujoco>'
+_COMPILER = ('<mujoco><compiler fusestatic="false" discardvisual="false" balanceinertia="false" strippath="false" '
+             'meshdir="{meshdir}"/></mujoco>')
+VISUAL_GROUP, HIDDEN_GROUP, CAPSULE_GROUP = 3, 4, 2  # geom groups: the URDF's <visual>, its <collision>, the capsules
+_PACKAGE = re.compile(r'filename="package://([^/"]+)/([^"]*)"')
 _CONTACT_SENSOR = [1 | 8, 1, 1]  # data: found | dist (bit flags), reduce: mindist, num: 1 -> (count, distance)
 _TABLE_THICKNESS = 0.02
 _CAN_RGBA = (0.75, 0.15, 0.12, 1.0)
@@ -56,7 +55,7 @@ _HAND_RGBA = (0.3, 0.3, 0.32, 1.0)
 
 
 @dataclass
-class PandaScene:
+class ArmScene:
     """A compiled scene: ``model``, the arm's joints in order (``qpos`` / ``qvel`` indices), the
     mocap indices of the can and the target, the sensor addresses of the arm-can and arm-table
     contact counts, the torque limits ``(J,)`` and the task it was built for."""
@@ -69,40 +68,80 @@ class PandaScene:
     table_contact: int
     torque_limits: np.ndarray  # (J,)
     task: object
+    visuals: bool = False  # the URDF has <visual> geometry: renders show it (group 3), not the capsules
 
     @property
     def timestep(self) -> float:
         return float(self.model.opt.timestep)
 
 
+def hand_links(task) -> set[str]:
+    """The links rigid with the end link beyond the last joint's own link (the Panda's flange, hand
+    and tool centre point): drawn in the hand's colour."""
+    kin = task.kinematics
+    out = set()
+    for name in reversed(kin.frame_names[1:]):
+        if kin.chain.find_frame(name).joint.joint_type != "fixed":
+            break
+        out.add(name)
+    return out
+
+
+def _package_file(folder: Path, package: str, rest: str) -> str:
+    """A ``package://PACKAGE/REST`` mesh file: REST under the first folder above the URDF named
+    PACKAGE or holding a folder PACKAGE (as a ROS workspace lays them out); else left to MuJoCo,
+    whose error names the file."""
+    for up in (folder, *folder.parents):
+        for root in (up, up / package):
+            if root.name == package and (root / rest).is_file():
+                return str(root / rest)
+    return f"package://{package}/{rest}"
+
+
 def _arm_spec(task, mass_scale: float, timestep: float):
-    """The Panda from the task's URDF with its inertials, capsules, damping, armature and motors."""
+    """The task's robot from its URDF with its inertials, capsules, damping, armature and motors."""
     mujoco = load_mujoco()
-    text = task.kinematics.urdf_text
+    robot = task.robot
+    check_inertials(robot)
+    folder = Path(robot.urdf).parent
+    text = _PACKAGE.sub(lambda m: f'filename="{_package_file(folder, m[1], m[2])}"', task.kinematics.urdf_text)
     head = text.index(">", text.index("<robot")) + 1
-    spec = mujoco.MjSpec.from_string(text[:head] + _COMPILER + text[head:])
+    spec = mujoco.MjSpec.from_string(text[:head] + _COMPILER.format(meshdir=f"{folder}/") + text[head:])
     spec.option.timestep = float(timestep)
-    for name, inertial in PANDA_INERTIALS.items():
+    visuals = False
+    for geom in spec.geoms:  # the URDF's own geometry: no contact, no mass (the capsules collide); its
+        visual = geom.contype == 0 and geom.conaffinity == 0  # <visual> shown by the renders, <collision> never
+        visuals |= visual
+        geom.contype, geom.conaffinity, geom.density = 0, 0, 0.0
+        geom.group = VISUAL_GROUP if visual else HIDDEN_GROUP
+    frames = set(task.kinematics.frame_names)
+    for name, inertial in robot.inertials.items():
+        if name not in frames:
+            continue
         body = spec.body(name)
         body.mass = inertial.mass * mass_scale
         body.ipos = list(inertial.com)
         body.fullinertia = [v * mass_scale for v in inertial.inertia]
         body.explicitinertial = True
-    hand = spec.body("panda_hand")
-    for side in (1.0, -1.0):
-        finger = hand.add_body(pos=[0.0, side * PANDA_FINGER_OPENING, PANDA_FINGER_OFFSET])
-        finger.mass, finger.explicitinertial = PANDA_FINGER_MASS * mass_scale, True
-        finger.inertia = [2.375e-6 * mass_scale, 2.375e-6 * mass_scale, 7.5e-7 * mass_scale]
-    for c in PANDA_CAPSULES:
-        rgba = _HAND_RGBA if c.link == "panda_hand" else _ARM_RGBA
-        spec.body(c.link).add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[*c.a, *c.b], size=[c.radius, 0, 0],
-                                   contype=ARM_BITS[0], conaffinity=ARM_BITS[1], rgba=list(rgba))
+    for pm in robot.point_masses:
+        point = spec.body(pm.link).add_body(pos=list(pm.pos))
+        point.mass, point.explicitinertial = pm.mass * mass_scale, True
+        point.inertia = [v * mass_scale for v in pm.inertia]
+    hand = hand_links(task)
+    for c in robot.capsule_list():
+        rgba = _HAND_RGBA if c.link in hand else _ARM_RGBA
+        if c.a == c.b:  # a capsule of length 0: MuJoCo takes it as a sphere
+            shape = dict(type=mujoco.mjtGeom.mjGEOM_SPHERE, pos=list(c.a))
+        else:
+            shape = dict(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[*c.a, *c.b])
+        spec.body(c.link).add_geom(**shape, size=[c.radius, 0, 0], contype=ARM_BITS[0], conaffinity=ARM_BITS[1],
+                                   rgba=list(rgba), group=CAPSULE_GROUP if visuals else 0)
     names = task.kinematics.joint_names
     for i, name in enumerate(names):
         joint = spec.joint(name)
-        joint.armature = PANDA_ARMATURE
-        joint.damping[0] = PANDA_DAMPING
-        lim = PANDA_TORQUE_LIMITS[i]
+        joint.armature = robot.armature[i]
+        joint.damping[0] = robot.damping[i]
+        lim = robot.max_torque[i]
         spec.add_actuator(name=f"motor{i + 1}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT,
                           gainprm=[1.0] + [0.0] * 9, forcelimited=True, forcerange=[-lim, lim],
                           ctrllimited=False)
@@ -128,7 +167,7 @@ def _add_world(spec, task) -> None:
                    size=[(hi_x - lo_x) / 2, (hi_y - lo_y) / 2, _TABLE_THICKNESS / 2],
                    pos=[(hi_x + lo_x) / 2, (hi_y + lo_y) / 2, -_TABLE_THICKNESS / 2],
                    contype=WORLD_BITS[0], conaffinity=WORLD_BITS[1])
-    for link in PANDA_BASE_LINKS:
+    for link in task.robot.base_links:
         spec.add_exclude(bodyname1="world", bodyname2=link)
     can = world.add_body(name="can", mocap=True, pos=[0.6, 0.0, task.can_height / 2])
     can.add_geom(name="can", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[task.can_radius, task.can_height / 2, 0],
@@ -147,8 +186,8 @@ def _add_world(spec, task) -> None:
                         objname=root, reftype=mujoco.mjtObj.mjOBJ_BODY, refname=other, intprm=_CONTACT_SENSOR)
 
 
-def build_scene(task, *, timestep: float = 0.002, mass_scale: float = 1.0) -> PandaScene:
-    """The plant (module docstring) for an :class:`~protorch.tasks.ArmReachTask` with the Panda;
+def build_scene(task, *, timestep: float = 0.002, mass_scale: float = 1.0) -> ArmScene:
+    """The plant (module docstring) for an :class:`~protorch.tasks.ArmReachTask` with its robot;
     ``timestep`` is MuJoCo's step (s)."""
     load_mujoco()  # one line naming the extra where MuJoCo is missing
     spec = _arm_spec(task, mass_scale, timestep)
@@ -159,11 +198,12 @@ def build_scene(task, *, timestep: float = 0.002, mass_scale: float = 1.0) -> Pa
     qpos_index = np.array([model.jnt_qposadr[model.joint(n).id] for n in names])
     if not np.array_equal(qpos_index, np.arange(len(names))) or model.nv != len(names):
         raise ValueError(f"the scene's joints {names} are not the model's only degrees of freedom")
-    return PandaScene(model=model, qpos_index=qpos_index, can_mocap=int(model.body("can").mocapid[0]),
-                      target_mocap=int(model.body("target").mocapid[0]),
-                      can_contact=int(model.sensor("arm_can").adr[0]),
-                      table_contact=int(model.sensor("arm_table").adr[0]),
-                      torque_limits=np.array(PANDA_TORQUE_LIMITS[:len(names)], dtype=np.float64), task=task)
+    return ArmScene(model=model, qpos_index=qpos_index, can_mocap=int(model.body("can").mocapid[0]),
+                    target_mocap=int(model.body("target").mocapid[0]),
+                    can_contact=int(model.sensor("arm_can").adr[0]),
+                    table_contact=int(model.sensor("arm_table").adr[0]),
+                    torque_limits=np.array(task.robot.max_torque, dtype=np.float64), task=task,
+                    visuals=bool((model.geom_group == VISUAL_GROUP).any()))
 
 
 def controller_model(task, *, timestep: float = 0.002, mass_scale: float = 1.0):

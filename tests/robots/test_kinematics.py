@@ -9,17 +9,17 @@ import math
 import pytest
 import torch
 
-from protorch.robots import (
-    PANDA_DH,
-    PANDA_FLANGE,
-    PANDA_LIMITS,
-    PANDA_MAX_VELOCITY,
-    PANDA_TCP,
-    PANDA_URDF,
-)
+from protorch.robots import load_robot
 from protorch.robots.kinematics import ArmKinematics
+from tests.benchmarks import benchmark_module
 
 F64 = torch.float64
+PANDA = load_robot("panda")
+PANDA_URDF = PANDA.urdf
+PANDA_LIMITS = tuple(zip(PANDA.lower, PANDA.upper))
+PANDA_MAX_VELOCITY = (2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61)  # rad/s, Franka's data sheet
+with benchmark_module("replay_physics.py", "_replay_physics") as _replay:  # the independent DH model
+    PANDA_DH, PANDA_FLANGE, PANDA_TCP = _replay.PANDA_DH, _replay.PANDA_FLANGE, _replay.PANDA_TCP
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,119 @@
+"""The KUKA LBR iiwa 14 shipped with protorch (protorch/robots/iiwa14.urdf, iiwa14.yaml): KUKA's
+published dimensions and limits, physical inertials, its home pose (gripper down, 10 cm above the
+table in front), its fitted capsules covering its collision geometry, and MuJoCo's frames equal
+to protorch's kinematics."""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+import protorch.robots
+from protorch.robots.capsules import fit_capsules
+from protorch.robots.kinematics import ArmKinematics
+
+ROBOTS = Path(protorch.robots.__file__).resolve().parent
+URDF = ROBOTS / "iiwa14.urdf"
+DESC = yaml.safe_load((ROBOTS / "iiwa14.yaml").read_text())
+F64 = torch.float64
+
+
+@pytest.fixture(scope="module")
+def kin():
+    return ArmKinematics(URDF, end_link=DESC["end_link"])
+
+
+def test_the_chain_has_kukas_dimensions(kin):
+    assert kin.num_joints == 7 and kin.joint_names == [f"iiwa_joint_{i}" for i in range(1, 8)]
+    pos = kin.link_positions(torch.zeros(7, dtype=F64))  # (F, 3): straight up at q = 0
+    assert torch.allclose(pos[:, :2], torch.zeros_like(pos[:, :2]), atol=1e-6)
+    height = dict(zip(kin.frame_names, pos[:, 2].tolist()))
+    # KUKA's data sheet: shoulder (joint 2) 0.36 m, elbow (joint 4) +0.42, wrist (joint 6) +0.40, flange +0.126
+    assert height["iiwa_link_2"] == pytest.approx(0.36, abs=1e-6)
+    assert height["iiwa_link_4"] == pytest.approx(0.78, abs=1e-6)
+    assert height["iiwa_link_6"] == pytest.approx(1.18, abs=1e-6)
+    assert height["iiwa_link_ee"] == pytest.approx(1.306, abs=1e-6)
+    assert height["iiwa_tcp"] == pytest.approx(1.426, abs=1e-6)
+
+
+def test_limits_torques_and_speeds_are_kukas():
+    joints = [j for j in ET.parse(URDF).getroot().iter("joint") if j.get("type") == "revolute"]
+    lim = [j.find("limit") for j in joints]
+    deg = [math.degrees(float(x.get("upper"))) for x in lim]
+    assert deg == pytest.approx([170, 120, 170, 120, 170, 120, 175], abs=1e-9)
+    assert [float(x.get("lower")) for x in lim] == [-float(x.get("upper")) for x in lim]
+    assert [float(x.get("effort")) for x in lim] == [320, 320, 176, 176, 110, 40, 40]
+    assert [math.degrees(float(x.get("velocity"))) for x in lim] == pytest.approx([85, 85, 100, 75, 130, 135, 135])
+    assert len(DESC["max_acceleration"]) == 7 and min(DESC["max_acceleration"]) > 0
+
+
+def test_inertials_are_physical():
+    total = 0.0
+    for link in ET.parse(URDF).getroot().iter("link"):
+        el = link.find("inertial")
+        if el is None:
+            continue
+        i = {k: float(el.find("inertia").get(k)) for k in ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")}
+        mat = np.array([[i["ixx"], i["ixy"], i["ixz"]], [i["ixy"], i["iyy"], i["iyz"]], [i["ixz"], i["iyz"], i["izz"]]])
+        eig = np.linalg.eigvalsh(mat)
+        assert eig[0] > 0 and eig[0] + eig[1] >= eig[2], link.get("name")  # a rigid body's principal moments
+        total += float(el.find("mass").get("value"))
+    assert total == pytest.approx(31.41)  # 30.61 kg of arm (Drake's) and the 0.8 kg gripper
+
+
+def test_home_holds_the_gripper_down_10_cm_above_the_table_in_front(kin):
+    q = torch.tensor(DESC["home"], dtype=F64)
+    assert bool(kin.within_limits(q))
+    pose = kin.ee_pose(q)
+    assert torch.allclose(pose[:3, 3], torch.tensor([0.50, 0.0, 0.10], dtype=F64), atol=5e-4)
+    assert float(pose[:3, 2] @ torch.tensor([0.0, 0.0, -1.0], dtype=F64)) > 1 - 1e-6
+    # joint 4 (the elbow) keeps a margin to its 120 degree stop
+    assert math.degrees(2.0944 - abs(float(q[3]))) > 10
+
+
+def test_the_fitted_capsules_ride_on_the_chain_and_clear_the_table_at_home(kin):
+    from protorch.robots.panda_volumes import capsule_segments
+    from protorch.robots.capsules import as_capsules
+
+    caps = as_capsules(fit_capsules(URDF))
+    assert {c.link for c in caps} == set(kin.frame_names) - {"iiwa_tcp"}
+    frames = kin.frames(torch.tensor(DESC["home"], dtype=F64))
+    a, b, r = capsule_segments(frames, kin.frame_names, caps)
+    moving = torch.tensor([c.link != "iiwa_link_0" for c in caps])
+    low = torch.minimum(a[:, 2], b[:, 2]) - r  # (C,) the lowest point of each capsule
+    assert bool((low[moving] > 0).all())
+
+
+def test_the_fit_covers_the_iiwas_collision_geometry():
+    pytest.importorskip("trimesh")
+    from protorch.robots.capsules import coverage
+
+    cov = coverage(URDF, fit_capsules(URDF), count=3000)
+    assert len(cov) == 9
+    assert all(row["inside"] == 1.0 and row["largest_out"] == 0.0 for row in cov.values())
+
+
+def test_mujoco_reads_the_same_frames_and_inertials(kin, gen):
+    mujoco = pytest.importorskip("mujoco")
+    text = kin.urdf_text
+    head = text.index(">", text.index("<robot")) + 1
+    spec = mujoco.MjSpec.from_string(
+        text[:head] + '<mujoco><compiler fusestatic="false" discardvisual="false"/></mujoco>' + text[head:])
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    assert model.nq == 7 and float(model.body("iiwa_link_2").mass[0]) == pytest.approx(6.35)
+    q = kin.lower + (kin.upper - kin.lower) * torch.rand(16, 7, generator=gen, dtype=F64)  # (16, 7)
+    frames = kin.frames(q)  # (16, F, 4, 4)
+    for i in range(16):
+        data.qpos[:] = q[i].numpy()
+        mujoco.mj_kinematics(model, data)
+        for k, name in enumerate(kin.frame_names):
+            body = model.body(name).id
+            assert np.allclose(data.xpos[body], frames[i, k, :3, 3].numpy(), atol=1e-6)
+            assert np.allclose(data.xmat[body].reshape(3, 3), frames[i, k, :3, :3].numpy(), atol=1e-6)

@@ -1,4 +1,4 @@
-"""How well the Panda's link capsules (``protorch.robots.panda_volumes.PANDA_CAPSULES``) cover
+"""How well the Panda's link capsules (``capsules`` of ``protorch/robots/panda.yaml``) cover
 Franka Emika's own meshes of the Panda, and how they were fitted.
 
 ``python benchmarks/panda_volumes.py --meshes DIR`` with ``DIR`` a checkout of
@@ -11,7 +11,7 @@ holds both fingers, fully open (the finger mesh placed as ``franka_description``
 ``--fit`` refits the capsules from the meshes (minutes): per link one to three capsules from
 rough initial segments, their total volume minimised by Adam with a penalty on the mesh points
 left outside, then every radius grown to enclose all points and rounded up to the millimetre,
-the end points to half a millimetre; it prints them in ``PANDA_CAPSULES``' form.
+the end points to half a millimetre; it prints them as (a, b, radius) per link.
 """
 
 from __future__ import annotations
@@ -25,7 +25,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from protorch.robots.panda_volumes import PANDA_CAPSULES, PANDA_FINGER_OFFSET, PANDA_FINGER_OPENING
+from protorch.robots import load_robot
+
+PANDA = load_robot("panda")
+PANDA_CAPSULES = PANDA.capsule_list()
+_FINGER = PANDA.point_masses[0].pos  # the left finger's base on the hand: (0, opening, offset)
+PANDA_FINGER_OPENING, PANDA_FINGER_OFFSET = _FINGER[1], _FINGER[2]
 
 LINKS = ["link0", "link1", "link2", "link3", "link4", "link5", "link6", "link7", "hand"]
 
@@ -148,7 +153,7 @@ def main() -> None:
     p.add_argument("--fit", action="store_true", help="refit the capsules (minutes) and print them")
     a = p.parse_args()
     shipped = {link: [(c.a, c.b, c.radius) for c in PANDA_CAPSULES if c.link == f"panda_{link}"] for link in LINKS}
-    print("the shipped capsules (protorch.robots.panda_volumes.PANDA_CAPSULES):")
+    print("the shipped capsules (protorch/robots/panda.yaml):")
     coverage(a.meshes, shipped)
     if a.fit:
         torch.set_num_threads(1)

@@ -33,7 +33,9 @@ from protorch.experiments import check_config
 from protorch.experiments.arm_physics import physics_section
 from protorch.experiments.arm_reach import prepare
 from protorch.primitives.promp import ProMP
-from protorch.robots.panda import PANDA_MAX_ACCELERATION
+from protorch.robots import load_robot
+
+PANDA_MAX_ACCELERATION = load_robot("panda").max_acceleration
 from protorch.sim.episodes import FixedMeans, run_physics_episodes
 from protorch.sim.mj import load_mujoco
 from protorch.sim.scene import build_scene, controller_model

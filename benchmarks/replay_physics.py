@@ -28,8 +28,25 @@ from pathlib import Path
 
 import numpy as np
 
-from protorch.robots.panda import PANDA_DH, PANDA_FLANGE, PANDA_LIMITS, PANDA_TCP
-from protorch.robots.panda_volumes import PANDA_BASE_LINKS, PANDA_CAPSULES
+from protorch.robots import load_robot
+
+PANDA = load_robot("panda")
+PANDA_LIMITS = tuple(zip(PANDA.lower, PANDA.upper))
+PANDA_CAPSULES, PANDA_BASE_LINKS = PANDA.capsule_list(), PANDA.base_links
+# Franka Emika's published Craig (modified) DH parameters, one row per joint: (a_{i-1} [m], d_i [m],
+# alpha_{i-1} [rad]); the flange's d after joint 7; the hand's yaw about the flange's z, then the TCP
+# along z. The independent reference the URDF is checked against (its header comment lists them).
+PANDA_DH = (
+    (0.0, 0.333, 0.0),
+    (0.0, 0.0, -1.5707963267948966),
+    (0.0, 0.316, 1.5707963267948966),
+    (0.0825, 0.0, 1.5707963267948966),
+    (-0.0825, 0.384, -1.5707963267948966),
+    (0.0, 0.0, 1.5707963267948966),
+    (0.088, 0.0, 1.5707963267948966),
+)
+PANDA_FLANGE = 0.107
+PANDA_TCP = (-0.7853981633974483, 0.1034)
 
 TOL = 1e-4  # m: what the replay may disagree with MuJoCo's contact test by (sampling, round-off)
 

@@ -44,7 +44,6 @@ import torch
 from torch import Tensor
 
 from ..checks import check_number, check_tensor
-from ..robots.panda import PANDA_MAX_ACCELERATION
 from ..tasks.arm.collision import above_table
 from .arm_choice import ArmClassChoice, draw_moves, rest_scores, velocity_command_acceleration
 from .episodes import (
@@ -151,7 +150,7 @@ def run_arm_episodes(
     hold: float = 1.0,
     dt: float = 0.02,
     kp: float = 10.0,
-    max_acceleration: Sequence[float] = PANDA_MAX_ACCELERATION,
+    max_acceleration: Sequence[float] | None = None,
     moves: Sequence[int] = (1, 2),
     move_window: tuple[float, float] = (0.1, 0.6),
     place_clearance: float = 0.05,
@@ -175,7 +174,8 @@ def run_arm_episodes(
             ``kp dt < 2`` (the one-step velocity command is stable only then, derived in
             :mod:`protorch.control.episodes`; the defaults give 0.2). An episode has at most
             :data:`~protorch.control.episodes.MAX_STEPS` (``10^6``) control steps.
-        max_acceleration: per joint (rad/s^2); the velocity limits are the URDF's.
+        max_acceleration: per joint (rad/s^2); ``None``: the task's robot's
+            (:attr:`~protorch.robots.Robot.max_acceleration`). The velocity limits are the robot's.
         moves, move_window, place_clearance: how many moves an episode gets (one value drawn
             uniformly from ``moves``), in which phase range, and how far from the arm a moved
             can stays (beyond its radius).
@@ -214,6 +214,8 @@ def run_arm_episodes(
         schedule = draw_moves(env0.shape[0], timing.moving, moves, (lo_w, hi_w), generator)
     choice = ArmClassChoice(task, env_map, promp, envs, schedule, timing.total, place_clearance=place_clearance,
                             switch_margin=switch_margin, generator=generator, reuse_answers=reuse_answers)
+    if max_acceleration is None:
+        max_acceleration = task.robot.max_acceleration
     arm = _KinematicArm(choice, task, timing, kp=kp, max_acceleration=max_acceleration)
     run = track(arm, promp, timing, envs.shape[0], task.start_config(**kw), record=record, markers=False)
     q = run.positions  # (E, T+1, J)

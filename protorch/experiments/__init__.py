@@ -23,7 +23,8 @@ from ..gp import BACKENDS
 from ..optim import OPTIMIZERS, BaseOptimizer
 from ..tasks import TASKS, TaskContractError, task_class
 from . import arm_reach, beam_window, fig3_toy, fig4_window, point_particle, self_improve
-from .arm_physics import check_physics
+from .arm_physics import check_physics, skip_reason
+from .arm_reach import check_robot
 from .common import metric_value, per_method_form, resolve_device, resolve_dtype, write_json
 from .settings import GP, OPTIMIZER_SCHEMAS, SETTINGS_SCHEMAS, TASK_SCHEMAS, SettingsError, validate
 from ..threads import torch_threads
@@ -129,6 +130,9 @@ def check_config(cfg: dict) -> dict:
         validate(GP, gp, "gp")
         if gp.get("backend", "torch") not in BACKENDS:
             raise SettingsError(f"gp.backend={gp['backend']!r} must be one of {', '.join(sorted(BACKENDS))}")
+    if name == "arm_reach" and "urdf" in dict(cfg.get("task") or {}):
+        raise SettingsError("task.urdf is now robot.urdf: robot=custom robot.urdf=PATH robot.end_link=LINK "
+                            "robot.home=[...] (docs/your_own_robot.md)")
     task = _check_task(name, dict(cfg.get("task") or {}))
     # top-level groups (``task.demos=...``, ``gp.alpha=...``) overlay the experiment's own settings
     for key, top in (("task", task), ("gp", gp)):
@@ -136,6 +140,18 @@ def check_config(cfg: dict) -> dict:
             if key not in accepted:
                 raise SettingsError(f"experiment {name!r} takes no {key}.* settings, got {', '.join(sorted(top))}")
             settings[key] = {**dict(settings.get(key) or {}), **top}
+    robot = cfg.get("robot")
+    if name == "arm_reach":  # the robot and the workspace, before any work (protorch.robots.load_robot)
+        try:
+            phys = check_physics(settings.get("physics"), dict(settings.get("dynamic") or {}))
+            task_cfg = {k: v for k, v in dict(settings.get("task") or {}).items() if k != "_target_"}
+            check_robot(robot, task_cfg, skip_reason(phys) is None)
+        except (ValueError, ImportError) as exc:
+            raise SettingsError(" ".join(str(exc).split())) from None
+        if robot is not None:
+            settings["robot"] = dict(robot)
+    elif robot is not None:
+        raise SettingsError(f"robot=...: experiment {name!r} takes no robot (experiment=arm_reach does)")
     if cfg.get("resume", False):
         if "resume" not in accepted:
             raise SettingsError(f"resume=true: experiment {name!r} cannot resume; run it again instead")

@@ -37,7 +37,6 @@ from ..control.arm_choice import ArmClassChoice
 from ..control.episodes import check_timing
 from ..data.files import atomic_write_bytes
 from ..gp.model import label_aware_mean
-from ..robots.panda import PANDA_MAX_ACCELERATION
 from ..sim.controller import check_gains
 from ..sim.episodes import FixedMeans, run_physics_episodes, substeps
 from ..sim.mj import INSTALL_HINT, MujocoMissing, load_mujoco, mujoco_available
@@ -123,7 +122,9 @@ def save_episodes(path: Path, test, dynamic, kin_test: np.ndarray, kin_dynamic: 
 
 
 def _task_kwargs(task) -> dict:
-    return {f.name: getattr(task, f.name) for f in dataclasses.fields(task) if f.init}
+    """The task's settings as JSON (the robot as the settings it was loaded from)."""
+    kw = {f.name: getattr(task, f.name) for f in dataclasses.fields(task) if f.init}
+    return kw | {"robot": task.robot.settings}
 
 
 def _picks(test, dynamic) -> dict:
@@ -157,7 +158,8 @@ def physics_section(exp, model, out_dir: Path, plot: bool) -> dict:
     ctrl = controller_model(task, timestep=cfg["timestep"], mass_scale=cfg["mass_scale"])
     timing = check_timing(dyn["dt"], dyn["duration"], dyn["hold"])
     common = dict(kp=cfg["kp"], kd=cfg["kd"], ref_kp=float(dyn["kp"]),
-                  max_acceleration=dyn.get("max_acceleration", PANDA_MAX_ACCELERATION),
+                  max_acceleration=task.robot.max_acceleration if dyn.get("max_acceleration") is None
+                  else dyn["max_acceleration"],
                   threads=max(1, torch.get_num_threads()), feasible=cfg["feasible_scale"] if cfg["feasible"] else None)
     envs = exp.test_envs
     with torch.no_grad():

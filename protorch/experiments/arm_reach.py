@@ -1,5 +1,6 @@
-"""Sec. IV-C of the paper: a 7-DoF arm (the Panda shipped with protorch) reaches a target on a
-table around a can, and switches between passing it on the left and on the right on the fly.
+"""Sec. IV-C of the paper: an arm (the robot setting: the Panda shipped with protorch by default,
+or your own URDF, docs/your_own_robot.md) reaches a target on a table around a can, and switches
+between passing it on the left and on the right on the fly.
 
 1. Demonstrations: 20 environments x 3, hand-guided-like end-effector paths passing the can on
    alternating sides, turned into joint trajectories by inverse kinematics; one ProMP weight
@@ -45,9 +46,10 @@ from ..data.demos import check_demo_groups, read_marks
 from ..gp.model import label_aware_mean
 from ..loop import LoopResult, demonstration_dataset
 from ..primitives.promp import ProMP, resample
+from ..robots import check_inertials, load_robot
 from ..tasks.arm.demos import read_arm_demos
 from ..tasks.arm.reach import LEFT, RIGHT, SIDES, ArmReachTask
-from ..tasks.arm.workspace import REGIONS, check_region
+from ..tasks.arm.workspace import REGIONS, check_reach, check_region
 from ..threads import torch_threads
 from ..viz.arm import experiment_figures
 from .common import demo_source
@@ -61,7 +63,7 @@ from .self_improvement import (
     loop_summary,
 )
 
-__all__ = ["run", "prepare", "Setup", "ArmReachExperiment", "TEST_SEED", "DYNAMIC_SEED"]
+__all__ = ["run", "prepare", "check_robot", "Setup", "ArmReachExperiment", "TEST_SEED", "DYNAMIC_SEED"]
 
 _BASELINES = ("labels_off", "labels_off_loop")
 
@@ -73,9 +75,9 @@ class ArmReachExperiment(SelfImprovementExperiment):
     times :meth:`run_loop`."""
 
     task_keys = frozenset({"_target_", "demos", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin",
-                           "goal_tol", "start_tol", "can_radius", "can_height", "clearance", "urdf", "deviation",
+                           "goal_tol", "start_tol", "can_radius", "can_height", "clearance", "deviation",
                            "collision", "can_objective", "prior_clear", "prior_detours",
-                           "prior_grid", "region", "reach"})
+                           "prior_grid", "region", "reach", "can_box", "goal_box", "table"})
     loop_keys = frozenset({"labels", "each_label"})
     dynamic_keys = frozenset({"seed", "episodes", "duration", "hold", "dt", "kp", "moves", "move_window",
                               "place_clearance", "switch_margin"})
@@ -84,7 +86,8 @@ class ArmReachExperiment(SelfImprovementExperiment):
     baseline_names = _BASELINES
     loop_baselines = frozenset({"labels_off_loop"})
 
-    def __init__(self, *, physics: dict | None = None, **settings) -> None:
+    def __init__(self, *, physics: dict | None = None, robot=None, **settings) -> None:
+        self.robot = load_robot(robot)  # the arm (robot.* settings; None: the Panda)
         super().__init__(**settings)
         self.physics_cfg = check_physics(physics, self.dyn_cfg)
         self.last_moving, self.out_dir, self.plot = None, None, True
@@ -119,7 +122,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
         check_region(task_cfg.get("region", "rectangles"), "task.region")
         self.nearest_k = self.map_options.get("nearest_k")
         task_cfg.pop("_target_", None)
-        self.task = ArmReachTask(**task_cfg).to(self.device)
+        self.task = ArmReachTask(robot=self.robot, **_boxes(task_cfg)).to(self.device)
         if self.prior_clear == "auto":
             self.prior_clear = self.task.collision == "volume"
         self.prior_detours = check_detours(detours, self.task.collision)
@@ -176,6 +179,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
     def describe(self) -> dict:
         lk, opt, data0 = self.loop_kwargs, self.optimizer_cfg, self.initial_data()
         return {
+            "robot": self.robot.summary(),
             "demos": {"source": str(self.source), "marked": self.demo_marked, "count": len(self.demos),
                       "envs": int(self.demo_envs.unique(dim=0).shape[0]),
                       "entries": int((data0.origin == 0).sum()), "left": int((self.demo_labels == LEFT).sum()),
@@ -256,11 +260,13 @@ def prepare(
     test: dict | None = None,
     dynamic: dict | None = None,
     physics: dict | None = None,
+    robot: dict | str | None = None,
 ) -> ArmReachExperiment:
     """Validate every setting (clear errors, before any work), make the demonstrations and the
     priors and draw the test environments; see :func:`run` for the settings."""
     return ArmReachExperiment(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp,
-                              promp=promp, loop=loop, test=test, dynamic=dynamic, physics=physics).build()
+                              promp=promp, loop=loop, test=test, dynamic=dynamic, physics=physics,
+                              robot=robot).build()
 
 
 def run(
@@ -278,6 +284,7 @@ def run(
     test: dict | None = None,
     dynamic: dict | None = None,
     physics: dict | None = None,
+    robot: dict | str | None = None,
     baselines: Sequence[str] = _BASELINES,
     resume: bool = False,
     progress: bool = True,
@@ -298,7 +305,9 @@ def run(
     ``labels`` (the label-aware map; false runs the paper's single map). ``test``: ``num_envs``,
     ``seed``. ``dynamic``: ``episodes`` plus :func:`~protorch.control.arm.run_arm_episodes`
     options. ``physics``: ``run`` (auto, always, never), ``timestep``, ``kp``, ``kd``,
-    ``mass_scale``, ``render`` (:mod:`protorch.experiments.arm_physics`). ``baselines``: any of
+    ``mass_scale``, ``render`` (:mod:`protorch.experiments.arm_physics`). ``robot``: the arm, a
+    shipped robot's name or a dict of ``robot.*`` settings (:func:`protorch.robots.load_robot`;
+    ``None``: the Panda). ``baselines``: any of
     ``labels_off``, ``labels_off_loop``. ``resume``: continue the
     loops from the checkpoints in ``out_dir``. ``threads``: torch's intra-op threads for the run
     (restored afterwards; ``None``, the default, keeps the setting around the call: the app's
@@ -309,8 +318,30 @@ def run(
         raise ValueError(f"threads must be None or an int >= 1, got {threads!r}")
     with torch_threads(threads):
         exp = ArmReachExperiment(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp,
-                                 promp=promp, loop=loop, test=test, dynamic=dynamic, physics=physics)
+                                 promp=promp, loop=loop, test=test, dynamic=dynamic, physics=physics, robot=robot)
         return exp.run(out_dir, baselines=baselines, resume=resume, progress=progress, plot=plot)
+
+
+def _boxes(task_cfg: dict) -> dict:
+    """``can_box``, ``goal_box``, ``table`` as the task takes them (pairs of pairs)."""
+    return {k: (tuple(tuple(p) for p in v) if k in ("can_box", "goal_box", "table") else v)
+            for k, v in task_cfg.items()}
+
+
+def check_robot(robot, task_cfg: dict, physics_runs: bool):
+    """The robot setting checked before any work (each a ``ValueError`` of one line naming the
+    setting): the description (:func:`~protorch.robots.load_robot`: the URDF parses, the end
+    link exists, at least 6 joints, the home pose's length and limits), the inertials where the
+    physics test will run, and the workspace within the arm's reach
+    (:func:`~protorch.tasks.arm.workspace.check_reach`). Returns the task."""
+    robot = load_robot(robot)
+    if physics_runs:
+        check_inertials(robot)
+    keys = ArmReachExperiment.task_keys - {"_target_", "demos", "demo_envs", "demos_per_env", "priors",
+                                            "prior_clear", "prior_detours", "prior_grid"}
+    task = ArmReachTask(robot=robot, **_boxes({k: v for k, v in task_cfg.items() if k in keys}))
+    check_reach(task, check_region(task_cfg.get("prior_grid", "rectangles"), "task.prior_grid"))
+    return task
 
 
 # ----------------------------------------------------------------------------- evaluation

@@ -322,7 +322,7 @@ class PointParticleTaskSettings:
 
 @dataclass
 class ArmReachTaskSettings:
-    demos: str = setting("synthetic", "synthetic, or a folder of trajK.out (7 joint angles per row) / envK.out")
+    demos: str = setting("synthetic", "synthetic, or a folder of trajK.out (one angle per joint per row) / envK.out")
     demo_envs: int = setting(20, "synthetic only: demonstrated environments", ge=1)
     demos_per_env: int = setting(3, "synthetic only: demonstrations per environment", ge=2)
     priors: int = setting(2004, "straight-path prior ProMPs on a regular grid", ge=0)
@@ -338,13 +338,15 @@ class ArmReachTaskSettings:
     can_radius: float = setting(0.0375, "the can's radius (m)", gt=0)
     can_height: float = setting(0.23, "the can's height (m)", gt=0)
     clearance: float = setting(0.2, "the 0.2 of the can objective max(-min_t ||p - can||, -0.2)", gt=0)
-    urdf: typing.Optional[str] = setting(None, "the arm's URDF; null = the Panda shipped with protorch")
+    can_box: typing.Any = setting([[0.50, 0.62], [-0.12, 0.12]], "where the can is drawn: [[x_min, x_max], [y_min, y_max]] (m)")
+    goal_box: typing.Any = setting([[0.66, 0.74], [-0.24, 0.24]], "where the target is drawn; within the arm's reach")
+    table: typing.Any = setting([[0.2, 0.9], [-0.5, 0.5]], "the table top; an environment off it is refused")
     deviation: str = setting("segment", "d of the objectives: distance to the segment s -> g, or to tau_direct(t)",
                              choices=("segment", "time"))
     collision: str = setting("skeleton", "the arm in the success check: segments between frame origins, or the "
-                             "Panda's link capsules (as MuJoCo collides them)", choices=("skeleton", "volume"))
+                             "robot's link capsules (as MuJoCo collides them)", choices=("skeleton", "volume"))
     can_objective: str = setting("auto", "the can objective's distance: the end effector's (the paper's), the "
-                                 "hand's, link 7's and the forearm's capsules, the arm's skeleton, or auto (volume "
+                                 "capsules rigid with the end link and the forearm's, the arm's skeleton, or auto (volume "
                                  "with collision=volume)", choices=("auto", "ee", "volume", "skeleton"))
     prior_clear: typing.Any = setting("auto", "keep only the priors whose straight path succeeds under "
                                       "collision (true, false, auto: with collision=volume)")

@@ -1,21 +1,17 @@
-"""Robot descriptions shipped with protorch (kinematic chains only: joints and frames, no meshes).
+"""Robot descriptions: what protorch knows of an arm, and the only place that names one.
 
-``PANDA_URDF``: the Franka Emika Panda, written from its published Denavit-Hartenberg parameters
-and joint limits (see the comment at the top of the file), with the hand and its tool centre
-point (``panda_hand_tcp``) as the end link. Load it with :class:`protorch.robots.ArmKinematics`.
+:class:`Robot` (:mod:`protorch.robots.description`) is one typed description of a serial arm:
+URDF, end link (tool centre point), home configuration, joint limits (position, velocity,
+acceleration, torque), damping and armature, collision capsules per link, inertials and a display
+name. :func:`load_robot` makes it from a shipped description (``protorch/robots/<name>.yaml``
+beside its URDF: ``panda``, the Franka Emika Panda, the default) or from the ``robot.*`` settings
+of the command line (:mod:`protorch.robots.loader`; docs/your_own_robot.md).
+:class:`ArmKinematics` is the chain's batched forward kinematics (``pytorch_kinematics``).
 """
 
+from .description import Capsule, Inertial, PointMass, Robot, capsule_index, capsule_segments
 from .kinematics import ArmKinematics
-from .panda import (
-           PANDA_DH,
-           PANDA_END_LINK,
-           PANDA_FLANGE,
-           PANDA_LIMITS,
-           PANDA_MAX_ACCELERATION,
-           PANDA_MAX_VELOCITY,
-           PANDA_TCP,
-           PANDA_URDF,
-)
+from .loader import ROBOTS_DIR, RobotError, check_inertials, load_robot, shipped_robots
 
-__all__ = ["ArmKinematics", "PANDA_URDF", "PANDA_END_LINK", "PANDA_DH", "PANDA_LIMITS", "PANDA_MAX_VELOCITY",
-           "PANDA_MAX_ACCELERATION", "PANDA_FLANGE", "PANDA_TCP"]
+__all__ = ["ArmKinematics", "Robot", "Capsule", "Inertial", "PointMass", "RobotError", "ROBOTS_DIR", "load_robot",
+           "shipped_robots", "check_inertials", "capsule_index", "capsule_segments"]

@@ -29,7 +29,6 @@ import torch
 from torch import Tensor, nn
 
 from ..checks import check_tensor
-from .panda import PANDA_END_LINK, PANDA_URDF
 
 __all__ = ["ArmKinematics", "urdf_links"]
 
@@ -96,9 +95,9 @@ class ArmKinematics(nn.Module):
     """A serial arm from a URDF: batched forward kinematics (module docstring).
 
     Args:
-        urdf: a URDF path or its XML text; default the Panda shipped with protorch
-            (:data:`protorch.robots.PANDA_URDF`).
-        end_link: the chain's last link (default the Panda's ``panda_hand_tcp``).
+        urdf: a URDF path or its XML text; default the default robot's
+            (:func:`protorch.robots.load_robot`: the Panda shipped with protorch).
+        end_link: the chain's last link (default the default robot's end link).
         root_link: its first link (default the URDF's root).
         dtype, device: of the chain and the limits.
 
@@ -106,12 +105,17 @@ class ArmKinematics(nn.Module):
     a chain with other than revolute and fixed joints, or a joint without limits.
     """
 
-    def __init__(self, urdf: str | Path | None = None, *, end_link: str = PANDA_END_LINK, root_link: str = "",
+    def __init__(self, urdf: str | Path | None = None, *, end_link: str | None = None, root_link: str = "",
                  dtype: torch.dtype = torch.float64, device: torch.device | str | None = None) -> None:
         super().__init__()
         import pytorch_kinematics as pk
 
-        text, where = _read_urdf(PANDA_URDF if urdf is None else urdf)
+        if urdf is None or end_link is None:
+            from .loader import load_robot
+
+            robot = load_robot()
+            urdf, end_link = robot.urdf if urdf is None else urdf, robot.end_link if end_link is None else end_link
+        text, where = _read_urdf(urdf)
         links = urdf_links(text, where)
         for role, name in (("end_link", end_link), ("root_link", root_link)):
             if name and name not in links:

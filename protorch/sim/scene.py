@@ -1,16 +1,16 @@
-"""The MuJoCo scene of the arm experiment, built by protorch from its own description of the Panda.
+"""The MuJoCo scene of the arm experiment, built by protorch from the task's robot description.
 
-:func:`build_scene` reads the task's URDF (:data:`~protorch.robots.PANDA_URDF`: joints, frames
-and joint limits) with ``mujoco.MjSpec`` (the compiler keeps the fixed links, the flange, the hand
-and the tool centre point, as bodies of their own) and adds:
+:func:`build_scene` reads the robot's URDF (:class:`~protorch.robots.Robot`: joints, frames and
+joint limits) with ``mujoco.MjSpec`` (the compiler keeps the fixed links, e.g. the Panda's flange,
+hand and tool centre point, as bodies of their own) and adds:
 
-* every link's published mass, centre of mass and inertia, the fingers as point masses on the
-  hand (:data:`~protorch.robots.panda_volumes.PANDA_INERTIALS`);
-* the link capsules as the arm's collision geometry
-  (:data:`~protorch.robots.panda_volumes.PANDA_CAPSULES`, the volumes ``collision=volume`` plans
-  with);
-* joint damping and rotor armature, and a torque motor per joint clipped to the Panda's torque
-  limits (:data:`~protorch.robots.panda_volumes.PANDA_TORQUE_LIMITS`);
+* every link's mass, centre of mass and inertia from the URDF's ``<inertial>`` and the robot's
+  point masses (the Panda's fingers on its hand); a robot whose moving links lack them is
+  refused before any work (:func:`~protorch.robots.check_inertials`);
+* the robot's link capsules as the arm's collision geometry (the volumes ``collision=volume``
+  plans with);
+* the robot's joint damping and rotor armature, and a torque motor per joint clipped to its
+  torque limits (the URDF's ``<limit effort>``);
 * the table top (a box whose top face is ``z = 0`` under the robot and the task's table), the can
   (a cylinder of the task's radius and height on a *mocap* body: a person moves it, the arm
   cannot push it, and MuJoCo reports every contact with it) and the target (a visual marker on a
@@ -30,20 +30,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..robots.panda_volumes import (
-    PANDA_ARMATURE,
-    PANDA_BASE_LINKS,
-    PANDA_CAPSULES,
-    PANDA_DAMPING,
-    PANDA_FINGER_MASS,
-    PANDA_FINGER_OFFSET,
-    PANDA_FINGER_OPENING,
-    PANDA_INERTIALS,
-    PANDA_TORQUE_LIMITS,
-)
+from ..robots import check_inertials
 from .mj import load_mujoco
 
-__all__ = ["PandaScene", "build_scene", "controller_model", "ARM_BITS", "WORLD_BITS"]
+__all__ = ["ArmScene", "build_scene", "hand_links", "controller_model", "ARM_BITS", "WORLD_BITS"]
 
 ARM_BITS = (1, 2)  # (contype, conaffinity) of the arm's capsules: they touch the world, not each other
 WORLD_BITS = (2, 1)  # the table and the can
@@ -56,7 +46,7 @@ _HAND_RGBA = (0.3, 0.3, 0.32, 1.0)
 
 
 @dataclass
-class PandaScene:
+class ArmScene:
     """A compiled scene: ``model``, the arm's joints in order (``qpos`` / ``qvel`` indices), the
     mocap indices of the can and the target, the sensor addresses of the arm-can and arm-table
     contact counts, the torque limits ``(J,)`` and the task it was built for."""
@@ -75,34 +65,51 @@ class PandaScene:
         return float(self.model.opt.timestep)
 
 
+def hand_links(task) -> set[str]:
+    """The links rigid with the end link beyond the last joint's own link (the Panda's flange, hand
+    and tool centre point): drawn in the hand's colour."""
+    kin = task.kinematics
+    out = set()
+    for name in reversed(kin.frame_names[1:]):
+        if kin.chain.find_frame(name).joint.joint_type != "fixed":
+            break
+        out.add(name)
+    return out
+
+
 def _arm_spec(task, mass_scale: float, timestep: float):
-    """The Panda from the task's URDF with its inertials, capsules, damping, armature and motors."""
+    """The task's robot from its URDF with its inertials, capsules, damping, armature and motors."""
     mujoco = load_mujoco()
+    robot = task.robot
+    check_inertials(robot)
     text = task.kinematics.urdf_text
     head = text.index(">", text.index("<robot")) + 1
     spec = mujoco.MjSpec.from_string(text[:head] + _COMPILER + text[head:])
     spec.option.timestep = float(timestep)
-    for name, inertial in PANDA_INERTIALS.items():
+    frames = set(task.kinematics.frame_names)
+    for name, inertial in robot.inertials.items():
+        if name not in frames:
+            continue
         body = spec.body(name)
         body.mass = inertial.mass * mass_scale
         body.ipos = list(inertial.com)
         body.fullinertia = [v * mass_scale for v in inertial.inertia]
         body.explicitinertial = True
-    hand = spec.body("panda_hand")
-    for side in (1.0, -1.0):
-        finger = hand.add_body(pos=[0.0, side * PANDA_FINGER_OPENING, PANDA_FINGER_OFFSET])
-        finger.mass, finger.explicitinertial = PANDA_FINGER_MASS * mass_scale, True
-        finger.inertia = [2.375e-6 * mass_scale, 2.375e-6 * mass_scale, 7.5e-7 * mass_scale]
-    for c in PANDA_CAPSULES:
-        rgba = _HAND_RGBA if c.link == "panda_hand" else _ARM_RGBA
+    for pm in robot.point_masses:
+        point = spec.body(pm.link).add_body(pos=list(pm.pos))
+        point.mass, point.explicitinertial = pm.mass * mass_scale, True
+        point.inertia = [v * mass_scale for v in pm.inertia]
+    hand = hand_links(task)
+    for c in robot.capsule_list():
+        rgba = _HAND_RGBA if c.link in hand else _ARM_RGBA
         spec.body(c.link).add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[*c.a, *c.b], size=[c.radius, 0, 0],
                                    contype=ARM_BITS[0], conaffinity=ARM_BITS[1], rgba=list(rgba))
     names = task.kinematics.joint_names
     for i, name in enumerate(names):
         joint = spec.joint(name)
-        joint.armature = PANDA_ARMATURE
-        joint.damping[0] = PANDA_DAMPING
-        lim = PANDA_TORQUE_LIMITS[i]
+        joint.armature = robot.armature[i]
+        joint.damping[0] = robot.damping[i]
+        lim = robot.max_torque[i]
         spec.add_actuator(name=f"motor{i + 1}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT,
                           gainprm=[1.0] + [0.0] * 9, forcelimited=True, forcerange=[-lim, lim],
                           ctrllimited=False)
@@ -128,7 +135,7 @@ def _add_world(spec, task) -> None:
                    size=[(hi_x - lo_x) / 2, (hi_y - lo_y) / 2, _TABLE_THICKNESS / 2],
                    pos=[(hi_x + lo_x) / 2, (hi_y + lo_y) / 2, -_TABLE_THICKNESS / 2],
                    contype=WORLD_BITS[0], conaffinity=WORLD_BITS[1])
-    for link in PANDA_BASE_LINKS:
+    for link in task.robot.base_links:
         spec.add_exclude(bodyname1="world", bodyname2=link)
     can = world.add_body(name="can", mocap=True, pos=[0.6, 0.0, task.can_height / 2])
     can.add_geom(name="can", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[task.can_radius, task.can_height / 2, 0],
@@ -147,8 +154,8 @@ def _add_world(spec, task) -> None:
                         objname=root, reftype=mujoco.mjtObj.mjOBJ_BODY, refname=other, intprm=_CONTACT_SENSOR)
 
 
-def build_scene(task, *, timestep: float = 0.002, mass_scale: float = 1.0) -> PandaScene:
-    """The plant (module docstring) for an :class:`~protorch.tasks.ArmReachTask` with the Panda;
+def build_scene(task, *, timestep: float = 0.002, mass_scale: float = 1.0) -> ArmScene:
+    """The plant (module docstring) for an :class:`~protorch.tasks.ArmReachTask` with its robot;
     ``timestep`` is MuJoCo's step (s)."""
     load_mujoco()  # one line naming the extra where MuJoCo is missing
     spec = _arm_spec(task, mass_scale, timestep)
@@ -159,11 +166,11 @@ def build_scene(task, *, timestep: float = 0.002, mass_scale: float = 1.0) -> Pa
     qpos_index = np.array([model.jnt_qposadr[model.joint(n).id] for n in names])
     if not np.array_equal(qpos_index, np.arange(len(names))) or model.nv != len(names):
         raise ValueError(f"the scene's joints {names} are not the model's only degrees of freedom")
-    return PandaScene(model=model, qpos_index=qpos_index, can_mocap=int(model.body("can").mocapid[0]),
-                      target_mocap=int(model.body("target").mocapid[0]),
-                      can_contact=int(model.sensor("arm_can").adr[0]),
-                      table_contact=int(model.sensor("arm_table").adr[0]),
-                      torque_limits=np.array(PANDA_TORQUE_LIMITS[:len(names)], dtype=np.float64), task=task)
+    return ArmScene(model=model, qpos_index=qpos_index, can_mocap=int(model.body("can").mocapid[0]),
+                    target_mocap=int(model.body("target").mocapid[0]),
+                    can_contact=int(model.sensor("arm_can").adr[0]),
+                    table_contact=int(model.sensor("arm_table").adr[0]),
+                    torque_limits=np.array(task.robot.max_torque, dtype=np.float64), task=task)
 
 
 def controller_model(task, *, timestep: float = 0.002, mass_scale: float = 1.0):

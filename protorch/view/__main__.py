@@ -42,6 +42,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     teach.add_argument("--steps", type=int, help="time steps a demonstration is resampled to (default: the run's "
                                                  "promp.num_steps, else 100)")
     teach.add_argument("--seed", type=int, default=0, help="seed of the proposed environments (default 0)")
+    teach.add_argument("--robot", help="arm_reach without RUN_DIR: a shipped robot (e.g. panda) or a yaml file of "
+                                       "robot.* settings (docs/your_own_robot.md); default the Panda")
     return ap.parse_args(argv)
 
 
@@ -51,7 +53,9 @@ def teach_session(args) -> tuple[TeachSession, object]:
     cfg = {} if run is None else read_config(run.run_dir)
     if run is not None and run.model.task_name != args.teach:
         raise ValueError(f"{args.run_dir} is a {run.model.task_name} run, not {args.teach}")
-    teach = make_teach_task(args.teach, None if run is None else build_task(args.teach, cfg.get("task")))
+    robot = cfg.get("robot") if run is not None else _robot_arg(getattr(args, "robot", None))
+    task = None if run is None and robot is None else build_task(args.teach, cfg.get("task"), robot)
+    teach = make_teach_task(args.teach, task)
     steps = args.steps or (100 if run is None else run.model.promp.num_steps)
     num_envs = args.envs or (30 if args.teach == "point_particle" else 20)
     proposals = None
@@ -60,6 +64,18 @@ def teach_session(args) -> tuple[TeachSession, object]:
     session = TeachSession(teach, Path(args.out or f"demos/{args.teach}"), per_env=args.per_env,
                            num_envs=num_envs, num_steps=int(steps), proposals=proposals, seed=args.seed)
     return session, run
+
+
+def _robot_arg(value: str | None):
+    """``--robot``: a shipped name, or a yaml file of ``robot.*`` settings (read here)."""
+    if value is None or not value.endswith((".yaml", ".yml")):
+        return value
+    import yaml
+
+    path = Path(value)
+    if not path.is_file():
+        raise FileNotFoundError(f"--robot {value}: no such file")
+    return dict(yaml.safe_load(path.read_text()) or {})
 
 
 def _serve(make, what: str) -> int:

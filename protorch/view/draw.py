@@ -94,7 +94,7 @@ def draw_arm_env(scene, can_xy: np.ndarray, goal: np.ndarray, radius: float, hei
 
 
 class ArmPose:
-    """The Panda at one configuration: a cylinder per link between consecutive frame origins
+    """The arm at one configuration: a cylinder per link between consecutive frame origins
     (coincident frames skipped) and a sphere per joint. The nodes are made once; :meth:`update`
     only moves them (a pose change is then a few small property messages, not new meshes)."""
 

@@ -19,7 +19,6 @@ from torch import Tensor
 
 from ..control.arm import rest_scores
 from ..control.particle import promp_state_at
-from ..robots.panda import PANDA_MAX_ACCELERATION
 from ..tasks.arm.reach import SIDES
 
 __all__ = ["ArmPlayer", "ParticlePlayer", "make_player"]
@@ -108,7 +107,7 @@ class ArmPlayer(_Player):
         task, promp = run.task, run.model.promp
         self.kp, self.switch_margin = float(kp), float(switch_margin)
         self.vmax = task.kinematics.max_velocity.to(**self.kw)  # (J,)
-        self.amax = torch.as_tensor(PANDA_MAX_ACCELERATION, **self.kw).expand(task.num_dof)  # (J,)
+        self.amax = torch.as_tensor(task.robot.max_acceleration, **self.kw)  # (J,)
         self.cand = torch.unique(run.model.env_map.labels)  # (K,)
         self.grid = promp.phase[task.cost_indices(promp.num_steps)].to(**self.kw)  # (P,)
         self.q = None

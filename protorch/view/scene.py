@@ -49,7 +49,8 @@ __all__ = [
 KINDS = {"point_particle": "particle", "arm_reach": "arm"}
 MAKE_RUN = "python -m protorch experiment=point_particle hydra.run.dir=runs/pp  (or experiment=arm_reach)"
 _PARTICLE_KEYS = ("objectives", "fixed_start", "infinite_wall")
-_ARM_KEYS = ("cost_steps", "margin", "goal_tol", "start_tol", "can_radius", "can_height", "clearance", "urdf")
+_ARM_KEYS = ("cost_steps", "margin", "goal_tol", "start_tol", "can_radius", "can_height", "clearance", "can_box",
+             "goal_box", "table")
 
 
 @dataclass(frozen=True)
@@ -142,15 +143,18 @@ def read_config(run_dir: Path) -> dict:
     return cfg
 
 
-def build_task(task_name: str, task_cfg: dict | None = None):
+def build_task(task_name: str, task_cfg: dict | None = None, robot=None):
     """The task of a run from its ``task.*`` settings (the keys the task class takes; the rest,
-    e.g. ``demo_envs``, only shaped the training)."""
+    e.g. ``demo_envs``, only shaped the training) and, for the arm, its ``robot.*`` settings
+    (:func:`~protorch.robots.load_robot`; ``None``: the Panda)."""
     cfg = dict(task_cfg or {})
     if task_name == "point_particle":
         kw = {k: (tuple(cfg[k]) if isinstance(cfg[k], list) else cfg[k]) for k in _PARTICLE_KEYS if k in cfg}
         return PointParticleTask(**kw)
     if task_name == "arm_reach":
-        return ArmReachTask(**{k: cfg[k] for k in _ARM_KEYS if k in cfg})
+        boxes = ("can_box", "goal_box", "table")
+        return ArmReachTask(robot=robot, **{k: (tuple(map(tuple, cfg[k])) if k in boxes else cfg[k])
+                                            for k in _ARM_KEYS if k in cfg})
     raise ValueError(f"the viewer shows point_particle and arm_reach runs, this one solved {task_name!r}")
 
 
@@ -189,7 +193,7 @@ def open_run(run_dir: str | Path, *, device=None) -> ViewRun:
     if model.task_name not in KINDS:
         raise ValueError(f"{run_dir} is a {model.task_name!r} run; the viewer shows {sorted(KINDS)}")
     cfg = read_config(run_dir)
-    task = build_task(model.task_name, cfg.get("task"))
+    task = build_task(model.task_name, cfg.get("task"), cfg.get("robot"))
     if device is not None and hasattr(task, "to"):
         task = task.to(device)
     params, env0 = task_params(task)

@@ -205,7 +205,7 @@ def experiment_figures(out_dir, task, model, off_model, test_envs, res, off_loop
     with torch.no_grad():
         q = promp.trajectory(best.mean[0])  # (T, 7)
     plot_arm_3d(ax, task, q, env[0])
-    ax.set_title(f"Panda along the {_NAMES.get(int(best.label[0]), '')} mean, held-out env {pick[0]}", fontsize=9)
+    ax.set_title(f"{task.robot.name} along the {_NAMES.get(int(best.label[0]), '')} mean, held-out env {pick[0]}", fontsize=9)
     atomic_save(out_dir / "arm_3d.png", ".png", lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
 
     # held-out success vs loop iteration

@@ -120,8 +120,8 @@ def test_app_runs_from_a_built_wheel_outside_the_source_tree(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(site)}
     where = subprocess.run(
         [sys.executable, "-c", "import protorch, protorch.app.main as m; print(protorch.__file__); print(m.config_dir()); "
-         "from protorch.robots import PANDA_URDF; from protorch.robots.kinematics import ArmKinematics; "
-         "assert ArmKinematics().num_joints == 7; print(PANDA_URDF)"],
+         "from protorch.robots import load_robot; from protorch.robots.kinematics import ArmKinematics; "
+         "assert ArmKinematics().num_joints == 7; print(load_robot('panda').urdf)"],
         cwd=work, env=env, capture_output=True, text=True, check=True,
     ).stdout.split()
     assert len(where) == 3 and where[2].endswith("panda.urdf")  # the URDF ships inside the wheel

@@ -12,7 +12,6 @@ from protorch.control.arm import count_switches, run_arm_episodes
 from protorch.gp import make_env_map
 from protorch.gp.model import EnvToProMP, label_aware_mean
 from protorch.loop import demonstration_dataset
-from protorch.robots import PANDA_MAX_ACCELERATION
 from protorch.tasks.arm.reach import LEFT, RIGHT, ArmReachTask
 
 F64 = torch.float64
@@ -78,7 +77,7 @@ def test_the_arm_switches_sides_when_the_can_is_moved(task, switching):
     assert bool(res.success[0]) and float(res.min_can_distance[0]) > task.can_radius + task.margin
     assert float(res.final_goal_distance[0]) <= task.goal_tol
     # velocity and acceleration limits held at every step
-    vmax, amax = task.kinematics.max_velocity, torch.tensor(PANDA_MAX_ACCELERATION, dtype=F64)
+    vmax, amax = task.kinematics.max_velocity, torch.tensor(task.robot.max_acceleration, dtype=F64)
     assert bool((res.qd.abs() <= vmax + 1e-9).all())
     assert bool((res.qd.diff(dim=1).abs() / res.dt <= amax + 1e-6).all())
     assert res.map_queries == 2 * 2  # both classes at A, then at B: unchanged environments reuse the answer

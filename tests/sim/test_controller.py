@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from protorch.robots import PANDA_LIMITS
+from protorch.robots import load_robot
+
+PANDA_LIMITS = tuple(zip(load_robot("panda").lower, load_robot("panda").upper))
 from protorch.sim.controller import ComputedTorque, check_gains, dense_mass
 from protorch.sim.scene import controller_model
 

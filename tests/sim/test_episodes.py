@@ -9,7 +9,9 @@ import pytest
 import torch
 
 from protorch.control.episodes import check_timing
-from protorch.robots.panda import PANDA_MAX_ACCELERATION
+from protorch.robots import load_robot
+
+PANDA_MAX_ACCELERATION = load_robot("panda").max_acceleration
 from protorch.sim.episodes import FixedMeans, run_physics_episodes, substeps
 from protorch.sim.scene import build_scene, controller_model
 from protorch.tasks.arm.demos import detour_paths

@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from protorch.robots import PANDA_LIMITS
-from protorch.robots.panda_volumes import PANDA_ARMATURE, PANDA_CAPSULES, PANDA_DAMPING, PANDA_INERTIALS
+from protorch.robots import load_robot
 from protorch.sim.scene import build_scene, controller_model
 
 
@@ -19,7 +18,7 @@ def scene(task):
 
 
 def test_frames_match_protorch_kinematics(scene, task, gen):
-    lo, hi = torch.tensor(PANDA_LIMITS, dtype=torch.float64).T
+    lo, hi = task.kinematics.lower, task.kinematics.upper
     q = lo + (hi - lo) * torch.rand(8, 7, generator=gen, dtype=torch.float64)
     frames = task.kinematics.frames(q).numpy()  # (8, F, 4, 4)
     data = mujoco.MjData(scene.model)
@@ -33,18 +32,21 @@ def test_frames_match_protorch_kinematics(scene, task, gen):
 
 
 def test_inertials_capsules_motors_and_joints(scene):
-    m = scene.model
-    for name, inertial in PANDA_INERTIALS.items():
+    m, robot = scene.model, load_robot("panda")
+    inertials = robot.inertials  # the URDF's <inertial>
+    assert set(inertials) == {f"panda_link{i}" for i in range(8)} | {"panda_hand"}
+    for name, inertial in inertials.items():
         assert m.body(name).mass[0] == pytest.approx(inertial.mass), name
         assert np.allclose(m.body(name).ipos, inertial.com), name
     caps = [g for g in range(m.ngeom) if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_CAPSULE]
-    assert len(caps) == len(PANDA_CAPSULES)
-    assert sorted(float(m.geom_size[g, 0]) for g in caps) == sorted(c.radius for c in PANDA_CAPSULES)
+    assert len(caps) == len(robot.capsule_list())
+    assert sorted(float(m.geom_size[g, 0]) for g in caps) == sorted(c.radius for c in robot.capsule_list())
     assert np.allclose(m.actuator_forcerange, np.stack([-scene.torque_limits, scene.torque_limits], 1))
-    assert np.allclose(m.jnt_range, np.array(PANDA_LIMITS))
-    assert np.allclose(m.dof_damping, PANDA_DAMPING) and np.allclose(m.dof_armature, PANDA_ARMATURE)
+    assert np.allclose(m.jnt_range, np.stack([robot.lower, robot.upper], 1))
+    assert np.allclose(scene.torque_limits, robot.max_torque)  # the URDF's effort
+    assert np.allclose(m.dof_damping, robot.damping) and np.allclose(m.dof_armature, robot.armature)
     heavy = controller_model(scene.task, mass_scale=2.0)
-    assert heavy.body("panda_link3").mass[0] == pytest.approx(2 * PANDA_INERTIALS["panda_link3"].mass)
+    assert heavy.body("panda_link3").mass[0] == pytest.approx(2 * inertials["panda_link3"].mass)
     assert heavy.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT
 
 

@@ -4,12 +4,12 @@
 * ``"skeleton"``: the segments between consecutive frame origins (base to tool centre point),
   zero thickness. The gap to the can is the segments' distance to the can's axis segment minus
   the can's radius; above the table means every frame but the base at ``z >= 0``.
-* ``"volume"``: the Panda's link capsules (:data:`~protorch.robots.panda_volumes.PANDA_CAPSULES`,
-  the same volumes the MuJoCo scene collides with). A capsule's gap to the can is its segment's
+* ``"volume"``: the robot's link capsules (:attr:`~protorch.robots.Robot.capsules`, the same
+  volumes the MuJoCo scene collides with). A capsule's gap to the can is its segment's
   smallest signed distance to the can's solid cylinder, flat top included
   (:func:`~protorch.tasks.arm.geometry.segment_cylinder_distance`), minus the capsule's radius:
   the exact distance between the two bodies, negative when they overlap. Above the table means the lowest
-  point of every capsule not on a base link (:data:`~protorch.robots.panda_volumes.PANDA_BASE_LINKS`)
+  point of every capsule not on a base link (:attr:`~protorch.robots.Robot.base_links`)
   at ``z >= 0``.
 
 The task's success asks ``gap > margin`` at every step; the moving test places a moved can only
@@ -20,7 +20,8 @@ The task's can objective (``can_objective``) reads the end effector's distance t
 segment (``"skeleton"``: what the skeleton success check reads, its origins placed by
 :meth:`~protorch.robots.ArmKinematics.skeleton`) or, with ``"volume"``, the distance between the can's axis segment and the
 surfaces of the capsules that come near the can: those rigid with the end link (the hand with its
-fingers, link 7), which pass beside it, and the forearm's (link 5), which passes over it when the
+fingers, the last link), which pass beside it, and the robot's forearm's
+(:attr:`~protorch.robots.Robot.forearm_link`, the Panda's link 5), which passes over it when the
 hand passes beside (:func:`end_capsules`, :func:`end_volume_near`). They are placed by the compiled
 kinematics (:meth:`~protorch.robots.ArmKinematics.ee_frame`,
 :meth:`~protorch.robots.ArmKinematics.frame_points`: about six times the end effector's cost,
@@ -34,15 +35,14 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ...robots.panda_volumes import PANDA_BASE_LINKS, PANDA_CAPSULES, capsule_index, capsule_segments
+from ...robots import capsule_index, capsule_segments
 from .geometry import segment_cylinder_distance
 
-__all__ = ["COLLISIONS", "CAN_OBJECTIVES", "FOREARM_LINK", "check_collision", "check_volumes", "frames_gap", "above_table",
+__all__ = ["COLLISIONS", "CAN_OBJECTIVES", "check_collision", "check_volumes", "frames_gap", "above_table",
            "end_capsules", "end_volume_near"]
 
 COLLISIONS = ("skeleton", "volume")
 CAN_OBJECTIVES = ("ee", "volume", "skeleton")
-FOREARM_LINK = "panda_link5"  # its capsules pass over the can when the hand passes beside it
 
 
 def check_collision(collision: str, name: str = "collision") -> str:
@@ -52,12 +52,16 @@ def check_collision(collision: str, name: str = "collision") -> str:
     return collision
 
 
-def check_volumes(frame_names) -> None:
-    """Refuse an arm whose frames do not carry the Panda's capsules (a clear error, before any work)."""
+def check_volumes(robot, frame_names) -> None:
+    """Refuse a robot without capsules, or whose capsules ride on links the chain lacks (a clear
+    error, before any work)."""
+    if not robot.capsule_list():
+        raise ValueError(f"collision=volume needs the robot's capsules: {robot.name} has none "
+                         "(robot.capsules: auto, or given per link)")
     try:
-        capsule_index(frame_names)
+        capsule_index(frame_names, robot.capsule_list())
     except ValueError as exc:
-        raise ValueError(f"collision=volume needs the Panda's links: {exc}") from None
+        raise ValueError(f"collision=volume needs the robot's capsules on its chain: {exc}") from None
 
 
 def frames_gap(task, frames: Tensor, env: Tensor) -> Tensor:
@@ -67,7 +71,7 @@ def frames_gap(task, frames: Tensor, env: Tensor) -> Tensor:
     -> ``(...)``; negative when they overlap."""
     if task.collision == "skeleton":
         return task.skeleton_distance(frames[..., :3, 3], env) - task.can_radius
-    a, b, r = capsule_segments(frames, task.kinematics.frame_names)  # (..., T, C, 3), (C,)
+    a, b, r = capsule_segments(frames, task.kinematics.frame_names, task.robot.capsule_list())  # (..., T, C, 3), (C,)
     axis = env[..., None, None, 0:2]  # (..., 1, 1, 2)
     d = segment_cylinder_distance(a, b, axis, task.can_radius, 0.0, task.can_height) - r  # (..., T, C)
     return d.flatten(-2).amin(-1)
@@ -78,16 +82,17 @@ def above_table(task, frames: Tensor) -> Tensor:
     step: ``frames (..., T, F, 4, 4) -> (...)`` bool."""
     if task.collision == "skeleton":
         return (frames[..., 1:, 2, 3] >= 0).flatten(-2).all(-1)
-    moving = torch.tensor([c.link not in PANDA_BASE_LINKS for c in PANDA_CAPSULES], device=frames.device)
-    a, b, r = capsule_segments(frames, task.kinematics.frame_names)  # (..., T, C, 3)
+    capsules = task.robot.capsule_list()
+    moving = torch.tensor([c.link not in task.robot.base_links for c in capsules], device=frames.device)
+    a, b, r = capsule_segments(frames, task.kinematics.frame_names, capsules)  # (..., T, C, 3)
     low = torch.minimum(a[..., 2], b[..., 2]) - r  # (..., T, C)
     return (low[..., moving] >= 0).flatten(-2).all(-1)
 
 
-def end_capsules(kinematics) -> dict:
+def end_capsules(kinematics, robot) -> dict:
     """The capsules the volume objective reads (module docstring), as ``{frame: (a (C, 3), b (C, 3),
     radius (C,))}`` float64: those on links rigidly attached to the end link, in the end link's
-    frame (under the key ``None``), and those of the forearm (:data:`FOREARM_LINK`) in its own."""
+    frame (under the key ``None``), and those of the robot's forearm link (if it has one) in its own."""
     names = kinematics.frame_names
     fixed = [names[-1]]
     for i in range(len(names) - 1, 0, -1):  # back from the end link until the last revolute joint
@@ -98,11 +103,12 @@ def end_capsules(kinematics) -> dict:
     frames = kinematics.frames(torch.zeros(kinematics.num_joints, dtype=torch.float64,
                                            device=kinematics.lower.device)).cpu()  # (F, 4, 4)
     rel = torch.linalg.inv(frames[-1]) @ frames  # (F, 4, 4) every frame in the end link's
-    out = {None: capsule_segments(rel, names, [c for c in PANDA_CAPSULES if c.link in fixed])}
-    forearm = [c for c in PANDA_CAPSULES if c.link == FOREARM_LINK]
+    capsules = robot.capsule_list()
+    out = {None: capsule_segments(rel, names, [c for c in capsules if c.link in fixed])}
+    forearm = [c for c in capsules if c.link == robot.forearm_link]
     if forearm:
         eye = torch.eye(4, dtype=torch.float64).expand(len(names), 4, 4)
-        out[FOREARM_LINK] = capsule_segments(eye, names, forearm)
+        out[robot.forearm_link] = capsule_segments(eye, names, forearm)
     return out
 
 

@@ -1,11 +1,12 @@
-"""The robot experiment of the paper's Sec. IV-C: a 7-DoF arm reaches a target on a table while
+"""The robot experiment of the paper's Sec. IV-C: an arm reaches a target on a table while
 avoiding a can, the ProMP in joint space, the objectives on the end-effector path.
 
 Geometry (metres, the robot's base frame: the table top is ``z = 0``, the arm faces ``+x``):
 
-* the arm: the Franka Emika Panda shipped with protorch (:data:`protorch.robots.PANDA_URDF`),
-  end effector the hand's tool centre point; fixed start configuration :data:`START_Q`, whose
-  end effector ``s`` is 10 cm above the table at ``(0.40, 0.00)``, hand pointing down;
+* the arm: the task's robot (:class:`~protorch.robots.Robot`, default the Franka Emika Panda
+  shipped with protorch), end effector its end link (the tool centre point); fixed start
+  configuration the robot's home (the Panda's puts its end effector ``s`` 10 cm above the table
+  at ``(0.40, 0.00)``, hand pointing down);
 * the can: a vertical cylinder of Pringles size (radius 3.75 cm, height 23 cm) standing on the
   table at ``(can_x, can_y)``;
 * the target: the point ``(goal_x, goal_y)`` at the start's height above the table;
@@ -15,7 +16,7 @@ Geometry (metres, the robot's base frame: the table top is ``z = 0``, the arm fa
   whole table within the arm's reach (:mod:`protorch.tasks.arm.workspace`); anything off the
   table ``[0.2, 0.9] x [-0.5, 0.5]`` is refused.
 
-Objectives (the paper's, on the end-effector path ``p(t)`` of a joint trajectory ``(..., T, 7)``,
+Objectives (the paper's, on the end-effector path ``p(t)`` of a joint trajectory ``(..., T, J)``,
 evaluated on ``cost_steps`` evenly spaced steps; ``d`` is the mean distance of ``p(t)`` to the
 straight segment from ``s`` to the target ``g``)::
 
@@ -30,7 +31,7 @@ Success (:meth:`ArmReachTask.success`, every step of the trajectory): the end ef
 skeleton, 1 cm for the exact volumes) from the
 can's surface and above the table, under the collision model ``collision``
 (:mod:`protorch.tasks.arm.collision`): ``"skeleton"`` (the segments between consecutive frame
-origins, base to tool centre point) or ``"volume"`` (the Panda's link capsules, the volumes the
+origins, base to tool centre point) or ``"volume"`` (the robot's link capsules, the volumes the
 MuJoCo scene collides with); every joint stays inside its limits.
 
 Homotopy class (:meth:`ArmReachTask.side`): the signed angle the vector from the can's axis to
@@ -49,8 +50,7 @@ import torch
 from torch import Tensor
 
 from ...checks import check_tensor
-from ...robots.kinematics import ArmKinematics
-from ...robots.panda import PANDA_END_LINK
+from ...robots import Robot, load_robot
 from .collision import (CAN_OBJECTIVES, above_table, check_collision, check_volumes, end_capsules,
                             end_volume_near, frames_gap)
 from .demos import follow_path, ik_demonstrations, straight_paths
@@ -67,17 +67,14 @@ from .workspace import sample_envs as sample_region
 from .workspace import valid_envs as valid_in_region
 from ..base import Task
 
-__all__ = ["ArmReachTask", "START_Q", "LEFT", "RIGHT", "SIDES", "segment_axis_distance", "down_rotation"]
-
-# the start configuration: hand pointing down, tool centre point 10 cm above the table at (0.40, 0)
-START_Q = (0.0, 0.0654, 0.0, -2.7266, 0.0, 2.7921, 0.7854)
+__all__ = ["ArmReachTask", "LEFT", "RIGHT", "SIDES", "segment_axis_distance", "down_rotation"]
 
 
 @dataclass
 class ArmReachTask(Task):
     """The arm-reaching task (module docstring). Every method is batched: joint trajectories
-    ``(..., T, 7)`` and environments ``(..., 4)`` broadcast over their leading dimensions (for
-    samples ``(B, S, T, 7)`` of ``B`` environments ``(B, 4)`` pass ``env[:, None]``).
+    ``(..., T, J)`` and environments ``(..., 4)`` broadcast over their leading dimensions (for
+    samples ``(B, S, T, J)`` of ``B`` environments ``(B, 4)`` pass ``env[:, None]``).
 
     Args:
         can_radius, can_height: the can (a Pringles can: 3.75 cm, 23 cm).
@@ -96,8 +93,9 @@ class ArmReachTask(Task):
             ``"table"`` (the whole table, targets within ``reach``, the can clear of the start
             posture); ``reach``: ``(r_min, r_max)``, the targets' horizontal distance from the
             base's axis that the hand-down arm reaches (:mod:`protorch.tasks.arm.workspace`).
-        start_q: the fixed start configuration (7 joint angles).
-        urdf, end_link: the arm (default the Panda shipped with protorch).
+        robot: the arm: a :class:`~protorch.robots.Robot`, a shipped robot's name or a dict of
+            ``robot.*`` settings (:func:`~protorch.robots.load_robot`); default the Panda.
+        start_q: the fixed start configuration (one angle per joint); ``None``: the robot's home.
     """
 
     can_radius: float = 0.0375
@@ -113,9 +111,8 @@ class ArmReachTask(Task):
     min_separation: float = 0.12
     region: str = "rectangles"
     reach: tuple = (0.30, 0.80)
-    start_q: tuple = START_Q
-    urdf: str | None = None
-    end_link: str = PANDA_END_LINK
+    robot: Robot | str | dict | None = None
+    start_q: tuple | None = None
     deviation: str = "segment"  # "time": to tau_direct(t) at the same instant (protorch.tasks.arm.deviation)
     collision: str = "skeleton"  # "volume": the link capsules (protorch.tasks.arm.collision)
     can_objective: str = "auto"  # ee | volume (the hand's, forearm's capsules) | skeleton | auto: as `collision` plans
@@ -142,10 +139,13 @@ class ArmReachTask(Task):
             raise ValueError(f"can_objective must be one of {', '.join(CAN_OBJECTIVES)}, auto, got {self.can_objective!r}")
         if self.can_objective == "auto":
             self.can_objective = "volume" if self.collision == "volume" else "ee"
-        self.kinematics = ArmKinematics(self.urdf, end_link=self.end_link)
+        self.robot = load_robot(self.robot)
+        self.kinematics = self.robot.kinematics()
         if "volume" in (self.collision, self.can_objective):
-            check_volumes(self.kinematics.frame_names)
-        self.end_capsules = end_capsules(self.kinematics) if self.can_objective == "volume" else None
+            check_volumes(self.robot, self.kinematics.frame_names)
+        self.end_capsules = end_capsules(self.kinematics, self.robot) if self.can_objective == "volume" else None
+        if self.start_q is None:
+            self.start_q = self.robot.home
         q0 = torch.tensor(self.start_q, dtype=torch.float64)
         if q0.shape != (self.kinematics.num_joints,):
             raise ValueError(f"start_q must have {self.kinematics.num_joints} joint angles, got {len(self.start_q)}")
@@ -176,7 +176,7 @@ class ArmReachTask(Task):
         return self
 
     def start_config(self, dtype=torch.float64, device=None) -> Tensor:
-        """The start configuration ``(7,)``."""
+        """The start configuration ``(J,)``."""
         return torch.tensor(self.start_q, dtype=dtype, device=device)
 
     def start_position(self, dtype=torch.float64, device=None) -> Tensor:
@@ -298,7 +298,7 @@ class ArmReachTask(Task):
 
     # ------------------------------------------------------------- objectives
     def costs(self, traj: Tensor, env: Tensor) -> Tensor:
-        """``traj (..., T, 7)``, ``env (..., 4)`` -> ``(..., 3)`` costs, each >= 0 (module docstring)."""
+        """``traj (..., T, J)``, ``env (..., 4)`` -> ``(..., 3)`` costs, each >= 0 (module docstring)."""
         traj, env = self._prepare(traj, env, finite=False)  # the hot path: NaN is caught on the costs
         idx = self.cost_indices(traj.shape[-2]).to(traj.device)
         if idx.numel() < traj.shape[-2]:
@@ -369,7 +369,7 @@ class ArmReachTask(Task):
         """Joint trajectories following end-effector paths ``(n, T, 3)`` with the hand pointing
         down (the start configuration's orientation), from the start configuration: damped least squares at every step, warm-started
         from the step before, with a null-space pull to the start posture. Returns
-        ``(q (n, T, 7), position error (n, T))``."""
+        ``(q (n, T, J), position error (n, T))``."""
         return follow_path(self, path, iters=iters, first_iters=first_iters)
 
     def straight_paths(self, env: Tensor, num_steps: int = 100) -> Tensor:
@@ -392,7 +392,7 @@ class ArmReachTask(Task):
         """Imperfect, hand-guided-like demonstrations by inverse kinematics: ``per_env`` per
         environment, all passing the can on the side ``sides[i]`` (default: alternating
         :data:`LEFT`, :data:`RIGHT`); the paths and their parameters are those of
-        :func:`~protorch.tasks.arm.demos.ik_demonstrations`. Returns ``(demos, demo_envs, labels)``: ``M * per_env`` joint trajectories ``(T_i, 7)``,
+        :func:`~protorch.tasks.arm.demos.ik_demonstrations`. Returns ``(demos, demo_envs, labels)``: ``M * per_env`` joint trajectories ``(T_i, J)``,
         their environments ``(M * per_env, 4)`` and the homotopy class of each (measured on
         the joint trajectory with :meth:`side`, not assumed).
         """

@@ -29,7 +29,7 @@ import math
 import torch
 from torch import Tensor
 
-__all__ = ["REGIONS", "check_region", "check_box", "check_workspace", "region_bounds", "valid_envs", "sample_envs", "prior_grid_nodes",
+__all__ = ["REGIONS", "check_region", "check_box", "check_workspace", "check_reach", "region_bounds", "valid_envs", "sample_envs", "prior_grid_nodes",
            "straight_prior_ok", "goal_in_reach", "can_clear_of_start", "separated"]
 
 REGIONS = ("rectangles", "table")
@@ -69,6 +69,26 @@ def check_workspace(task) -> None:
     for name, box in (("can_box", task.can_box), ("goal_box", task.goal_box)):
         if not all(t[0] <= b[0] and b[1] <= t[1] for b, t in zip(box, task.table)):
             raise ValueError(f"{name} {box} must lie on the table {task.table}")
+
+
+def check_reach(task, prior_grid: str = "rectangles") -> None:
+    """Refuse a workspace out of the arm's reach, before any work: the hand-down IK must follow the
+    straight path from the start to every corner of ``task.goal_box`` (and, where the task's
+    region or ``prior_grid`` is the table, to the farthest target of ``task.reach`` straight
+    ahead on the table). A ``ValueError`` naming the settings and the first target missed."""
+    (x0, x1), (y0, y1) = task.goal_box
+    goals = [(x0, y0), (x0, y1), (x1, y0), (x1, y1)]
+    if "table" in (task.region, prior_grid):
+        goals.append((min(task.reach[1], task.table[0][1]), 0.0))
+    g = torch.tensor(goals, dtype=torch.float64)  # (G, 2)
+    ok = straight_prior_ok(task, g)
+    if not bool(ok.all()):
+        miss = goals[int((~ok).nonzero()[0])]
+        what = "task.goal_box" if int((~ok).nonzero()[0]) < 4 else "task.reach"
+        raise ValueError(f"{what}: the target ({miss[0]:.3f}, {miss[1]:.3f}) at the start's height is out of the "
+                         f"{task.robot.name} arm's reach (the hand-down inverse kinematics cannot follow the straight "
+                         f"path from robot.home to it); move task.goal_box / task.can_box (or task.reach) nearer the "
+                         f"base, or choose another robot.home")
 
 
 def region_bounds(task, region: str) -> tuple[Tensor, Tensor]:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from protorch.robots.panda_volumes import PANDA_CAPSULES, capsule_segments
+from protorch.robots import capsule_segments
 from protorch.tasks import ArmReachTask
 from protorch.tasks.arm.collision import end_volume_near
 from protorch.tasks.arm.geometry import point_cylinder_distance, segment_cylinder_distance
@@ -16,7 +16,7 @@ from protorch.tasks.arm.geometry import point_cylinder_distance, segment_cylinde
 def _sampled_gap(task, q, env):
     """Capsules against the can's solid cylinder by dense sampling: points every 0.25 mm along
     each capsule's segment, each point's closed-form distance to the cylinder, minus the radius."""
-    a, b, r = capsule_segments(task.kinematics.frames(q), task.kinematics.frame_names)  # (T, C, 3)
+    a, b, r = capsule_segments(task.kinematics.frames(q), task.kinematics.frame_names, task.robot.capsule_list())  # (T, C, 3)
     u = torch.linspace(0, 1, 1201, dtype=torch.float64)
     p = a[..., None, :] + u[:, None] * (b - a)[..., None, :]  # (T, C, U, 3)
     d = point_cylinder_distance(p, env[:2], task.can_radius, 0.0, task.can_height)  # (T, C, U)
@@ -69,8 +69,9 @@ def test_the_volume_objective_reads_the_hand_and_forearm_capsules(gen):
     traj = q[None]  # one trajectory of 5 steps: the distance at every other step
     assert end_volume_near(task.kinematics, traj, env, task.end_capsules, task.can_height)[0].shape == (1, 3)
     # the same capsules placed by the full chain, their distance to the can's axis segment by sampling
-    a, b, r = capsule_segments(task.kinematics.frames(q), task.kinematics.frame_names)
-    keep = torch.tensor([c.link in ("panda_link5", "panda_link7", "panda_link8", "panda_hand") for c in PANDA_CAPSULES])
+    capsules = task.robot.capsule_list()
+    a, b, r = capsule_segments(task.kinematics.frames(q), task.kinematics.frame_names, capsules)
+    keep = torch.tensor([c.link in ("panda_link5", "panda_link7", "panda_link8", "panda_hand") for c in capsules])
     a, b, r = a[:, keep], b[:, keep], r[keep]
     u = torch.linspace(0, 1, 2001, dtype=torch.float64)
     p = a[..., None, :] + u[:, None] * (b - a)[..., None, :]  # (5, C, U, 3)

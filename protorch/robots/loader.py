@@ -1,0 +1,414 @@
+"""Robot descriptions from settings: :func:`load_robot` (a shipped name, a plain dict of
+``robot.*`` settings, or a :class:`~protorch.robots.Robot`) and the checks every bad input gets,
+each a :class:`RobotError` of one line naming the setting, before any work.
+
+The settings (``conf/robot/*.yaml``; docs/your_own_robot.md; every key optional but ``urdf``,
+``end_link`` and ``home`` without a ``base``):
+
+==================  ============================================================================
+``base``            a shipped description (``protorch/robots/<base>.yaml``, e.g. ``panda``) the
+                    other keys override; null: none
+``name``            display name (figure titles, metrics.json); null: the URDF's ``<robot name>``
+``urdf``            the URDF file (relative: to the working directory; in a shipped yaml, to it)
+``end_link``        the chain's last link, the tool centre point
+``home``            the start configuration, one angle (rad) per joint of the chain
+``max_velocity``    rad/s, a number or one per joint; null: the URDF's ``<limit velocity>``
+``max_acceleration`` rad/s^2, a number or one per joint (default 10)
+``max_torque``      N m, a number or one per joint; null: the URDF's ``<limit effort>``
+``damping``         joint damping, N m s / rad, a number or one per joint (default 1.0)
+``armature``        rotor armature, kg m^2, a number or one per joint (default 0.1)
+``capsules``        the collision volumes: ``auto`` (fitted to the URDF's ``<collision>``
+                    geometry: :func:`auto_capsules`), ``none``, or ``{link: [{a: [x, y, z], b:
+                    [x, y, z], radius: r}, ...]}`` in the link frames (m)
+``forearm_link``    a link whose capsules the volume objective reads besides those rigid with the
+                    end link (the Panda: link 5, which passes over the can); null: none
+``base_links``      links fixed to the table (no table check); ``auto``: the chain's links before
+                    its first joint
+``point_masses``    ``[{link, pos: [x, y, z], mass, inertia: [ixx, iyy, izz]}]``: bodies the URDF
+                    lacks (the Panda's fingers)
+==================  ============================================================================
+
+Limits the URDF lacks (a joint without ``<limit lower upper>``, without ``velocity`` or
+``effort``) and that no setting gives are refused with one line naming the joint and the
+setting that would give them.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+from .description import Capsule, Inertial, PointMass, Robot
+
+__all__ = ["RobotError", "ROBOTS_DIR", "SETTINGS", "DEFAULTS", "shipped_robots", "load_robot", "robot_settings",
+           "urdf_inertials", "check_inertials", "auto_capsules", "MIN_JOINTS"]
+
+ROBOTS_DIR = Path(__file__).resolve().parent
+MIN_JOINTS = 6  # a hand-down pose at every point of the workspace needs six joints
+DEFAULTS = {"base": None, "name": None, "urdf": None, "end_link": None, "home": None, "max_velocity": None,
+            "max_acceleration": 10.0, "max_torque": None, "damping": 1.0, "armature": 0.1, "capsules": "auto",
+            "forearm_link": None, "base_links": "auto", "point_masses": []}
+SETTINGS = {
+    "base": "a shipped description (protorch/robots/<base>.yaml) the other keys override; null: none",
+    "name": "display name (figure titles, metrics.json); null: the URDF's <robot name>",
+    "urdf": "the arm's URDF file",
+    "end_link": "the chain's last link: the tool centre point",
+    "home": "the start configuration, one angle (rad) per joint",
+    "max_velocity": "rad/s, a number or one per joint; null: the URDF's <limit velocity>",
+    "max_acceleration": "rad/s^2, a number or one per joint (the moving test's limits)",
+    "max_torque": "N m, a number or one per joint; null: the URDF's <limit effort> (MuJoCo's motors)",
+    "damping": "joint damping (N m s / rad), a number or one per joint",
+    "armature": "rotor armature (kg m^2), a number or one per joint",
+    "capsules": "collision volumes: auto (fitted to the URDF's <collision> geometry), none, or "
+                "{link: [{a: [x,y,z], b: [x,y,z], radius: r}]} in the link frames",
+    "forearm_link": "a link whose capsules the volume objective reads besides the end link's; null: none",
+    "base_links": "links fixed to the table (no table check); auto: the links before the first joint",
+    "point_masses": "[{link, pos, mass, inertia: [ixx, iyy, izz]}]: bodies the URDF lacks (e.g. fingers)",
+}
+
+
+class RobotError(ValueError):
+    """A robot setting refused; its message is one line naming the setting."""
+
+
+def shipped_robots() -> list[str]:
+    """Names of the descriptions shipped in ``protorch/robots/`` (``<name>.yaml``)."""
+    return sorted(p.stem for p in ROBOTS_DIR.glob("*.yaml"))
+
+
+def _shipped(name: str) -> dict:
+    import yaml
+
+    path = ROBOTS_DIR / f"{name}.yaml"
+    if not path.is_file():
+        raise RobotError(f"robot.base={name!r} is not a shipped robot; shipped: {', '.join(shipped_robots())}")
+    data = yaml.safe_load(path.read_text()) or {}
+    if data.get("urdf") is not None:
+        data["urdf"] = str((path.parent / data["urdf"]).resolve())
+    return data
+
+
+def robot_settings(spec=None) -> dict:
+    """The full settings dict of ``spec`` (``None``: the Panda; a shipped name; a dict of
+    ``robot.*`` settings, its non-null values over its ``base``'s): every key of :data:`DEFAULTS`."""
+    if spec is None:
+        spec = "panda"
+    if isinstance(spec, str):
+        spec = {"base": spec}
+    if not isinstance(spec, dict):
+        raise RobotError(f"robot must be a shipped name or a group of settings, got {type(spec).__name__}")
+    unknown = sorted(set(spec) - set(DEFAULTS))
+    if unknown:
+        raise RobotError(f"robot.{unknown[0]} is not a robot setting; known: {', '.join(DEFAULTS)}")
+    base = spec.get("base")
+    if base is not None and not isinstance(base, str):
+        raise RobotError(f"robot.base={base!r} must be a shipped robot's name or null")
+    out = dict(DEFAULTS)
+    if base:
+        shipped = _shipped(base)
+        unknown = sorted(set(shipped) - set(DEFAULTS))
+        if unknown:
+            raise RobotError(f"protorch/robots/{base}.yaml: {unknown[0]!r} is not a robot setting")
+        out.update(shipped)
+    out.update({k: v for k, v in spec.items() if v is not None and v != "???"})
+    for key in ("urdf", "end_link", "home"):
+        if out[key] is None:
+            raise RobotError(f"robot.{key} must be set (robot=custom needs robot.urdf, robot.end_link and robot.home)")
+    if not isinstance(out["urdf"], (str, Path)):
+        raise RobotError(f"robot.urdf={out['urdf']!r} must be a file path")
+    out["urdf"] = str(Path(out["urdf"]).expanduser().resolve())
+    out["base"] = base
+    return out
+
+
+def _parse(text: str, where: str) -> ET.Element:
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as exc:
+        raise RobotError(f"{where} is not valid XML: {exc}") from None
+    if root.tag != "robot":
+        raise RobotError(f"{where} is not a URDF: its root element is <{root.tag}>, expected <robot>")
+    return root
+
+
+def _chain(root: ET.Element, end_link: str, where: str) -> list[ET.Element]:
+    """The joints from the URDF's root link to ``end_link``, in order."""
+    links = [link.get("name") for link in root.iter("link")]
+    if end_link not in links:
+        raise RobotError(f"robot.end_link={end_link!r} is not a link of {where}; its links are {links}")
+    by_child = {}
+    for j in root.iter("joint"):
+        child = j.find("child")
+        if child is not None:
+            by_child[child.get("link")] = j
+    chain, link = [], end_link
+    while link in by_child:
+        j = by_child[link]
+        chain.append(j)
+        link = j.find("parent").get("link")
+        if len(chain) > len(by_child):
+            raise RobotError(f"{where}: the joints form a loop above {end_link!r}")
+    return chain[::-1]
+
+
+def _vec(value, n: int, key: str, names, *, positive: bool = True) -> tuple[float, ...]:
+    if isinstance(value, numbers.Real) and not isinstance(value, bool):
+        value = [value] * n
+    if not isinstance(value, (list, tuple)) or len(value) != n:
+        raise RobotError(f"robot.{key}={value!r} must be a number or {n} numbers, one per joint {list(names)}")
+    out = []
+    for v, name in zip(value, names):
+        if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(float(v)) \
+                or (float(v) <= 0 if positive else float(v) < 0):
+            raise RobotError(f"robot.{key} has {v!r} for joint {name!r}: it must be a finite number "
+                             f"{'> 0' if positive else '>= 0'}")
+        out.append(float(v))
+    return tuple(out)
+
+
+def _floats(text: str | None, n: int, what: str) -> tuple[float, ...]:
+    try:
+        vals = tuple(float(v) for v in (text or "").split())
+    except ValueError:
+        raise RobotError(f"{what}={text!r} must be {n} numbers") from None
+    if len(vals) != n:
+        raise RobotError(f"{what}={text!r} must be {n} numbers")
+    return vals
+
+
+def _rpy_matrix(rpy) -> list[list[float]]:
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    return [[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr]]
+
+
+def _origin(el: ET.Element | None) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    if el is None:
+        return (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+    return (_floats(el.get("xyz", "0 0 0"), 3, "<origin xyz>"), _floats(el.get("rpy", "0 0 0"), 3, "<origin rpy>"))
+
+
+def _apply(rot, xyz, p) -> tuple[float, float, float]:
+    return tuple(sum(rot[i][k] * p[k] for k in range(3)) + xyz[i] for i in range(3))
+
+
+def urdf_inertials(root: ET.Element) -> dict[str, Inertial]:
+    """Every link's ``<inertial>`` as an :class:`Inertial` in the link frame (an inertial frame
+    rotated by ``rpy`` has its inertia rotated into the link's)."""
+    out = {}
+    for link in root.iter("link"):
+        el = link.find("inertial")
+        if el is None:
+            continue
+        name = link.get("name")
+        mass_el, inertia_el = el.find("mass"), el.find("inertia")
+        if mass_el is None or inertia_el is None:
+            raise RobotError(f"robot.urdf: link {name!r} has an <inertial> without <mass> or <inertia>")
+        xyz, rpy = _origin(el.find("origin"))
+        try:
+            mass = float(mass_el.get("value"))
+            xx, xy, xz, yy, yz, zz = (float(inertia_el.get(k)) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"))
+        except (TypeError, ValueError):
+            raise RobotError(f"robot.urdf: link {name!r} has an <inertial> with a missing or non-numeric value") \
+                from None
+        if any(rpy):
+            rot = _rpy_matrix(rpy)
+            mat = [[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]
+            rm = [[sum(rot[i][k] * mat[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+            full = [[sum(rm[i][k] * rot[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
+            xx, yy, zz, xy, xz, yz = full[0][0], full[1][1], full[2][2], full[0][1], full[0][2], full[1][2]
+        out[name] = Inertial(mass, tuple(xyz), (xx, yy, zz, xy, xz, yz))
+    return out
+
+
+def check_inertials(robot: Robot) -> None:
+    """Refuse, with one line naming the link, a robot whose moving links (the children of its
+    joints) lack a mass and inertia: what the MuJoCo scene needs (before any work)."""
+    root = _parse(robot.urdf_text, f"robot.urdf={robot.urdf}")
+    for j in _chain(root, robot.end_link, f"robot.urdf={robot.urdf}"):
+        if j.get("type") == "fixed":
+            continue
+        link = j.find("child").get("link")
+        inertial = robot.inertials.get(link)
+        if inertial is None or not inertial.mass > 0:
+            raise RobotError(f"robot.urdf={robot.urdf}: link {link!r} (moved by joint {j.get('name')!r}) has no "
+                             "<inertial> with a mass > 0; physics needs every moving link's mass and inertia: add "
+                             "them to the URDF or set settings.physics.run=never")
+
+
+def auto_capsules(root: ET.Element, links, where: str) -> dict[str, tuple[Capsule, ...]]:
+    """Capsules enclosing the URDF's ``<collision>`` geometry of ``links``: a cylinder's axis with
+    its radius, a sphere's centre with its radius, a box's longest axis with the half diagonal of
+    the other two, a ``<capsule>``'s own; placed by the collision's ``<origin>``. Mesh geometry
+    is refused (one line naming the link; give its capsules in ``robot.capsules``)."""
+    out: dict[str, list[Capsule]] = {}
+    wanted = set(links)
+    for link in root.iter("link"):
+        name = link.get("name")
+        if name not in wanted:
+            continue
+        for col in link.findall("collision"):
+            geom = col.find("geometry")
+            shape = None if geom is None or len(geom) == 0 else geom[0]
+            if shape is None:
+                continue
+            xyz, rpy = _origin(col.find("origin"))
+            rot = _rpy_matrix(rpy)
+            tag = shape.tag
+            try:
+                if tag in ("cylinder", "capsule"):
+                    r, half = float(shape.get("radius")), float(shape.get("length")) / 2
+                    a, b = (0.0, 0.0, -half), (0.0, 0.0, half)
+                elif tag == "sphere":
+                    r, a, b = float(shape.get("radius")), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+                elif tag == "box":
+                    size = _floats(shape.get("size"), 3, f"{where}: link {name!r} <box size>")
+                    k = max(range(3), key=lambda i: size[i])
+                    r = math.hypot(*[size[i] / 2 for i in range(3) if i != k])
+                    a = tuple(-size[k] / 2 if i == k else 0.0 for i in range(3))
+                    b = tuple(size[k] / 2 if i == k else 0.0 for i in range(3))
+                else:
+                    raise RobotError(f"robot.capsules=auto: link {name!r} of {where} has <{tag}> collision geometry, "
+                                     "which the capsule fit does not read; give its capsules in robot.capsules")
+            except (TypeError, ValueError) as exc:
+                if isinstance(exc, RobotError):
+                    raise
+                raise RobotError(f"{where}: link {name!r} has a <{tag}> without its size") from None
+            out.setdefault(name, []).append(Capsule(name, _apply(rot, xyz, a), _apply(rot, xyz, b), r))
+    return {k: tuple(v) for k, v in out.items()}
+
+
+def _capsules(value, root, frame_names, where) -> dict[str, tuple[Capsule, ...]]:
+    if value in ("none", None, False):
+        return {}
+    if value == "auto":
+        return auto_capsules(root, frame_names, where)
+    if not isinstance(value, dict):
+        raise RobotError(f"robot.capsules={value!r} must be auto, none or {{link: [{{a, b, radius}}, ...]}}")
+    out = {}
+    for link, caps in value.items():
+        if link not in frame_names:
+            raise RobotError(f"robot.capsules has link {link!r}, not on the chain {frame_names}")
+        if not isinstance(caps, (list, tuple)):
+            raise RobotError(f"robot.capsules.{link} must be a list of {{a: [x, y, z], b: [x, y, z], radius: r}}")
+        items = []
+        for i, c in enumerate(caps):
+            try:
+                a, b, r = (tuple(float(v) for v in c["a"]), tuple(float(v) for v in c["b"]), float(c["radius"]))
+                ok = len(a) == 3 and len(b) == 3 and r > 0 and all(map(math.isfinite, (*a, *b, r)))
+            except (TypeError, KeyError, ValueError):
+                ok = False
+            if not ok:
+                raise RobotError(f"robot.capsules.{link}[{i}]={c!r} must be {{a: [x, y, z], b: [x, y, z], radius: r > 0}}")
+            items.append(Capsule(link, a, b, r))
+        out[link] = tuple(items)
+    return out
+
+
+def _point_masses(value, frame_names) -> tuple[PointMass, ...]:
+    out = []
+    for i, p in enumerate(value or []):
+        try:
+            pm = PointMass(str(p["link"]), tuple(float(v) for v in p["pos"]), float(p["mass"]),
+                           tuple(float(v) for v in p["inertia"]))
+            ok = len(pm.pos) == 3 and len(pm.inertia) == 3 and pm.mass > 0
+        except (TypeError, KeyError, ValueError):
+            ok = False
+        if not ok:
+            raise RobotError(f"robot.point_masses[{i}]={p!r} must be {{link, pos: [x, y, z], mass > 0, "
+                             "inertia: [ixx, iyy, izz]}}")
+        if pm.link not in frame_names:
+            raise RobotError(f"robot.point_masses[{i}] is on link {pm.link!r}, not on the chain {frame_names}")
+        out.append(pm)
+    return tuple(out)
+
+
+def load_robot(spec=None) -> Robot:
+    """The :class:`~protorch.robots.Robot` of ``spec``: ``None`` (the Panda), a shipped name, a
+    dict of ``robot.*`` settings (module docstring) or a ``Robot`` (returned as it is). Every
+    bad input is a :class:`RobotError` of one line naming the setting."""
+    if isinstance(spec, Robot):
+        return spec
+    cfg = robot_settings(spec)
+    path = Path(cfg["urdf"])
+    where = f"robot.urdf={path}"
+    if not path.is_file():
+        raise RobotError(f"{where}: no such file")
+    text = path.read_text()
+    root = _parse(text, where)
+    if not isinstance(cfg["end_link"], str):
+        raise RobotError(f"robot.end_link={cfg['end_link']!r} must be a link's name")
+    joints = _chain(root, cfg["end_link"], where)
+    moving = [j for j in joints if j.get("type") != "fixed"]
+    kinds = sorted({j.get("type") for j in moving} - {"revolute"})
+    if kinds:
+        raise RobotError(f"{where}: the chain to robot.end_link={cfg['end_link']!r} has {kinds[0]} joints; "
+                         "only revolute and fixed joints are supported")
+    names = [j.get("name") for j in moving]
+    if len(names) < MIN_JOINTS:
+        raise RobotError(f"robot.end_link={cfg['end_link']!r}: the chain of {where} to it has {len(names)} joints "
+                         f"{names}; the arm experiment needs at least {MIN_JOINTS}")
+    lower, upper, vel, eff = [], [], [], []
+    for j in moving:
+        lim = j.find("limit")
+        get = (lambda k: None) if lim is None else lim.get
+        if get("lower") is None or get("upper") is None:
+            raise RobotError(f"{where}: joint {j.get('name')!r} has no <limit lower=... upper=...>")
+        lo, hi = float(get("lower")), float(get("upper"))
+        if not lo < hi:
+            raise RobotError(f"{where}: joint {j.get('name')!r} has limits lower={lo} >= upper={hi}")
+        lower.append(lo)
+        upper.append(hi)
+        vel.append(float(get("velocity")) if get("velocity") is not None else None)
+        eff.append(float(get("effort")) if get("effort") is not None else None)
+    n = len(names)
+    velocity = _urdf_or_setting(cfg["max_velocity"], vel, n, names, "max_velocity", "velocity")
+    torque = _urdf_or_setting(cfg["max_torque"], eff, n, names, "max_torque", "effort")
+    home = cfg["home"]
+    if not isinstance(home, (list, tuple)) or len(home) != n:
+        raise RobotError(f"robot.home={home!r} must be {n} joint angles (rad), one per joint {names}")
+    home = tuple(_angle(v, i, names) for i, v in enumerate(home))
+    for q, lo, hi, name in zip(home, lower, upper, names):
+        if not lo <= q <= hi:
+            raise RobotError(f"robot.home has {q} for joint {name!r}, outside its limits [{lo}, {hi}]")
+    frame_names = [joints[0].find("parent").get("link")] + [j.find("child").get("link") for j in joints]
+    capsules = _capsules(cfg["capsules"], root, frame_names, where)
+    first_moving = next(i for i, j in enumerate(joints) if j.get("type") != "fixed")
+    base_links = cfg["base_links"]
+    if base_links == "auto":
+        base_links = frame_names[:first_moving + 1]
+    if not isinstance(base_links, (list, tuple)) or any(b not in frame_names for b in base_links):
+        raise RobotError(f"robot.base_links={base_links!r} must be auto or links of the chain {frame_names}")
+    forearm = cfg["forearm_link"]
+    if forearm is not None and forearm not in frame_names:
+        raise RobotError(f"robot.forearm_link={forearm!r} is not a link of the chain {frame_names}")
+    name = cfg["name"] if cfg["name"] is not None else (root.get("name") or path.stem)
+    return Robot(name=str(name), urdf=path, end_link=cfg["end_link"], joint_names=tuple(names), home=home,
+                 lower=tuple(lower), upper=tuple(upper), max_velocity=velocity,
+                 max_acceleration=_vec(cfg["max_acceleration"], n, "max_acceleration", names),
+                 max_torque=torque, damping=_vec(cfg["damping"], n, "damping", names, positive=False),
+                 armature=_vec(cfg["armature"], n, "armature", names, positive=False), capsules=capsules,
+                 base_links=tuple(base_links), forearm_link=forearm, inertials=urdf_inertials(root),
+                 point_masses=_point_masses(cfg["point_masses"], frame_names), settings=cfg)
+
+
+def _angle(v, i: int, names) -> float:
+    if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(float(v)):
+        raise RobotError(f"robot.home has {v!r} for joint {names[i]!r}: it must be an angle (rad)")
+    return float(v)
+
+
+def _urdf_or_setting(value, urdf: list, n: int, names, key: str, attr: str) -> tuple[float, ...]:
+    """A limit from the setting ``robot.<key>`` or, where it is null, the URDF's ``<limit attr>``
+    (missing or 0 there: refused, naming the joint and the setting)."""
+    if value is not None:
+        return _vec(value, n, key, names)
+    for v, name in zip(urdf, names):
+        if v is None or not v > 0:
+            raise RobotError(f"robot.urdf: joint {name!r} has no <limit {attr}=...> > 0; give robot.{key} "
+                             "(a number or one per joint)")
+    return tuple(urdf)

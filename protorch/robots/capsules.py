@@ -2,9 +2,9 @@
 
 :func:`fit_capsules` reads every ``<collision>`` of a URDF and encloses it in one or a few capsules
 in its link's frame, a segment ``p0 -> p1`` and a radius (metres): the form of
-:data:`~protorch.robots.panda_volumes.PANDA_CAPSULES`, which the planner's ``collision=volume`` and
-the MuJoCo scene read. The result maps a link name to its list of ``(p0, p1, radius)``;
-:func:`as_capsules` turns it into :class:`~protorch.robots.panda_volumes.Capsule` records.
+:class:`~protorch.robots.Robot`'s ``capsules``, which the planner's ``collision=volume`` and the
+MuJoCo scene read (``robot.capsules=auto``: :func:`protorch.robots.loader.auto_capsules`). The result maps a link name to its list of ``(p0, p1, radius)``;
+:func:`as_capsules` turns it into :class:`~protorch.robots.Capsule` records.
 
 Each geometry is enclosed entirely (every point of it inside the union of its capsules):
 
@@ -41,7 +41,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from .panda_volumes import Capsule
+from .description import Capsule
 
 __all__ = ["CollisionGeometry", "Segment", "collision_geometry", "fit_capsules", "fit_geometry", "as_capsules",
            "protrusion", "surface_points", "coverage", "enclosing_capsule"]
@@ -360,7 +360,7 @@ def fit_capsules(urdf: str | Path, *, links: Sequence[str] | None = None, mesh_d
 
 
 def as_capsules(fit: Mapping[str, Sequence[Segment]]) -> tuple[Capsule, ...]:
-    """``{link: [(p0, p1, radius)]}`` as :class:`~protorch.robots.panda_volumes.Capsule` records."""
+    """``{link: [(p0, p1, radius)]}`` as :class:`~protorch.robots.Capsule` records."""
     return tuple(Capsule(link, tuple(map(float, a)), tuple(map(float, b)), float(r))
                  for link, caps in fit.items() for a, b, r in caps)
 

@@ -99,6 +99,8 @@ def _arm_spec(task, mass_scale: float, timestep: float):
         point = spec.body(pm.link).add_body(pos=list(pm.pos))
         point.mass, point.explicitinertial = pm.mass * mass_scale, True
         point.inertia = [v * mass_scale for v in pm.inertia]
+    for geom in spec.geoms:  # the URDF's own <collision> geometry: drawn, never collided (the capsules enclose it)
+        geom.contype, geom.conaffinity = 0, 0
     hand = hand_links(task)
     for c in robot.capsule_list():
         rgba = _HAND_RGBA if c.link in hand else _ARM_RGBA

@@ -78,7 +78,7 @@ def test_home_holds_the_gripper_down_10_cm_above_the_table_in_front(kin):
 
 
 def test_the_fitted_capsules_ride_on_the_chain_and_clear_the_table_at_home(kin):
-    from protorch.robots.panda_volumes import capsule_segments
+    from protorch.robots import capsule_segments
     from protorch.robots.capsules import as_capsules
 
     caps = as_capsules(fit_capsules(URDF))
@@ -99,15 +99,25 @@ def test_the_fit_covers_the_iiwas_collision_geometry():
     assert all(row["inside"] == 1.0 and row["largest_out"] == 0.0 for row in cov.values())
 
 
-def test_mujoco_reads_the_same_frames_and_inertials(kin, gen):
-    mujoco = pytest.importorskip("mujoco")
-    text = kin.urdf_text
-    head = text.index(">", text.index("<robot")) + 1
-    spec = mujoco.MjSpec.from_string(
-        text[:head] + '<mujoco><compiler fusestatic="false" discardvisual="false"/></mujoco>' + text[head:])
-    model = spec.compile()
-    data = mujoco.MjData(model)
-    assert model.nq == 7 and float(model.body("iiwa_link_2").mass[0]) == pytest.approx(6.35)
+def test_the_mujoco_scene_has_the_same_frames_inertials_and_motors(kin, gen):
+    pytest.importorskip("mujoco")
+    import mujoco
+
+    from protorch.sim.scene import ARM_BITS, build_scene
+    from protorch.tasks import ArmReachTask
+
+    task = ArmReachTask(robot="iiwa14", collision="volume", can_box=((0.60, 0.70), (-0.12, 0.12)),
+                        goal_box=((0.74, 0.78), (-0.16, 0.16)))
+    scene = build_scene(task)
+    model, data = scene.model, mujoco.MjData(scene.model)
+    assert model.nv == 7 and float(model.body("iiwa_link_2").mass[0]) == pytest.approx(6.35)
+    assert scene.torque_limits.tolist() == [320, 320, 176, 176, 110, 40, 40]
+    # the colliding geometry is the fitted capsules alone (the URDF's cylinders and boxes inside them)
+    arm = [g for g in range(model.ngeom) if model.body(model.geom_bodyid[g]).name.startswith("iiwa")]
+    colliding = [g for g in arm if model.geom_contype[g] or model.geom_conaffinity[g]]
+    assert len(colliding) == len(task.robot.capsule_list()) == 12
+    assert all(model.geom_type[g] == mujoco.mjtGeom.mjGEOM_CAPSULE for g in colliding)
+    assert all((model.geom_contype[g], model.geom_conaffinity[g]) == ARM_BITS for g in colliding)
     q = kin.lower + (kin.upper - kin.lower) * torch.rand(16, 7, generator=gen, dtype=F64)  # (16, 7)
     frames = kin.frames(q)  # (16, F, 4, 4)
     for i in range(16):
@@ -117,3 +127,8 @@ def test_mujoco_reads_the_same_frames_and_inertials(kin, gen):
             body = model.body(name).id
             assert np.allclose(data.xpos[body], frames[i, k, :3, 3].numpy(), atol=1e-6)
             assert np.allclose(data.xmat[body].reshape(3, 3), frames[i, k, :3, :3].numpy(), atol=1e-6)
+    # at home, the can in its box: no contact with the can or the table
+    data.qpos[:] = task.robot.home
+    data.mocap_pos[scene.can_mocap] = [0.65, 0.0, task.can_height / 2]
+    mujoco.mj_forward(model, data)
+    assert data.sensordata[scene.can_contact] == 0 and data.sensordata[scene.table_contact] == 0

@@ -42,6 +42,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .description import Capsule
+from .loader import _rpy_matrix
 
 __all__ = ["CollisionGeometry", "Segment", "collision_geometry", "fit_capsules", "fit_geometry", "as_capsules",
            "protrusion", "surface_points", "coverage", "enclosing_capsule"]
@@ -91,11 +92,8 @@ def _origin(elem, what: str) -> np.ndarray:
     if o is None:
         return out
     x, y, z = _floats(o.get("xyz"), 3, f"{what} <origin xyz>", (0.0, 0.0, 0.0))
-    r, p, w = _floats(o.get("rpy"), 3, f"{what} <origin rpy>", (0.0, 0.0, 0.0))
-    cr, sr, cp, sp, cw, sw = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(w), math.sin(w)
-    out[:3, :3] = [[cw * cp, cw * sp * sr - sw * cr, cw * sp * cr + sw * sr],
-                   [sw * cp, sw * sp * sr + cw * cr, sw * sp * cr - cw * sr],
-                   [-sp, cp * sr, cp * cr]]
+    rpy = _floats(o.get("rpy"), 3, f"{what} <origin rpy>", (0.0, 0.0, 0.0))
+    out[:3, :3] = _rpy_matrix(rpy)
     out[:3, 3] = (x, y, z)
     return out
 

@@ -265,7 +265,12 @@ def enclosing_capsule(points: np.ndarray, axis: np.ndarray | None = None, throug
 
 def _hull(points: np.ndarray) -> np.ndarray:
     """The vertices of the points' convex hull (all points where it is degenerate)."""
-    from scipy.spatial import ConvexHull, QhullError
+    from scipy.spatial import ConvexHull
+
+    try:
+        from scipy.spatial import QhullError
+    except ImportError:  # scipy < 1.8
+        from scipy.spatial.qhull import QhullError
 
     try:
         return points[ConvexHull(points).vertices]

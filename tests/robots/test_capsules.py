@@ -122,3 +122,27 @@ def test_bad_geometry_is_refused_by_name(tmp_path):
         fit_capsules(urdf_with(PRIMITIVES["sphere"]), links=["base"])
     with pytest.raises(ValueError, match="not a URDF"):
         fit_capsules("<mujoco/>")
+
+
+def test_robot_capsules_auto_is_this_fit_and_refuses_an_unreadable_mesh(tmp_path, mesh_dir):
+    from protorch.robots import RobotError, load_robot
+
+    robot = load_robot("iiwa14")  # capsules: auto
+    urdf = robot.urdf
+    fit = fit_capsules(urdf)
+    assert {k: [(c.a, c.b, c.radius) for c in v] for k, v in robot.capsules.items()} == fit
+    # a mesh in place of link 7's cylinder: fitted from the mesh, beside the URDF
+    text = urdf.read_text().replace('<cylinder radius="0.05" length="0.07"/>', '<mesh filename="meshes/l.stl"/>')
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "l.stl").write_bytes((mesh_dir / "meshes" / "l.stl").read_bytes())
+    (tmp_path / "arm.urdf").write_text(text)
+    settings = {"urdf": str(tmp_path / "arm.urdf"), "end_link": "iiwa_tcp", "home": list(robot.home)}
+    mine = load_robot(settings)
+    assert mine.capsules["iiwa_link_6"] == robot.capsules["iiwa_link_6"]
+    cov = coverage(tmp_path / "arm.urdf", {k: [(c.a, c.b, c.radius) for c in v] for k, v in mine.capsules.items()},
+                   count=4000)
+    assert cov["iiwa_link_7"]["inside"] >= 0.995 and cov["iiwa_link_7"]["largest_out"] <= 1e-3
+    (tmp_path / "meshes" / "l.stl").unlink()
+    (tmp_path / "arm2.urdf").write_text(text)  # another file: not the cached fit
+    with pytest.raises(RobotError, match="robot.capsules=auto: .*link 'iiwa_link_7'.*'meshes/l.stl'"):
+        load_robot({**settings, "urdf": str(tmp_path / "arm2.urdf")})

@@ -132,3 +132,32 @@ def test_the_mujoco_scene_has_the_same_frames_inertials_and_motors(kin, gen):
     data.mocap_pos[scene.can_mocap] = [0.65, 0.0, task.can_height / 2]
     mujoco.mj_forward(model, data)
     assert data.sensordata[scene.can_contact] == 0 and data.sensordata[scene.table_contact] == 0
+
+
+@pytest.mark.slow
+def test_a_tiny_run_of_the_iiwa_goes_end_to_end_through_mujoco(tmp_path):
+    """``experiment=arm_reach robot=iiwa14``: demonstrations, loop, kinematic tests and MuJoCo, the
+    iiwa's joints in the episodes file, its workspace in the environments, and every success at
+    its target by protorch's own kinematics of the recorded joints."""
+    pytest.importorskip("mujoco", minversion="4.0")
+    from protorch.experiments import run_experiment
+    from tests.experiments.test_arm_reach import cfg
+
+    m = run_experiment(cfg("robot=iiwa14", "task.collision=volume", "settings.baselines=[]"), tmp_path)
+    assert m["robot"]["name"] == "KUKA LBR iiwa 14" and m["robot"]["joints"] == 7 and m["robot"]["capsules"] == 12
+    for section in ("test", "dynamic"):
+        assert 0 <= m["physics"][section]["success_rate"] <= 1 and m["physics"][section]["failures"]["diverged"] == 0
+    with np.load(tmp_path / m["physics"]["episodes_file"]) as f:
+        q, can, target = f["q"], f["can"], f["target"]
+    assert q.shape[-1] == 7 and q.shape[0] == m["physics"]["test"]["episodes"] + m["physics"]["dynamic"]["episodes"]
+    held_out = m["physics"]["test"]["episodes"]
+    # the held-out environments lie in the iiwa's workspace (conf/robot/iiwa14.yaml), not the Panda's
+    assert (can[:held_out, 0, 0] >= 0.60 - 1e-9).all() and (target[:held_out, 0, 0] >= 0.74 - 1e-9).all()
+    # every MuJoCo success ends with the gripper's tool centre point (protorch's kinematics of the
+    # recorded joints) at the target (benchmarks/replay_physics.py re-derives the Panda's frames only)
+    with np.load(tmp_path / m["physics"]["episodes_file"]) as f:
+        success = f["success"]
+    kin = ArmKinematics(URDF, end_link=DESC["end_link"])
+    tcp = kin.ee_position(torch.from_numpy(q[:, -1]).to(F64)).numpy()  # (E, 3)
+    gap = np.linalg.norm(tcp[:, :2] - target[:, -1], axis=-1)  # (E,)
+    assert success.any() and (gap[success] <= 0.02 + 1e-3).all()

@@ -4,7 +4,7 @@
 positions every control step, the can and the target, the run's verdicts) and recomputes, for
 every episode and every recorded instant, with its own means:
 
-* the Panda's link frames from the published DH parameters (``protorch.robots.panda.PANDA_DH``,
+* the Panda's link frames from the published DH parameters (:data:`PANDA_DH` below,
   flange and hand offsets) in numpy, not through the URDF, pytorch_kinematics or MuJoCo;
 * the link capsules (``PANDA_CAPSULES``) against the can as a solid cylinder of the recorded
   radius and height, by dense point sampling: points every millimetre along each capsule's

@@ -1,5 +1,5 @@
 """``python -m protorch --help``: the experiments and every config group's choices (``optimizer=``,
-``gp=``, ``task=``, ``tune=``), each with the first sentence of its YAML's header comment, how to
+``gp=``, ``task=``, ``robot=``, ``tune=``), each with the first sentence of its YAML's header comment, how to
 see and change settings, and what each key means, read from the YAML comments of ``conf/``
 (``key: value  # meaning``). Lines are wrapped to the terminal, never cut."""
 
@@ -17,6 +17,7 @@ GROUPS = (("experiment", "the experiment (sets every group below to its own choi
           ("optimizer", "the loop's optimiser; optimizer.<key>=... changes one setting"),
           ("gp", "the environment map's backend"),
           ("task", "the task (custom: your own class, task._target_=my_module.MyTask)"),
+          ("robot", "the arm of experiment=arm_reach (custom: your URDF, docs/your_own_robot.md)"),
           ("tune", "a hyperparameter search preset (with -m)"))
 _SENTENCE_END = re.compile(r"(?<!\bSec)(?<!\bFig)(?<!\be\.g)(?<!\bi\.e)(?<!\bvs)(?<!\bEq)(?<!\bal)\.(?=\s|$)|:$")
 
@@ -169,4 +170,11 @@ def help_text(conf: Path, argv: list[str]) -> str:
             lines += ["", *_wrap(f"settings of experiment={chosen} ({path.relative_to(conf.parent)}; ",
                                  "keys without a comment are listed by --cfg job):", width, 2),
                       *_table([r for r in key_meanings(path) if r[2]], width)]
+            if "override /robot" in path.read_text():
+                lines += ["", *_wrap("robot settings (conf/robot/custom.yaml; with robot=panda each is null, the Panda's ",
+                                     "own value, and robot.KEY=VALUE changes it): python -m protorch "
+                                     "experiment=arm_reach robot=custom robot.urdf=my_arm.urdf robot.end_link=tool0 "
+                                     "robot.home=[...]", width, 2),
+                          *_table([(f"robot.{k}", v, m) for k, v, m in key_meanings(conf / "robot" / "custom.yaml")
+                                   if m], width)]
     return "\n".join(lines)

@@ -332,8 +332,8 @@ def check_robot(robot, task_cfg: dict, physics_runs: bool):
     """The robot setting checked before any work (each a ``ValueError`` of one line naming the
     setting): the description (:func:`~protorch.robots.load_robot`: the URDF parses, the end
     link exists, at least 6 joints, the home pose's length and limits), the inertials where the
-    physics test will run, and the workspace within the arm's reach
-    (:func:`~protorch.tasks.arm.workspace.check_reach`). Returns the task."""
+    physics test will run (and MuJoCo compiling its scene), and the workspace within the arm's
+    reach (:func:`~protorch.tasks.arm.workspace.check_reach`). Returns the task."""
     robot = load_robot(robot)
     if physics_runs:
         check_inertials(robot)
@@ -341,6 +341,18 @@ def check_robot(robot, task_cfg: dict, physics_runs: bool):
                                             "prior_clear", "prior_detours", "prior_grid"}
     task = ArmReachTask(robot=robot, **_boxes({k: v for k, v in task_cfg.items() if k in keys}))
     check_reach(task, check_region(task_cfg.get("prior_grid", "rectangles"), "task.prior_grid"))
+    if physics_runs:
+        from ..sim.scene import build_scene
+
+        if not robot.capsule_list():
+            raise ValueError(f"robot.capsules: the {robot.name} arm has no collision volumes, which the MuJoCo test "
+                             "collides with the can and the table; give robot.capsules (or auto) or set "
+                             "settings.physics.run=never")
+
+        try:
+            build_scene(task)
+        except Exception as exc:  # MuJoCo's own compiler errors
+            raise ValueError(f"robot: MuJoCo cannot build the scene of robot.urdf={robot.urdf}: {exc}") from None
     return task
 
 

@@ -30,7 +30,7 @@ from torch import Tensor, nn
 
 from ..checks import check_tensor
 
-__all__ = ["ArmKinematics", "urdf_links"]
+__all__ = ["ArmKinematics", "urdf_links", "parse_urdf"]
 
 _SNAP = 1e-7
 
@@ -47,15 +47,21 @@ def _read_urdf(urdf: str | Path) -> tuple[str, str]:
     return urdf, "the given URDF text"
 
 
-def urdf_links(text: str, where: str = "the URDF") -> list[str]:
-    """Names of the ``<link>`` elements of a URDF's XML text (a clear error if it is not XML)."""
+def parse_urdf(text: str, where: str = "the URDF") -> ET.Element:
+    """A URDF's XML text parsed: its ``<robot>`` element (a ``ValueError`` naming ``where`` if it
+    is not XML or not a URDF)."""
     try:
         root = ET.fromstring(text)
     except ET.ParseError as exc:
         raise ValueError(f"{where} is not valid XML: {exc}") from None
     if root.tag != "robot":
         raise ValueError(f"{where} is not a URDF: its root element is <{root.tag}>, expected <robot>")
-    return [link.get("name") for link in root.iter("link")]
+    return root
+
+
+def urdf_links(text: str, where: str = "the URDF") -> list[str]:
+    """Names of the ``<link>`` elements of a URDF's XML text (a clear error if it is not XML)."""
+    return [link.get("name") for link in parse_urdf(text, where).iter("link")]
 
 
 def _joint_limits_from_xml(text: str, names: list[str]) -> tuple[list[float], list[float], list[float]]:

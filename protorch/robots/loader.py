@@ -42,6 +42,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from .description import Capsule, Inertial, PointMass, Robot
+from .kinematics import parse_urdf
 
 __all__ = ["RobotError", "ROBOTS_DIR", "SETTINGS", "DEFAULTS", "shipped_robots", "load_robot", "robot_settings",
            "urdf_inertials", "check_inertials", "auto_capsules", "MIN_JOINTS"]
@@ -126,12 +127,9 @@ def robot_settings(spec=None) -> dict:
 
 def _parse(text: str, where: str) -> ET.Element:
     try:
-        root = ET.fromstring(text)
-    except ET.ParseError as exc:
-        raise RobotError(f"{where} is not valid XML: {exc}") from None
-    if root.tag != "robot":
-        raise RobotError(f"{where} is not a URDF: its root element is <{root.tag}>, expected <robot>")
-    return root
+        return parse_urdf(text, where)
+    except ValueError as exc:
+        raise RobotError(str(exc)) from None
 
 
 def _chain(root: ET.Element, end_link: str, where: str) -> list[ET.Element]:

@@ -1,5 +1,6 @@
 """Offscreen pictures of physics episodes: ``mujoco.Renderer`` frames of the scene
-(:mod:`protorch.sim.scene`) replayed from ``episodes.npz``, written as a GIF and a strip of frames.
+(:mod:`protorch.sim.scene`) replayed from ``episodes.npz``, written as a GIF and a strip of frames:
+the arm's capsules, or its URDF's visual meshes where it has them.
 
 OpenGL's backend is chosen when ``mujoco`` is first imported (``MUJOCO_GL``), so the pictures are
 made in a subprocess (``python -m protorch.sim.render``), first with ``MUJOCO_GL=egl`` and, where
@@ -21,7 +22,7 @@ import numpy as np
 from ..data.files import atomic_write_bytes
 from ..tasks.arm.reach import ArmReachTask
 from .mj import load_mujoco
-from .scene import build_scene
+from .scene import CAPSULE_GROUP, VISUAL_GROUP, build_scene
 
 __all__ = ["render_frames", "write_gif", "write_strip", "render_episode", "render_in_subprocess", "main"]
 
@@ -36,6 +37,9 @@ def render_frames(scene, q: np.ndarray, can: np.ndarray, target: np.ndarray, *, 
     model = scene.model
     data = mujoco.MjData(model)
     renderer = mujoco.Renderer(model, height=height, width=width)
+    option = mujoco.MjvOption()
+    if getattr(scene, "visuals", False):  # the robot's visual meshes instead of its capsules
+        option.geomgroup[VISUAL_GROUP], option.geomgroup[CAPSULE_GROUP] = 1, 0
     try:
         renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
         frames = []
@@ -44,7 +48,7 @@ def render_frames(scene, q: np.ndarray, can: np.ndarray, target: np.ndarray, *, 
             data.mocap_pos[scene.can_mocap] = (ci[0], ci[1], scene.task.can_height / 2)
             data.mocap_pos[scene.target_mocap] = (ti[0], ti[1], scene.task.ee_height)
             mujoco.mj_forward(model, data)
-            renderer.update_scene(data, camera=camera)
+            renderer.update_scene(data, camera=camera, scene_option=option)
             renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
             frames.append(renderer.render().copy())
     finally:

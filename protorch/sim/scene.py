@@ -8,7 +8,9 @@ hand and tool centre point, as bodies of their own) and adds:
   point masses (the Panda's fingers on its hand); a robot whose moving links lack them is
   refused before any work (:func:`~protorch.robots.check_inertials`);
 * the robot's link capsules as the arm's collision geometry (the volumes ``collision=volume``
-  plans with);
+  plans with); the URDF's own geometry is kept without contacts or mass, its ``<visual>``
+  elements (meshes resolved beside the URDF, ``package://`` by the folders above it) in geom
+  group 3, which the renders show instead of the capsules where the URDF has them;
 * the robot's joint damping and rotor armature, and a torque motor per joint clipped to its
   torque limits (the URDF's ``<limit effort>``);
 * the table top (a box whose top face is ``z = 0`` under the robot and the task's table), the can
@@ -19,14 +21,18 @@ hand and tool centre point, as bodies of their own) and adds:
   one's distance), so that all episodes' contacts are read in one array.
 
 The arm collides with the can and the table only (the arm's own capsules overlap at the joints by
-construction; the base stands on the table). The controller's model (:func:`controller_model`)
+construction; the base stands on the table), through its capsules alone: geometry of the URDF's
+own (its ``<collision>`` and ``<visual>`` elements) is kept massless and without contacts, in
+geom group 3. The controller's model (:func:`controller_model`)
 is the same arm alone, without contacts and constraints, its link masses and inertias scaled by
 ``mass_scale``: the model the inverse-dynamics controller believes in.
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -37,7 +43,10 @@ __all__ = ["ArmScene", "build_scene", "hand_links", "controller_model", "ARM_BIT
 
 ARM_BITS = (1, 2)  # (contype, conaffinity) of the arm's capsules: they touch the world, not each other
 WORLD_BITS = (2, 1)  # the table and the can
-_COMPILER = '<mujoco><compiler fusestatic="false" discardvisual="false" balanceinertia="false"/></mujoco>'
+_COMPILER = ('<mujoco><compiler fusestatic="false" discardvisual="false" balanceinertia="false" strippath="false" '
+             'meshdir="{meshdir}"/></mujoco>')
+VISUAL_GROUP, HIDDEN_GROUP, CAPSULE_GROUP = 3, 4, 2  # geom groups: the URDF's <visual>, its <collision>, the capsules
+_PACKAGE = re.compile(r'filename="package://([^/"]+)/([^"]*)"')
 _CONTACT_SENSOR = [1 | 8, 1, 1]  # data: found | dist (bit flags), reduce: mindist, num: 1 -> (count, distance)
 _TABLE_THICKNESS = 0.02
 _CAN_RGBA = (0.75, 0.15, 0.12, 1.0)
@@ -59,6 +68,7 @@ class ArmScene:
     table_contact: int
     torque_limits: np.ndarray  # (J,)
     task: object
+    visuals: bool = False  # the URDF has <visual> geometry: renders show it (group 3), not the capsules
 
     @property
     def timestep(self) -> float:
@@ -77,15 +87,33 @@ def hand_links(task) -> set[str]:
     return out
 
 
+def _package_file(folder: Path, package: str, rest: str) -> str:
+    """A ``package://PACKAGE/REST`` mesh file: REST under the first folder above the URDF named
+    PACKAGE or holding a folder PACKAGE (as a ROS workspace lays them out); else left to MuJoCo,
+    whose error names the file."""
+    for up in (folder, *folder.parents):
+        for root in (up, up / package):
+            if root.name == package and (root / rest).is_file():
+                return str(root / rest)
+    return f"package://{package}/{rest}"
+
+
 def _arm_spec(task, mass_scale: float, timestep: float):
     """The task's robot from its URDF with its inertials, capsules, damping, armature and motors."""
     mujoco = load_mujoco()
     robot = task.robot
     check_inertials(robot)
-    text = task.kinematics.urdf_text
+    folder = Path(robot.urdf).parent
+    text = _PACKAGE.sub(lambda m: f'filename="{_package_file(folder, m[1], m[2])}"', task.kinematics.urdf_text)
     head = text.index(">", text.index("<robot")) + 1
-    spec = mujoco.MjSpec.from_string(text[:head] + _COMPILER + text[head:])
+    spec = mujoco.MjSpec.from_string(text[:head] + _COMPILER.format(meshdir=f"{folder}/") + text[head:])
     spec.option.timestep = float(timestep)
+    visuals = False
+    for geom in spec.geoms:  # the URDF's own geometry: no contact, no mass (the capsules collide); its
+        visual = geom.contype == 0 and geom.conaffinity == 0  # <visual> shown by the renders, <collision> never
+        visuals |= visual
+        geom.contype, geom.conaffinity, geom.density = 0, 0, 0.0
+        geom.group = VISUAL_GROUP if visual else HIDDEN_GROUP
     frames = set(task.kinematics.frame_names)
     for name, inertial in robot.inertials.items():
         if name not in frames:
@@ -99,13 +127,15 @@ def _arm_spec(task, mass_scale: float, timestep: float):
         point = spec.body(pm.link).add_body(pos=list(pm.pos))
         point.mass, point.explicitinertial = pm.mass * mass_scale, True
         point.inertia = [v * mass_scale for v in pm.inertia]
-    for geom in spec.geoms:  # the URDF's own <collision> geometry: drawn, never collided (the capsules enclose it)
-        geom.contype, geom.conaffinity = 0, 0
     hand = hand_links(task)
     for c in robot.capsule_list():
         rgba = _HAND_RGBA if c.link in hand else _ARM_RGBA
-        spec.body(c.link).add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[*c.a, *c.b], size=[c.radius, 0, 0],
-                                   contype=ARM_BITS[0], conaffinity=ARM_BITS[1], rgba=list(rgba))
+        if c.a == c.b:  # a capsule of length 0: MuJoCo takes it as a sphere
+            shape = dict(type=mujoco.mjtGeom.mjGEOM_SPHERE, pos=list(c.a))
+        else:
+            shape = dict(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[*c.a, *c.b])
+        spec.body(c.link).add_geom(**shape, size=[c.radius, 0, 0], contype=ARM_BITS[0], conaffinity=ARM_BITS[1],
+                                   rgba=list(rgba), group=CAPSULE_GROUP if visuals else 0)
     names = task.kinematics.joint_names
     for i, name in enumerate(names):
         joint = spec.joint(name)
@@ -172,7 +202,8 @@ def build_scene(task, *, timestep: float = 0.002, mass_scale: float = 1.0) -> Ar
                     target_mocap=int(model.body("target").mocapid[0]),
                     can_contact=int(model.sensor("arm_can").adr[0]),
                     table_contact=int(model.sensor("arm_table").adr[0]),
-                    torque_limits=np.array(task.robot.max_torque, dtype=np.float64), task=task)
+                    torque_limits=np.array(task.robot.max_torque, dtype=np.float64), task=task,
+                    visuals=bool((model.geom_group == VISUAL_GROUP).any()))
 
 
 def controller_model(task, *, timestep: float = 0.002, mass_scale: float = 1.0):

@@ -29,7 +29,7 @@ def both_sides(task, envs, seed=0, **kw):
     n = envs.shape[0]
     dl, el, ll = task.demonstrations(envs, 2, g, sides=torch.full((n,), LEFT), lengths=(30, 30), **kw)
     dr, er, lr = task.demonstrations(envs, 2, g, sides=torch.full((n,), RIGHT), lengths=(30, 30), **kw)
-    promp = ProMP(7, 10, 50)
+    promp = ProMP(task.num_dof, 10, 50)
     labels = torch.cat([ll, lr])
     assert labels.tolist() == [LEFT] * 2 * n + [RIGHT] * 2 * n
     return promp, demonstration_dataset(promp, dl + dr, torch.cat([el, er]), labels=labels, var_floor=1e-3)
@@ -137,3 +137,19 @@ def test_unstable_or_huge_settings_are_refused(task, switching, kwargs, match):
     model, walk = switching
     with pytest.raises(ValueError, match=match):
         run_arm_episodes(model, task, walk[:, 0], **kwargs)
+
+
+def test_a_six_joint_arm_moves_within_its_own_limits(tmp_path):
+    """The moving test reads the task's robot (a 6-joint arm once crashed on the Panda's 7 limits)."""
+    from tests.robots.user_arm import user_arm_home, write_user_arm
+
+    six = ArmReachTask(robot={"urdf": str(write_user_arm(tmp_path)), "end_link": "tool0", "home": user_arm_home(),
+                              "max_acceleration": 4.0})
+    a = torch.tensor([0.56, 0.05, 0.72, 0.0], dtype=F64)
+    promp, ds = both_sides(six, a[None], seed=1)
+    model = EnvToProMP(promp, make_env_map("torch", 30.0).fit(ds.env, ds.mean, ds.var, ds.label))
+    res = run_arm_episodes(model, six, walk=a.repeat(1, 51, 1), duration=1.0, hold=0.2, dt=0.02)
+    assert res.q.shape[-1] == 6
+    assert bool((res.qd.abs() <= six.kinematics.max_velocity + 1e-9).all())
+    assert bool((res.qd.diff(dim=1).abs() / res.dt <= 4.0 + 1e-6).all())  # robot.max_acceleration
+    assert float((res.qd.diff(dim=1).abs() / res.dt).max()) > 3.0  # the limit is reached, so it binds

@@ -86,4 +86,4 @@ def compute() -> dict:
 
 if __name__ == "__main__":
     with open(sys.argv[1], "w") as f:
-        json.dump(compute(), f, indent=0)
+        json.dump(compute(), f)

@@ -11,26 +11,15 @@ import torch
 
 from protorch.robots import load_robot
 from protorch.robots.kinematics import ArmKinematics
+from tests.benchmarks import benchmark_module
 
 F64 = torch.float64
 PANDA = load_robot("panda")
 PANDA_URDF = PANDA.urdf
 PANDA_LIMITS = tuple(zip(PANDA.lower, PANDA.upper))
 PANDA_MAX_VELOCITY = (2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61)  # rad/s, Franka's data sheet
-# Franka Emika's published Craig (modified) DH parameters, one row per joint: (a_{i-1} [m], d_i [m],
-# alpha_{i-1} [rad]); the flange's d after joint 7; the hand's yaw about the flange's z, then the TCP
-# along z. The independent reference the URDF is checked against (its header comment lists them).
-PANDA_DH = (
-    (0.0, 0.333, 0.0),
-    (0.0, 0.0, -1.5707963267948966),
-    (0.0, 0.316, 1.5707963267948966),
-    (0.0825, 0.0, 1.5707963267948966),
-    (-0.0825, 0.384, -1.5707963267948966),
-    (0.0, 0.0, 1.5707963267948966),
-    (0.088, 0.0, 1.5707963267948966),
-)
-PANDA_FLANGE = 0.107
-PANDA_TCP = (-0.7853981633974483, 0.1034)
+with benchmark_module("replay_physics.py", "_replay_physics") as _replay:  # the independent DH model
+    PANDA_DH, PANDA_FLANGE, PANDA_TCP = _replay.PANDA_DH, _replay.PANDA_FLANGE, _replay.PANDA_TCP
 
 
 @pytest.fixture(scope="module")

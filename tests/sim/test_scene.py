@@ -69,3 +69,34 @@ def test_contact_sensors_report_the_can_and_the_table(scene, task):
     low[1] += 0.35  # lean forward: the hand goes through the table top
     can, table, _ = _contacts(scene, low, (0.85, 0.45))
     assert task.kinematics.ee_position(torch.from_numpy(low))[2] < 0 and table >= 1 and can == 0
+
+
+def test_a_users_arm_gets_its_urdfs_inertials_motors_and_visual_mesh(tmp_path):
+    from protorch.sim.scene import CAPSULE_GROUP, VISUAL_GROUP
+    from protorch.tasks.arm.reach import ArmReachTask
+    from tests.robots.user_arm import user_arm_home, user_arm_urdf
+
+    mesh = tmp_path / "my_arm_description" / "meshes" / "forearm.obj"  # a ROS-like package beside the URDF
+    mesh.parent.mkdir(parents=True)
+    mesh.write_text("v 0 0 0\nv 0.05 0 0\nv 0 0.05 0\nv 0 0 0.4\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 1 4 3\n")
+    urdf = tmp_path / "my_arm_description" / "urdf" / "my_arm.urdf"
+    urdf.parent.mkdir()
+    urdf.write_text(user_arm_urdf(visual="package://my_arm_description/meshes/forearm.obj"))
+    task = ArmReachTask(robot={"urdf": str(urdf), "end_link": "tool0", "home": user_arm_home()})
+    scene = build_scene(task)
+    m, robot = scene.model, task.robot
+    for name, inertial in robot.inertials.items():  # the URDF's own <inertial>
+        assert m.body(name).mass[0] == pytest.approx(inertial.mass), name
+    assert np.allclose(scene.torque_limits, [150, 150, 150, 30, 30, 30])  # <limit effort>
+    meshes = [g for g in range(m.ngeom) if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH]
+    assert len(meshes) == 1 and m.geom_group[meshes[0]] == VISUAL_GROUP and scene.visuals
+    arm = [g for g in range(m.ngeom) if m.geom_contype[g] == 1]  # what collides: the capsules only
+    assert len(arm) == len(robot.capsule_list()) and all(m.geom_group[g] == CAPSULE_GROUP for g in arm)
+    assert m.body("tool0").mass[0] == 0.0  # the URDF's geometry adds no mass
+    data = mujoco.MjData(m)
+    data.qpos[:] = task.start_q
+    for _ in range(100):  # gravity compensated: the arm holds its home (no self-contact)
+        mujoco.mj_forward(m, data)
+        data.ctrl[:] = data.qfrc_bias
+        mujoco.mj_step(m, data)
+    assert np.abs(data.qpos - np.array(task.start_q)).max() < 1e-3 and data.ncon == 0

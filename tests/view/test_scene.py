@@ -106,3 +106,19 @@ def test_arm_state_is_the_label_aware_answer(arm_run_dir):
     while not p.done:
         p.step(env)
     assert p.t == p.total == 200 and p.label in ("left", "right") and isinstance(p.success, bool)
+
+
+def test_an_arm_run_is_rebuilt_with_its_robot_and_the_teach_page_takes_one(tmp_path):
+    from protorch.view.__main__ import parse_args, teach_session
+    from protorch.view.scene import build_task
+    from tests.robots.user_arm import user_arm_home, write_user_arm
+
+    robot = {"base": None, "urdf": str(write_user_arm(tmp_path)), "end_link": "tool0", "home": user_arm_home()}
+    task = build_task("arm_reach", {"goal_tol": 0.03, "goal_box": [[0.6, 0.7], [-0.2, 0.2]]}, robot)
+    assert task.num_dof == 6 and task.robot.name == "my_arm" and task.goal_tol == 0.03
+    assert task.goal_box == ((0.6, 0.7), (-0.2, 0.2))
+    assert build_task("arm_reach", {}).robot.name == "Panda"  # a run from before the robot setting
+    (tmp_path / "robot.yaml").write_text(f"urdf: {robot['urdf']}\nend_link: tool0\nhome: {user_arm_home()}\n")
+    args = parse_args(["--teach", "arm_reach", "--robot", str(tmp_path / "robot.yaml"), "--out", str(tmp_path / "d")])
+    session, _ = teach_session(args)
+    assert session.teach.task.num_dof == 6

@@ -71,24 +71,31 @@ def check_workspace(task) -> None:
             raise ValueError(f"{name} {box} must lie on the table {task.table}")
 
 
-def check_reach(task, prior_grid: str = "rectangles") -> None:
-    """Refuse a workspace out of the arm's reach, before any work: the hand-down IK must follow the
-    straight path from the start to every corner of ``task.goal_box`` (and, where the task's
-    region or ``prior_grid`` is the table, to the farthest target of ``task.reach`` straight
-    ahead on the table). A ``ValueError`` naming the settings and the first target missed."""
+def check_reach(task, prior_grid: str = "rectangles", iters: int = 150) -> None:
+    """Refuse a workspace out of the arm's reach, before any work: the hand-down inverse
+    kinematics (from the start configuration, the hand keeping its start orientation, ``iters``
+    damped-least-squares steps) must bring the end effector within ``goal_tol`` of every corner
+    of ``task.goal_box`` at the start's height, the arm above the table (and, where the task's
+    region or ``prior_grid`` is the table, of the farthest target of ``task.reach`` straight
+    ahead). A ``ValueError`` naming the settings and the first target missed."""
     (x0, x1), (y0, y1) = task.goal_box
     goals = [(x0, y0), (x0, y1), (x1, y0), (x1, y1)]
     if "table" in (task.region, prior_grid):
         goals.append((min(task.reach[1], task.table[0][1]), 0.0))
-    g = torch.tensor(goals, dtype=torch.float64)  # (G, 2)
-    ok = straight_prior_ok(task, g)
+    kin = task.kinematics
+    kw = dict(dtype=kin.lower.dtype, device=kin.lower.device)
+    g = torch.tensor([(x, y, task.ee_height) for x, y in goals], **kw)  # (G, 3)
+    rest = task.start_config(**kw)  # (J,)
+    rot = kin.ee_pose(rest)[:3, :3].expand(len(goals), 3, 3)
+    q, err = kin.inverse(g, rest.expand(len(goals), -1), rotation=rot, rest=rest, iters=iters)  # (G, J), (G,)
+    ok = ((err <= task.goal_tol) & (kin.link_positions(q)[..., 1:, 2] >= 0).all(-1)).cpu()  # (G,)
     if not bool(ok.all()):
         miss = goals[int((~ok).nonzero()[0])]
         what = "task.goal_box" if int((~ok).nonzero()[0]) < 4 else "task.reach"
         raise ValueError(f"{what}: the target ({miss[0]:.3f}, {miss[1]:.3f}) at the start's height is out of the "
-                         f"{task.robot.name} arm's reach (the hand-down inverse kinematics cannot follow the straight "
-                         f"path from robot.home to it); move task.goal_box / task.can_box (or task.reach) nearer the "
-                         f"base, or choose another robot.home")
+                         f"{task.robot.name} arm's reach (the hand-down inverse kinematics from robot.home misses "
+                         "it); move task.goal_box / task.can_box (or task.reach) nearer the base, or choose another "
+                         "robot.home")
 
 
 def region_bounds(task, region: str) -> tuple[Tensor, Tensor]:

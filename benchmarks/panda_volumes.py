@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from protorch.robots import load_robot
+from protorch.robots.capsules import protrusion  # the coverage measure, shared with benchmarks/capsules.py
 
 PANDA = load_robot("panda")
 PANDA_CAPSULES = PANDA.capsule_list()
@@ -96,17 +97,6 @@ def link_points(root: Path, link: str, rng: np.random.Generator) -> dict[str, np
     if link == "hand":
         out["visual"] = np.concatenate([out["visual"], fingers(root)])
     return out
-
-
-def protrusion(points: np.ndarray, capsules) -> np.ndarray:
-    """How far each point lies outside the union of ``capsules`` ``[(a, b, r)]`` (<= 0: inside)."""
-    gaps = []
-    for a, b, r in capsules:
-        a, b = np.asarray(a), np.asarray(b)
-        d = b - a
-        u = np.clip(((points - a) @ d) / max(d @ d, 1e-12), 0, 1)
-        gaps.append(np.linalg.norm(points - a - u[:, None] * d, axis=-1) - r)
-    return np.min(gaps, 0)
 
 
 def coverage(root: Path, capsules: dict) -> None:

@@ -18,7 +18,7 @@ The settings (``conf/robot/*.yaml``; docs/your_own_robot.md; every key optional 
 ``damping``         joint damping, N m s / rad, a number or one per joint (default 1.0)
 ``armature``        rotor armature, kg m^2, a number or one per joint (default 0.1)
 ``capsules``        the collision volumes: ``auto`` (fitted to the URDF's ``<collision>``
-                    geometry: :func:`auto_capsules`), ``none``, or ``{link: [{a: [x, y, z], b:
+                    geometry, :mod:`protorch.robots.capsules`), ``none``, or ``{link: [{a: [x, y, z], b:
                     [x, y, z], radius: r}, ...]}`` in the link frames (m)
 ``forearm_link``    a link whose capsules the volume objective reads besides those rigid with the
                     end link (the Panda: link 5, which passes over the can); null: none
@@ -35,6 +35,7 @@ setting that would give them.
 
 from __future__ import annotations
 
+import functools
 import math
 import numbers
 import xml.etree.ElementTree as ET
@@ -238,53 +239,33 @@ def check_inertials(robot: Robot) -> None:
                              "them to the URDF or set settings.physics.run=never")
 
 
-def auto_capsules(root: ET.Element, links, where: str) -> dict[str, tuple[Capsule, ...]]:
-    """Capsules enclosing the URDF's ``<collision>`` geometry of ``links``: a cylinder's axis with
-    its radius, a sphere's centre with its radius, a box's longest axis with the half diagonal of
-    the other two, a ``<capsule>``'s own; placed by the collision's ``<origin>``. Mesh geometry
-    is refused (one line naming the link; give its capsules in ``robot.capsules``)."""
-    out: dict[str, list[Capsule]] = {}
-    wanted = set(links)
-    for link in root.iter("link"):
-        name = link.get("name")
-        if name not in wanted:
-            continue
-        for col in link.findall("collision"):
-            geom = col.find("geometry")
-            shape = None if geom is None or len(geom) == 0 else geom[0]
-            if shape is None:
-                continue
-            xyz, rpy = _origin(col.find("origin"))
-            rot = _rpy_matrix(rpy)
-            tag = shape.tag
-            try:
-                if tag in ("cylinder", "capsule"):
-                    r, half = float(shape.get("radius")), float(shape.get("length")) / 2
-                    a, b = (0.0, 0.0, -half), (0.0, 0.0, half)
-                elif tag == "sphere":
-                    r, a, b = float(shape.get("radius")), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
-                elif tag == "box":
-                    size = _floats(shape.get("size"), 3, f"{where}: link {name!r} <box size>")
-                    k = max(range(3), key=lambda i: size[i])
-                    r = math.hypot(*[size[i] / 2 for i in range(3) if i != k])
-                    a = tuple(-size[k] / 2 if i == k else 0.0 for i in range(3))
-                    b = tuple(size[k] / 2 if i == k else 0.0 for i in range(3))
-                else:
-                    raise RobotError(f"robot.capsules=auto: link {name!r} of {where} has <{tag}> collision geometry, "
-                                     "which the capsule fit does not read; give its capsules in robot.capsules")
-            except (TypeError, ValueError) as exc:
-                if isinstance(exc, RobotError):
-                    raise
-                raise RobotError(f"{where}: link {name!r} has a <{tag}> without its size") from None
-            out.setdefault(name, []).append(Capsule(name, _apply(rot, xyz, a), _apply(rot, xyz, b), r))
-    return {k: tuple(v) for k, v in out.items()}
+def auto_capsules(urdf: Path, links, where: str) -> dict[str, tuple[Capsule, ...]]:
+    """Capsules fitted to the URDF's ``<collision>`` geometry of those ``links`` that have some
+    (:func:`protorch.robots.capsules.fit_capsules`: cylinders, spheres, boxes and ``<capsule>``
+    exactly, meshes with ``trimesh``); a geometry it cannot read is refused in one line naming the
+    link. Cached per URDF text: a robot loaded again reuses its fit."""
+    text = Path(urdf).read_text()
+    return {link: tuple(Capsule(link, a, b, r) for a, b, r in caps)
+            for link, caps in _fit_cached(text, str(urdf), tuple(links), where).items()}
 
 
-def _capsules(value, root, frame_names, where) -> dict[str, tuple[Capsule, ...]]:
+@functools.lru_cache(maxsize=16)
+def _fit_cached(text: str, urdf: str, links: tuple[str, ...], where: str) -> dict:
+    from .capsules import collision_geometry, fit_capsules
+
+    try:
+        have = {g.link for g in collision_geometry(urdf)}
+        wanted = [n for n in links if n in have]
+        return fit_capsules(urdf, links=wanted) if wanted else {}
+    except (ValueError, FileNotFoundError, ImportError) as exc:
+        raise RobotError(f"robot.capsules=auto: {where}: {exc}; give the capsules in robot.capsules") from None
+
+
+def _capsules(value, path, frame_names, where) -> dict[str, tuple[Capsule, ...]]:
     if value in ("none", None, False):
         return {}
     if value == "auto":
-        return auto_capsules(root, frame_names, where)
+        return auto_capsules(path, frame_names, where)
     if not isinstance(value, dict):
         raise RobotError(f"robot.capsules={value!r} must be auto, none or {{link: [{{a, b, radius}}, ...]}}")
     out = {}
@@ -374,7 +355,7 @@ def load_robot(spec=None) -> Robot:
         if not lo <= q <= hi:
             raise RobotError(f"robot.home has {q} for joint {name!r}, outside its limits [{lo}, {hi}]")
     frame_names = [joints[0].find("parent").get("link")] + [j.find("child").get("link") for j in joints]
-    capsules = _capsules(cfg["capsules"], root, frame_names, where)
+    capsules = _capsules(cfg["capsules"], path, frame_names, where)
     first_moving = next(i for i, j in enumerate(joints) if j.get("type") != "fixed")
     base_links = cfg["base_links"]
     if base_links == "auto":

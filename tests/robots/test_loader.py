@@ -109,7 +109,7 @@ def test_inertials_with_a_rotated_frame_are_rotated_into_the_link(tmp_path):
      r"robot\.capsules\.forearm\[0\]=.* must be"),
     (lambda a, p: {**a, "urdf": _write(p, user_arm_urdf().replace('<cylinder radius="0.045" length="0.4"/>',
                                                                     '<mesh filename="forearm.stl"/>'))},
-     r"robot\.capsules=auto: link 'forearm' .* has <mesh> collision geometry"),
+     r"robot\.capsules=auto: .*link 'forearm'.*names the mesh 'forearm\.stl', which is not at"),
     (lambda a, p: {**a, "forearm_link": "elbow_link"}, r"robot\.forearm_link='elbow_link' is not a link"),
 ])
 def test_bad_input_is_one_line_naming_the_setting(arm, tmp_path, change, message):

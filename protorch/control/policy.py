@@ -29,7 +29,8 @@ measured now. What it computes, per call:
    does not. The jump of the mean (position and velocity) is added to an offset that decays as a
    critically damped second-order system at rate ``blend`` (1/s): ``d(t) = (d0 + (v0 + w d0) s)
    exp(-w s)``, so ``q_r`` and ``qd_r`` are continuous and return to the mean within a few
-   ``1 / blend`` seconds. At a fixed environment no offset ever arises and the reference is the
+   ``1 / blend`` seconds. At ``duration`` the velocity steps to 0
+   as the mean's does (the hold of the moving test: a mean that ends at rest has no step). At a fixed environment no offset ever arises and the reference is the
    mean exactly.
 
 :meth:`Policy.reset` starts a new motion (class, offset and time forgotten). ``t`` must not go
@@ -179,7 +180,8 @@ class Policy(EnvToProMP):
         duration: seconds from phase 0 to phase 1 (the run's ``settings.dynamic.duration``).
         switch_margin: the class choice's hysteresis (summed objectives).
         decision_dt: seconds between class decisions (the run's control step ``settings.dynamic.dt``).
-        blend: decay rate (1/s) of the offset that keeps the reference continuous.
+        blend: decay rate (1/s) of the offset that keeps the reference continuous (``inf``: no
+            offset, the reference is the chosen mean itself and jumps with it).
         warm_up: call :meth:`reference` a few times now so that the first real call is not slower.
     """
 
@@ -188,8 +190,8 @@ class Policy(EnvToProMP):
                  warm_up: bool = True, experiment: str = "") -> None:
         super().__init__(promp, env_map, task_name)
         for name, v in (("duration", duration), ("decision_dt", decision_dt), ("blend", blend)):
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+            if not (isinstance(v, (int, float)) and (math.isfinite(v) or name == "blend") and v > 0):
+                raise ValueError(f"{name} must be a finite number > 0 (blend: or inf), got {v!r}")
         if not (isinstance(switch_margin, (int, float)) and math.isfinite(switch_margin) and switch_margin >= 0):
             raise ValueError(f"switch_margin must be a finite number >= 0, got {switch_margin!r}")
         self.task, self.experiment = task, experiment
@@ -312,9 +314,8 @@ class Policy(EnvToProMP):
             off = None
             if self._off is not None:  # the offset decays from the last call to now
                 off = self._decay(t - self._t)[:2]  # (2, D)
-            if self._w is not None and not torch.equal(w, self._w):  # the mean jumped: the offset absorbs it
-                old = phi[:2] @ self._w.unflatten(-1, (self._d, self._kb)).T  # (2, D)
-                jump = old - state[:2]  # (2, D)
+            if self._w is not None and self.blend < math.inf and not torch.equal(w, self._w):  # the mean jumped: the offset absorbs it
+                jump = phi[:2] @ self._w.unflatten(-1, (self._d, self._kb)).T - state[:2]  # (2, D)
                 off = jump if off is None else off + jump
             if off is not None:
                 self._off = off

@@ -29,7 +29,8 @@ measured now. What it computes, per call:
    does not. The jump of the mean (position and velocity) is added to an offset that decays as a
    critically damped second-order system at rate ``blend`` (1/s): ``d(t) = (d0 + (v0 + w d0) s)
    exp(-w s)``, so ``q_r`` and ``qd_r`` are continuous and return to the mean within a few
-   ``1 / blend`` seconds. At ``duration`` the velocity steps to 0
+   ``1 / blend`` seconds. The first call of a motion with the measured ``q`` starts the
+   reference there the same way (the mean's start and the arm's may differ). At ``duration`` the velocity steps to 0
    as the mean's does (the hold of the moving test: a mean that ends at rest has no step). At a fixed environment no offset ever arises and the reference is the
    mean exactly.
 
@@ -300,7 +301,9 @@ class Policy(EnvToProMP):
             q: ``(D,)`` the measured joints (the arm's class choice scores the rest of the motion
                 from their end effector, as the moving test); ``None``: the arm is taken to be on
                 each class's mean.
-            qd: accepted for a controller's convenience; not used.
+            qd: ``(D,)`` the measured joint velocities (or ``None``: 0). At the first call of a
+                motion with ``q`` given the reference starts at ``q, qd`` (the gap to the mean
+                decays as the continuity offset does).
         Returns:
             :class:`Reference` ``(q, qd, qdd (D,), label)``.
         """
@@ -317,6 +320,9 @@ class Policy(EnvToProMP):
             if self._w is not None and self.blend < math.inf and not torch.equal(w, self._w):  # the mean jumped: the offset absorbs it
                 jump = phi[:2] @ self._w.unflatten(-1, (self._d, self._kb)).T - state[:2]  # (2, D)
                 off = jump if off is None else off + jump
+            if self._w is None and q is not None and self.blend < math.inf:  # start where the arm is
+                v = torch.zeros_like(q) if qd is None else torch.as_tensor(qd, dtype=torch.float64).to(q)
+                off = torch.stack([q - state[0], v - state[1]])  # (2, D)
             if off is not None:
                 self._off = off
                 state = state + self._decay(0.0)

@@ -29,14 +29,14 @@ from .primitives.promp import ProMP
 __version__ = "0.1.0"
 
 
-def load(run, *, device=None, backend: str | None = None, warm_up: bool = True, **options) -> Policy:
+def load(run, *, device=None, dtype=None, backend: str | None = None, warm_up: bool = True, **options) -> Policy:
     """A trained run as a :class:`Policy` (an :class:`EnvToProMP` that also gives references for a
     control loop): ``run`` is a run folder (its ``config.yaml`` rebuilds the task through the
     experiment's own builder), its ``checkpoint`` folder or the ``.safetensors`` file (the map
     alone). See :func:`protorch.experiments.run_folder.load_policy`."""
     from .experiments.run_folder import load_policy
 
-    return load_policy(run, device=device, backend=backend, warm_up=warm_up, **options)
+    return load_policy(run, device=device, dtype=dtype, backend=backend, warm_up=warm_up, **options)
 
 
 __all__ = [

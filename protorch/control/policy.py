@@ -233,7 +233,19 @@ class Policy(EnvToProMP):
             self.reset()
 
     # ----------------------------------------------------------------- checks
-    def _check(self, env, t, q) -> tuple[Tensor, float, Tensor | None]:
+    def _joints(self, x, name: str, like: Tensor) -> Tensor | None:
+        if x is None:
+            return None
+        if not isinstance(x, Tensor):
+            x = torch.as_tensor(x, dtype=torch.float64)
+        if x.shape != (self._d,):
+            raise ValueError(f"{name} must be ({self._d},) joint values, got shape {tuple(x.shape)}")
+        x = x.to(like)
+        if not bool(torch.isfinite(x).all()):
+            raise ValueError(f"{name} holds NaN or inf: {x.tolist()}")
+        return x
+
+    def _check(self, env, t, q, qd=None) -> tuple[Tensor, float, Tensor | None, Tensor | None]:
         d = self.env_dim
         if not isinstance(env, Tensor):
             env = torch.as_tensor(env, dtype=torch.float64)
@@ -245,15 +257,7 @@ class Policy(EnvToProMP):
         t = float(t)
         if not math.isfinite(t) or t < 0:
             raise ValueError(f"t must be a finite time >= 0 (seconds since the motion started), got {t!r}")
-        if q is not None:
-            if not isinstance(q, Tensor):
-                q = torch.as_tensor(q, dtype=torch.float64)
-            if q.shape != (self._d,):
-                raise ValueError(f"q must be ({self._d},) joint positions, got shape {tuple(q.shape)}")
-            q = q.to(env)
-            if not bool(torch.isfinite(q).all()):
-                raise ValueError(f"q holds NaN or inf: {q.tolist()}")
-        return env, t, q
+        return env, t, self._joints(q, "q", env), self._joints(qd, "qd", env)
 
     # ----------------------------------------------------------------- the class choice
     def _scores(self, means: Tensor, env: Tensor, z: float, q: Tensor | None) -> Tensor:
@@ -307,7 +311,7 @@ class Policy(EnvToProMP):
         Returns:
             :class:`Reference` ``(q, qd, qdd (D,), label)``.
         """
-        env, t, q = self._check(env, t, q)
+        env, t, q, qd = self._check(env, t, q, qd)
         t = max(t, self._t)
         with torch.no_grad():
             c, w = self.choose(env, t, q)
@@ -321,7 +325,7 @@ class Policy(EnvToProMP):
                 jump = phi[:2] @ self._w.unflatten(-1, (self._d, self._kb)).T - state[:2]  # (2, D)
                 off = jump if off is None else off + jump
             if self._w is None and q is not None and self.blend < math.inf:  # start where the arm is
-                v = torch.zeros_like(q) if qd is None else torch.as_tensor(qd, dtype=torch.float64).to(q)
+                v = torch.zeros_like(q) if qd is None else qd
                 off = torch.stack([q - state[0], v - state[1]])  # (2, D)
             if off is not None:
                 self._off = off

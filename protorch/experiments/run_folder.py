@@ -114,16 +114,21 @@ def rebuild_experiment(cfg: dict, where: str = "run"):
     return cls(**{k: v for k, v in kwargs.items() if k in accepted})
 
 
-def load_policy(run: str | Path, *, device=None, backend: str | None = None, warm_up: bool = True, **options):
+def load_policy(run: str | Path, *, device=None, dtype=None, backend: str | None = None, warm_up: bool = True,
+                **options):
     """A run folder as a :class:`~protorch.control.policy.Policy` (``protorch.load``): the map
     from ``checkpoint/``, the task, the ProMP's size, the motion's duration and the class choice's
     settings from the run's ``config.yaml`` through the experiment's own builder
     (:func:`rebuild_experiment`). A folder without ``config.yaml`` (a checkpoint written by
     :func:`protorch.save_model`, a loop baseline's folder) gives the map alone (``task=None``).
-    ``options`` override :class:`~protorch.control.policy.Policy`'s settings (``duration``,
-    ``switch_margin``, ``decision_dt``, ``blend``)."""
+    ``device``, ``dtype`` (float64 by default), ``backend``: of the map (as
+    :func:`protorch.data.checkpoint.load`; the policy's per-call path is float64 whatever the map's
+    dtype). ``options`` override :class:`~protorch.control.policy.Policy`'s settings
+    (``duration``, ``switch_margin``, ``decision_dt``, ``blend``)."""
     import torch
     from omegaconf import OmegaConf
+
+    dtype = torch.float64 if dtype is None else dtype
 
     from ..control.policy import Policy
     from ..data.checkpoint import checkpoint_path, load
@@ -137,7 +142,7 @@ def load_policy(run: str | Path, *, device=None, backend: str | None = None, war
         if not checkpoint_path(p).is_file():
             raise FileNotFoundError(f"{where} holds no checkpoint ({checkpoint_path(p)}) and no {CONFIG_FILE}: "
                                     "give a run folder of arm_reach, point_particle or self_improve")
-        model = load(p, device=device, backend=backend)
+        model = load(p, device=device, dtype=dtype, backend=backend)
         return Policy(model.promp, model.env_map, model.task_name, warm_up=warm_up, **options)
     try:
         cfg = OmegaConf.to_container(OmegaConf.load(config), resolve=True)
@@ -148,7 +153,7 @@ def load_policy(run: str | Path, *, device=None, backend: str | None = None, war
         raise FileNotFoundError(f"{where} holds no checkpoint ({checkpoint_path(p)}): the run did not get to "
                                 "its loop; resume it")
     try:
-        model = load(p, device=device, backend=backend, promp={"num_dof": exp.num_dof(), **exp.promp_cfg})
+        model = load(p, device=device, dtype=dtype, backend=backend, promp={"num_dof": exp.num_dof(), **exp.promp_cfg})
     except ValueError as exc:
         raise ValueError(f"{where}: {exc}") from None
     task = exp.task

@@ -47,7 +47,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from ..gp.kernels import posdef_cholesky, rbf
+from ..gp.kernels import posdef_cholesky, rbf, sq_dist
 from ..gp.model import EnvToProMP, label_aware_mean
 from .arm_choice import hysteresis_choice, rest_scores
 
@@ -108,11 +108,12 @@ class ClassMeans:
         E, k = self.E[c], self.k[c]
         if k == E.shape[0]:
             return torch.arange(k, device=E.device)
-        d2 = ((E - env) ** 2).sum(-1)  # (Mg,)
-        vals, idx = torch.topk(d2, k, largest=False, sorted=False)  # (k,)
-        if int((d2 <= vals.max()).sum()) != k:  # a tie at the k-th distance: the map's stable order decides
-            idx = torch.sort(d2, stable=True).indices[:k]
-        return torch.sort(idx).values
+        d2 = sq_dist(env[None], E)[0]  # (Mg,) as the map computes them
+        if k < E.shape[0]:
+            vals, idx = torch.topk(d2, k + 1, largest=False, sorted=True)  # (k + 1,)
+            if not bool(vals[k] > vals[k - 1]):  # a tie at the k-th distance: the map's stable order decides
+                idx = torch.sort(d2, stable=True).indices
+        return torch.sort(idx[:k]).values
 
     def _solve(self, c: int, idx: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """``(E_S (k, d), A^-1 (MU_S - mu0) (k, N), mu0 (N,))`` of class ``c``'s neighbour set
@@ -142,9 +143,12 @@ class ClassMeans:
         cls = range(self.labels.numel()) if classes is None else classes
         if self.mode == "nearest":
             parts = [self._solve(c, self._neighbours(c, env)) for c in cls]
-            Es = torch.stack([p[0] for p in parts])  # (K', k, d)
-            coef = torch.stack([p[1] for p in parts])  # (K', k, N)
-            mu0 = torch.stack([p[2] for p in parts])  # (K', N)
+            if len(parts) == 1:  # views, no copies
+                Es, coef, mu0 = (x[None] for x in parts[0])  # (1, k, d), (1, k, N), (1, N)
+            else:
+                Es = torch.stack([p[0] for p in parts])  # (K', k, d)
+                coef = torch.stack([p[1] for p in parts])  # (K', k, N)
+                mu0 = torch.stack([p[2] for p in parts])  # (K', N)
             kq = rbf(env.expand(Es.shape[0], 1, -1), Es, self.alpha)  # (K', 1, k)
             return mu0 + torch.bmm(kq, coef)[:, 0]  # (K', N) every class in one product
         if self.mode == "exact":
@@ -157,17 +161,19 @@ class ClassMeans:
 
 
 def _basis3(promp, z) -> Tensor:
-    """The normalised Gaussian basis and its first two phase derivatives at ``z``: ``(3, K)``
+    """The normalised Gaussian basis and its first two phase derivatives at the phases ``z``
+    (a float, a 0-d or a ``(P,)`` tensor): ``(..., 3, K)``
     (:func:`~protorch.control.episodes.basis_derivative_at` for the first; with ``a_k = -(z -
     c_k) / w^2`` and ``s = sum_j g_j a_j``: ``g'' = g' (a - s) - g sum_j g'_j a_j``)."""
-    c, w2 = promp.centers.to(torch.float64), promp.width ** 2  # z: a float or a 0-d tensor
-    d = z - c  # (K,)
-    b = torch.exp(-0.5 * (d / promp.width) ** 2)  # (K,) as gaussian_basis
-    g = b / b.sum()
+    c, w2 = promp.centers.to(torch.float64), promp.width ** 2
+    z = torch.as_tensor(z, dtype=torch.float64, device=c.device)
+    d = z[..., None] - c  # (..., K)
+    b = torch.exp(-0.5 * (d / promp.width) ** 2)  # (..., K) as gaussian_basis
+    g = b / b.sum(-1, keepdim=True)
     a = -d / w2
-    g1 = g * (a - (g * a).sum())
-    g2 = g1 * (a - (g * a).sum()) - g * (g1 * a).sum()
-    return torch.stack([g, g1, g2])  # (3, K)
+    g1 = g * (a - (g * a).sum(-1, keepdim=True))
+    g2 = g1 * (a - (g * a).sum(-1, keepdim=True)) - g * (g1 * a).sum(-1, keepdim=True)
+    return torch.stack([g, g1, g2], -2)  # (..., 3, K)
 
 
 class Policy(EnvToProMP):
@@ -207,6 +213,11 @@ class Policy(EnvToProMP):
         self._arm = arm
         if arm:
             self._grid = self._P.phase[task.cost_indices(promp.num_steps)].to(**kw)  # (P,) the objectives' phases
+        # the basis and its derivatives at every whole millisecond of the motion (a 1 kHz loop's
+        # calls), scaled to time derivatives: (T_ms + 1, 3, K)
+        ms = torch.arange(int(math.floor(self.duration * 1000)) + 1, **kw) * 1e-3
+        self._phi_ms = _basis3(self._P, ms / self.duration) * \
+            torch.tensor([1.0, 1.0 / self.duration, 1.0 / self.duration ** 2], **kw)[:, None]
         self._phi_end = _basis3(self._P, 1.0)  # (3, K)
         self._phi_end[1:] = 0.0  # held: no velocity, no acceleration
         self._scale = torch.tensor([1.0, 1.0 / self.duration, 1.0 / self.duration ** 2], **kw)[:, None]  # (3, 1)
@@ -316,7 +327,7 @@ class Policy(EnvToProMP):
         with torch.no_grad():
             c, w = self.choose(env, t, q)
             z = min(t / self.duration, 1.0)
-            phi = self._phi_end if z >= 1.0 else _basis3(self._P, z) * self._scale  # (3, K) d/dt = d/dz / duration
+            phi = self._phi_end if z >= 1.0 else self._phi_at(t)  # (3, K) d/dt = d/dz / duration
             state = phi @ w.unflatten(-1, (self._d, self._kb)).T  # (3, D) position, velocity, acceleration
             off = None
             if self._off is not None:  # the offset decays from the last call to now
@@ -332,6 +343,14 @@ class Policy(EnvToProMP):
                 state = state + self._decay(0.0)
             self._w, self._t = w, t
         return Reference(state[0], state[1], state[2], int(self.labels[c]))
+
+    def _phi_at(self, t: float) -> Tensor:
+        """The basis and its time derivatives at ``t < duration``: ``(3, K)`` (from the table at
+        a whole millisecond)."""
+        i = round(t * 1000.0)
+        if abs(t * 1000.0 - i) < 1e-9 and i < self._phi_ms.shape[0] and abs(i * 1e-3 - t) == 0.0:
+            return self._phi_ms[i]
+        return _basis3(self._P, t / self.duration) * self._scale
 
     def _decay(self, s: float) -> Tensor:
         """The offset ``s`` seconds after it was ``_off (2, D)``: ``(3, D)`` (position, velocity,

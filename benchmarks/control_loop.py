@@ -12,7 +12,9 @@ the environment changing at every call. Two motions of the environment:
   neighbours change at every call, so each call solves their GP anew).
 
 Printed: median, p99 and max (ms), the first call included (it is the first call after ``load``),
-and the share of calls that solved a new neighbour set. Load and warm-up time is printed apart.
+of the wall-clock time and of the calling thread's CPU time (``time.thread_time``: on a shared
+machine the wall clock also counts the time the thread waited for a core), the share of calls
+that solved a new neighbour set, and the load average. Load and warm-up time is printed apart.
 
 Continuity (``--continuity``): the moving test's episodes of the run (its own environments and
 moves, re-simulated with :func:`protorch.control.arm.run_arm_episodes`) replayed at 1 kHz through
@@ -27,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import time
 
 import torch
@@ -60,19 +63,21 @@ def environments(policy, calls: int, kind: str, seed: int = 0) -> torch.Tensor:
     return out
 
 
-def time_calls(policy, envs: torch.Tensor) -> tuple[list[float], int]:
+def time_calls(policy, envs: torch.Tensor) -> tuple[list[float], list[float], int]:
+    """Wall-clock and CPU seconds (this thread's: what a call costs when its core is free) of each call."""
     period = int(round((policy.duration + 1.0) * 1000))
-    ts, q = [], None
+    ts, cpu, q = [], [], None
     misses0 = policy.means.misses
     for i in range(envs.shape[0]):
         if i % period == 0:
             policy.reset()
             q = None
-        t0 = time.perf_counter()
+        c0, t0 = time.thread_time(), time.perf_counter()
         r = policy.reference(envs[i], (i % period) * 1e-3, q)
         ts.append(time.perf_counter() - t0)
+        cpu.append(time.thread_time() - c0)
         q = r.q
-    return ts, policy.means.misses - misses0
+    return ts, cpu, policy.means.misses - misses0
 
 
 def continuity(run: str) -> None:
@@ -130,10 +135,13 @@ def main() -> None:
         for kind in args.kinds.split(","):
             envs = environments(policy, args.calls, kind)
             policy.reset()
-            ts, misses = time_calls(policy, envs)
-            ms = [x * 1e3 for x in ts]
-            print(f"  {kind:8s} {len(ms)} calls: median {_percentile(ms, 0.5):.3f} ms, p99 {_percentile(ms, 0.99):.3f} ms, "
-                  f"max {max(ms):.3f} ms, first {ms[0]:.3f} ms; new neighbour sets solved: {misses / len(ms):.1%}")
+            ts, cpu, misses = time_calls(policy, envs)
+            for what, xs in (("wall", ts), ("cpu", cpu)):
+                ms = [x * 1e3 for x in xs]
+                print(f"  {kind:8s} {what:4s} {len(ms)} calls: median {_percentile(ms, 0.5):.3f} ms, "
+                      f"p99 {_percentile(ms, 0.99):.3f} ms, max {max(ms):.3f} ms, first {ms[0]:.3f} ms")
+            print(f"  {kind:8s} new neighbour sets solved at {misses / len(ts):.1%} of the calls; load average "
+                  f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     if args.continuity:
         continuity(args.run)
 

@@ -40,7 +40,8 @@ def control_loop(policy, env_at, *, seconds: float, timestep: float = 0.001, kp:
     """Run the loop for ``seconds`` (module docstring); ``env_at(t) -> (4,)`` is the environment the
     motion capture reports at ``t``. Returns numpy arrays per step: ``t``, the measured ``q``, ``qd``,
     the reference ``q_r``, ``qd_r``, the class ``label``, the applied ``tau``, ``env``, the
-    seconds ``policy.reference`` took, and ``contacts`` (steps with an arm-can or arm-table contact)."""
+    seconds ``policy.reference`` took; the torque ``limits (J,)``, and ``can_contacts``,
+    ``table_contacts``: the steps with an arm-can, an arm-table contact."""
     mujoco = load_mujoco()
     task = policy.task
     scene = build_scene(task, timestep=timestep)  # the plant
@@ -53,7 +54,7 @@ def control_loop(policy, env_at, *, seconds: float, timestep: float = 0.001, kp:
     j = task.num_dof
     log = {k: np.zeros((steps, j)) for k in ("q", "qd", "q_r", "qd_r", "tau")}
     log.update(t=np.zeros(steps), label=np.zeros(steps, dtype=np.int64), env=np.zeros((steps, 4)),
-               seconds=np.zeros(steps), contacts=0, limits=limits)
+               seconds=np.zeros(steps), can_contacts=0, table_contacts=0, limits=limits)
     policy.reset()
     for i in range(steps):
         t = i * timestep
@@ -67,7 +68,8 @@ def control_loop(policy, env_at, *, seconds: float, timestep: float = 0.001, kp:
         tau = ctrl.torques(q[None], qd[None], ref.q[None], ref.qd[None], ref.qdd[None])[0].numpy()  # (J,)
         data.ctrl[:] = np.clip(tau, -limits, limits)
         mujoco.mj_step(model, data)
-        log["contacts"] += int(data.sensordata[scene.can_contact] > 0 or data.sensordata[scene.table_contact] > 0)
+        log["can_contacts"] += int(data.sensordata[scene.can_contact] > 0)
+        log["table_contacts"] += int(data.sensordata[scene.table_contact] > 0)
         for k, v in (("q", q), ("qd", qd), ("q_r", ref.q.numpy()), ("qd_r", ref.qd.numpy()), ("tau", data.ctrl)):
             log[k][i] = v
         log["t"][i], log["label"][i], log["env"][i] = t, ref.label, env
@@ -122,7 +124,7 @@ def main() -> None:
     ms = np.sort(log["seconds"]) * 1e3
     print(f"{len(log['t'])} steps of 1 ms; classes {sorted(set(log['label'].tolist()))}, switches "
           f"{int((np.diff(log['label']) != 0).sum())}; tracking |q_r - q| max {err.max():.2e} rad; "
-          f"contacts {log['contacts']} steps; end effector {np.linalg.norm(goal[:2] - env0[2:]) * 1e3:.1f} mm from "
+          f"steps with an arm-can contact {log['can_contacts']}, arm-table {log['table_contacts']}; end effector {np.linalg.norm(goal[:2] - env0[2:]) * 1e3:.1f} mm from "
           f"the target; |tau| / limit max {np.max(np.abs(log['tau']) / log['limits']):.2f}; "
           f"policy.reference median {ms[len(ms) // 2]:.3f} ms, max {ms[-1]:.3f} ms")
     if args.plot:

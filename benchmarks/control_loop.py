@@ -16,13 +16,14 @@ of the wall-clock time and of the calling thread's CPU time (``time.thread_time`
 machine the wall clock also counts the time the thread waited for a core), the share of calls
 that solved a new neighbour set, and the load average. Load and warm-up time is printed apart.
 
-Continuity (``--continuity``): the moving test's episodes of the run (its own environments and
-moves, re-simulated with :func:`protorch.control.arm.run_arm_episodes`) replayed at 1 kHz through
-``policy.reference`` with the measured joints of the episode; the largest change of ``q_r`` and
-``qd_r`` between consecutive calls, against the same with the offset off (``blend`` huge: the
-chosen mean itself), and the class switches compared with the moving test's.
+Continuity (``--continuity N``): the run's moving test re-simulated (its own environments and moves,
+:func:`protorch.control.arm.run_arm_episodes`); the policy's class at every instant of every
+episode (given the episode's environment and joints of that instant) compared with the test's;
+then the first ``N`` episodes with a class switch replayed at 1 kHz through ``policy.reference``
+(the environment and joints of the test's instant): the largest change of ``q_r`` and ``qd_r``
+between consecutive calls, against the same with the offset off (``blend=inf``: the chosen mean).
 
-    python benchmarks/control_loop.py RUN_DIR [--calls 10000] [--backends torch,gpytorch,sparse] [--continuity]
+    python benchmarks/control_loop.py RUN_DIR [--calls 10000] [--backends torch,gpytorch,sparse] [--continuity 10]
 """
 
 from __future__ import annotations
@@ -80,10 +81,11 @@ def time_calls(policy, envs: torch.Tensor) -> tuple[list[float], list[float], in
     return ts, cpu, policy.means.misses - misses0
 
 
-def continuity(run: str) -> None:
+def continuity(run: str, episodes: int) -> None:
+    from omegaconf import OmegaConf
+
     from protorch.control.arm import run_arm_episodes
     from protorch.experiments.run_folder import rebuild_experiment
-    from omegaconf import OmegaConf
 
     policy = protorch.load(run)
     raw = protorch.load(run, blend=math.inf)  # no offset: the chosen mean itself
@@ -92,25 +94,32 @@ def continuity(run: str) -> None:
     env0 = exp.sample(exp.episodes, exp.dyn_seed)
     res = run_arm_episodes(policy, policy.task, env0, generator=torch.Generator().manual_seed(exp.dyn_seed),
                            **exp.dyn_cfg)
+    # the class at every instant of every episode, the episode's measured joints given
+    mismatched = 0
+    for e in range(res.q.shape[0]):
+        policy.reset()
+        for s in range(res.q.shape[1]):
+            mismatched += policy.reference(res.envs[e, s], s * res.dt, res.q[e, s]).label != int(res.labels[e, s])
+    print(f"moving test of {run}: {res.q.shape[0]} episodes, {int(res.switches.sum())} class switches in "
+          f"{int((res.switches > 0).sum())} episodes, {int(res.moves.sum())} moves; the policy's class differs from "
+          f"the test's at {mismatched} of {res.labels.numel()} instants")
+    # at 1 kHz through the episodes with a switch (the environment and joints of the test's instant)
+    chosen = torch.nonzero(res.switches > 0).flatten()[:episodes].tolist()
     per = int(round(res.dt * 1000))
     steps = res.q.shape[1]
     worst = {"blend": [0.0, 0.0], "mean": [0.0, 0.0]}
-    mismatched = 0
-    for e in range(res.q.shape[0]):
+    for e in chosen:
         for name, pol in (("blend", policy), ("mean", raw)):
             pol.reset()
             prev = None
             for i in range((steps - 1) * per + 1):
                 s = i // per
                 r = pol.reference(res.envs[e, s], i * 1e-3, res.q[e, s])
-                if i % per == 0 and name == "blend":
-                    mismatched += r.label != int(res.labels[e, s])
                 if prev is not None:
                     worst[name][0] = max(worst[name][0], float((r.q - prev.q).abs().max()))
                     worst[name][1] = max(worst[name][1], float((r.qd - prev.qd).abs().max()))
                 prev = r
-    print(f"moving test of {run}: {res.q.shape[0]} episodes, {int(res.switches.sum())} class switches, "
-          f"{int(res.moves.sum())} moves; policy's class differs from the test's at {mismatched} instants")
+    print(f"  at 1 kHz over the {len(chosen)} first episodes with a switch:")
     for name, (dq, dqd) in worst.items():
         label = "reference (offset, blend 10/s)" if name == "blend" else "chosen mean (no offset)"
         print(f"  {label:32s} largest change per 1 ms call: q_r {dq:.3g} rad, qd_r {dqd:.3g} rad/s")
@@ -122,7 +131,8 @@ def main() -> None:
     ap.add_argument("--calls", type=int, default=10_000)
     ap.add_argument("--backends", default="torch,gpytorch,sparse")
     ap.add_argument("--kinds", default="moving,jumping")
-    ap.add_argument("--continuity", action="store_true")
+    ap.add_argument("--continuity", type=int, default=0, metavar="EPISODES",
+                    help="also the continuity over this many switching episodes of the moving test")
     args = ap.parse_args()
     torch.set_num_threads(1)
     print(f"torch {torch.__version__}, 1 thread, run {args.run}")
@@ -143,7 +153,7 @@ def main() -> None:
             print(f"  {kind:8s} new neighbour sets solved at {misses / len(ts):.1%} of the calls; load average "
                   f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     if args.continuity:
-        continuity(args.run)
+        continuity(args.run, args.continuity)
 
 
 if __name__ == "__main__":

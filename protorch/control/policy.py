@@ -220,6 +220,7 @@ class Policy(EnvToProMP):
             torch.tensor([1.0, 1.0 / self.duration, 1.0 / self.duration ** 2], **kw)[:, None]
         self._phi_end = _basis3(self._P, 1.0)  # (3, K)
         self._phi_end[1:] = 0.0  # held: no velocity, no acceleration
+        self._at_jump = self._decay(0.0) if math.isfinite(self.blend) else None  # (3, 2)
         self._scale = torch.tensor([1.0, 1.0 / self.duration, 1.0 / self.duration ** 2], **kw)[:, None]  # (3, 1)
         self.reset()
         if warm_up and (task is not None or self.labels.numel() == 1):
@@ -331,7 +332,7 @@ class Policy(EnvToProMP):
             state = phi @ w.unflatten(-1, (self._d, self._kb)).T  # (3, D) position, velocity, acceleration
             off = None
             if self._off is not None:  # the offset decays from the last call to now
-                off = self._decay(t - self._t)[:2]  # (2, D)
+                off = self._decay(t - self._t, 2) @ self._off  # (2, D)
             if self._w is not None and self.blend < math.inf and not torch.equal(w, self._w):  # the mean jumped: the offset absorbs it
                 jump = phi[:2] @ self._w.unflatten(-1, (self._d, self._kb)).T - state[:2]  # (2, D)
                 off = jump if off is None else off + jump
@@ -340,7 +341,7 @@ class Policy(EnvToProMP):
                 off = torch.stack([q - state[0], v - state[1]])  # (2, D)
             if off is not None:
                 self._off = off
-                state = state + self._decay(0.0)
+                state = state + self._at_jump @ off  # (3, D) the offset now and its acceleration
             self._w, self._t = w, t
         return Reference(state[0], state[1], state[2], int(self.labels[c]))
 
@@ -352,16 +353,15 @@ class Policy(EnvToProMP):
             return self._phi_ms[i]
         return _basis3(self._P, t / self.duration) * self._scale
 
-    def _decay(self, s: float) -> Tensor:
-        """The offset ``s`` seconds after it was ``_off (2, D)``: ``(3, D)`` (position, velocity,
-        acceleration) of the critically damped decay (module docstring, item 4)."""
-        w, (d0, v0) = self.blend, self._off
+    def _decay(self, s: float, rows: int = 3) -> Tensor:
+        """The critically damped decay (module docstring, item 4) as a matrix: ``(rows, 2)``
+        maps an offset ``(d0, v0) (2, D)`` to its position, velocity (and acceleration) ``s``
+        seconds later."""
+        w = self.blend
         e = math.exp(-w * s)
-        c = v0 + w * d0
-        pos = (d0 + c * s) * e
-        vel = (v0 - w * c * s) * e
-        acc = (-w * (v0 + c) + w * w * c * s) * e
-        return torch.stack([pos, vel, acc])
+        m = [[(1 + w * s) * e, s * e], [-w * w * s * e, (1 - w * s) * e],
+             [(-w * w + w ** 3 * s) * e, (-2 * w + w * w * s) * e]]
+        return torch.tensor(m[:rows], dtype=torch.float64, device=self._P.basis.device)
 
     # ----------------------------------------------------------------- out of Python
     def export(self, path) -> "Path":

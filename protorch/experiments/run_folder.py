@@ -114,6 +114,20 @@ def rebuild_experiment(cfg: dict, where: str = "run"):
     return cls(**{k: v for k, v in kwargs.items() if k in accepted})
 
 
+def _moving_test_defaults(name: str) -> dict:
+    """The moving test's own defaults (what the run used where its config left them out)."""
+    if name == "arm_reach":
+        from ..control.arm import run_arm_episodes
+
+        fn = run_arm_episodes
+    elif name == "point_particle":
+        from ..control.particle import run_episodes as fn
+    else:
+        return {}
+    return {k: p.default for k, p in inspect.signature(fn).parameters.items()
+            if k in ("duration", "dt", "switch_margin") and p.default is not inspect.Parameter.empty}
+
+
 def load_policy(run: str | Path, *, device=None, dtype=None, backend: str | None = None, warm_up: bool = True,
                 **options):
     """A run folder as a :class:`~protorch.control.policy.Policy` (``protorch.load``): the map
@@ -162,7 +176,7 @@ def load_policy(run: str | Path, *, device=None, dtype=None, backend: str | None
                          f"{getattr(task, 'name', '?')!r}")
     if hasattr(task, "to"):
         task.to(model.promp.basis.device)
-    dyn = dict(getattr(exp, "dyn_cfg", {}) or {})
+    dyn = {**_moving_test_defaults(cfg["name"]), **dict(getattr(exp, "dyn_cfg", {}) or {})}
     settings = {"duration": float(dyn.get("duration", 1.0)), "switch_margin": float(dyn.get("switch_margin", 0.0)),
                 "decision_dt": float(dyn.get("dt", 0.01)), **options}
     with torch.no_grad():

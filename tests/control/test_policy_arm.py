@@ -88,8 +88,8 @@ def _example():
 def test_the_1khz_mujoco_loop_tracks_a_continuous_reference_while_the_can_moves(policy):
     pytest.importorskip("mujoco", minversion="4.0", reason="the physics extra is not installed")
     ex = _example()
-    env0 = np.array([0.56, 0.05, 0.71, 0.0])
-    log = ex.control_loop(policy, ex.person(env0, np.array([0.56, -0.07]), 0.3, 0.3), seconds=1.2)
+    env0 = np.array([0.56, 0.06, 0.71, 0.0])  # the can slides across the straight path early in the motion
+    log = ex.control_loop(policy, ex.person(env0, np.array([0.56, -0.08]), 0.15, 0.2), seconds=1.2)
     assert log["q"].shape == (1200, 7) and np.isfinite(log["q"]).all()
     assert set(log["label"].tolist()) == {LEFT, RIGHT}  # the person's move made the arm change sides
     step = np.abs(np.diff(log["q_r"], axis=0)).max()

@@ -123,3 +123,30 @@ def test_load_rebuilds_a_runs_task_and_settings_from_its_folder(tmp_path):
     assert r.q.shape == (7,) and r.label in (LEFT, RIGHT)
     with pytest.raises(ValueError, match=r"env must be \(4,\)"):
         pol.reference(envs[0, :3], 0.5)
+
+
+def test_load_gives_a_point_particle_run_as_a_policy(tmp_path):
+    from protorch.control.episodes import promp_state_at
+    from protorch.experiments import run_experiment
+    from protorch.tasks import PointParticleTask
+
+    cfg = {"name": "point_particle", "seed": 0, "plot": False,
+           "optimizer": {"name": "pro", "beta": 20.0, "max_iter": 5, "num_samples": 20, "relevance_samples": 20},
+           "gp": {"backend": "torch", "alpha": 1e-3, "var_floor": 1e-4},
+           "task": {"_target_": "protorch.tasks.PointParticleTask", "demo_envs": 6},
+           "settings": {"loop": {"num_envs": 10, "batch_size": 10}, "test": {"num_envs": 5},
+                        "dynamic": {"episodes": 2}, "dynamic_paper": {"episodes": 2}, "baselines": [],
+                        "progress": False}}
+    run_experiment(cfg, tmp_path)
+    pol = protorch.load(tmp_path)
+    assert isinstance(pol.task, PointParticleTask) and pol.labels.numel() == 1 and pol.duration == 2.0
+    envs = pol.task.sample_envs(20, torch.Generator().manual_seed(0))
+    for e in envs[:5]:
+        pol.reset()
+        w = pol.env_map.predict_mean(e[None])[0]
+        for t in (0.0, 0.7, 2.5):
+            pos, dpos = promp_state_at(pol.promp, w, min(t / pol.duration, 1.0))
+            r = pol.reference(e, t)
+            torch.testing.assert_close(r.q, pos, rtol=0, atol=1e-12)
+            torch.testing.assert_close(r.qd, dpos / pol.duration if t < pol.duration else 0 * pos, rtol=0, atol=1e-12)
+    check_export(pol, tmp_path, envs, calls=200)

@@ -41,7 +41,7 @@ class TwoWays:
         return torch.rand(n, 2, generator=generator, dtype=dtype)
 
 
-def toy_policy(nearest_k=None, seed=0, **kw) -> Policy:
+def toy_policy(nearest_k=None, seed=0, backend="torch", **kw) -> Policy:
     g = torch.Generator().manual_seed(seed)
     promp = ProMP(2, 10, 50)
     m = 40
@@ -49,13 +49,13 @@ def toy_policy(nearest_k=None, seed=0, **kw) -> Policy:
     MU = torch.randn(m, promp.num_weights, generator=g, dtype=F64)  # (M, N)
     VAR = 10 ** (-3 + torch.rand(m, promp.num_weights, generator=g, dtype=F64))  # (M, N)
     labels = torch.arange(m) % 2
-    env_map = make_env_map("torch", 3.0, nearest_k=nearest_k).fit(E, MU, VAR, labels)
+    env_map = make_env_map(backend, 3.0, nearest_k=nearest_k).fit(E, MU, VAR, labels)
     return Policy(promp, env_map, "two_ways", task=TwoWays(), **{"duration": 2.0, "switch_margin": 0.05, **kw})
 
 
-@pytest.mark.parametrize("nearest_k", [None, 8])
-def test_class_means_equal_the_maps_prediction(nearest_k):
-    pol = toy_policy(nearest_k)
+@pytest.mark.parametrize("nearest_k, backend", [(None, "torch"), (8, "torch"), (8, "gpytorch"), (8, "sparse")])
+def test_class_means_equal_the_maps_prediction(nearest_k, backend):
+    pol = toy_policy(nearest_k, backend=backend)
     envs = torch.rand(20, 2, generator=torch.Generator().manual_seed(1), dtype=F64)
     for e in envs:
         fast = pol.means(e)  # (2, N)

@@ -85,7 +85,7 @@ def continuity(run: str, episodes: int) -> None:
     from omegaconf import OmegaConf
 
     from protorch.control.arm import run_arm_episodes
-    from protorch.experiments.run_folder import rebuild_experiment
+    from protorch.experiments.policy_run import rebuild_experiment
 
     policy = protorch.load(run)
     raw = protorch.load(run, blend=math.inf)  # no offset: the chosen mean itself

@@ -8,6 +8,7 @@ core (:func:`pearson_relevance`, :func:`pro_update`) and the optimisers :class:`
 """
 
 from .control.policy import Policy, Reference
+from .experiments.policy_run import load_policy
 from .data.checkpoint import save_model
 from .data.dataset import TrajectoryDataset
 from .data.files import CheckpointError
@@ -33,9 +34,7 @@ def load(run, *, device=None, dtype=None, backend: str | None = None, warm_up: b
     """A trained run as a :class:`Policy` (an :class:`EnvToProMP` that also gives references for a
     control loop): ``run`` is a run folder (its ``config.yaml`` rebuilds the task through the
     experiment's own builder), its ``checkpoint`` folder or the ``.safetensors`` file (the map
-    alone). See :func:`protorch.experiments.run_folder.load_policy`."""
-    from .experiments.run_folder import load_policy
-
+    alone). See :func:`protorch.experiments.policy_run.load_policy`."""
     return load_policy(run, device=device, dtype=dtype, backend=backend, warm_up=warm_up, **options)
 
 

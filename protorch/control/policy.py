@@ -53,7 +53,7 @@ from ..data.files import atomic_write_bytes
 from ..gp.kernels import rbf
 from ..gp.model import EnvToProMP, label_aware_mean
 from .arm_choice import hysteresis_choice, rest_scores
-from .policy_means import ClassMeans, _basis3
+from .policy_means import ClassMeans, basis3
 
 __all__ = ["Policy", "Reference", "ClassMeans", "DEFAULT_BLEND"]
 
@@ -109,9 +109,9 @@ class Policy(EnvToProMP):
         # the basis and its derivatives at every whole millisecond of the motion (a 1 kHz loop's
         # calls), scaled to time derivatives: (T_ms + 1, 3, K)
         ms = torch.arange(int(math.floor(self.duration * 1000)) + 1, **kw) * 1e-3
-        self._phi_ms = _basis3(self._P, ms / self.duration) * \
+        self._phi_ms = basis3(self._P, ms / self.duration) * \
             torch.tensor([1.0, 1.0 / self.duration, 1.0 / self.duration ** 2], **kw)[:, None]
-        self._phi_end = _basis3(self._P, 1.0)  # (3, K)
+        self._phi_end = basis3(self._P, 1.0)  # (3, K)
         self._phi_end[1:] = 0.0  # held: no velocity, no acceleration
         self._at_jump = self._decay(0.0) if math.isfinite(self.blend) else None  # (3, 2)
         self._scale = torch.tensor([1.0, 1.0 / self.duration, 1.0 / self.duration ** 2], **kw)[:, None]  # (3, 1)
@@ -171,7 +171,7 @@ class Policy(EnvToProMP):
         if not self._arm:
             return task.costs(self._P.trajectory(means), env.expand(means.shape[0], -1)).sum(-1)  # (K,)
         if q is None:  # the arm on each class's own mean now
-            pos = means.unflatten(-1, (self._d, self._kb)) @ _basis3(self._P, z)[0]  # (K, D)
+            pos = means.unflatten(-1, (self._d, self._kb)) @ basis3(self._P, z)[0]  # (K, D)
             ee = task.ee_path(pos)[:, None]  # (K, 1, 3)
         else:
             ee = task.ee_path(q)[None]  # (1, 3)
@@ -244,7 +244,7 @@ class Policy(EnvToProMP):
         i = round(t * 1000.0)
         if abs(t * 1000.0 - i) < 1e-9 and i < self._phi_ms.shape[0] and abs(i * 1e-3 - t) == 0.0:
             return self._phi_ms[i]
-        return _basis3(self._P, t / self.duration) * self._scale
+        return basis3(self._P, t / self.duration) * self._scale
 
     def _decay(self, s: float, rows: int = 3) -> Tensor:
         """The critically damped decay (module docstring, item 4) as a matrix: ``(rows, 2)``
@@ -355,7 +355,7 @@ class _Program(torch.nn.Module):
             c = torch.zeros((), dtype=torch.long)
         elif p._arm:  # rest_scores for every count of the grid's phases still ahead, the right one taken
             task, grid = p.task, self.grid
-            pos = means.unflatten(-1, (p._d, p._kb)) @ _basis3(p._P, z)[0]  # (K, D)
+            pos = means.unflatten(-1, (p._d, p._kb)) @ basis3(p._P, z)[0]  # (K, D)
             ee = task.ee_path(pos)[:, None]  # (K, 1, 3)
             n = grid.shape[0]
             table = torch.stack([rest_scores(task, p._P, means[:, None], env[None], ee, grid[n - r:])[:, 0]
@@ -366,7 +366,7 @@ class _Program(torch.nn.Module):
             scores = p.task.costs(p._P.trajectory(means), env.expand(k, -1)).sum(-1)  # (K,)
             c = torch.argmin(scores)
         w = means[c]  # (N,)
-        phi = _basis3(p._P, z) * p._scale  # (3, K)
+        phi = basis3(p._P, z) * p._scale  # (3, K)
         moving = (z < 1.0).to(torch.float64)
         phi = torch.cat([phi[:1], phi[1:] * moving])  # held at the end: no velocity, no acceleration
         state = phi @ w.unflatten(-1, (p._d, p._kb)).T  # (3, D)

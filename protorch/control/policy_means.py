@@ -1,6 +1,6 @@
 """The per-call pieces of :class:`~protorch.control.policy.Policy`: every class's mean weights at
 one environment (:class:`ClassMeans`, the map's Eq. 7 with cached neighbour-set solves) and the
-ProMP basis with its phase derivatives (:func:`_basis3`)."""
+ProMP basis with its phase derivatives (:func:`basis3`)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from torch import Tensor
 
 from ..gp.kernels import posdef_cholesky, rbf, sq_dist
 
-__all__ = ["ClassMeans"]
+__all__ = ["ClassMeans", "basis3"]
 
 
 class ClassMeans:
@@ -109,7 +109,7 @@ class ClassMeans:
         return self.map.predict_mean(env.expand(lab.numel(), -1), lab).to(torch.float64)
 
 
-def _basis3(promp, z) -> Tensor:
+def basis3(promp, z) -> Tensor:
     """The normalised Gaussian basis and its first two phase derivatives at the phases ``z``
     (a float, a 0-d or a ``(P,)`` tensor): ``(..., 3, K)``
     (:func:`~protorch.control.episodes.basis_derivative_at` for the first; with ``a_k = -(z -

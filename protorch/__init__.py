@@ -7,7 +7,9 @@ core (:func:`pearson_relevance`, :func:`pro_update`) and the optimisers :class:`
 (:func:`self_improve`).
 """
 
-from .data.checkpoint import load, save_model
+from .control.policy import Policy, Reference
+from .experiments.policy_run import load_policy
+from .data.checkpoint import save_model
 from .data.dataset import TrajectoryDataset
 from .data.files import CheckpointError
 from .gp import load_env_map, make_env_map
@@ -27,9 +29,18 @@ from .primitives.promp import ProMP
 
 __version__ = "0.1.0"
 
+
+def load(run, *, device=None, dtype=None, backend: str | None = None, warm_up: bool = True, **options) -> Policy:
+    """A trained run as a :class:`Policy` (an :class:`EnvToProMP` that also gives references for a
+    control loop): ``run`` is a run folder (its ``config.yaml`` rebuilds the task through the
+    experiment's own builder), its ``checkpoint`` folder or the ``.safetensors`` file (the map
+    alone). See :func:`protorch.experiments.policy_run.load_policy`."""
+    return load_policy(run, device=device, dtype=dtype, backend=backend, warm_up=warm_up, **options)
+
+
 __all__ = [
     "ProMP", "PRO", "RWR", "RWPO", "BaseOptimizer", "OptimizeResult",
     "pearson_relevance", "pro_update", "stable_rewards", "TrajectoryDataset", "make_env_map",
-    "load_env_map", "EnvToProMP", "CheckpointError", "load", "save_model", "self_improve", "LoopResult",
+    "load_env_map", "EnvToProMP", "Policy", "Reference", "CheckpointError", "load", "save_model", "self_improve", "LoopResult",
     "demonstration_dataset", "__version__",
 ]

@@ -14,7 +14,7 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
-__all__ = ["ArmClassChoice", "rest_scores", "draw_moves", "apply_moves", "velocity_command_acceleration"]
+__all__ = ["ArmClassChoice", "hysteresis_choice", "rest_scores", "draw_moves", "apply_moves", "velocity_command_acceleration"]
 
 _BRIDGE = torch.linspace(0.0, 1.0, 9, dtype=torch.float64)[:-1]  # (8,) from the arm to a class's path
 
@@ -42,6 +42,16 @@ def rest_scores(task, promp, means: Tensor, env: Tensor, ee_now: Tensor, rest: T
     else:
         path = start[..., None, :]  # (K, E, 1, 3)
     return task.path_costs(path, env.expand(k, n_env, 4), start=start).sum(-1)  # (K, E)
+
+
+def hysteresis_choice(scores: Tensor, current: Tensor | None, switch_margin: float) -> Tensor:
+    """The class each of ``E`` systems tracks, ``scores (K, E)`` -> ``(E,)`` indices into the
+    ``K`` classes: the lowest score, where every class but the ``current (E,)`` one (``None``:
+    none yet) pays ``switch_margin`` (hysteresis: two nearly equal classes would otherwise chatter)."""
+    if current is not None:
+        k = scores.shape[0]
+        scores = scores + switch_margin * (torch.arange(k, device=scores.device)[:, None] != current.to(scores.device))
+    return scores.argmin(0)
 
 
 def draw_moves(num: int, moving: int, moves: Sequence[int], window: tuple[float, float],
@@ -125,8 +135,6 @@ class ArmClassChoice:
         # ---- each class scored on the rest of the motion from where the arm is now
         ee = task.kinematics.ee_position(q.to(self.means))  # (E, 3)
         scores = rest_scores(task, self.promp, self.means, env_t, ee, self.grid[self.grid > z])  # (K, E)
-        if self.current is not None:  # hysteresis: every other class pays the margin
-            scores = scores + self.switch_margin * (torch.arange(k, device=scores.device)[:, None] != self.current)
-        self.current = scores.argmin(0)  # (E,)
+        self.current = hysteresis_choice(scores, self.current, self.switch_margin)  # (E,)
         self.labels[:, t] = self.cand[self.current]
         return self.means[self.current, torch.arange(n_env, device=envs.device)]  # (E, N)

@@ -28,7 +28,7 @@ from .arm_reach import check_robot
 from .common import metric_value, per_method_form, resolve_device, resolve_dtype, write_json
 from .settings import GP, OPTIMIZER_SCHEMAS, SETTINGS_SCHEMAS, TASK_SCHEMAS, SettingsError, validate
 from ..threads import torch_threads
-from .run_folder import STATUS_FILE, check_run_folder, write_status
+from .run_folder import STATUS_FILE, check_run_folder, write_config, write_status
 from .summary import baseline_settings, build_summary
 
 EXPERIMENTS: dict[str, Callable[..., dict]] = {
@@ -214,6 +214,7 @@ def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
         write_status(out_dir, name, "failed", error=error, traceback=traceback.format_exc(), summary=summary)
         raise
     run_info["finished"] = datetime.now(timezone.utc).isoformat(timespec="milliseconds")
+    write_config(out_dir, cfg)  # what protorch.load rebuilds the run's task from (the app wrote it already)
     metrics = {"experiment": name, **metrics, "run": run_info}
     try:
         if objective is not None:

@@ -94,7 +94,8 @@ def skip_reason(cfg: dict) -> str | None:
 
 
 def save_episodes(path: Path, test, dynamic, kin_test: np.ndarray, kin_dynamic: np.ndarray | None, task) -> Path:
-    """Every executed episode into one ``.npz`` (atomic): ``q (E, T+1, J)``, ``q_ref``, ``can``,
+    """Every executed episode into one ``.npz`` (atomic): ``q (E, T+1, J)``, ``qd`` (the measured
+    joint velocities), ``tau`` (the torques applied from each instant on, clipped), ``q_ref``, ``can``,
     ``target (E, T+1, 2)``, ``contact (E, T+1)``, ``labels (E, T+1)`` (the tracked class; -1 for a
     held-out episode), ``success (E,)``, ``moving (E,)``,
     ``kinematic_success (E,)``, one ``failure_<name> (E,)`` per failure, and ``dt``,
@@ -105,7 +106,8 @@ def save_episodes(path: Path, test, dynamic, kin_test: np.ndarray, kin_dynamic: 
     def cat(get):
         return np.concatenate([get(p) for p in parts])
 
-    arrays = {name: cat(lambda p, n=name: getattr(p, n)) for name in ("q", "q_ref", "can", "target", "contact")}
+    arrays = {name: cat(lambda p, n=name: getattr(p, n)) for name in ("q", "qd", "tau", "q_ref", "can", "target",
+                                                                      "contact")}
     labels = [np.full(test.q.shape[:2], -1)] + ([dynamic.labels] if dynamic is not None else [])
     arrays.update(labels=np.concatenate(labels), success=cat(lambda p: p.success), moving=np.concatenate(
         [np.zeros(test.num_episodes, bool)] + ([np.ones(dynamic.num_episodes, bool)] if dynamic is not None else [])),

@@ -15,10 +15,10 @@ import socket
 from datetime import datetime, timezone
 from pathlib import Path
 
-from ..data.files import remove_stale_tmp
+from ..data.files import atomic_write_bytes, remove_stale_tmp
 from .common import write_json
 
-__all__ = ["STATUS_FILE", "check_run_folder", "write_status"]
+__all__ = ["STATUS_FILE", "CONFIG_FILE", "check_run_folder", "write_status", "write_config"]
 
 STATUS_FILE = "status.json"
 
@@ -55,3 +55,21 @@ def write_status(out_dir: str | Path, name: str, status: str, **extra) -> Path:
     write_json(path, {"experiment": name, "status": status, "host": socket.gethostname(), "pid": os.getpid(),
                       "time": datetime.now(timezone.utc).isoformat(timespec="milliseconds"), **extra})
     return path
+
+
+CONFIG_FILE = "config.yaml"
+
+
+def write_config(out_dir: str | Path, cfg: dict) -> Path | None:
+    """``config.yaml``, the run's resolved settings (what :func:`load_policy` rebuilds the task
+    from), atomically, unless the folder has one (the app writes it before the run starts)."""
+    from omegaconf import OmegaConf
+
+    path = Path(out_dir) / CONFIG_FILE
+    if path.is_file():
+        return path
+    try:
+        text = OmegaConf.to_yaml(OmegaConf.create(cfg))
+    except Exception:  # a hand-built config holding objects YAML cannot hold: no config.yaml
+        return None
+    return atomic_write_bytes(path, text.encode())

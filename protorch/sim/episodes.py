@@ -17,7 +17,7 @@ acceleration scaled down where the torque it needs would pass that fraction of t
 integrated like MuJoCo's semi-implicit Euler step; the computed-torque controller (:mod:`protorch.sim.controller`) tracks
 it, its torques clipped to the limits, and the batch of ``E`` simulations steps once.
 
-Per episode: the measured joints, the reference, the can and the target at every instant, MuJoCo's
+Per episode: the measured joints and joint velocities, the torques applied, the reference, the can and the target at every instant, MuJoCo's
 arm-can and arm-table contacts at every physics step (``contact[:, t]``: any in the physics steps
 ending at instant ``t``; at ``t = 0`` the initial state's), the largest ``|tau| / limit`` commanded,
 the RMS of ``q_r - q`` and whether the simulation diverged (MuJoCo raised, warned, or the state
@@ -71,6 +71,8 @@ class PhysicsEpisodes:
     """``E`` physics episodes (module docstring); arrays are numpy."""
 
     q: np.ndarray  # (E, T+1, J) measured joint positions at the control instants
+    qd: np.ndarray  # (E, T+1, J) measured joint velocities at the same instants
+    tau: np.ndarray  # (E, T+1, J) torques applied (clipped) in the physics step from each instant (at T: the last one)
     q_ref: np.ndarray  # (E, T+1, J) the reference at the same instants
     can: np.ndarray  # (E, T+1, 2)
     target: np.ndarray  # (E, T+1, 2)
@@ -188,6 +190,8 @@ class _Recorder:
 
     def __init__(self, num: int, total: int, dof: int) -> None:
         self.q = np.zeros((num, total + 1, dof))
+        self.qd = np.zeros((num, total + 1, dof))
+        self.tau = np.zeros((num, total + 1, dof))
         self.q_ref = np.zeros((num, total + 1, dof))
         self.envs = np.zeros((num, total + 1, 4))
         self.contact = np.zeros((num, total + 1), dtype=bool)
@@ -200,6 +204,7 @@ class _Recorder:
 
     def instant(self, t: int, plant: _Plant, q_r: Tensor, env: np.ndarray) -> None:
         self.q[:, t], self.q_ref[:, t], self.envs[:, t] = plant.qpos, q_r.numpy(), env
+        self.qd[:, t] = plant.qvel
 
     def contacts(self, plant: _Plant, scene, t: int) -> None:
         """MuJoCo's arm-can and arm-table contact counts and depths of every live simulation."""
@@ -232,7 +237,7 @@ class _Recorder:
                               axis=-1)
         labels = getattr(system, "labels", None)
         return PhysicsEpisodes(
-            q=self.q, q_ref=self.q_ref, can=self.envs[..., :2].copy(), target=self.envs[..., 2:].copy(),
+            q=self.q, qd=self.qd, tau=self.tau, q_ref=self.q_ref, can=self.envs[..., :2].copy(), target=self.envs[..., 2:].copy(),
             contact=self.contact, can_contact_steps=self.can_steps, table_contact_steps=self.table_steps,
             deepest=self.deepest, max_torque_ratio=self.ratio, tracking_rms=np.sqrt(self.sq_err / max(self.steps, 1)),
             within_limits=self.within, diverged=~plant.alive, final_goal_distance=goal,
@@ -292,6 +297,8 @@ def run_physics_episodes(scene, ctrl_model, system, promp, timing: Timing, envs:
                 rec.torque(tau, limits, plant.alive)
                 plant.alive &= torch.isfinite(tau).all(-1).numpy()  # a broken command: that simulation stops here
                 plant.ctrl[:] = torch.nan_to_num(torch.maximum(torch.minimum(tau, limits), -limits)).numpy()
+                if s == 0:
+                    rec.tau[:, t] = rec.tau[:, t + 1] = plant.ctrl  # (the last instant keeps the last step's)
                 plant.step()
                 v_r = v_r + a_r * h
                 q_r = q_r + v_r * h

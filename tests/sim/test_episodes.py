@@ -101,3 +101,19 @@ def test_the_control_step_must_be_a_whole_number_of_physics_steps():
     assert substeps(0.02, 0.002) == 10
     with pytest.raises(ValueError, match="whole multiple of the physics timestep"):
         substeps(0.02, 0.003)
+
+
+def test_the_executed_velocities_and_applied_torques_are_recorded(task, reach):
+    promp, w = reach
+    res = _run(task, promp, w, torch.tensor([[0.55, 0.30, 0.70, -0.10]], dtype=torch.float64))
+    from protorch.sim.scene import build_scene as _scene
+
+    limits = _scene(task).torque_limits  # (J,)
+    assert res.qd.shape == res.q.shape and res.tau.shape == res.q.shape
+    assert np.all(np.abs(res.tau) <= limits + 1e-12) and np.abs(res.tau).max() > 1.0  # gravity alone needs torque
+    # the joints move by their recorded velocities: q(t + dt) - q(t) = the velocities' integral, which the
+    # velocities at both ends bracket to second order (dt = 20 ms, smooth motion)
+    dq = res.q[:, 1:] - res.q[:, :-1]  # (E, T, J)
+    trapezoid = 0.5 * (res.qd[:, 1:] + res.qd[:, :-1]) * TIMING.dt
+    assert np.abs(dq - trapezoid).max() < 0.05 * np.abs(dq).max()
+    assert np.abs(res.qd[:, 0]).max() == 0.0  # at rest at the start

@@ -1,0 +1,160 @@
+"""Latency of ``policy.reference`` in a 1 kHz control loop, and the continuity of the reference
+(issue 35).
+
+Latency: ``protorch.load(run, backend=b)`` for each map backend (torch, gpytorch, sparse), then
+10,000 calls of ``policy.reference(env, t, q)`` on one thread at ``t = 0, 1, 2, ... ms`` (a new
+motion, ``reset()``, every ``duration + 1`` s), ``q`` the last reference (the arm tracking it),
+the environment changing at every call. Two motions of the environment:
+
+* ``moving``: a person carries the can and the target (each a smooth random walk at up to 0.2 m/s,
+  kept on the task's sampler region) seen by motion capture with 0.5 mm of noise per call;
+* ``jumping``: a new random environment at every call (the worst case: the map's nearest
+  neighbours change at every call, so each call solves their GP anew).
+
+Printed: median, p99 and max (ms), the first call included (it is the first call after ``load``),
+of the wall-clock time and of the calling thread's CPU time (``time.thread_time``: on a shared
+machine the wall clock also counts the time the thread waited for a core), the share of calls
+that solved a new neighbour set, and the load average. Load and warm-up time is printed apart.
+
+Continuity (``--continuity N``): the run's moving test re-simulated (its own environments and moves,
+:func:`protorch.control.arm.run_arm_episodes`); the policy's class at every instant of every
+episode (given the episode's environment and joints of that instant) compared with the test's;
+then the first ``N`` episodes with a class switch replayed at 1 kHz through ``policy.reference``
+(the environment and joints of the test's instant): the largest change of ``q_r`` and ``qd_r``
+between consecutive calls, against the same with the offset off (``blend=inf``: the chosen mean).
+
+    python benchmarks/control_loop.py RUN_DIR [--calls 10000] [--backends torch,gpytorch,sparse] [--continuity 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import time
+
+import torch
+
+import protorch
+
+
+def _percentile(ts: list[float], q: float) -> float:
+    s = sorted(ts)
+    return s[min(len(s) - 1, int(math.ceil(q * len(s))) - 1)]
+
+
+def environments(policy, calls: int, kind: str, seed: int = 0) -> torch.Tensor:
+    """``(calls, d)`` environments, one per call (module docstring)."""
+    g = torch.Generator().manual_seed(seed)
+    task = policy.task
+    if kind == "jumping":
+        return task.sample_envs(calls, g)
+    lo, hi = task.sample_envs(4096, g).aminmax(dim=0)  # the sampler's box
+    env = task.sample_envs(1, g)[0]
+    vel = torch.zeros_like(env)
+    out = torch.empty(calls, env.numel(), dtype=torch.float64)
+    dt = 1e-3
+    for i in range(calls):
+        vel = (vel + 0.5 * torch.randn(env.shape, generator=g, dtype=torch.float64) * dt ** 0.5 * 4).clamp(-0.2, 0.2)
+        env = env + vel * dt
+        bounce = (env < lo) | (env > hi)
+        vel = torch.where(bounce, -vel, vel)
+        env = torch.minimum(torch.maximum(env, lo), hi)
+        out[i] = env + 5e-4 * torch.randn(env.shape, generator=g, dtype=torch.float64)
+    return out
+
+
+def time_calls(policy, envs: torch.Tensor) -> tuple[list[float], list[float], int]:
+    """Wall-clock and CPU seconds (this thread's: what a call costs when its core is free) of each call."""
+    period = int(round((policy.duration + 1.0) * 1000))
+    ts, cpu, q = [], [], None
+    misses0 = policy.means.misses
+    for i in range(envs.shape[0]):
+        if i % period == 0:
+            policy.reset()
+            q = None
+        c0, t0 = time.thread_time(), time.perf_counter()
+        r = policy.reference(envs[i], (i % period) * 1e-3, q)
+        ts.append(time.perf_counter() - t0)
+        cpu.append(time.thread_time() - c0)
+        q = r.q
+    return ts, cpu, policy.means.misses - misses0
+
+
+def continuity(run: str, episodes: int) -> None:
+    from omegaconf import OmegaConf
+
+    from protorch.control.arm import run_arm_episodes
+    from protorch.experiments.policy_run import rebuild_experiment
+
+    policy = protorch.load(run)
+    raw = protorch.load(run, blend=math.inf)  # no offset: the chosen mean itself
+    cfg = OmegaConf.to_container(OmegaConf.load(f"{run}/config.yaml"), resolve=True)
+    exp = rebuild_experiment(cfg)
+    env0 = exp.sample(exp.episodes, exp.dyn_seed)
+    res = run_arm_episodes(policy, policy.task, env0, generator=torch.Generator().manual_seed(exp.dyn_seed),
+                           **exp.dyn_cfg)
+    # the class at every instant of every episode, the episode's measured joints given
+    mismatched = 0
+    for e in range(res.q.shape[0]):
+        policy.reset()
+        for s in range(res.q.shape[1]):
+            mismatched += policy.reference(res.envs[e, s], s * res.dt, res.q[e, s]).label != int(res.labels[e, s])
+    print(f"moving test of {run}: {res.q.shape[0]} episodes, {int(res.switches.sum())} class switches in "
+          f"{int((res.switches > 0).sum())} episodes, {int(res.moves.sum())} moves; the policy's class differs from "
+          f"the test's at {mismatched} of {res.labels.numel()} instants")
+    # at 1 kHz through the episodes with a switch (the environment and joints of the test's instant)
+    chosen = torch.nonzero(res.switches > 0).flatten()[:episodes].tolist()
+    per = int(round(res.dt * 1000))
+    steps = res.q.shape[1]
+    worst = {"blend": [0.0, 0.0], "mean": [0.0, 0.0]}
+    for e in chosen:
+        for name, pol in (("blend", policy), ("mean", raw)):
+            pol.reset()
+            prev = None
+            for i in range((steps - 1) * per + 1):
+                s = i // per
+                r = pol.reference(res.envs[e, s], i * 1e-3, res.q[e, s])
+                if prev is not None:
+                    worst[name][0] = max(worst[name][0], float((r.q - prev.q).abs().max()))
+                    worst[name][1] = max(worst[name][1], float((r.qd - prev.qd).abs().max()))
+                prev = r
+    print(f"  at 1 kHz over the {len(chosen)} first episodes with a switch:")
+    for name, (dq, dqd) in worst.items():
+        label = "reference (offset, blend 10/s)" if name == "blend" else "chosen mean (no offset)"
+        print(f"  {label:32s} largest change per 1 ms call: q_r {dq:.3g} rad, qd_r {dqd:.3g} rad/s")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("run")
+    ap.add_argument("--calls", type=int, default=10_000)
+    ap.add_argument("--backends", default="torch,gpytorch,sparse")
+    ap.add_argument("--kinds", default="moving,jumping")
+    ap.add_argument("--continuity", type=int, default=0, metavar="EPISODES",
+                    help="also the continuity over this many switching episodes of the moving test")
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    print(f"torch {torch.__version__}, 1 thread, run {args.run}")
+    for backend in args.backends.split(","):
+        t0 = time.perf_counter()
+        policy = protorch.load(args.run, backend=backend)
+        load_s = time.perf_counter() - t0
+        print(f"backend {backend}: map of {policy.env_map.num_points} environments, classes "
+              f"{policy.labels.tolist()}, load + warm-up {load_s:.2f} s")
+        for kind in args.kinds.split(","):
+            envs = environments(policy, args.calls, kind)
+            policy.reset()
+            ts, cpu, misses = time_calls(policy, envs)
+            for what, xs in (("wall", ts), ("cpu", cpu)):
+                ms = [x * 1e3 for x in xs]
+                print(f"  {kind:8s} {what:4s} {len(ms)} calls: median {_percentile(ms, 0.5):.3f} ms, "
+                      f"p99 {_percentile(ms, 0.99):.3f} ms, max {max(ms):.3f} ms, first {ms[0]:.3f} ms")
+            print(f"  {kind:8s} new neighbour sets solved at {misses / len(ts):.1%} of the calls; load average "
+                  f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    if args.continuity:
+        continuity(args.run, args.continuity)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,135 @@
+"""A 1 kHz control loop with a trained arm run (docs/control_loop.md).
+
+    python examples/control_loop.py RUN_DIR [--plot docs/img/control_loop.png]
+
+The plant is the MuJoCo Panda scene of the physics test (:func:`protorch.sim.scene.build_scene`),
+stepped by MuJoCo at 1 ms; at every step the reference comes from ``policy.reference`` for the
+environment seen now and the measured joints, and the torque from the project's computed-torque
+controller (:class:`protorch.sim.controller.ComputedTorque`, its own model of the arm), clipped to
+the Panda's torque limits. A scripted "person" slides the can to another place while the arm moves.
+Needs the physics extra (``pip install "protorch[physics]"``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import torch
+
+import protorch
+from protorch.sim.controller import ComputedTorque
+from protorch.sim.mj import load_mujoco
+from protorch.sim.scene import build_scene, controller_model
+
+
+def person(env0: np.ndarray, can_to: np.ndarray, start: float, seconds: float):
+    """The environment at time ``t``: the can slides in a straight line from where it stands
+    (``env0[:2]``) to ``can_to`` between ``start`` and ``start + seconds``; the target stays."""
+    def env_at(t: float) -> np.ndarray:
+        s = min(max((t - start) / seconds, 0.0), 1.0)
+        env = env0.copy()
+        env[:2] = (1 - s) * env0[:2] + s * can_to
+        return env
+    return env_at
+
+
+def control_loop(policy, env_at, *, seconds: float, timestep: float = 0.001, kp: float = 400.0,
+                 kd: float = 40.0) -> dict:
+    """Run the loop for ``seconds`` (module docstring); ``env_at(t) -> (4,)`` is the environment the
+    motion capture reports at ``t``. Returns numpy arrays per step: ``t``, the measured ``q``, ``qd``,
+    the reference ``q_r``, ``qd_r``, the class ``label``, the applied ``tau``, ``env``, the
+    seconds ``policy.reference`` took; the torque ``limits (J,)``, and ``can_contacts``,
+    ``table_contacts``: the steps with an arm-can, an arm-table contact."""
+    mujoco = load_mujoco()
+    task = policy.task
+    scene = build_scene(task, timestep=timestep)  # the plant
+    model, data = scene.model, mujoco.MjData(scene.model)
+    ctrl = ComputedTorque(controller_model(task, timestep=timestep), 1, kp=kp, kd=kd)  # the controller's own model
+    limits = scene.torque_limits  # (J,)
+    data.qpos[:] = task.start_config().numpy()
+    mujoco.mj_forward(model, data)
+    steps = int(round(seconds / timestep))
+    j = task.num_dof
+    log = {k: np.zeros((steps, j)) for k in ("q", "qd", "q_r", "qd_r", "tau")}
+    log.update(t=np.zeros(steps), label=np.zeros(steps, dtype=np.int64), env=np.zeros((steps, 4)),
+               seconds=np.zeros(steps), can_contacts=0, table_contacts=0, limits=limits)
+    policy.reset()
+    for i in range(steps):
+        t = i * timestep
+        env = env_at(t)
+        data.mocap_pos[scene.can_mocap] = [env[0], env[1], task.can_height / 2]
+        data.mocap_pos[scene.target_mocap] = [env[2], env[3], task.ee_height]
+        q, qd = data.qpos.copy(), data.qvel.copy()  # (J,) measured
+        t0 = time.perf_counter()
+        ref = policy.reference(torch.from_numpy(env), t, torch.from_numpy(q), torch.from_numpy(qd))
+        log["seconds"][i] = time.perf_counter() - t0
+        tau = ctrl.torques(q[None], qd[None], ref.q[None], ref.qd[None], ref.qdd[None])[0].numpy()  # (J,)
+        data.ctrl[:] = np.clip(tau, -limits, limits)
+        mujoco.mj_step(model, data)
+        log["can_contacts"] += int(data.sensordata[scene.can_contact] > 0)
+        log["table_contacts"] += int(data.sensordata[scene.table_contact] > 0)
+        for k, v in (("q", q), ("qd", qd), ("q_r", ref.q.numpy()), ("qd_r", ref.qd.numpy()), ("tau", data.ctrl)):
+            log[k][i] = v
+        log["t"][i], log["label"][i], log["env"][i] = t, ref.label, env
+    return log
+
+
+def plot(log: dict, path: str, title: str = "") -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    j = log["q"].shape[1]
+    fig, axes = plt.subplots(j + 1, 1, figsize=(8, 1.3 * (j + 1) + 0.6), sharex=True)
+    t = log["t"]
+    for k in range(j):
+        ax = axes[k]
+        ax.plot(t, log["q_r"][:, k], color="C0", lw=1.6, label="reference q_r")
+        ax.plot(t, log["q"][:, k], color="C3", lw=0.9, ls="--", label="executed q (MuJoCo)")
+        ax.set_ylabel(f"q{k + 1} (rad)", fontsize=8)
+        ax.tick_params(labelsize=7)
+    axes[0].legend(fontsize=7, loc="upper right", ncol=2)
+    ax = axes[-1]
+    ax.plot(t, log["env"][:, 1], color="C2", lw=1.2, label="can y (m)")
+    ax.step(t, 0.05 * log["label"], color="k", lw=1.0, where="post", label="class x 0.05 (0 left, 1 right)")
+    ax.set_xlabel("time (s)")
+    ax.legend(fontsize=7, loc="upper right")
+    ax.tick_params(labelsize=7)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description="a 1 kHz loop: MuJoCo arm, policy.reference, computed torque")
+    ap.add_argument("run")
+    ap.add_argument("--env", default="0.56,0.03,0.70,-0.05", help="can_x,can_y,goal_x,goal_y at the start")
+    ap.add_argument("--can-to", default="0.56,-0.09", help="where the person slides the can")
+    ap.add_argument("--move-at", type=float, default=0.8, help="s: when the person starts moving the can")
+    ap.add_argument("--move-for", type=float, default=0.4, help="s: how long the slide takes")
+    ap.add_argument("--plot", default=None)
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    policy = protorch.load(args.run)
+    env0 = np.array([float(v) for v in args.env.split(",")])
+    can_to = np.array([float(v) for v in args.can_to.split(",")])
+    log = control_loop(policy, person(env0, can_to, args.move_at, args.move_for), seconds=policy.duration + 1.0)
+    err = np.abs(log["q_r"] - log["q"])
+    goal = policy.task.kinematics.ee_position(torch.from_numpy(log["q"][-1])).numpy()
+    ms = np.sort(log["seconds"]) * 1e3
+    print(f"{len(log['t'])} steps of 1 ms; classes {sorted(set(log['label'].tolist()))}, switches "
+          f"{int((np.diff(log['label']) != 0).sum())}; tracking |q_r - q| max {err.max():.2e} rad; "
+          f"steps with an arm-can contact {log['can_contacts']}, arm-table {log['table_contacts']}; end effector {np.linalg.norm(goal[:2] - env0[2:]) * 1e3:.1f} mm from "
+          f"the target; |tau| / limit max {np.max(np.abs(log['tau']) / log['limits']):.2f}; "
+          f"policy.reference median {ms[len(ms) // 2]:.3f} ms, max {ms[-1]:.3f} ms")
+    if args.plot:
+        plot(log, args.plot, f"{args.run}: the can slides at {args.move_at:g} s")
+
+
+if __name__ == "__main__":
+    main()

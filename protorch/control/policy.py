@@ -1,0 +1,373 @@
+"""A trained run as a policy for a control loop: environment and time -> reference joints.
+
+``policy = protorch.load(run)`` gives a :class:`Policy`; at every tick of a control loop
+``q_r, qd_r, qdd_r, label = policy.reference(env, t, q, qd)`` gives the reference position,
+velocity and acceleration at time ``t`` (seconds since the motion started) for the environment
+measured now. What it computes, per call:
+
+1. **The map's answer for every class** (homotopy label) at ``env``: Eq. 7 of the environment
+   map (:class:`ClassMeans`). With ``nearest_k`` (the arm's 30 nearest known environments of the
+   class) the neighbours are found per call and the solve ``A^-1 (MU - mu0)`` of each neighbour
+   set is cached (computed once per set, float64, with the map's own
+   :func:`~protorch.gp.kernels.posdef_cholesky`), so a call whose neighbours did not change
+   costs one kernel vector and one product for all classes; without ``nearest_k`` (torch
+   backend) the map's own cached solve is used. Other maps are asked through ``predict_mean``.
+2. **The class choice with hysteresis of the moving test** (:mod:`protorch.control.arm_choice`,
+   the same functions): every ``decision_dt`` seconds (the run's ``settings.dynamic.dt``: the
+   moving test decides at its control instants) each class is scored and the current class is kept
+   unless another one is better by more than ``switch_margin``. For the arm the score is
+   :func:`~protorch.control.arm_choice.rest_scores`, the objectives of the rest of the motion
+   from the end effector of ``q`` (the measured joints); with ``q=None`` the arm is taken to be
+   on each class's own mean at ``t``. For a task without an end-effector path (a user's own
+   task) the score is the task's summed objectives of each class's whole mean trajectory (the
+   label-aware inference, :func:`~protorch.gp.model.label_aware_mean`). A map with one class
+   has no choice to make.
+3. **The reference**: the chosen class's mean at the phase ``z = min(t / duration, 1)`` and its
+   exact time derivatives (basis values and derivatives computed in closed form); after
+   ``duration`` the last point is held (velocity and acceleration 0).
+4. **Continuity**: when the class or the environment changes, the mean jumps; the reference
+   does not. The jump of the mean (position and velocity) is added to an offset that decays as a
+   critically damped second-order system at rate ``blend`` (1/s): ``d(t) = (d0 + (v0 + w d0) s)
+   exp(-w s)``, so ``q_r`` and ``qd_r`` are continuous and return to the mean within a few
+   ``1 / blend`` seconds. The first call of a motion with the measured ``q`` starts the
+   reference there the same way (the mean's start and the arm's may differ). At ``duration`` the velocity steps to 0
+   as the mean's does (the hold of the moving test: a mean that ends at rest has no step). At a fixed environment no offset ever arises and the reference is the
+   mean exactly.
+
+:meth:`Policy.reset` starts a new motion (class, offset and time forgotten). ``t`` must not go
+backwards within a motion (a smaller ``t`` than the last is taken as the last).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+import io
+from pathlib import Path
+
+from ..data.files import atomic_write_bytes
+from ..gp.kernels import rbf
+from ..gp.model import EnvToProMP, label_aware_mean
+from .arm_choice import hysteresis_choice, rest_scores
+from .policy_means import ClassMeans, basis3
+
+__all__ = ["Policy", "Reference", "ClassMeans", "DEFAULT_BLEND"]
+
+DEFAULT_BLEND = 10.0  # 1/s, the offset's decay rate (the moving test's velocity-command gain)
+
+
+class Reference(NamedTuple):
+    """What :meth:`Policy.reference` returns (float64, the ProMP's device)."""
+
+    q: Tensor  # (D,) reference position
+    qd: Tensor  # (D,) velocity
+    qdd: Tensor  # (D,) acceleration
+    label: int  # the class tracked (0 for a map with one class)
+
+
+class Policy(EnvToProMP):
+    """A trained run for a control loop (module docstring): an
+    :class:`~protorch.gp.model.EnvToProMP` (``policy(env)``, ``policy.mean_trajectory(env)``)
+    that also knows its task, the motion's duration and the class choice's settings.
+
+    Args:
+        promp, env_map, task_name: the trained map (as :class:`EnvToProMP`).
+        task: the run's task (``None``: only a map with one class can give references).
+        duration: seconds from phase 0 to phase 1 (the run's ``settings.dynamic.duration``).
+        switch_margin: the class choice's hysteresis (summed objectives).
+        decision_dt: seconds between class decisions (the run's control step ``settings.dynamic.dt``).
+        blend: decay rate (1/s) of the offset that keeps the reference continuous (``inf``: no
+            offset, the reference is the chosen mean itself and jumps with it).
+        warm_up: call :meth:`reference` a few times now so that the first real call is not slower.
+    """
+
+    def __init__(self, promp, env_map, task_name: str = "", *, task=None, duration: float = 3.0,
+                 switch_margin: float = 0.0, decision_dt: float = 0.02, blend: float = DEFAULT_BLEND,
+                 warm_up: bool = True, experiment: str = "") -> None:
+        super().__init__(promp, env_map, task_name)
+        for name, v in (("duration", duration), ("decision_dt", decision_dt), ("blend", blend)):
+            if not (isinstance(v, (int, float)) and (math.isfinite(v) or name == "blend") and v > 0):
+                raise ValueError(f"{name} must be a finite number > 0 (blend: or inf), got {v!r}")
+        if not (isinstance(switch_margin, (int, float)) and math.isfinite(switch_margin) and switch_margin >= 0):
+            raise ValueError(f"switch_margin must be a finite number >= 0, got {switch_margin!r}")
+        self.task, self.experiment = task, experiment
+        self.duration, self.switch_margin = float(duration), float(switch_margin)
+        self.decision_dt, self.blend = float(decision_dt), float(blend)
+        self.means = ClassMeans(env_map)
+        self.labels = self.means.labels  # (K,)
+        kw = dict(dtype=torch.float64, device=promp.basis.device)
+        self._P = promp.to(torch.float64) if promp.basis.dtype != torch.float64 else promp
+        self._d, self._kb = promp.num_dof, promp.num_basis
+        arm = task is not None and callable(getattr(task, "ee_path", None)) and callable(getattr(task, "path_costs", None))
+        self._arm = arm
+        if arm:
+            self._grid = self._P.phase[task.cost_indices(promp.num_steps)].to(**kw)  # (P,) the objectives' phases
+        # the basis and its derivatives at every whole millisecond of the motion (a 1 kHz loop's
+        # calls), scaled to time derivatives: (T_ms + 1, 3, K)
+        ms = torch.arange(int(math.floor(self.duration * 1000)) + 1, **kw) * 1e-3
+        self._phi_ms = basis3(self._P, ms / self.duration) * \
+            torch.tensor([1.0, 1.0 / self.duration, 1.0 / self.duration ** 2], **kw)[:, None]
+        self._phi_end = basis3(self._P, 1.0)  # (3, K)
+        self._phi_end[1:] = 0.0  # held: no velocity, no acceleration
+        self._at_jump = self._decay(0.0) if math.isfinite(self.blend) else None  # (3, 2)
+        self._scale = torch.tensor([1.0, 1.0 / self.duration, 1.0 / self.duration ** 2], **kw)[:, None]  # (3, 1)
+        self.reset()
+        if warm_up and (task is not None or self.labels.numel() == 1):
+            self._warm_up()
+
+    # ----------------------------------------------------------------- state
+    def reset(self) -> None:
+        """Start a new motion: no class chosen, no offset, no time."""
+        self.current: int | None = None  # row of self.labels
+        self._slot = -1  # the decision slot of the last decision
+        self._w = None  # (N,) the weights tracked at the last call
+        self._t = 0.0
+        self._off = None  # (2, D) offset and its velocity at self._t
+
+    def _warm_up(self) -> None:
+        gen = torch.Generator().manual_seed(0)
+        sample = getattr(self.task, "sample_envs", None)
+        envs = sample(3, gen) if callable(sample) else self.env_map.E[:3]
+        for e in envs.to(torch.float64):
+            for t in (0.0, 0.5 * self.duration, 2 * self.decision_dt):
+                self.reference(e, t)
+            self.reset()
+
+    # ----------------------------------------------------------------- checks
+    def _joints(self, x, name: str, like: Tensor) -> Tensor | None:
+        if x is None:
+            return None
+        if not isinstance(x, Tensor):
+            x = torch.as_tensor(x, dtype=torch.float64)
+        if x.shape != (self._d,):
+            raise ValueError(f"{name} must be ({self._d},) joint values, got shape {tuple(x.shape)}")
+        x = x.to(like)
+        if not bool(torch.isfinite(x).all()):
+            raise ValueError(f"{name} holds NaN or inf: {x.tolist()}")
+        return x
+
+    def _check(self, env, t, q, qd=None) -> tuple[Tensor, float, Tensor | None, Tensor | None]:
+        d = self.env_dim
+        if not isinstance(env, Tensor):
+            env = torch.as_tensor(env, dtype=torch.float64)
+        if env.shape != (d,):
+            raise ValueError(f"env must be ({d},) for task {self.task_name!r} (env_dim {d}), got shape {tuple(env.shape)}")
+        env = env.to(dtype=torch.float64, device=self._P.basis.device)
+        if not bool(torch.isfinite(env).all()):
+            raise ValueError(f"env holds NaN or inf: {env.tolist()}")
+        t = float(t)
+        if not math.isfinite(t) or t < 0:
+            raise ValueError(f"t must be a finite time >= 0 (seconds since the motion started), got {t!r}")
+        return env, t, self._joints(q, "q", env), self._joints(qd, "qd", env)
+
+    # ----------------------------------------------------------------- the class choice
+    def _scores(self, means: Tensor, env: Tensor, z: float, q: Tensor | None) -> Tensor:
+        """Each class's score ``(K,)`` (module docstring, item 2)."""
+        task = self.task
+        if not self._arm:
+            return task.costs(self._P.trajectory(means), env.expand(means.shape[0], -1)).sum(-1)  # (K,)
+        if q is None:  # the arm on each class's own mean now
+            pos = means.unflatten(-1, (self._d, self._kb)) @ basis3(self._P, z)[0]  # (K, D)
+            ee = task.ee_path(pos)[:, None]  # (K, 1, 3)
+        else:
+            ee = task.ee_path(q)[None]  # (1, 3)
+        rest = self._grid[self._grid > z]  # (P',)
+        return rest_scores(task, self._P, means[:, None], env[None], ee, rest)[:, 0]  # (K,)
+
+    def choose(self, env: Tensor, t: float, q: Tensor | None = None) -> tuple[int, Tensor]:
+        """The class row (into :attr:`labels`) tracked at ``t`` and its mean weights ``(N,)``:
+        a decision (every class asked, scored, hysteresis) at the first call and whenever ``t``
+        enters a new ``decision_dt`` slot; between decisions only the current class is asked."""
+        z = min(t / self.duration, 1.0)
+        if self.labels.numel() == 1:
+            self.current = 0
+            return 0, self.means(env)[0]
+        if self.task is None:
+            raise ValueError(f"this map has the classes {self.labels.tolist()}: choosing one needs the run's task "
+                             "(protorch.load(run_dir) of a run folder with its config.yaml)")
+        slot = int(math.floor(t / self.decision_dt + 1e-9))
+        if self.current is not None and slot <= self._slot:
+            return self.current, self.means(env, [self.current])[0]
+        means = self.means(env)  # (K, N)
+        scores = self._scores(means, env, z, q)[:, None]  # (K, 1)
+        cur = None if self.current is None else torch.tensor([self.current])
+        self.current = int(hysteresis_choice(scores, cur, self.switch_margin)[0])
+        self._slot = slot
+        return self.current, means[self.current]
+
+    # ----------------------------------------------------------------- the reference
+    def reference(self, env, t, q=None, qd=None) -> Reference:
+        """The reference at time ``t`` for the environment ``env`` (module docstring).
+
+        Args:
+            env: ``(env_dim,)`` the environment measured now (float64 is used).
+            t: seconds since the motion started (:meth:`reset`), ``>= 0``; past ``duration`` the
+                last point of the mean is held (velocity and acceleration 0).
+            q: ``(D,)`` the measured joints (the arm's class choice scores the rest of the motion
+                from their end effector, as the moving test); ``None``: the arm is taken to be on
+                each class's mean.
+            qd: ``(D,)`` the measured joint velocities (or ``None``: 0). At the first call of a
+                motion with ``q`` given the reference starts at ``q, qd`` (the gap to the mean
+                decays as the continuity offset does).
+        Returns:
+            :class:`Reference` ``(q, qd, qdd (D,), label)``.
+        """
+        env, t, q, qd = self._check(env, t, q, qd)
+        t = max(t, self._t)
+        with torch.no_grad():
+            c, w = self.choose(env, t, q)
+            z = min(t / self.duration, 1.0)
+            phi = self._phi_end if z >= 1.0 else self._phi_at(t)  # (3, K) d/dt = d/dz / duration
+            state = phi @ w.unflatten(-1, (self._d, self._kb)).T  # (3, D) position, velocity, acceleration
+            off = None
+            if self._off is not None:  # the offset decays from the last call to now
+                off = self._decay(t - self._t, 2) @ self._off  # (2, D)
+            if self._w is not None and self.blend < math.inf and not torch.equal(w, self._w):  # the mean jumped: the offset absorbs it
+                jump = phi[:2] @ self._w.unflatten(-1, (self._d, self._kb)).T - state[:2]  # (2, D)
+                off = jump if off is None else off + jump
+            if self._w is None and q is not None and self.blend < math.inf:  # start where the arm is
+                v = torch.zeros_like(q) if qd is None else qd
+                off = torch.stack([q - state[0], v - state[1]])  # (2, D)
+            if off is not None:
+                self._off = off
+                state = state + self._at_jump @ off  # (3, D) the offset now and its acceleration
+            self._w, self._t = w, t
+        return Reference(state[0], state[1], state[2], int(self.labels[c]))
+
+    def _phi_at(self, t: float) -> Tensor:
+        """The basis and its time derivatives at ``t < duration``: ``(3, K)`` (from the table at
+        a whole millisecond)."""
+        i = round(t * 1000.0)
+        if abs(t * 1000.0 - i) < 1e-9 and i < self._phi_ms.shape[0] and abs(i * 1e-3 - t) == 0.0:
+            return self._phi_ms[i]
+        return basis3(self._P, t / self.duration) * self._scale
+
+    def _decay(self, s: float, rows: int = 3) -> Tensor:
+        """The critically damped decay (module docstring, item 4) as a matrix: ``(rows, 2)``
+        maps an offset ``(d0, v0) (2, D)`` to its position, velocity (and acceleration) ``s``
+        seconds later."""
+        w = self.blend
+        e = math.exp(-w * s)
+        m = [[(1 + w * s) * e, s * e], [-w * w * s * e, (1 - w * s) * e],
+             [(-w * w + w ** 3 * s) * e, (-2 * w + w * w * s) * e]]
+        return torch.tensor(m[:rows], dtype=torch.float64, device=self._P.basis.device)
+
+    # ----------------------------------------------------------------- out of Python
+    def export(self, path) -> "Path":
+        """Write the per-call computation as a ``torch.export`` program (``.pt2``) that runs
+        without protorch: ``torch.export.load(path).module()(env, t)`` with ``env`` a float64
+        ``(env_dim,)`` tensor and ``t`` a float64 0-d tensor returns ``(q, qd, qdd (D,), label
+        (0-d int64))``, what :meth:`reference` returns right after :meth:`reset` with ``q=None``:
+        the class is chosen afresh at every call (the hysteresis, which needs the last class, and
+        the continuity offset, which needs the last call, stay with the caller). Inside: the map's
+        data (with ``nearest_k``: each call finds the neighbours and solves, as the map does,
+        without the jitter retry of a factor that fails), the ProMP's basis and, for the arm, the
+        objectives of the rest of the motion for every phase slot of the objectives' grid. Inputs
+        are not checked by the program. Written atomically."""
+        if self.labels.numel() > 1 and self.task is None:
+            raise ValueError("this map has several classes: exporting the class choice needs the run's task")
+        program = _Program(self)
+        env = self.env_map.E[0].to(torch.float64)
+        args = (env, torch.tensor(0.5 * self.duration, dtype=torch.float64))
+        try:
+            ep = torch.export.export(program, args, strict=False)
+        except Exception as exc:
+            raise RuntimeError(f"torch.export could not trace this policy ({type(exc).__name__}: "
+                               f"{str(exc).splitlines()[0] if str(exc) else ''}); a task's costs must be traceable "
+                               "(no Python branches on tensor values)") from exc
+        buf = io.BytesIO()
+        torch.export.save(ep, buf)
+        return atomic_write_bytes(Path(path), buf.getvalue())
+
+    # ----------------------------------------------------------------- whole trajectories
+    def mean_trajectory(self, env: Tensor, labels=None) -> Tensor:
+        """``(B, d)`` -> mean trajectories ``(B, T, D)``; with several classes and ``labels=None``
+        each environment's class is chosen by the label-aware inference (the held-out test's:
+        the lowest summed objectives of the whole mean trajectory)."""
+        if labels is None and self.labels.numel() > 1:
+            if self.task is None:
+                raise ValueError(f"the data has several labels {self.labels.tolist()}: pass labels=, or load the "
+                                 "run folder (with its config.yaml) so that the class is chosen by its task")
+            best = label_aware_mean(self.env_map, self.promp, self.task, env, dtype=self.promp.basis.dtype)
+            return self.promp.trajectory(best.mean)
+        return super().mean_trajectory(env, labels)
+
+    def extra_repr(self) -> str:
+        return (f"{super().extra_repr()}, experiment={self.experiment!r}, classes={self.labels.tolist()}, "
+                f"duration={self.duration:g}, switch_margin={self.switch_margin:g}, decision_dt={self.decision_dt:g}")
+
+
+class _Program(torch.nn.Module):
+    """:meth:`Policy.export`'s computation, ``(env (d,), t ()) -> (q, qd, qdd (D,), label ())``,
+    written with static shapes only (``torch.export``)."""
+
+    def __init__(self, policy: Policy) -> None:
+        super().__init__()
+        self.p = policy
+        m = policy.means
+        self.mode = m.mode
+        kw = dict(dtype=torch.float64)
+        self.register_buffer("labels", policy.labels.clone())
+        if m.mode == "nearest":
+            for c in range(len(m.E)):
+                self.register_buffer(f"E{c}", m.E[c].clone())
+                self.register_buffer(f"MU{c}", m.MU[c].clone())
+                self.register_buffer(f"VAR{c}", m.VAR[c].clone())
+        elif m.mode == "exact":
+            self.register_buffer("E_all", m.E_all.clone())
+            self.register_buffer("coef", m.coef.clone())
+            self.register_buffer("mu0", m.mu0.clone())
+            self.register_buffer("mask", m.mask.clone())
+        else:
+            raise ValueError(f"export supports maps with nearest_k or the torch backend, not {policy.env_map.backend!r} "
+                             "without nearest_k")
+        if policy._arm:
+            self.register_buffer("grid", policy._grid.clone().to(**kw))  # (P,)
+
+    def _means(self, env: Tensor) -> Tensor:
+        m, out = self.p.means, []
+        if self.mode == "exact":
+            kq = rbf(env[None], self.E_all, m.alpha)  # (1, M)
+            return self.mu0 + (self.mask * kq) @ self.coef  # (K, N)
+        for c in range(len(m.E)):
+            E, MU, VAR, k = getattr(self, f"E{c}"), getattr(self, f"MU{c}"), getattr(self, f"VAR{c}"), m.k[c]
+            d2 = (torch.cdist(env[None], E, compute_mode="donot_use_mm_for_euclid_dist") ** 2)[0]  # (Mg,) as sq_dist
+            idx = torch.sort(d2, stable=True).indices[:k]  # (k,) ties by insertion order, as the map
+            Es, MUs, VARs = E[idx], MU[idx], VAR[idx]  # (k, d), (k, N), (k, N)
+            A = rbf(Es, Es, m.alpha)[None].expand(MU.shape[1], k, k) + torch.diag_embed(VARs.T)  # (N, k, k)
+            L = torch.linalg.cholesky(A)  # (N, k, k)
+            mu0 = MUs.mean(0)  # (N,)
+            coef = torch.cholesky_solve((MUs - mu0).T[..., None], L)[..., 0]  # (N, k)
+            kq = rbf(env[None], Es, m.alpha)[0]  # (k,)
+            out.append(mu0 + coef @ kq)  # (N,)
+        return torch.stack(out)  # (K, N)
+
+    def forward(self, env: Tensor, t: Tensor):
+        p = self.p
+        z = torch.clamp(t / p.duration, max=1.0)  # ()
+        means = self._means(env)  # (K, N)
+        k = means.shape[0]
+        if k == 1:
+            c = torch.zeros((), dtype=torch.long)
+        elif p._arm:  # rest_scores for every count of the grid's phases still ahead, the right one taken
+            task, grid = p.task, self.grid
+            pos = means.unflatten(-1, (p._d, p._kb)) @ basis3(p._P, z)[0]  # (K, D)
+            ee = task.ee_path(pos)[:, None]  # (K, 1, 3)
+            n = grid.shape[0]
+            table = torch.stack([rest_scores(task, p._P, means[:, None], env[None], ee, grid[n - r:])[:, 0]
+                                 for r in range(n + 1)])  # (P + 1, K) scores with the last r phases ahead
+            ahead = (grid > z).sum()  # ()
+            c = torch.argmin(table[ahead])
+        else:
+            scores = p.task.costs(p._P.trajectory(means), env.expand(k, -1)).sum(-1)  # (K,)
+            c = torch.argmin(scores)
+        w = means[c]  # (N,)
+        phi = basis3(p._P, z) * p._scale  # (3, K)
+        moving = (z < 1.0).to(torch.float64)
+        phi = torch.cat([phi[:1], phi[1:] * moving])  # held at the end: no velocity, no acceleration
+        state = phi @ w.unflatten(-1, (p._d, p._kb)).T  # (3, D)
+        return state[0], state[1], state[2], self.labels[c]

@@ -1,0 +1,152 @@
+"""The policy on the arm: it reproduces the moving test's class choice at every instant of its
+episodes, its exported program equals it without protorch, a 1 kHz MuJoCo loop driven by it
+tracks a continuous reference while the can is moved, and protorch.load rebuilds a real run's
+task and settings from its folder."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import protorch
+from protorch.control.arm import run_arm_episodes
+from protorch.control.policy import Policy
+from protorch.gp import make_env_map
+from protorch.tasks.arm.reach import LEFT, RIGHT, ArmReachTask
+
+from .test_policy import check_export
+
+F64 = torch.float64
+ROOT = Path(__file__).resolve().parents[2]
+pytestmark = pytest.mark.slow  # IK demonstrations and an arm map: ~20 s of CPU
+
+
+@pytest.fixture(scope="module")
+def policy():
+    """A two-class arm map from IK demonstrations on both sides of cans near the straight line."""
+    from protorch import ProMP
+    from protorch.loop import demonstration_dataset
+
+    task = ArmReachTask(cost_steps=6)
+    g = torch.Generator().manual_seed(0)
+    envs = torch.tensor([[0.53, 0.02, 0.70, 0.0], [0.56, -0.02, 0.74, 0.03], [0.59, 0.0, 0.72, -0.03],
+                         [0.55, 0.05, 0.68, 0.05], [0.58, -0.05, 0.71, -0.06]], dtype=F64)
+    n = envs.shape[0]
+    dl, el, ll = task.demonstrations(envs, 2, g, sides=torch.full((n,), LEFT), lengths=(30, 30))
+    dr, er, lr = task.demonstrations(envs, 2, g, sides=torch.full((n,), RIGHT), lengths=(30, 30))
+    promp = ProMP(7, 10, 50)
+    ds = demonstration_dataset(promp, dl + dr, torch.cat([el, er]), labels=torch.cat([ll, lr]), var_floor=1e-3)
+    env_map = make_env_map("torch", 30.0, nearest_k=4).fit(ds.env, ds.mean, ds.var, ds.label)
+    return Policy(promp, env_map, task.name, task=task, duration=1.5, switch_margin=0.02, decision_dt=0.02)
+
+
+def walks(m: int) -> torch.Tensor:
+    """Episodes whose can crosses the straight line at different instants: ``(E, m + 1, 4)``."""
+    out = []
+    for k, (y0, y1) in enumerate([(0.06, -0.06), (-0.06, 0.06), (0.04, -0.08), (0.0, 0.0)]):
+        s = torch.linspace(0, 1, m + 1, dtype=F64).clamp(0.2 + 0.1 * k, 0.5 + 0.1 * k)
+        s = (s - s.min()) / max(float(s.max() - s.min()), 1e-9)
+        y = y0 + (y1 - y0) * s
+        out.append(torch.stack([torch.full_like(y, 0.56), y, torch.full_like(y, 0.71), torch.zeros_like(y)], -1))
+    return torch.stack(out)
+
+
+def test_the_policy_reproduces_the_moving_tests_class_switches(policy):
+    task = policy.task
+    m = int(round(policy.duration / 0.02))
+    runs = [run_arm_episodes(policy, task, walk=walks(m), duration=policy.duration, hold=0.3, dt=0.02,
+                             switch_margin=policy.switch_margin),
+            run_arm_episodes(policy, task, task.sample_envs(6, torch.Generator().manual_seed(1)),
+                             duration=policy.duration, hold=0.3, dt=0.02, switch_margin=policy.switch_margin,
+                             generator=torch.Generator().manual_seed(2))]
+    switches = 0
+    for res in runs:
+        switches += int(res.switches.sum())
+        for e in range(res.q.shape[0]):
+            policy.reset()
+            got = [policy.reference(res.envs[e, i], i * res.dt, res.q[e, i]).label for i in range(res.q.shape[1])]
+            assert got == res.labels[e].tolist(), e
+    assert switches >= 1  # the episodes do switch classes
+
+
+def test_the_exported_arm_program_runs_without_protorch_and_equals_reference(policy, tmp_path):
+    envs = policy.task.sample_envs(200, torch.Generator().manual_seed(3))
+    check_export(policy, tmp_path, envs, calls=1000)
+
+
+def _example():
+    spec = importlib.util.spec_from_file_location("control_loop_example", ROOT / "examples" / "control_loop.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_the_1khz_mujoco_loop_tracks_a_continuous_reference_while_the_can_moves(policy):
+    pytest.importorskip("mujoco", minversion="4.0", reason="the physics extra is not installed")
+    ex = _example()
+    env0 = np.array([0.56, 0.06, 0.71, 0.0])  # the can slides across the straight path early in the motion
+    log = ex.control_loop(policy, ex.person(env0, np.array([0.56, -0.08]), 0.15, 0.2), seconds=1.2)
+    assert log["q"].shape == (1200, 7) and np.isfinite(log["q"]).all()
+    assert set(log["label"].tolist()) == {LEFT, RIGHT}  # the person's move made the arm change sides
+    step = np.abs(np.diff(log["q_r"], axis=0)).max()
+    speed = np.abs(log["qd_r"]).max()
+    assert step <= 1.01 * speed * 1e-3 + 1e-12  # no jump: the reference moves by its own velocity
+    # the reference starts at the measured joints and the computed-torque controller keeps the arm on it
+    assert np.abs(log["q_r"][0] - log["q"][0]).max() < 1e-12
+    assert np.abs(log["q_r"] - log["q"]).max() < 5e-3
+    assert (np.abs(log["tau"]) <= log["limits"] + 1e-12).all()
+
+
+def test_load_rebuilds_a_runs_task_and_settings_from_its_folder(tmp_path):
+    from protorch.experiments import run_experiment
+
+    cfg = {"name": "arm_reach", "seed": 0, "plot": False,
+           "optimizer": {"name": "pro", "beta": 200.0, "max_iter": 3, "num_samples": 20, "relevance_samples": 20},
+           "gp": {"backend": "torch", "alpha": 30.0, "var_floor": 1e-3, "nearest_k": 30},
+           "task": {"_target_": "protorch.tasks.ArmReachTask", "priors": 50, "demo_envs": 4, "cost_steps": 10},
+           "settings": {"loop": {"num_envs": 10, "batch_size": 10}, "test": {"num_envs": 5},
+                        "dynamic": {"episodes": 2, "duration": 2.5, "switch_margin": 0.03},
+                        "physics": {"run": "never"}, "baselines": [], "progress": False}}
+    run_experiment(cfg, tmp_path)
+    assert (tmp_path / "config.yaml").is_file()
+    pol = protorch.load(tmp_path)
+    assert isinstance(pol.task, ArmReachTask) and pol.task.cost_steps == 10
+    assert (pol.duration, pol.switch_margin, pol.decision_dt) == (2.5, 0.03, 0.02)
+    assert pol.labels.tolist() == [LEFT, RIGHT]
+    envs = pol.task.sample_envs(3, torch.Generator().manual_seed(0))
+    assert pol.mean_trajectory(envs).shape == (3, 100, 7)  # the class chosen, no labels= needed
+    r = pol.reference(envs[0], 0.5)
+    assert r.q.shape == (7,) and r.label in (LEFT, RIGHT)
+    with pytest.raises(ValueError, match=r"env must be \(4,\)"):
+        pol.reference(envs[0, :3], 0.5)
+
+
+def test_load_gives_a_point_particle_run_as_a_policy(tmp_path):
+    from protorch.control.episodes import promp_state_at
+    from protorch.experiments import run_experiment
+    from protorch.tasks import PointParticleTask
+
+    cfg = {"name": "point_particle", "seed": 0, "plot": False,
+           "optimizer": {"name": "pro", "beta": 20.0, "max_iter": 5, "num_samples": 20, "relevance_samples": 20},
+           "gp": {"backend": "torch", "alpha": 1e-3, "var_floor": 1e-4},
+           "task": {"_target_": "protorch.tasks.PointParticleTask", "demo_envs": 6},
+           "settings": {"loop": {"num_envs": 10, "batch_size": 10}, "test": {"num_envs": 5},
+                        "dynamic": {"episodes": 2}, "dynamic_paper": {"episodes": 2}, "baselines": [],
+                        "progress": False}}
+    run_experiment(cfg, tmp_path)
+    pol = protorch.load(tmp_path)
+    assert isinstance(pol.task, PointParticleTask) and pol.labels.numel() == 1 and pol.duration == 2.0
+    envs = pol.task.sample_envs(20, torch.Generator().manual_seed(0))
+    for e in envs[:5]:
+        pol.reset()
+        w = pol.env_map.predict_mean(e[None])[0]
+        for t in (0.0, 0.7, 2.5):
+            pos, dpos = promp_state_at(pol.promp, w, min(t / pol.duration, 1.0))
+            r = pol.reference(e, t)
+            torch.testing.assert_close(r.q, pos, rtol=0, atol=1e-12)
+            torch.testing.assert_close(r.qd, dpos / pol.duration if t < pol.duration else 0 * pos, rtol=0, atol=1e-12)
+    check_export(pol, tmp_path, envs, calls=200)

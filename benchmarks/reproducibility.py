@@ -12,6 +12,10 @@ how many entries differ from the first variant's and the first few of them.
 and a solve of 30 to 1,000 environments in float64, 1 thread), alternating the two in fresh
 processes, 3 rounds.
 
+``--fingerprint`` prints every entry of the first variant and one digest of them all: run
+``python benchmarks/reproducibility.py --ops --fingerprint --variants t=1,MKL_CBWR=COMPATIBLE``
+on two machines and compare (docs/reproducibility.md lists this one's).
+
 ``--ops`` instead prints which single operations (random draws, matmul, reductions,
 transcendental functions, Cholesky and solves, the arm's costs) give other bits under each
 variant than under the first: the depth at which a difference starts (docs/reproducibility.md).
@@ -107,6 +111,8 @@ def main() -> None:
     ap.add_argument("--variants", nargs="+", default=VARIANTS)
     ap.add_argument("--ops", action="store_true", help="single operations instead of runs")
     ap.add_argument("--speed", action="store_true", help="MKL_CBWR=AVX2 against MKL's own choice, timed")
+    ap.add_argument("--fingerprint", action="store_true", help="print every entry of the first variant and one "
+                    "digest of them all, to compare with another machine's (docs/reproducibility.md)")
     ap.add_argument("--ops-here", type=int, help=argparse.SUPPRESS)  # the child processes
     ap.add_argument("--speed-here", type=int, help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -132,6 +138,11 @@ def main() -> None:
         if base is None:
             base = res
             print(f"{variant}: {len(res)} entries (the reference)")
+            if args.fingerprint:
+                for k, v in res.items():
+                    print(f"    {k}: {v}")
+                digest = hashlib.sha256(json.dumps(res, sort_keys=True).encode()).hexdigest()[:16]
+                print(f"fingerprint of {', '.join(what)} at {variant}: {digest}")
             continue
         diff = [k for k in base if res.get(k) != base[k]]
         print(f"{variant}: {len(diff)} of {len(base)} differ from {first}" + (": " if diff else ""))

@@ -8,9 +8,13 @@ by CPU). A run is a small ``arm_reach`` / ``point_particle`` (``tests/small_runs
 metric but the timings, and a hash of each loop's data set, bit for bit. It prints, per variant,
 how many entries differ from the first variant's and the first few of them.
 
-``--speed`` times MKL's pinned AVX2 branch against its own choice on the GP map's work (Cholesky
-and a solve of 30 to 1,000 environments in float64, 1 thread), alternating the two in fresh
-processes, 3 rounds.
+``--speed`` times MKL's own choice, its AVX2 branch and its SSE2 branch (``COMPATIBLE``) on the
+GP map's work (Cholesky, a solve and a product at 30 to 1,000 environments in float64, 1
+thread), alternating the three in fresh processes, 3 rounds.
+
+``--fingerprint`` prints every entry of the first variant and one digest of them all: run
+``python benchmarks/reproducibility.py --ops --fingerprint --variants t=1,MKL_CBWR=COMPATIBLE``
+on two machines and compare (docs/reproducibility.md lists this one's).
 
 ``--ops`` instead prints which single operations (random draws, matmul, reductions,
 transcendental functions, Cholesky and solves, the arm's costs) give other bits under each
@@ -65,7 +69,7 @@ def _ops() -> dict:
 
 
 def _speed() -> dict:
-    """CPU seconds of Cholesky + solve at each size (this process's MKL setting)."""
+    """CPU seconds of Cholesky + solve + a product at each size (this process's MKL setting)."""
     import time
 
     import torch
@@ -75,9 +79,11 @@ def _speed() -> dict:
         a = torch.randn(m, m, generator=g, dtype=torch.float64)
         a = a @ a.T + m * torch.eye(m, dtype=torch.float64)  # (m, m)
         b = torch.randn(m, 70, generator=g, dtype=torch.float64)  # (m, N)
+        c = torch.randn(m, 100, generator=g, dtype=torch.float64)  # (m, 100)
         t = time.process_time()
         for _ in range(max(1, 3000 // m)):
             torch.cholesky_solve(b, torch.linalg.cholesky(a))
+            a @ c
         out[str(m)] = time.process_time() - t
     return out
 
@@ -107,6 +113,8 @@ def main() -> None:
     ap.add_argument("--variants", nargs="+", default=VARIANTS)
     ap.add_argument("--ops", action="store_true", help="single operations instead of runs")
     ap.add_argument("--speed", action="store_true", help="MKL_CBWR=AVX2 against MKL's own choice, timed")
+    ap.add_argument("--fingerprint", action="store_true", help="print every entry of the first variant and one "
+                    "digest of them all, to compare with another machine's (docs/reproducibility.md)")
     ap.add_argument("--ops-here", type=int, help=argparse.SUPPRESS)  # the child processes
     ap.add_argument("--speed-here", type=int, help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -122,8 +130,10 @@ def main() -> None:
     if args.speed:
         for r in range(3):
             own, pinned = _run("t=1", ["speed"]), _run("t=1,MKL_CBWR=AVX2", ["speed"])
-            print(f"round {r + 1}: MKL_CBWR=AVX2 / MKL's own choice, CPU time of Cholesky + solve: "
-                  + ", ".join(f"{k.split(': ')[1]} envs {pinned[k] / own[k]:.2f}x" for k in own))
+            compatible = _run("t=1,MKL_CBWR=COMPATIBLE", ["speed"])
+            print(f"round {r + 1}: CPU time of Cholesky + solve + product (s), MKL's own / AVX2 / COMPATIBLE: "
+                  + ", ".join(f"{k.split(': ')[1]} envs {own[k]:.3f} / {pinned[k]:.3f} / {compatible[k]:.3f} "
+                              f"(COMPATIBLE / AVX2 {compatible[k] / pinned[k]:.2f}x)" for k in own))
         return
     what = ["ops"] if args.ops else args.experiments
     first, base = args.variants[0], None
@@ -132,6 +142,11 @@ def main() -> None:
         if base is None:
             base = res
             print(f"{variant}: {len(res)} entries (the reference)")
+            if args.fingerprint:
+                for k, v in res.items():
+                    print(f"    {k}: {v}")
+                digest = hashlib.sha256(json.dumps(res, sort_keys=True).encode()).hexdigest()[:16]
+                print(f"fingerprint of {', '.join(what)} at {variant}: {digest}")
             continue
         diff = [k for k in base if res.get(k) != base[k]]
         print(f"{variant}: {len(diff)} of {len(base)} differ from {first}" + (": " if diff else ""))

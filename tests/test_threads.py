@@ -108,3 +108,50 @@ def test_the_core_budget_and_the_threads_beside_workers():
     with torch_threads("auto"):
         assert core_budget() == available_cores() and beside_workers(1) == "auto"  # auto measures the workers
     assert core_budget() == available_cores()  # no setting: the available cores
+
+
+_PHYSICS_RUN = """
+import hashlib, json, sys
+from protorch.app.main import pin_mkl_code_path
+pin_mkl_code_path()  # the app's MKL code path, before MKL's first call
+import torch
+from protorch.control.episodes import check_timing
+from protorch.primitives.promp import ProMP
+from protorch.robots.panda import PANDA_MAX_ACCELERATION
+from protorch.sim.episodes import FixedMeans, run_physics_episodes
+from protorch.sim.scene import build_scene, controller_model
+from protorch.tasks import ArmReachTask
+
+task, promp = ArmReachTask(collision="volume"), ProMP(7, num_basis=10, num_steps=100, dtype=torch.float64)
+env = torch.tensor([[0.55, 0.30, 0.70, -0.10]], dtype=torch.float64)
+q, _ = task.ik_path(task.straight_paths(env, 100))
+E = int(sys.argv[1])
+w = promp.weights(q) + 1e-3 * torch.randn(E, 70, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+timing = check_timing(0.02, 0.2, 0.0)
+out = {}
+for threads in (1, 2):
+    torch.set_num_threads(threads)  # as the app's threads= does
+    res = run_physics_episodes(build_scene(task), controller_model(task), FixedMeans(w), promp, timing,
+                               env.expand(E, timing.total + 1, -1), kp=400.0, kd=40.0, ref_kp=10.0,
+                               max_acceleration=PANDA_MAX_ACCELERATION, threads=threads, feasible=0.9)
+    out[threads] = {k: hashlib.sha256(getattr(res, k).tobytes()).hexdigest()[:16]
+                    for k in ("q", "q_ref", "max_torque_ratio", "tracking_rms", "deepest", "final_goal_distance")}
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.slow
+def test_the_physics_episodes_are_the_same_at_one_and_two_threads():
+    """120 MuJoCo episodes (enough for MKL to split the markers' product differently on two threads
+    under the app's code path) at threads=1 and threads=2 in one process: every array bit for bit."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    pytest.importorskip("mujoco", minversion="4.0", reason="the physics extra is not installed")
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.run([sys.executable, "-c", _PHYSICS_RUN, "120"], cwd=root, capture_output=True, text=True,
+                          check=True)
+    runs = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert runs["1"] == runs["2"]

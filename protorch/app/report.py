@@ -9,7 +9,9 @@ to dotted keys (``test.success_rate``). :func:`write_report` writes, atomically,
 - ``report.csv``: one row per run, every swept and fixed parameter and every scalar metric;
 - ``report.md``: the same rows with the headline columns (objective, success, time);
 - ``report.png``: each success and time metric against each swept parameter (one line per value
-  of the other swept parameters when there are few, else a scatter).
+  of the other swept parameters when there are few, else a scatter);
+- ``spread.md`` (``--spread``): mean and range over the swept seeds of each headline number
+  (:mod:`protorch.app.spread`).
 
 Runs without ``metrics.json`` (failed, killed or still running) keep their row with the status
 ``no metrics.json``. No Hydra import: the YAML files are read with OmegaConf
@@ -29,6 +31,7 @@ from typing import Sequence
 from ..data.files import atomic_write_bytes
 from ..viz.paper import save_figure
 from .report_plot import plot_sweep
+from .spread import spread_markdown
 from .sweep import (
     METRICS_FILE,
     MISSING,
@@ -41,11 +44,12 @@ from .sweep import (
 )
 
 __all__ = [
-    "METRICS_FILE", "MISSING", "OK", "OUTPUTS", "OVERRIDES_FILE", "RunRecord", "SweepReport", "collect",
+    "METRICS_FILE", "MISSING", "OK", "OUTPUTS", "OVERRIDES_FILE", "SPREAD_FILE", "RunRecord", "SweepReport", "collect",
     "main", "plot_sweep", "to_csv", "to_markdown", "write_report",
 ]
 
 OUTPUTS = ("report.csv", "report.md", "report.png")
+SPREAD_FILE = "spread.md"
 
 
 # ----------------------------------------------------------------------------- writing
@@ -127,15 +131,22 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "(default: every *success / *success_rate metric, e.g. test.success_rate)")
     ap.add_argument("--time", action="append", help="time metric key(s) (default: every *seconds metric)")
     ap.add_argument("--no-figure", action="store_true", help="write the tables only")
+    ap.add_argument("--spread", action="store_true", help="also spread.md: mean and range over the swept "
+                    "seeds of each headline number (protorch.app.spread)")
     args = ap.parse_args(argv)
     try:
         report = collect(args.sweep_dir)
+        spread = spread_markdown(report) if args.spread else None  # refused (no seed swept) before writing
         paths = write_report(report, args.out, success=_keys(args.success), time=_keys(args.time),
                              figure=not args.no_figure)
+        if spread is not None:
+            paths["spread"] = atomic_write_bytes(Path(args.out or report.root) / SPREAD_FILE, spread.encode())
     except (OSError, ValueError) as exc:
         print(f"protorch.app.report: error: {exc}", file=sys.stderr)
         return 2
     print(paths["md"].read_text(), end="")
+    if spread is not None:
+        print("\n" + spread, end="")
     print("\nwrote " + ", ".join(str(p) for p in paths.values()))
     return 0
 

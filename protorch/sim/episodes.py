@@ -39,6 +39,7 @@ from torch import Tensor
 
 from ..control.arm_choice import velocity_command_acceleration
 from ..control.episodes import Timing, basis_derivative_at
+from ..threads import torch_threads
 from .controller import ComputedTorque
 from .mj import load_mujoco
 
@@ -257,7 +258,13 @@ def run_physics_episodes(scene, ctrl_model, system, promp, timing: Timing, envs:
     acceleration limits); ``threads``: the thread pools of the plant's and the controller's
     batches; ``feasible``: a fraction of the torque limits within which the reference's
     acceleration is scaled to keep the command (:meth:`~protorch.sim.controller.ComputedTorque.feasible_torques`),
-    or ``None``: the reference as planned."""
+    or ``None``: the reference as planned.
+
+    ``threads`` are MuJoCo's (its batches give the same bits at any thread count); the torch
+    operations of every step (the markers, the system's answers, the torques) run on one torch
+    thread, because MKL's matrix products under a pinned code path (the app's ``MKL_CBWR``) give
+    other last bits on two threads than on one from about 100 episodes on (the markers' ``(E D, K)
+    @ (K, n)`` product), and the episodes carry such a bit into their contacts and torques."""
     t_start = time.perf_counter()
     task, e_num, total = scene.task, envs.shape[0], timing.total
     h = scene.timestep
@@ -274,7 +281,7 @@ def run_physics_episodes(scene, ctrl_model, system, promp, timing: Timing, envs:
     q_r, v_r = q0.expand(e_num, -1).clone(), torch.zeros(e_num, task.num_dof, **kw)
     limits = torch.from_numpy(scene.torque_limits)
     bound = None if feasible is None else float(feasible) * limits  # (J,)
-    with torch.no_grad():
+    with torch.no_grad(), torch_threads(1):  # torch's part on one thread: the same bits at any ``threads``
         for t in range(total + 1):
             plant.place(envs_np[:, t, :2], envs_np[:, t, 2:], task.ee_height, task.can_height)
             if t == 0:

@@ -29,7 +29,7 @@ from torch import Tensor
 from .files import atomic_write_bytes
 
 __all__ = ["DemoFormat", "DemoFolder", "PARTICLE_FORMAT", "WORKSPACE", "ENV_NAMES", "MARKS_FILE", "check_demo_groups",
-           "demo_files", "load_human_demos", "read_demos", "read_marks", "write_demo"]
+           "demo_files", "load_human_demos", "read_demo_folder", "read_demos", "read_marks", "write_demo"]
 
 _NAME = re.compile(r"^(traj|env)(\d+)\.out$")
 # the point-particle task's workspace, both axes (protorch.tasks.point_particle.WORKSPACE; a test
@@ -72,6 +72,8 @@ class DemoFolder:
     envs: Tensor  # (n, E)
     files: list[tuple[Path, Path]] = field(default_factory=list)
     indices: list[int] = field(default_factory=list)
+    report: dict = field(default_factory=dict)  # a recordings folder's cleaning report (empty for trajK.out)
+    stages: list = field(default_factory=list)  # a recordings folder's raw / trimmed / aligned arrays, per file
 
 
 def _read_text(path: Path) -> str:
@@ -169,11 +171,29 @@ def read_demos(folder: str | Path, fmt: DemoFormat, *, dtype: torch.dtype = torc
     return out
 
 
-def load_human_demos(folder: str | Path, *, dtype: torch.dtype = torch.float64) -> tuple[list[Tensor], Tensor]:
+def read_demo_folder(folder: str | Path, fmt: DemoFormat, cleaning=None, *, labeller=None,
+                     dtype: torch.dtype = torch.float64) -> tuple[DemoFolder, Tensor | None]:
+    """Either format: a folder of timestamped ``*.csv`` recordings
+    (:func:`protorch.data.recordings.read_recordings`, cleaned by ``cleaning``, labelled by
+    ``labeller``) or of the authors' ``trajK.out`` / ``envK.out`` pairs (:func:`read_demos`,
+    read as they are, labels ``None``). A folder holding both is refused."""
+    from .recordings import is_recordings_folder, read_recordings
+
+    folder = Path(folder)
+    if is_recordings_folder(folder):
+        if any(demo_files(folder)):
+            raise ValueError(f"{folder} holds both *.csv recordings and trajK.out / envK.out files: keep one format "
+                             "per folder")
+        return read_recordings(folder, fmt, cleaning, labeller=labeller, dtype=dtype)
+    return read_demos(folder, fmt, dtype=dtype), None
+
+
+def load_human_demos(folder: str | Path, *, dtype: torch.dtype = torch.float64, cleaning=None) -> tuple[list[Tensor], Tensor]:
     """The point particle's folder (:data:`PARTICLE_FORMAT`: ``x,y`` rows, 6 environment numbers,
-    everything inside the workspace ``[0, 10]``): ``(demos, envs)``, a list of ``n`` tensors
-    ``(T_i, 2)`` and ``envs (n, 6)``. Errors as :func:`read_demos`."""
-    out = read_demos(folder, PARTICLE_FORMAT, dtype=dtype)
+    everything inside the workspace ``[0, 10]``), either format (:func:`read_demo_folder`):
+    ``(demos, envs)``, a list of ``n`` tensors ``(T_i, 2)`` and ``envs (n, 6)``. Errors as
+    :func:`read_demos` / :func:`~protorch.data.recordings.read_recordings`."""
+    out, _ = read_demo_folder(folder, PARTICLE_FORMAT, cleaning, dtype=dtype)
     return out.demos, out.envs  # list of (T_k, 2), (n, 6)
 
 

@@ -14,8 +14,10 @@ goes backwards or repeats, NaN rows, a joint outside its limits, a recording sho
 ``min_duration``: one line naming the file and row) and cleans it, each part a setting of
 :class:`Cleaning` that can be switched off:
 
-1. idle ends trimmed: the recording's joint-space speed (smoothed over ``window`` s) below
-   ``trim`` times its peak at the start and at the end is cut;
+1. idle ends trimmed: where the recording's joint-space speed (smoothed over ``window`` s) first
+   and last exceeds ``trim`` times its peak, extended outwards to where the speed falls to twice
+   the median speed of the idle parts (the noise: the motion's onset and stop); the ends beyond
+   are cut;
 2. resampling by time: the kept part, ``samples`` points equally spaced in time;
 3. environments as measured: each recording keeps its own environment; recordings whose
    environments lie within ``group_tol`` (single linkage) form one environment of the ProMP fit,
@@ -289,7 +291,17 @@ def clean(rec: Recording, cleaning: Cleaning) -> tuple[np.ndarray, dict]:
     if cleaning.trim > 0:
         grid, sp = speed(rec.time, rec.values, cleaning.window)
         above = np.flatnonzero(sp > cleaning.trim * sp.max())
-        start, end = (float(grid[above[0]]), float(grid[above[-1]])) if above.size else (t0, t0)
+        if above.size:
+            i, j = int(above[0]), int(above[-1])
+            idle = sp[sp <= cleaning.trim * sp.max()]
+            floor = 2 * float(np.median(idle)) if idle.size else 0.0  # twice the idle parts' typical speed (noise)
+            while i > 0 and sp[i - 1] > floor:  # back to the motion's onset: where the speed meets the noise
+                i -= 1
+            while j < sp.size - 1 and sp[j + 1] > floor:
+                j += 1
+            start, end = float(grid[i]), float(grid[j])
+        else:
+            start, end = t0, t0
         if end - start < cleaning.min_duration:
             raise ValueError(f"{rec.path}: it moves for {end - start:.3g} s only (speed above {cleaning.trim:g} of its "
                              f"peak), shorter than the minimum {cleaning.min_duration:g} s "

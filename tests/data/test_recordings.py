@@ -69,13 +69,16 @@ def test_read_by_time_at_varying_rates(tmp_path):
     da, ra = clean(read_recording(tmp_path / "a.csv", FMT), cl)
     db, rb = clean(read_recording(tmp_path / "b.csv", FMT), cl)
     assert np.abs(da - db).max() < 0.01
-    # the kept part: where the exact joint-space speed exceeds 5 % of its peak
-    u = np.linspace(0, 1, 200001)
-    fast = np.flatnonzero(np.linalg.norm(np.gradient(path_at(minjerk(u)), u, axis=0), axis=1) > 0.05 * np.linalg.norm(
-        np.gradient(path_at(minjerk(u)), u, axis=0), axis=1).max())
+    # the kept part: the motion, its onset and stop blurred by the 0.05 s smoothing window
     for r, pre in ((ra, 0.5), (rb, 1.4)):
-        assert abs(r["trimmed_start_s"] - (pre + u[fast[0]] * 3.0)) < 0.02
-        assert abs(r["kept_s"] - (u[fast[-1]] - u[fast[0]]) * 3.0) < 0.03
+        assert abs(r["trimmed_start_s"] - pre) <= 0.035 and abs(r["kept_s"] - 3.0) <= 0.07
+    # with encoder noise (2e-4 rad at 1000 Hz) the onset is found within 0.1 s and the stop within 0.3 s
+    # (where less than 1 % of the path is left)
+    noisy = b.copy()
+    noisy[:, 1:3] += 2e-4 * rng.standard_normal((b.shape[0], 2))
+    write(tmp_path / "n.csv", noisy)
+    _, rn = clean(read_recording(tmp_path / "n.csv", FMT), cl)
+    assert 0 <= rn["trimmed_start_s"] - 1.4 <= 0.1 and 0 <= 3.0 - rn["kept_s"] <= 0.4
     # without trimming the idle ends stay: the first 10 % of the 100 samples are still at rest
     off, r0 = clean(read_recording(tmp_path / "a.csv", FMT), cl.off())
     assert r0["trimmed_start_s"] == 0 and np.allclose(off[:8], off[0], atol=1e-9)

@@ -98,7 +98,7 @@ def make_recordings(out: Path, seed: int = 0, *, encoder: float = 2e-4, mocap: f
     """Write ``out/csv`` (and with ``bags`` ``out/bags``): the 60 recordings. Returns what each is."""
     task = ArmReachTask()
     fmt = arm_demo_format(task)
-    demos, envs, labels = synthetic_demos(task, seed)
+    demos, envs, _ = synthetic_demos(task, seed)
     lower, upper = task.kinematics.lower.cpu().numpy(), task.kinematics.upper.cpu().numpy()
     cols = env_columns(POSES, fmt.env_names)
     rng = np.random.default_rng(seed)

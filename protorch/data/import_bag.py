@@ -23,14 +23,14 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
 from .recordings import TIME, check_table, write_recording
 
-__all__ = ["read_bag", "recording_table", "import_bags", "parse_env", "main"]
+__all__ = ["import_bags", "main", "parse_env", "read_bag", "recording_table"]
 
 _POSITION_TYPES = ("PoseStamped", "Pose", "PointStamped", "Point", "TransformStamped")
 

@@ -36,9 +36,9 @@ import io
 import json
 import math
 import re
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -78,7 +78,7 @@ class Cleaning:
     window: float = 0.05
 
     @classmethod
-    def from_config(cls, cfg: dict | None, name: str = "task.recordings") -> "Cleaning":
+    def from_config(cls, cfg: dict | None, name: str = "task.recordings") -> Cleaning:
         """Validate a settings dict (unknown keys, types, ranges: one line naming the setting)."""
         cfg = dict(cfg or {})
         known = {f.name for f in fields(cls)}
@@ -112,7 +112,7 @@ class Cleaning:
         out["group_tol"] = None if tol is None else float(tol)
         return cls(**out)
 
-    def off(self) -> "Cleaning":
+    def off(self) -> Cleaning:
         """The same settings with trimming and alignment switched off (resampling by time stays)."""
         return Cleaning(0.0, False, self.samples, self.min_duration, self.group_tol, self.window)
 
@@ -275,7 +275,7 @@ def speed(time: np.ndarray, values: np.ndarray, window: float) -> tuple[np.ndarr
     h = window / 10
     grid = np.arange(time[0], time[-1] + 0.5 * h, h)  # (G,)
     q = _interp(grid, time, values)  # (G, D)
-    k = max(1, int(round(window / h)))
+    k = max(1, round(window / h))
     if grid.size > k:
         pad = np.pad(q, ((k // 2, k - 1 - k // 2), (0, 0)), mode="edge")
         kernel = np.full(k, 1.0 / k)
@@ -443,7 +443,7 @@ def read_recordings(folder: str | Path, fmt, cleaning: Cleaning | None = None, *
     recs = [read_recording(p, fmt, min_duration=cleaning.min_duration) for p in files]  # all checked first
     cleaned = [clean(r, cleaning) for r in recs]
     envs = np.stack([r.env for r in recs])  # (n, E)
-    group, tol, grouping = group_envs(envs, cleaning.group_tol)
+    group, _, grouping = group_envs(envs, cleaning.group_tol)
     group_env = np.stack([envs[group == g].mean(0) for g in group])  # (n, E)
     demos = [c[0] for c in cleaned]
     labels = None

@@ -11,11 +11,11 @@ import pytest
 
 pytest.importorskip("rosbags")
 
-from protorch.data.import_bag import env_columns, import_bags, main, parse_env, recording_table  # noqa: E402
-from protorch.data.recordings import read_recording, write_recording  # noqa: E402
-from protorch.tasks.arm.demos import arm_demo_format  # noqa: E402
-from protorch.tasks.arm.reach import ArmReachTask  # noqa: E402
-from tests.benchmarks import benchmark_module  # noqa: E402
+from protorch.data.import_bag import env_columns, import_bags, main, parse_env, recording_table
+from protorch.data.recordings import read_recording, write_recording
+from protorch.tasks.arm.demos import arm_demo_format
+from protorch.tasks.arm.reach import ArmReachTask
+from tests.benchmarks import benchmark_module
 
 ENV = "can=/can_pose,goal=/target_pose"
 

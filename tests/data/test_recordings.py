@@ -9,10 +9,23 @@ import numpy as np
 import pytest
 import torch
 
-from protorch.data.demos import (PARTICLE_FORMAT, DemoFormat, load_human_demos, read_demo_folder, read_demos,
-                                 write_demo)
-from protorch.data.recordings import (Cleaning, align, clean, group_envs, read_recording, read_recordings,
-                                      write_recording)
+from protorch.data.demos import (
+    PARTICLE_FORMAT,
+    DemoFormat,
+    load_human_demos,
+    read_demo_folder,
+    read_demos,
+    write_demo,
+)
+from protorch.data.recordings import (
+    Cleaning,
+    align,
+    clean,
+    group_envs,
+    read_recording,
+    read_recordings,
+    write_recording,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 HUMAN = ROOT.parent / "shared" / "data" / "point_particle_human_demos"

@@ -19,7 +19,6 @@ from __future__ import annotations
 import json
 import math
 import re
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
@@ -27,6 +26,8 @@ import torch
 from torch import Tensor
 
 from .files import atomic_write_bytes
+from .formats import DemoFolder, DemoFormat
+from .recordings import is_recordings_folder, read_recordings
 
 __all__ = ["DemoFormat", "DemoFolder", "PARTICLE_FORMAT", "WORKSPACE", "ENV_NAMES", "MARKS_FILE", "check_demo_groups",
            "demo_files", "load_human_demos", "read_demo_folder", "read_demos", "read_marks", "write_demo"]
@@ -39,41 +40,8 @@ ENV_NAMES = ("start_x", "start_y", "wall_x", "hole_y", "goal_x", "goal_y")
 MARKS_FILE = "teach.json"  # written by the teach page (protorch.view.teach): quality marks per K
 
 
-@dataclass(frozen=True)
-class DemoFormat:
-    """What one task's files hold: the trajectory's column names, the environment's names, and
-    optional bounds ``(lo, hi)`` per column / per environment value with the bound's name
-    (``"the workspace"``, ``"the joint limits"``) for the error messages."""
-
-    columns: tuple[str, ...]
-    env_names: tuple[str, ...]
-    column_bounds: tuple[tuple[float, float], ...] | None = None
-    env_bounds: tuple[tuple[float, float], ...] | None = None
-    column_bound_name: str = "its bounds"
-    env_bound_name: str = "its bounds"
-
-    def __post_init__(self) -> None:
-        for bounds, names, what in ((self.column_bounds, self.columns, "column_bounds"),
-                                    (self.env_bounds, self.env_names, "env_bounds")):
-            if bounds is not None and len(bounds) != len(names):
-                raise ValueError(f"{what} must hold one (lo, hi) per name {list(names)}, got {len(bounds)}")
-
-
 PARTICLE_FORMAT = DemoFormat(("x", "y"), ENV_NAMES, (WORKSPACE,) * 2, (WORKSPACE,) * 6, "the workspace",
                              "the workspace")
-
-
-@dataclass
-class DemoFolder:
-    """A folder read by :func:`read_demos`: ``demos[i]`` ``(T_i, D)`` from ``files[i][0]``,
-    ``envs[i]`` ``(E,)`` from ``files[i][1]``, ``indices[i]`` its ``K``, in increasing ``K``."""
-
-    demos: list[Tensor]
-    envs: Tensor  # (n, E)
-    files: list[tuple[Path, Path]] = field(default_factory=list)
-    indices: list[int] = field(default_factory=list)
-    report: dict = field(default_factory=dict)  # a recordings folder's cleaning report (empty for trajK.out)
-    stages: list = field(default_factory=list)  # a recordings folder's raw / trimmed / aligned arrays, per file
 
 
 def _read_text(path: Path) -> str:
@@ -177,8 +145,6 @@ def read_demo_folder(folder: str | Path, fmt: DemoFormat, cleaning=None, *, labe
     (:func:`protorch.data.recordings.read_recordings`, cleaned by ``cleaning``, labelled by
     ``labeller``) or of the authors' ``trajK.out`` / ``envK.out`` pairs (:func:`read_demos`,
     read as they are, labels ``None``). A folder holding both is refused."""
-    from .recordings import is_recordings_folder, read_recordings
-
     folder = Path(folder)
     if is_recordings_folder(folder):
         if any(demo_files(folder)):

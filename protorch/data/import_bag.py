@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..tasks.arm.demos import arm_demo_format
+from ..tasks.arm.reach import ArmReachTask
 from .recordings import TIME, check_table, write_recording
 
 __all__ = ["import_bags", "main", "parse_env", "read_bag", "recording_table"]
@@ -196,9 +198,6 @@ def import_bags(bags: Sequence[str | Path], joints_topic: str, env_topics: dict[
 def task_format(name: str):
     """The :class:`~protorch.data.demos.DemoFormat` of a task by name (its joints and limits read from the task)."""
     if name == "arm_reach":
-        from ..tasks.arm.demos import arm_demo_format
-        from ..tasks.arm.reach import ArmReachTask
-
         return arm_demo_format(ArmReachTask())
     raise ValueError(f"--task: bags are imported for arm_reach, got {name!r}")
 

@@ -19,7 +19,6 @@ from __future__ import annotations
 import json
 import math
 import re
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
@@ -27,9 +26,11 @@ import torch
 from torch import Tensor
 
 from .files import atomic_write_bytes
+from .formats import DemoFolder, DemoFormat
+from .recordings import is_recordings_folder, read_recordings
 
 __all__ = ["DemoFormat", "DemoFolder", "PARTICLE_FORMAT", "WORKSPACE", "ENV_NAMES", "MARKS_FILE", "check_demo_groups",
-           "demo_files", "load_human_demos", "read_demos", "read_marks", "write_demo"]
+           "demo_files", "load_human_demos", "read_demo_folder", "read_demos", "read_marks", "write_demo"]
 
 _NAME = re.compile(r"^(traj|env)(\d+)\.out$")
 # the point-particle task's workspace, both axes (protorch.tasks.point_particle.WORKSPACE; a test
@@ -39,39 +40,8 @@ ENV_NAMES = ("start_x", "start_y", "wall_x", "hole_y", "goal_x", "goal_y")
 MARKS_FILE = "teach.json"  # written by the teach page (protorch.view.teach): quality marks per K
 
 
-@dataclass(frozen=True)
-class DemoFormat:
-    """What one task's files hold: the trajectory's column names, the environment's names, and
-    optional bounds ``(lo, hi)`` per column / per environment value with the bound's name
-    (``"the workspace"``, ``"the joint limits"``) for the error messages."""
-
-    columns: tuple[str, ...]
-    env_names: tuple[str, ...]
-    column_bounds: tuple[tuple[float, float], ...] | None = None
-    env_bounds: tuple[tuple[float, float], ...] | None = None
-    column_bound_name: str = "its bounds"
-    env_bound_name: str = "its bounds"
-
-    def __post_init__(self) -> None:
-        for bounds, names, what in ((self.column_bounds, self.columns, "column_bounds"),
-                                    (self.env_bounds, self.env_names, "env_bounds")):
-            if bounds is not None and len(bounds) != len(names):
-                raise ValueError(f"{what} must hold one (lo, hi) per name {list(names)}, got {len(bounds)}")
-
-
 PARTICLE_FORMAT = DemoFormat(("x", "y"), ENV_NAMES, (WORKSPACE,) * 2, (WORKSPACE,) * 6, "the workspace",
                              "the workspace")
-
-
-@dataclass
-class DemoFolder:
-    """A folder read by :func:`read_demos`: ``demos[i]`` ``(T_i, D)`` from ``files[i][0]``,
-    ``envs[i]`` ``(E,)`` from ``files[i][1]``, ``indices[i]`` its ``K``, in increasing ``K``."""
-
-    demos: list[Tensor]
-    envs: Tensor  # (n, E)
-    files: list[tuple[Path, Path]] = field(default_factory=list)
-    indices: list[int] = field(default_factory=list)
 
 
 def _read_text(path: Path) -> str:
@@ -169,11 +139,27 @@ def read_demos(folder: str | Path, fmt: DemoFormat, *, dtype: torch.dtype = torc
     return out
 
 
-def load_human_demos(folder: str | Path, *, dtype: torch.dtype = torch.float64) -> tuple[list[Tensor], Tensor]:
+def read_demo_folder(folder: str | Path, fmt: DemoFormat, cleaning=None, *, labeller=None,
+                     dtype: torch.dtype = torch.float64) -> tuple[DemoFolder, Tensor | None]:
+    """Either format: a folder of timestamped ``*.csv`` recordings
+    (:func:`protorch.data.recordings.read_recordings`, cleaned by ``cleaning``, labelled by
+    ``labeller``) or of the authors' ``trajK.out`` / ``envK.out`` pairs (:func:`read_demos`,
+    read as they are, labels ``None``). A folder holding both is refused."""
+    folder = Path(folder)
+    if is_recordings_folder(folder):
+        if any(demo_files(folder)):
+            raise ValueError(f"{folder} holds both *.csv recordings and trajK.out / envK.out files: keep one format "
+                             "per folder")
+        return read_recordings(folder, fmt, cleaning, labeller=labeller, dtype=dtype)
+    return read_demos(folder, fmt, dtype=dtype), None
+
+
+def load_human_demos(folder: str | Path, *, dtype: torch.dtype = torch.float64, cleaning=None) -> tuple[list[Tensor], Tensor]:
     """The point particle's folder (:data:`PARTICLE_FORMAT`: ``x,y`` rows, 6 environment numbers,
-    everything inside the workspace ``[0, 10]``): ``(demos, envs)``, a list of ``n`` tensors
-    ``(T_i, 2)`` and ``envs (n, 6)``. Errors as :func:`read_demos`."""
-    out = read_demos(folder, PARTICLE_FORMAT, dtype=dtype)
+    everything inside the workspace ``[0, 10]``), either format (:func:`read_demo_folder`):
+    ``(demos, envs)``, a list of ``n`` tensors ``(T_i, 2)`` and ``envs (n, 6)``. Errors as
+    :func:`read_demos` / :func:`~protorch.data.recordings.read_recordings`."""
+    out, _ = read_demo_folder(folder, PARTICLE_FORMAT, cleaning, dtype=dtype)
     return out.demos, out.envs  # list of (T_k, 2), (n, 6)
 
 

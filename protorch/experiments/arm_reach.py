@@ -43,6 +43,7 @@ from ..control.arm import run_arm_episodes
 from ..control.switches import geometric_switch_summary
 from ..data.checkpoint import load
 from ..data.demos import check_demo_groups, read_marks
+from ..data.recordings import Cleaning
 from ..gp.model import label_aware_mean
 from ..loop import LoopResult, demonstration_dataset
 from ..primitives.promp import ProMP, resample
@@ -52,6 +53,7 @@ from ..tasks.arm.reach import LEFT, RIGHT, SIDES, ArmReachTask
 from ..tasks.arm.workspace import REGIONS, check_reach, check_region
 from ..threads import torch_threads
 from ..viz.arm import experiment_figures
+from ..viz.recordings import recordings_figure
 from .common import demo_source
 from .arm_physics import check_physics, physics_section
 from ..tasks.arm.priors import check_detours, grid_priors
@@ -77,7 +79,8 @@ class ArmReachExperiment(SelfImprovementExperiment):
     task_keys = frozenset({"_target_", "demos", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin",
                            "goal_tol", "start_tol", "can_radius", "can_height", "clearance", "deviation",
                            "collision", "can_objective", "prior_clear", "prior_detours",
-                           "prior_grid", "region", "reach", "can_box", "goal_box", "table"})
+                           "prior_grid", "region", "reach", "can_box", "goal_box", "table",
+                           "recordings"})
     loop_keys = frozenset({"labels", "each_label"})
     dynamic_keys = frozenset({"seed", "episodes", "duration", "hold", "dt", "kp", "moves", "move_window",
                               "place_clearance", "switch_margin"})
@@ -111,6 +114,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
             if not isinstance(v, bool):
                 raise ValueError(f"loop.{name} must be true or false, got {v!r}")
         self.source = demo_source(task_cfg.pop("demos", "synthetic"))
+        self.cleaning = Cleaning.from_config(task_cfg.pop("recordings", None))
         self.demo_envs_n = check_int(task_cfg.pop("demo_envs", 20), "task.demo_envs", 1)
         self.per_env = check_int(task_cfg.pop("demos_per_env", 3), "task.demos_per_env", 2)
         self.n_priors = check_int(task_cfg.pop("priors", 2004), "task.priors", 0)
@@ -131,11 +135,12 @@ class ArmReachExperiment(SelfImprovementExperiment):
         """The demonstrated environments are drawn over the rectangles whatever ``task.region``;
         or the folder ``task.demos`` (:func:`~protorch.tasks.arm.demos.read_arm_demos`)."""
         if self.source != "synthetic":
-            folder, self.demo_labels = read_arm_demos(self.task, self.source)
+            folder, self.demo_labels = read_arm_demos(self.task, self.source, self.cleaning)
             check_demo_groups(folder.envs, folder.files, self.demo_labels, label_names=SIDES)
             self.demos, self.demo_envs, self.demo_marked = folder.demos, folder.envs, len(read_marks(self.source))
+            self.recordings = folder
             return
-        self.demo_marked = 0
+        self.demo_marked, self.recordings = 0, None
         gen = self.demo_generator()
         envs = self.task.sample_envs(self.demo_envs_n, gen, region="rectangles")
         self.demos, self.demo_envs, self.demo_labels = self.task.demonstrations(envs, self.per_env, gen)
@@ -183,7 +188,8 @@ class ArmReachExperiment(SelfImprovementExperiment):
             "demos": {"source": str(self.source), "marked": self.demo_marked, "count": len(self.demos),
                       "envs": int(self.demo_envs.unique(dim=0).shape[0]),
                       "entries": int((data0.origin == 0).sum()), "left": int((self.demo_labels == LEFT).sum()),
-                      "right": int((self.demo_labels == RIGHT).sum()), "success_rate": self.demo_success()},
+                      "right": int((self.demo_labels == RIGHT).sum()), "success_rate": self.demo_success(),
+                      **({"recordings": self.recordings.report} if self.recordings and self.recordings.report else {})},
             "priors": {"count": int(self.prior_envs.shape[0]), "left": int((self.prior_labels == LEFT).sum()),
                        "right": int((self.prior_labels == RIGHT).sum()), "grid": self.prior_report},
             "settings": {"num_envs": lk["num_envs"], "batch_size": lk["batch_size"], "add_only": lk["add_only"],
@@ -237,6 +243,8 @@ class ArmReachExperiment(SelfImprovementExperiment):
         return self.entry(test_m, dyn_m), off_model
 
     def figures(self, out_dir: Path, outcome: Outcome, metrics: dict) -> None:
+        if self.recordings is not None and self.recordings.stages:
+            recordings_figure(out_dir / "recordings.png", self.recordings, self.task.kinematics.joint_names)
         experiment_figures(out_dir, self.task, outcome.model, outcome.baselines.get("labels_off"), self.test_envs,
                            outcome.result, outcome.baselines.get("labels_off_loop"), outcome.episodes, metrics)
 

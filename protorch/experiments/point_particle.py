@@ -23,7 +23,8 @@ import torch
 
 from ..checks import check_int
 from ..control.particle import run_episodes
-from ..data.demos import PARTICLE_FORMAT, check_demo_groups, read_demos, read_marks
+from ..data.demos import PARTICLE_FORMAT, check_demo_groups, read_demo_folder, read_marks
+from ..data.recordings import Cleaning
 from ..tasks import PointParticleTask
 from ..viz.common import legend_below
 from ..viz.online import plot_episode_frames, write_episode_gif
@@ -44,7 +45,7 @@ class PointParticleExperiment(SelfImprovementExperiment):
     batch sizes."""
 
     task_keys = frozenset({"_target_", "objectives", "fixed_start", "infinite_wall", "demos", "demo_envs",
-                           "demos_per_env"})
+                           "demos_per_env", "recordings"})
     loop_keys = frozenset({"stop_when_solved"})
     dynamic_keys = frozenset({"seed", "episodes", "duration", "hold", "dt", "kp", "kd", "step_std", "start",
                               "goal_tol"})
@@ -64,6 +65,7 @@ class PointParticleExperiment(SelfImprovementExperiment):
         self.task = PointParticleTask(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in task_cfg.items()
                                          if k in ("objectives", "fixed_start", "infinite_wall")})
         self.source = demo_source(task_cfg.get("demos", "synthetic"))
+        self.cleaning = Cleaning.from_config(task_cfg.get("recordings"))
         self.demo_envs_n = check_int(task_cfg.get("demo_envs", 30), "task.demo_envs", 1)
         self.per_env = check_int(task_cfg.get("demos_per_env", 3), "task.demos_per_env", 2)
         if self.source != "synthetic" and self.task.fixed_start is not None:
@@ -84,7 +86,7 @@ class PointParticleExperiment(SelfImprovementExperiment):
         if self.source == "synthetic":
             self.demos, self.demo_envs = self.task.demonstrations(self.demo_envs_n, self.per_env, self.demo_generator())
             return
-        folder = read_demos(self.source, PARTICLE_FORMAT)
+        folder, _ = read_demo_folder(self.source, PARTICLE_FORMAT, self.cleaning)
         check_demo_groups(folder.envs, folder.files)
         self.demos, self.demo_envs, self.demo_marked = folder.demos, folder.envs, len(read_marks(self.source))
 

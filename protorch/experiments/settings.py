@@ -311,18 +311,32 @@ SETTINGS_SCHEMAS: dict[str, type] = {"point_particle": PointParticleSettings, "a
 
 
 @dataclass
+class RecordingsSettings:
+    trim: typing.Any = setting(0.05, "idle ends: speed below this fraction of the recording's peak is cut (false: off)")
+    align: bool = setting(True, "DTW time alignment of the recordings of one environment (and side)")
+    samples: int = setting(200, "points per demonstration, equally spaced in time", ge=2)
+    min_duration: float = setting(0.5, "s a recording (and its motion after trimming) lasts at least", gt=0)
+    group_tol: typing.Any = setting("auto", "recordings whose environments are closer are one environment "
+                                    "(auto: derived from the data)")
+    window: float = setting(0.05, "s of smoothing before the speed is measured", gt=0)
+
+
+@dataclass
 class PointParticleTaskSettings:
     objectives: str = setting("clearance", "the middle objective", choices=("clearance", "hole"))
     fixed_start: typing.Optional[list[float]] = setting(None, "a fixed start point instead of a random one")
     infinite_wall: bool = setting(True, "the wall continues beyond y = 0 and y = 10")
-    demos: str = setting("synthetic", "synthetic, or a folder of trajK.out / envK.out")
+    demos: str = setting("synthetic", "synthetic, or a folder of trajK.out / envK.out or of *.csv recordings")
+    recordings: RecordingsSettings = setting(RecordingsSettings(), "a *.csv folder's cleaning (docs/recordings.md)")
     demo_envs: int = setting(30, "synthetic only: demonstrated environments", ge=1)
     demos_per_env: int = setting(3, "synthetic only: demonstrations per environment", ge=2)
 
 
 @dataclass
 class ArmReachTaskSettings:
-    demos: str = setting("synthetic", "synthetic, or a folder of trajK.out (one angle per joint per row) / envK.out")
+    demos: str = setting("synthetic", "synthetic, or a folder of trajK.out (one angle per joint per row) / envK.out, "
+                         "or of *.csv recordings")
+    recordings: RecordingsSettings = setting(RecordingsSettings(), "a *.csv folder's cleaning (docs/recordings.md)")
     demo_envs: int = setting(20, "synthetic only: demonstrated environments", ge=1)
     demos_per_env: int = setting(3, "synthetic only: demonstrations per environment", ge=2)
     priors: int = setting(2004, "straight-path prior ProMPs on a regular grid", ge=0)

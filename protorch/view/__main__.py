@@ -41,6 +41,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     teach.add_argument("--envs", type=int, help="environments to teach (default 30 point_particle, 20 arm_reach)")
     teach.add_argument("--steps", type=int, help="time steps a demonstration is resampled to (default: the run's "
                                                  "promp.num_steps, else 100)")
+    teach.add_argument("--format", default="out", choices=("out", "csv"),
+                       help="out: trajK.out / envK.out (default); csv: timestamped recordings demoK.csv (docs/recordings.md)")
     teach.add_argument("--seed", type=int, default=0, help="seed of the proposed environments (default 0)")
     teach.add_argument("--robot", help="arm_reach without RUN_DIR: a shipped robot (e.g. panda) or a yaml file of "
                                        "robot.* settings (docs/your_own_robot.md); default the Panda")
@@ -62,7 +64,8 @@ def teach_session(args) -> tuple[TeachSession, object]:
     if run is not None:  # random environments, those where the run's map fails first
         proposals = failing_envs(run, teach.sample_envs(4 * num_envs + 16, torch.Generator().manual_seed(args.seed)))
     session = TeachSession(teach, Path(args.out or f"demos/{args.teach}"), per_env=args.per_env,
-                           num_envs=num_envs, num_steps=int(steps), proposals=proposals, seed=args.seed)
+                           num_envs=num_envs, num_steps=int(steps), proposals=proposals, seed=args.seed,
+                           fmt=args.format)
     return session, run
 
 

@@ -6,7 +6,8 @@ demonstration on show and the progress. :meth:`~TeachSession.record` resamples r
 phase (:func:`protorch.primitives.promp.resample`, what the ProMP fit does with any
 demonstration) and runs the quality checks (:mod:`protorch.view.teach_tasks`);
 :meth:`~TeachSession.keep` writes the resampled demonstration at once as ``trajK.out`` /
-``envK.out`` (:func:`protorch.data.demos.write_demo`, atomic) and then the quality record
+``envK.out`` (:func:`protorch.data.demos.write_demo`, atomic; with ``fmt="csv"`` the raw samples
+at their times as a timestamped recording ``demoK.csv``, :mod:`protorch.data.recordings`) and then the quality record
 ``teach.json``; a flagged demonstration is kept only with ``insist=True`` and stays marked there.
 After ``per_env`` kept demonstrations the next proposed environment comes.
 
@@ -19,6 +20,7 @@ trained run, :func:`failing_envs` proposes the environments where the run's map 
 from __future__ import annotations
 
 import json
+import re
 import threading
 import time
 from dataclasses import dataclass
@@ -30,11 +32,14 @@ from torch import Tensor
 
 from ..data.demos import MARKS_FILE, demo_files, read_demos, write_demo
 from ..data.files import atomic_write_bytes, remove_stale_tmp
+from ..data.recordings import TIME, read_recording, recording_files, write_recording
 from ..gp.model import label_aware_mean
 from ..primitives.promp import resample
 from .teach_tasks import Quality
 
 __all__ = ["Pending", "TeachSession", "failing_envs"]
+
+_CSV_NAME = re.compile(r"^demo(\d+)\.csv$")
 
 
 @dataclass
@@ -46,6 +51,7 @@ class Pending:
     traj: Tensor
     quality: Quality
     path: np.ndarray
+    times: Tensor | None = None  # (n,) seconds of the raw samples (the recordings format writes them)
 
 
 def failing_envs(run, envs: Tensor) -> Tensor:
@@ -84,10 +90,16 @@ class TeachSession:
         num_envs: environments to teach (the panel counts towards it; more may be taught).
         num_steps: ``T``, the time grid the demonstrations are resampled to (the ProMP's steps).
         proposals: ``(P, E)`` environments offered in order (default: random, ``seed``).
+        fmt: ``"out"``: ``trajK.out`` / ``envK.out`` (resampled to ``num_steps``); ``"csv"``: timestamped
+            recordings ``demoK.csv`` (:mod:`protorch.data.recordings`: the raw samples at their times, the
+            environment in every row; cleaned when read for training).
     """
 
     def __init__(self, teach, folder: str | Path, *, per_env: int = 3, num_envs: int = 30, num_steps: int = 100,
-                 proposals: Tensor | None = None, seed: int = 0) -> None:
+                 proposals: Tensor | None = None, seed: int = 0, fmt: str = "out") -> None:
+        if fmt not in ("out", "csv"):
+            raise ValueError(f"fmt must be out or csv, got {fmt!r}")
+        self.fmt = fmt
         if int(per_env) < 2 or int(num_envs) < 1 or int(num_steps) < 2:
             raise ValueError(f"need per_env >= 2, num_envs >= 1, num_steps >= 2; "
                              f"got {per_env}, {num_envs}, {num_steps}")
@@ -130,10 +142,24 @@ class TeachSession:
 
     def _read_folder(self) -> None:
         trajs, envs = demo_files(self.folder)
-        if not trajs and not envs:
+        csvs = recording_files(self.folder)
+        if (trajs or envs) and (csvs or self.fmt == "csv") or (csvs and self.fmt == "out"):
+            raise ValueError(f"{self.folder} holds {'*.csv recordings' if csvs else 'trajK.out files'}: teach the "
+                             f"{'csv' if csvs else 'out'} format there (--format), or another folder")
+        if csvs:
+            found = [(int(m.group(1)), read_recording(p, self.teach.fmt)) for p in csvs
+                     if (m := _CSV_NAME.match(p.name))]  # refuses a malformed file, naming file and line
+            indices = [k for k, _ in found]
+            demos = [torch.as_tensor(r.values) for _, r in found]
+            envs_t = [torch.as_tensor(r.env) for _, r in found]
+        elif trajs or envs:
+            out = read_demos(self.folder, self.teach.fmt)  # refuses a malformed file, naming file and line
+            indices, demos, envs_t = out.indices, out.demos, list(out.envs)
+        else:
             return
-        found = read_demos(self.folder, self.teach.fmt)  # refuses a malformed file, naming file and line
-        for k, d, e in zip(found.indices, found.demos, found.envs):
+        if not indices:
+            return
+        for k, d, e in zip(indices, demos, envs_t):
             i = next((j for j, f in enumerate(self.envs) if torch.equal(f, e)), None)
             i = self._add_env(e) if i is None else i
             self.counts[i] += 1
@@ -142,7 +168,7 @@ class TeachSession:
             if self.teach.kind == "arm":
                 traj = traj.to(self.teach.task.kinematics.lower)
                 self.sides[i].append(int(self.teach.task.side(traj, e.to(traj))))
-        self.next_k = max(found.indices) + 1
+        self.next_k = max(indices) + 1
 
     def _add_env(self, env: Tensor) -> int:
         self.envs.append(env.clone())
@@ -224,11 +250,15 @@ class TeachSession:
             return self.env
 
     # ------------------------------------------------------------------ demonstrations
-    def record(self, raw, **extra) -> Pending:
-        """The demonstration ``raw (n, D)`` (n >= 1 recorded samples) resampled to ``num_steps``,
-        checked and put on show (replacing the one shown). ``extra`` goes to the checks (the arm:
-        ``ik_error``)."""
+    def record(self, raw, times=None, **extra) -> Pending:
+        """The demonstration ``raw (n, D)`` (n >= 1 recorded samples, taken at ``times (n,)`` s;
+        default: 60 per second) resampled to ``num_steps``, checked and put on show (replacing the
+        one shown). ``extra`` goes to the checks (the arm: ``ik_error``)."""
         raw = torch.as_tensor(raw, dtype=torch.float64).reshape(-1, len(self.teach.fmt.columns))  # (n, D)
+        times = (torch.arange(raw.shape[0], dtype=torch.float64) / 60 if times is None
+                 else torch.as_tensor(times, dtype=torch.float64).reshape(-1))  # (n,)
+        if times.shape[0] != raw.shape[0]:
+            raise ValueError(f"times must have one entry per sample ({raw.shape[0]}), got {times.shape[0]}")
         if raw.shape[0] < 1 or not bool(torch.isfinite(raw).all()):
             raise ValueError(f"a demonstration needs >= 1 finite sample, got shape {tuple(raw.shape)}")
         with self.lock:
@@ -237,7 +267,7 @@ class TeachSession:
             i = self._index()
             sides = tuple(self.sides[i]) if i is not None and self.teach.kind == "arm" else ()
             quality = self.teach.quality(raw, traj, self.env, sides=sides, **extra)
-            self.pending = Pending(raw, traj, quality, self.teach.path(traj))
+            self.pending = Pending(raw, traj, quality, self.teach.path(traj), times)
             return self.pending
 
     def discard(self) -> None:
@@ -257,7 +287,10 @@ class TeachSession:
                 raise ValueError("this demonstration failed its checks (" + "; ".join(p.quality.messages)
                                  + "): keep it anyway, or discard it")
             k = self.next_k
-            write_demo(self.folder, k, p.traj, self.env)
+            if self.fmt == "csv":
+                self._write_recording(k, p)
+            else:
+                write_demo(self.folder, k, p.traj, self.env)
             self.next_k += 1
             i = self._index()
             i = self._add_env(self.env) if i is None else i
@@ -274,6 +307,18 @@ class TeachSession:
             if self.counts[i] >= self.per_env:
                 self.env = self._proposal()
             return k
+
+    def _write_recording(self, k: int, p: Pending) -> None:
+        """``demoK.csv``: the raw samples at their times from 0 (samples whose time does not
+        increase dropped; one sample held for a second), the environment in every row."""
+        keep = torch.cat([torch.ones(1, dtype=torch.bool), p.times[1:] > torch.cummax(p.times, 0).values[:-1]])
+        t, raw = p.times[keep] - p.times[0], p.raw[keep]  # (n,), (n, D)
+        if t.shape[0] < 2:
+            t, raw = torch.tensor([0.0, 1.0], dtype=torch.float64), raw[:1].expand(2, -1)
+        env = self.env.to(torch.float64).expand(t.shape[0], -1)  # (n, E)
+        fmt = self.teach.fmt
+        write_recording(self.folder / f"demo{k}.csv", [TIME, *fmt.columns, *fmt.env_names],
+                        torch.cat([t[:, None], raw, env], 1).numpy())
 
     # ------------------------------------------------------------------ progress
     def progress(self) -> dict:

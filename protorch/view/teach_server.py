@@ -13,6 +13,8 @@ while it is half taught), Next environment skips to the next proposal. Drag call
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import torch
 
@@ -67,6 +69,7 @@ class Teacher:
         self.session, self.teach, self.run = session, session.teach, run
         self.params, _ = task_params(self.teach.task)
         self.stroke: list = []
+        self.stroke_times: list = []  # time.monotonic() of each stroke sample (the csv format writes them)
         self.ik_error = 0.0
         self.strokes = 0
         self.note = "; ".join(session.notes)  # shown until the next action: what opening the folder repaired
@@ -150,13 +153,14 @@ class Teacher:
         with self.session.lock:
             if event.phase == "start":
                 self.session.discard()
-                self.stroke = [point]
+                self.stroke, self.stroke_times = [point], [time.monotonic()]
                 self._draw_paths()
             elif not self.stroke or not torch.equal(self.stroke[-1], point):
                 self.stroke.append(point)
+                self.stroke_times.append(time.monotonic())
             self.particle.position = (float(point[0]), float(point[1]), 0.02)
             if event.phase == "end":
-                self.session.record(torch.stack(self.stroke))
+                self.session.record(torch.stack(self.stroke), times=self.stroke_times)
                 self.strokes += 1
                 self.stroke = []
                 self.refresh()
@@ -169,14 +173,16 @@ class Teacher:
             if event.phase == "start":
                 self.session.discard()
                 self.stroke, self.ik_error = [self.follower.q.clone()], 0.0
+                self.stroke_times = [time.monotonic()]
                 self._draw_paths()
             else:
                 q, err = self.follower.move(self.hand.position)
                 self.stroke.append(q)
+                self.stroke_times.append(time.monotonic())
                 self.ik_error = max(self.ik_error, err)
                 self.arm_pose.update(self.teach.task.kinematics.link_positions(q).cpu().numpy())
             if event.phase == "end":
-                self.session.record(torch.stack(self.stroke).cpu(), ik_error=self.ik_error)
+                self.session.record(torch.stack(self.stroke).cpu(), times=self.stroke_times, ik_error=self.ik_error)
                 self.strokes += 1
                 self.stroke = []
                 self.hand.position = tuple(float(v) for v in self.follower.hand)

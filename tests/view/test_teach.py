@@ -328,3 +328,29 @@ def test_the_command_line_refuses_a_bad_folder_naming_file_and_line(tmp_path, ca
     assert main(["--teach", "point_particle", "--out", str(tmp_path)]) == 1
     err = capsys.readouterr().err
     assert err.startswith("protorch view --teach: ") and "traj0.out:2: NaN or infinite value" in err
+
+
+def test_the_csv_format_writes_timestamped_recordings_that_train(tmp_path):
+    """``fmt="csv"``: each kept demonstration is ``demoK.csv`` (the raw samples at their times,
+    the environment in every row), read back by the recordings reader, continued when reopened,
+    and read for training with a trained point particle's format."""
+    from protorch.data.demos import read_demo_folder
+    from protorch.data.recordings import read_recording
+
+    s = TeachSession(ParticleTeach(), tmp_path / "demos", per_env=2, num_envs=2, seed=1, fmt="csv")
+    s.set_env(ENV)
+    for path in (HOLE, [(1.0, 2.0), (2.6, 4.4), (3.7, 6.3), (5.0, 6.4), (6.3, 6.3), (7.7, 4.7), (9.0, 3.0)]):
+        raw = stroke(path, 10)  # (61, 2)
+        times = 0.5 + torch.arange(raw.shape[0], dtype=torch.float64) / 30  # 30 samples a second, 2 s
+        s.record(raw, times=times)
+        s.keep()
+    assert sorted(p.name for p in s.folder.glob("*.csv")) == ["demo0.csv", "demo1.csv"]
+    rec = read_recording(s.folder / "demo0.csv", PARTICLE_FORMAT)
+    assert rec.time[0] == 0 and abs(rec.time[-1] - 2.0) < 1e-12 and torch.equal(torch.as_tensor(rec.values), stroke(HOLE, 10))
+    assert rec.env.tolist() == ENV.tolist()
+    again = TeachSession(ParticleTeach(), tmp_path / "demos", per_env=2, num_envs=2, seed=1, fmt="csv")
+    assert again.next_k == 2 and again.kept == 2 and again.envs_done == 1
+    with pytest.raises(ValueError, match=r"holds \*\.csv recordings: teach the csv format there"):
+        TeachSession(ParticleTeach(), tmp_path / "demos", per_env=2, num_envs=2, seed=1)
+    folder, _ = read_demo_folder(s.folder, PARTICLE_FORMAT)
+    assert len(folder.demos) == 2 and folder.report["grouping"]["groups"] == 1

@@ -7,7 +7,7 @@ import torch
 from torch import Tensor
 
 from ...checks import check_tensor
-from ...data.demos import DemoFolder, DemoFormat, read_demos
+from ...data.demos import DemoFolder, DemoFormat, read_demo_folder
 from .geometry import LEFT, RIGHT
 from ..curves import catmull_rom, smooth_noise
 
@@ -26,14 +26,19 @@ def arm_demo_format(task) -> DemoFormat:
                       "the joint limits", "the table")
 
 
-def read_arm_demos(task, folder) -> tuple[DemoFolder, Tensor]:
-    """A folder of arm demonstrations (:func:`arm_demo_format`, errors naming file and line) and
-    the homotopy class of each demonstration (:meth:`~protorch.tasks.ArmReachTask.side`, measured
-    on its joint trajectory): ``(folder, labels (n,))``."""
-    demos = read_demos(folder, arm_demo_format(task))
+def read_arm_demos(task, folder, cleaning=None) -> tuple[DemoFolder, Tensor]:
+    """A folder of arm demonstrations, either format (:func:`~protorch.data.demos.read_demo_folder`:
+    timestamped ``*.csv`` recordings cleaned by ``cleaning``, a
+    :class:`~protorch.data.recordings.Cleaning`, or ``trajK.out`` / ``envK.out``;
+    :func:`arm_demo_format`, errors naming file and line) and the homotopy class of each
+    demonstration (:meth:`~protorch.tasks.ArmReachTask.side`, measured on its joint trajectory
+    and its own environment): ``(folder, labels (n,))``."""
     dev = task.kinematics.lower.device
-    labels = [task.side(d.to(dev), e.to(dev)).cpu() for d, e in zip(demos.demos, demos.envs)]
-    return demos, torch.stack(labels).reshape(-1)  # (n,)
+    side = lambda d, e: task.side(d.to(dev), e.to(dev)).cpu()
+    demos, labels = read_demo_folder(folder, arm_demo_format(task), cleaning, labeller=side)
+    if labels is None:
+        labels = torch.stack([side(d, e) for d, e in zip(demos.demos, demos.envs)]).reshape(-1)
+    return demos, labels  # (n,)
 
 
 def follow_path(task, path: Tensor, *, iters: int = 8, first_iters: int = 60) -> tuple[Tensor, Tensor]:

@@ -1,0 +1,27 @@
+"""The arm trained from timestamped recordings (task.demos=FOLDER of *.csv) at a tiny budget: the
+cleaning report in the metrics, one environment per measured group, and the figure."""
+
+from __future__ import annotations
+
+import pytest
+
+from protorch.experiments import run_experiment
+from tests.benchmarks import benchmark_module
+from tests.experiments.test_arm_reach import cfg
+
+
+@pytest.mark.slow
+def test_tiny_arm_run_from_recordings(tmp_path):
+    with benchmark_module("recordings.py", "bench_recordings") as bench:
+        info = bench.make_recordings(tmp_path / "rec", 0, count=6)  # 2 environments x 3, at 100 / 500 / 1000 Hz
+    assert [i["rate"] for i in info] == [100, 500, 1000] * 2
+    m = run_experiment(cfg(f"task.demos={tmp_path / 'rec' / 'csv'}"), tmp_path / "run")
+    rec = m["demos"]["recordings"]
+    assert m["demos"]["count"] == 6 and m["demos"]["entries"] == 2 and rec["grouping"]["groups"] == 2
+    assert rec["grouping"]["derived"] and 0.005 < rec["grouping"]["tolerance"] < 0.2
+    off = run_experiment(cfg(f"task.demos={tmp_path / 'rec' / 'csv'}", "task.recordings.trim=false",
+                             "task.recordings.align=false", "task.recordings.group_tol=0.05"), tmp_path / "off")
+    rec_off = off["demos"]["recordings"]
+    assert rec_off["grouping"]["tolerance"] == 0.05 and rec_off["trimmed_s"]["max"] == 0
+    assert all(0.3 <= r["trimmed_start_s"] <= 2.5 and 0.3 <= r["trimmed_end_s"] for r in rec["recordings"])
+    assert "warp_max" in rec and "warp_max" not in rec_off

@@ -51,6 +51,7 @@ from ..robots import check_inertials, load_robot
 from ..tasks.arm.demos import read_arm_demos
 from ..tasks.arm.reach import LEFT, RIGHT, SIDES, ArmReachTask
 from ..tasks.arm.workspace import REGIONS, check_reach, check_region
+from ..sim.scene import build_scene
 from ..threads import torch_threads
 from ..viz.arm import experiment_figures
 from ..viz.recordings import recordings_figure
@@ -350,8 +351,6 @@ def check_robot(robot, task_cfg: dict, physics_runs: bool):
     task = ArmReachTask(robot=robot, **_boxes({k: v for k, v in task_cfg.items() if k in keys}))
     check_reach(task, check_region(task_cfg.get("prior_grid", "rectangles"), "task.prior_grid"))
     if physics_runs:
-        from ..sim.scene import build_scene
-
         if not robot.capsule_list():
             raise ValueError(f"robot.capsules: the {robot.name} arm has no collision volumes, which the MuJoCo test "
                              "collides with the can and the table; give robot.capsules (or auto) or set "

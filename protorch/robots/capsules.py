@@ -34,126 +34,20 @@ largest protrusion (:func:`protrusion`); ``python benchmarks/capsules.py`` print
 from __future__ import annotations
 
 import math
-import xml.etree.ElementTree as ET
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
 
 from .description import Capsule
-from .loader import _rpy_matrix
+from .urdf import COLLISION_KINDS, CollisionGeometry, collision_geometry
 
 __all__ = ["CollisionGeometry", "Segment", "collision_geometry", "fit_capsules", "fit_geometry", "as_capsules",
            "protrusion", "surface_points", "coverage", "enclosing_capsule"]
 
 Segment = tuple[tuple[float, float, float], tuple[float, float, float], float]  # (p0, p1, radius), link frame
-_KINDS = ("sphere", "capsule", "cylinder", "box", "mesh")
 _STEP = 1e-4  # m: end points rounded to it, radii rounded up to it
 _SAVING = 0.8  # one more capsule only where it makes the volume at most this fraction
-
-
-@dataclass(frozen=True)
-class CollisionGeometry:
-    """One ``<collision>`` element: its ``link``, ``kind`` (one of sphere, capsule, cylinder, box,
-    mesh), ``origin`` (4, 4) in the link frame and the geometry's attributes (``radius``,
-    ``length``, ``size``, ``mesh`` path resolved on disk, ``scale``)."""
-
-    link: str
-    kind: str
-    origin: np.ndarray = field(repr=False)
-    radius: float = 0.0
-    length: float = 0.0
-    size: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    mesh: Path | None = None
-    scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
-
-
-def _floats(text: str | None, n: int, what: str, default: Sequence[float] | None = None) -> tuple[float, ...]:
-    if text is None:
-        if default is None:
-            raise ValueError(f"{what} is missing")
-        return tuple(default)
-    try:
-        vals = tuple(float(v) for v in text.split())
-    except ValueError:
-        raise ValueError(f"{what} must be {n} numbers, got {text!r}") from None
-    if n == 3 and len(vals) == 1:  # a uniform mesh scale
-        vals = vals * 3
-    if len(vals) != n:
-        raise ValueError(f"{what} must be {n} numbers, got {text!r}")
-    return vals
-
-
-def _origin(elem, what: str) -> np.ndarray:
-    """The 4x4 transform of an ``<origin xyz rpy>`` (URDF: ``R = Rz(yaw) Ry(pitch) Rx(roll)``)."""
-    out = np.eye(4)
-    o = elem.find("origin") if elem is not None else None
-    if o is None:
-        return out
-    x, y, z = _floats(o.get("xyz"), 3, f"{what} <origin xyz>", (0.0, 0.0, 0.0))
-    rpy = _floats(o.get("rpy"), 3, f"{what} <origin rpy>", (0.0, 0.0, 0.0))
-    out[:3, :3] = _rpy_matrix(rpy)
-    out[:3, 3] = (x, y, z)
-    return out
-
-
-def _mesh_path(filename: str, base: Path | None, mesh_dir: Path | None, what: str) -> Path:
-    """A ``<mesh filename>`` on disk: ``package://<pkg>/rest`` and ``file://`` under ``mesh_dir``
-    (default the URDF's folder), a relative path from the URDF's folder."""
-    name = filename
-    for prefix in ("file://", "package://"):
-        if name.startswith(prefix):
-            name = name[len(prefix):]
-            if prefix == "package://":
-                name = name.split("/", 1)[1] if "/" in name else name
-    candidates = [Path(name)] if Path(name).is_absolute() else []
-    for root in (mesh_dir, base):
-        if root is not None and not Path(name).is_absolute():
-            candidates.append(Path(root) / name)
-    for path in candidates:
-        if path.is_file():
-            return path
-    where = ", ".join(str(c) for c in candidates) or name
-    raise FileNotFoundError(f"{what} names the mesh {filename!r}, which is not at {where} (give mesh_dir=)")
-
-
-def collision_geometry(urdf: str | Path, *, mesh_dir: str | Path | None = None) -> list[CollisionGeometry]:
-    """Every ``<collision>`` of a URDF (a path or its XML text), in document order. Mesh paths are
-    resolved here (a clear error for one that is not on disk); ``mesh_dir`` is where
-    ``package://<pkg>/...`` paths live (default: the URDF's folder)."""
-    from .kinematics import _read_urdf, urdf_links
-
-    text, where = _read_urdf(urdf)
-    urdf_links(text, where)  # a clear error for text that is not a URDF
-    base = Path(where).parent if Path(where).is_file() else None
-    mesh_dir = Path(mesh_dir) if mesh_dir is not None else None
-    out = []
-    for link in ET.fromstring(text).iter("link"):
-        name = link.get("name")
-        for i, col in enumerate(link.findall("collision")):
-            what = f"{where}: link {name!r} <collision> {i + 1}"
-            geom = col.find("geometry")
-            shapes = [g for g in (geom if geom is not None else []) if g.tag in _KINDS]
-            if len(shapes) != 1:
-                raise ValueError(f"{what} must hold one of <{'>, <'.join(_KINDS)}> in its <geometry>")
-            g, origin = shapes[0], _origin(col, what)
-            if g.tag in ("sphere", "capsule", "cylinder"):
-                radius = _floats(g.get("radius"), 1, f"{what} <{g.tag} radius>")[0]
-                length = _floats(g.get("length"), 1, f"{what} <{g.tag} length>", (0.0,))[0]
-                if radius <= 0 or length < 0 or (g.tag == "cylinder" and length <= 0):
-                    raise ValueError(f"{what} <{g.tag}> needs a positive radius and length, got {radius}, {length}")
-                out.append(CollisionGeometry(name, g.tag, origin, radius=radius, length=length))
-            elif g.tag == "box":
-                size = _floats(g.get("size"), 3, f"{what} <box size>")
-                if min(size) <= 0:
-                    raise ValueError(f"{what} <box size> must be positive, got {size}")
-                out.append(CollisionGeometry(name, "box", origin, size=size))
-            else:
-                path = _mesh_path(g.get("filename") or "", base, mesh_dir, what)
-                scale = _floats(g.get("scale"), 3, f"{what} <mesh scale>", (1.0, 1.0, 1.0))
-                out.append(CollisionGeometry(name, "mesh", origin, mesh=path, scale=scale))
-    return out
 
 
 # ----------------------------------------------------------------------------------------- fitting
@@ -328,7 +222,7 @@ def fit_geometry(geom: CollisionGeometry, *, max_per_geometry: int = 3, samples:
             pts = np.concatenate([pts, np.asarray(trimesh.sample.sample_surface(mesh, samples, seed=seed)[0])])
         caps = _mesh_capsules(pts, max_per_geometry)
     else:
-        raise ValueError(f"unknown collision geometry kind {geom.kind!r}; expected one of {_KINDS}")
+        raise ValueError(f"unknown collision geometry kind {geom.kind!r}; expected one of {COLLISION_KINDS}")
     rot, pos = geom.origin[:3, :3], geom.origin[:3, 3]
     out = []
     for a, b, r in caps:

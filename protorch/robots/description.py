@@ -31,6 +31,8 @@ from typing import Mapping, Sequence
 import torch
 from torch import Tensor
 
+from .kinematics import ArmKinematics
+
 __all__ = ["Capsule", "Inertial", "PointMass", "Robot", "capsule_index", "capsule_segments"]
 
 
@@ -105,8 +107,6 @@ class Robot:
 
     def kinematics(self, dtype: torch.dtype = torch.float64, device=None):
         """The chain base -> end link (:class:`~protorch.robots.ArmKinematics`)."""
-        from .kinematics import ArmKinematics
-
         return ArmKinematics(self.urdf, end_link=self.end_link, dtype=dtype, device=device)
 
     def summary(self) -> dict:

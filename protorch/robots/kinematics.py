@@ -29,39 +29,12 @@ import torch
 from torch import Tensor, nn
 
 from ..checks import check_tensor
+from .urdf import default_chain, parse_urdf, read_urdf, urdf_links
 
 __all__ = ["ArmKinematics", "urdf_links", "parse_urdf"]
 
 _SNAP = 1e-7
 
-
-def _read_urdf(urdf: str | Path) -> tuple[str, str]:
-    """``(text, where)`` of a URDF given as a path or as its XML text."""
-    if isinstance(urdf, Path) or (isinstance(urdf, str) and not urdf.lstrip().startswith("<")):
-        path = Path(urdf)
-        if not path.is_file():
-            raise FileNotFoundError(f"no URDF file at {path}")
-        return path.read_text(), str(path)
-    if not isinstance(urdf, str):
-        raise TypeError(f"urdf must be a path or the URDF's XML text, got {type(urdf).__name__}")
-    return urdf, "the given URDF text"
-
-
-def parse_urdf(text: str, where: str = "the URDF") -> ET.Element:
-    """A URDF's XML text parsed: its ``<robot>`` element (a ``ValueError`` naming ``where`` if it
-    is not XML or not a URDF)."""
-    try:
-        root = ET.fromstring(text)
-    except ET.ParseError as exc:
-        raise ValueError(f"{where} is not valid XML: {exc}") from None
-    if root.tag != "robot":
-        raise ValueError(f"{where} is not a URDF: its root element is <{root.tag}>, expected <robot>")
-    return root
-
-
-def urdf_links(text: str, where: str = "the URDF") -> list[str]:
-    """Names of the ``<link>`` elements of a URDF's XML text (a clear error if it is not XML)."""
-    return [link.get("name") for link in parse_urdf(text, where).iter("link")]
 
 
 def _joint_limits_from_xml(text: str, names: list[str]) -> tuple[list[float], list[float], list[float]]:
@@ -117,11 +90,9 @@ class ArmKinematics(nn.Module):
         import pytorch_kinematics as pk
 
         if urdf is None or end_link is None:
-            from .loader import load_robot
-
-            robot = load_robot()
-            urdf, end_link = robot.urdf if urdf is None else urdf, robot.end_link if end_link is None else end_link
-        text, where = _read_urdf(urdf)
+            default_urdf, default_end = default_chain()
+            urdf, end_link = default_urdf if urdf is None else urdf, default_end if end_link is None else end_link
+        text, where = read_urdf(urdf)
         links = urdf_links(text, where)
         for role, name in (("end_link", end_link), ("root_link", root_link)):
             if name and name not in links:

@@ -42,12 +42,12 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from .description import Capsule, Inertial, PointMass, Robot
-from .kinematics import parse_urdf
+from .capsules import fit_capsules
+from .urdf import ROBOTS_DIR, collision_geometry, parse_urdf, rpy_matrix, shipped_yaml
 
 __all__ = ["RobotError", "ROBOTS_DIR", "SETTINGS", "DEFAULTS", "shipped_robots", "load_robot", "robot_settings",
            "urdf_inertials", "check_inertials", "auto_capsules", "MIN_JOINTS"]
 
-ROBOTS_DIR = Path(__file__).resolve().parent
 MIN_JOINTS = 6  # a hand-down pose at every point of the workspace needs six joints
 DEFAULTS = {"base": None, "name": None, "urdf": None, "end_link": None, "home": None, "max_velocity": None,
             "max_acceleration": 10.0, "max_torque": None, "damping": 1.0, "armature": 0.1, "capsules": "auto",
@@ -81,14 +81,9 @@ def shipped_robots() -> list[str]:
 
 
 def _shipped(name: str) -> dict:
-    import yaml
-
-    path = ROBOTS_DIR / f"{name}.yaml"
-    if not path.is_file():
+    data = shipped_yaml(name)
+    if data is None:
         raise RobotError(f"robot.base={name!r} is not a shipped robot; shipped: {', '.join(shipped_robots())}")
-    data = yaml.safe_load(path.read_text()) or {}
-    if data.get("urdf") is not None:
-        data["urdf"] = str((path.parent / data["urdf"]).resolve())
     return data
 
 
@@ -177,14 +172,6 @@ def _floats(text: str | None, n: int, what: str) -> tuple[float, ...]:
     return vals
 
 
-def _rpy_matrix(rpy) -> list[list[float]]:
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    return [[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr]]
-
-
 def _origin(el: ET.Element | None) -> tuple[tuple[float, ...], tuple[float, ...]]:
     if el is None:
         return (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
@@ -215,7 +202,7 @@ def urdf_inertials(root: ET.Element) -> dict[str, Inertial]:
             raise RobotError(f"robot.urdf: link {name!r} has an <inertial> with a missing or non-numeric value") \
                 from None
         if any(rpy):
-            rot = _rpy_matrix(rpy)
+            rot = rpy_matrix(rpy)
             mat = [[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]
             rm = [[sum(rot[i][k] * mat[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
             full = [[sum(rm[i][k] * rot[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
@@ -251,8 +238,6 @@ def auto_capsules(urdf: Path, links, where: str) -> dict[str, tuple[Capsule, ...
 
 @functools.lru_cache(maxsize=16)
 def _fit_cached(text: str, urdf: str, links: tuple[str, ...], where: str) -> dict:
-    from .capsules import collision_geometry, fit_capsules
-
     try:
         have = {g.link for g in collision_geometry(urdf)}
         wanted = [n for n in links if n in have]

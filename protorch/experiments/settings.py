@@ -197,6 +197,8 @@ class Loop:
     checkpoint_every: int = setting(1, "loop steps between atomic checkpoints", ge=1)
     eval_dtype: str = setting("float32", "dtype of the optimiser's samples and costs", choices=("float32", "float64"))
     min_var: float = setting(0.0, "floor on the inferred variance the optimiser starts from", ge=0)
+    refill: typing.Any = setting("auto", "give a finished problem's slot the next environment at once (B workers); "
+                                 "auto: where the optimiser can restart single problems (pro, rwr, cem)")
 
 
 @dataclass

@@ -343,8 +343,8 @@ class ArmReachTaskSettings:
     urdf: typing.Optional[str] = setting(None, "the arm's URDF; null = the Panda shipped with protorch")
     deviation: str = setting("segment", "d of the objectives: distance to the segment s -> g, or to tau_direct(t)",
                              choices=("segment", "time"))
-    collision: str = setting("skeleton", "the arm in the success check: segments between frame origins, or the "
-                             "Panda's link capsules (as MuJoCo collides them)", choices=("skeleton", "volume"))
+    collision: str = setting("volume", "the arm in planning and the success check: the robot's link capsules (as "
+                             "MuJoCo collides them), or segments between frame origins", choices=("skeleton", "volume"))
     can_objective: str = setting("auto", "the can objective's distance: the end effector's (the paper's), the "
                                  "hand's, link 7's and the forearm's capsules, the arm's skeleton, or auto (volume "
                                  "with collision=volume)", choices=("auto", "ee", "volume", "skeleton"))

@@ -51,7 +51,7 @@ DYNAMIC_SEED = 3_000_017  # the moving-environment episodes (start environments 
 DEMO_SEED_OFFSET = 10_007  # generated demonstrations: seed + offset (the loop's pool uses seed)
 GP_KEYS = frozenset({"backend", "alpha", "var_floor", "nearest_k", "neighbours"})
 LOOP_KEYS = frozenset({"num_envs", "batch_size", "add_only", "choice", "checkpoint_every", "eval_dtype", "min_var",
-                       "refill"})
+                       "refill", "refill_group"})
 
 
 @dataclass

@@ -199,6 +199,7 @@ class Loop:
     min_var: float = setting(0.0, "floor on the inferred variance the optimiser starts from", ge=0)
     refill: typing.Any = setting("auto", "give a finished problem's slot the next environment at once (B workers); "
                                  "auto: where the optimiser can restart single problems (pro, rwr, cem)")
+    refill_group: int = setting(1, "with refill: finished environments added and refilled once this many are done", ge=1)
 
 
 @dataclass

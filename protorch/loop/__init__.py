@@ -134,6 +134,7 @@ def self_improve(
     on_step: Callable[[dict], None] | None = None,
     threads: int | str | None = "auto",
     refill: bool = False,
+    refill_group: int = 1,
 ) -> LoopResult:
     """Run the self-improvement loop; see the module docstring.
 
@@ -204,6 +205,8 @@ def self_improve(
             workers). Needs an optimiser that restarts single problems (``can_restart``: PRO with
             ``relevance_every=1``, RWR, CEM). A metrics row and checkpoint are written each time
             ``batch_size`` more environments finished; a resumed run keeps every finished one.
+        refill_group: with ``refill``, finished environments are added and their slots refilled
+            once this many are done (1: each as it comes; more: fewer adds to the map).
     """
     with ThreadGovernor(threads) as governor:
         return _improve(task, promp, dataset, optimizer=optimizer, optimizer_kwargs=optimizer_kwargs,
@@ -212,16 +215,19 @@ def self_improve(
                         sample_steps=sample_steps, seed=seed, eval_envs=eval_envs, min_var=min_var,
                         var_floor=var_floor, eval_dtype=eval_dtype, run_dir=run_dir,
                         checkpoint_every=checkpoint_every, resume=resume, progress=progress, desc=desc,
-                        on_step=on_step, governor=governor, refill=refill)
+                        on_step=on_step, governor=governor, refill=refill,
+                        refill_group=refill_group)
 
 
 def _improve(task, promp, dataset, *, optimizer, optimizer_kwargs, env_map, num_envs, batch_size, add_only,
              choice, solved, labeler, each_label, sample_steps, seed, eval_envs, min_var, var_floor, eval_dtype,
-             run_dir, checkpoint_every, resume, progress, desc, on_step, governor, refill) -> LoopResult:
+             run_dir, checkpoint_every, resume, progress, desc, on_step, governor, refill,
+             refill_group) -> LoopResult:
     """The body of :func:`self_improve` (the same arguments), run inside its thread setting."""
     settings = LoopSettings(num_envs=num_envs, batch_size=batch_size, add_only=add_only, choice=choice,
                             each_label=each_label, sample_steps=sample_steps, seed=seed, min_var=min_var,
-                            var_floor=var_floor, checkpoint_every=checkpoint_every, refill=refill)
+                            var_floor=var_floor, checkpoint_every=checkpoint_every, refill=refill,
+                            refill_group=refill_group)
     _check_inputs(dataset, optimizer, optimizer_kwargs, labeler, each_label, run_dir, resume, refill)
     run_dir = None if run_dir is None else writable_folder(run_dir)
     ev = Evaluator.build(task, promp, eval_dtype=eval_dtype, sample_steps=settings.sample_steps, labeler=labeler,

@@ -7,7 +7,9 @@ each environment whose problems have all stopped (converged, solved, or out of t
 the data set and the map, and its slot gets the next untried environment, inferred from the map
 as it is now (:meth:`~protorch.optim.base.BaseOptimizer.restart`). No slot waits for the slowest
 problem of a step, and every environment starts from a map that already holds every solution
-finished before it.
+finished before it. With ``refill_group`` ``g > 1`` finished environments wait (their rows idle)
+until ``g`` of them are done, and are added and refilled together: a map whose add costs
+``O(M^2)`` (the exact GP without ``nearest_k``) is then updated ``g`` times less often.
 
 Steps here are bookkeeping: a metrics row (and ``eval_success``, the checkpoint, ``on_step``) is
 written each time at least ``B`` more environments have finished, and after the last. ``tried``
@@ -48,7 +50,9 @@ class Slots:
     """``B`` slots of ``K`` optimiser rows each (row ``l B + j``: label ``l`` of slot ``j``) and
     what the loop knows of the environment in each: its pool index (``-1``: free), the
     environment (CPU, data set dtype, and in the evaluation dtype per row), the start's success
-    and, per row, the age at which it first stopped (``-1``: still moving)."""
+    and, per row, the age at which it first stopped (``-1``: still moving) and whether it had
+    converged then (a row out of iterations is frozen, marked converged in the optimiser, while it
+    waits for its environment's other rows or its group)."""
 
     def __init__(self, b: int, k: int, env_dim: int, ev) -> None:
         self.b, self.k = b, k
@@ -57,6 +61,7 @@ class Slots:
         self.env_e = torch.zeros(k * b, env_dim, dtype=ev.eval_dtype, device=ev.device)  # (K B, E)
         self.initial_success = torch.zeros(b, dtype=torch.bool)  # (B,)
         self.stopped_at = torch.full((k * b,), -1, dtype=torch.long)  # (K B,)
+        self.converged = torch.zeros(k * b, dtype=torch.bool)  # (K B,) whether it converged when it stopped
 
     def rows(self, slots: Tensor) -> Tensor:
         """Optimiser rows of ``slots (s,)``, label-major: ``(K s,)``."""
@@ -165,11 +170,16 @@ def _finish_and_refill(ev, gp, data, opt, slots: Slots, settings, budget: int, s
     environment (or leave it free, its rows parked), until no busy slot is done."""
     while True:
         age = opt.age  # (K B,) CPU
-        stopped = opt.converged.cpu() | (age >= budget)  # (K B,)
+        conv = opt.converged.cpu()  # (K B,)
+        stopped = conv | (age >= budget)  # (K B,)
         first = stopped & (slots.stopped_at < 0)
         slots.stopped_at[first] = age[first]
+        slots.converged[first] = conv[first]
+        if bool((first & ~conv).any()):  # out of iterations: frozen while it waits (its flag kept above)
+            opt.mark_converged((first & ~conv).to(opt.converged.device))
         done = stopped.reshape(slots.k, slots.b).all(0) & slots.busy  # (B,)
-        if not bool(done.any()):
+        group = min(settings.refill_group, int(slots.busy.sum()))  # the last ones finish as they come
+        if int(done.sum()) < max(group, 1):
             return
         idx = done.nonzero().flatten()  # (s,)
         rows = slots.rows(idx)  # (K s,)
@@ -177,7 +187,7 @@ def _finish_and_refill(ev, gp, data, opt, slots: Slots, settings, budget: int, s
         problems = Problems(env=slots.env[idx].repeat(slots.k, 1), env_e=slots.env_e[rows_d], mu=opt.mean[rows_d],
                             var=opt.var[rows_d], mean_traj=None, initial_success=slots.initial_success[idx],
                             k=slots.k)
-        res = SimpleNamespace(mean=opt.mean[rows_d], var=opt.var[rows_d], converged=opt.converged[rows_d])
+        res = SimpleNamespace(mean=opt.mean[rows_d], var=opt.var[rows_d], converged=slots.converged[rows])
         sol = accept(ev, problems, res, settings)
         add(data, gp, problems.env, sol)
         acc.take(problems, sol, slots.stopped_at[rows], int(opt.rollouts[rows].sum()))

@@ -71,6 +71,8 @@ def run_signature(settings: LoopSettings, optimizer: type, optimizer_kwargs: dic
         sig["each_label"] = True
     if settings.refill:
         sig["refill"] = True
+        if settings.refill_group != 1:
+            sig["refill_group"] = settings.refill_group
     return sig
 
 

@@ -48,6 +48,21 @@ def test_a_slot_is_refilled_while_slower_problems_run():
     assert res.tried != sorted(res.tried)  # finish order: not the draw order
 
 
+def test_a_group_of_finished_environments_is_added_and_refilled_together():
+    task, promp, ds = setup()
+    one = loop(task, promp, ds, num_envs=12, batch_size=4, add_only="all", refill=True)
+    grouped = loop(task, promp, setup()[2], num_envs=12, batch_size=4, add_only="all", refill=True, refill_group=3)
+    assert sorted(grouped.tried) == list(range(12)) and len(grouped.dataset) == 4 + 12
+    adds = [n for r in grouped.metrics[1:] for n in r["adds"]]
+    assert sum(adds) == 12 and len(adds) < len([n for r in one.metrics[1:] for n in r["adds"]])
+    assert all(n >= 3 for n in adds[:-2])  # the last ones, with fewer than 3 busy slots, come one by one
+    assert all(r["iterations_max"] <= KW["max_iter"] for r in grouped.metrics[1:])  # waiting is not iterating
+    # out of iterations, not converged: so flagged, though frozen in the optimiser while waiting
+    conv = loop(task, promp, setup()[2], num_envs=12, batch_size=4, add_only="converged", refill=True,
+                refill_group=3, optimizer_kwargs={**KW, "max_iter": 4})
+    assert int(learned(conv.dataset).sum()) == sum(r["converged"] for r in conv.metrics[1:]) < 12
+
+
 def test_solved_and_converged_flags_as_in_the_step_loop():
     task, promp, ds = setup()
     res = loop(task, promp, ds, num_envs=8, batch_size=3, add_only="converged", solved=task.success, refill=True)

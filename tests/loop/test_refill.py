@@ -14,7 +14,7 @@ from protorch.data.dataset import TrajectoryDataset
 from protorch.loop import can_refill
 from protorch.loop.refill import problem_budget
 
-from .test_loop import KW, learned, loop, setup
+from .test_loop import KW, Crash, crash_at_2, learned, loop, setup
 
 
 @pytest.mark.parametrize("batch_size", [1, 3])
@@ -126,14 +126,6 @@ def test_restart_gives_a_row_a_new_problem_and_leaves_the_others():
 @pytest.mark.slow
 def test_resume_after_a_crash_keeps_every_finished_environment(tmp_path):
     task, promp, ds = setup()
-
-    class Crash(Exception):
-        pass
-
-    def crash_at_2(row):
-        if row["step"] == 2:
-            raise Crash
-
     run = tmp_path / "run"
     with pytest.raises(Crash):
         loop(task, promp, ds, num_envs=12, batch_size=3, run_dir=run, on_step=crash_at_2, refill=True)

@@ -46,7 +46,7 @@ from ..data.demos import check_demo_groups, read_marks
 from ..data.recordings import Cleaning
 from ..gp.model import label_aware_mean
 from ..loop import LoopResult, demonstration_dataset
-from ..primitives.promp import ProMP, resample
+from ..primitives.promp import resample
 from ..robots import check_inertials, load_robot
 from ..tasks.arm.demos import read_arm_demos
 from ..tasks.arm.reach import LEFT, RIGHT, SIDES, ArmReachTask

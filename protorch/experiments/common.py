@@ -197,7 +197,11 @@ def loop_settings(loop_cfg: dict, *, num_envs: int) -> dict:
         choice=loop_cfg.get("choice", "random"),
         eval_dtype=resolve_dtype(loop_cfg.get("eval_dtype", "float32")),
         min_var=float(loop_cfg.get("min_var", 0.0)),
+        refill=loop_cfg.get("refill", "auto"),
+        refill_group=check_int(loop_cfg.get("refill_group", 1), "loop.refill_group", 1),
     )
+    if out["refill"] not in ("auto", True, False):
+        raise ValueError(f"loop.refill must be auto, true or false, got {out['refill']!r}")
     if out["add_only"] not in ADD_ONLY:
         raise ValueError(f"loop.add_only must be one of {list(ADD_ONLY)}, got {out['add_only']!r}")
     if out["choice"] not in CHOICES:

@@ -35,7 +35,7 @@ from ..checks import check_int, check_keys
 from ..data.checkpoint import checkpoint_path, load
 from ..gp import make_env_map
 from ..gp.model import EnvToProMP
-from ..loop import LoopResult, demonstration_dataset, self_improve
+from ..loop import LoopResult, can_refill, demonstration_dataset, self_improve
 from ..primitives.promp import ProMP, resample
 from ..tasks import check_task_outputs
 from ..threads import beside_workers, core_budget
@@ -50,7 +50,8 @@ TEST_SEED = 2_000_003  # the held-out test environments: fixed, never a training
 DYNAMIC_SEED = 3_000_017  # the moving-environment episodes (start environments and moves)
 DEMO_SEED_OFFSET = 10_007  # generated demonstrations: seed + offset (the loop's pool uses seed)
 GP_KEYS = frozenset({"backend", "alpha", "var_floor", "nearest_k", "neighbours"})
-LOOP_KEYS = frozenset({"num_envs", "batch_size", "add_only", "choice", "checkpoint_every", "eval_dtype", "min_var"})
+LOOP_KEYS = frozenset({"num_envs", "batch_size", "add_only", "choice", "checkpoint_every", "eval_dtype", "min_var",
+                       "refill", "refill_group"})
 
 
 @dataclass
@@ -119,6 +120,10 @@ class SelfImprovementExperiment:
         make_env_map(self.backend, self.alpha, **self.map_options)  # refuses a bad backend or option now
         self.promp_cfg = {"num_basis": 10, "num_steps": 100, **dict(promp or {})}
         self.optimizer = optimizer_spec(optimizer)  # (class, kwargs)
+        if self.loop_kwargs["refill"] is True and not can_refill(*self.optimizer):
+            raise ValueError(f"loop.refill=true needs an optimiser that restarts single problems (pro with "
+                             f"relevance_every=1, rwr, cem), not {optimizer.get('name', self.optimizer[0].__name__)}: "
+                             f"set loop.refill=auto or false")
         self.seconds: dict = {}
         self.configure(task_cfg, loop_cfg)
 
@@ -238,6 +243,8 @@ class SelfImprovementExperiment:
         data = args.pop("dataset")
         desc = f"{args['optimizer'].__name__} loop" + ("" if variant is None else f" ({variant})")
         kw = {"desc": desc, **self.loop_kwargs, **args, **overrides}
+        if kw["refill"] == "auto":  # on where the loop's optimiser can restart single problems
+            kw["refill"] = can_refill(kw["optimizer"], kw["optimizer_kwargs"])
         return self_improve(self.task, self.promp, data, env_map=self.env_map, **kw)
 
     def evaluate(self, model) -> tuple[dict, dict | None, object]:

@@ -197,6 +197,9 @@ class Loop:
     checkpoint_every: int = setting(1, "loop steps between atomic checkpoints", ge=1)
     eval_dtype: str = setting("float32", "dtype of the optimiser's samples and costs", choices=("float32", "float64"))
     min_var: float = setting(0.0, "floor on the inferred variance the optimiser starts from", ge=0)
+    refill: typing.Any = setting("auto", "give a finished problem's slot the next environment at once (B workers); "
+                                 "auto: where the optimiser can restart single problems (pro, rwr, cem)")
+    refill_group: int = setting(1, "with refill: finished environments added and refilled once this many are done", ge=1)
 
 
 @dataclass
@@ -357,8 +360,8 @@ class ArmReachTaskSettings:
     table: typing.Any = setting([[0.2, 0.9], [-0.5, 0.5]], "the table top; an environment off it is refused")
     deviation: str = setting("segment", "d of the objectives: distance to the segment s -> g, or to tau_direct(t)",
                              choices=("segment", "time"))
-    collision: str = setting("skeleton", "the arm in the success check: segments between frame origins, or the "
-                             "robot's link capsules (as MuJoCo collides them)", choices=("skeleton", "volume"))
+    collision: str = setting("volume", "the arm in planning and the success check: the robot's link capsules (as "
+                             "MuJoCo collides them), or segments between frame origins", choices=("skeleton", "volume"))
     can_objective: str = setting("auto", "the can objective's distance: the end effector's (the paper's), the "
                                  "capsules rigid with the end link and the forearm's, the arm's skeleton, or auto (volume "
                                  "with collision=volume)", choices=("auto", "ee", "volume", "skeleton"))

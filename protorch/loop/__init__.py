@@ -54,6 +54,7 @@ from ..data.dataset import TrajectoryDataset
 from ..threads import ThreadGovernor, core_budget
 from .initial import dataset_pool, demonstration_dataset, group_by_env
 from .phases import Evaluator, accept, add, choose, infer, optimise, step_row
+from .refill import refill_loop
 from .settings import ADD_ONLY, CHOICES, LoopSettings
 from .state import (
     LOOP_STATE_VERSION,
@@ -75,6 +76,7 @@ __all__ = [
     "RunState",
     "demonstration_dataset",
     "group_by_env",
+    "can_refill",
     "self_improve",
 ]
 
@@ -131,6 +133,8 @@ def self_improve(
     desc: str = "self-improvement",
     on_step: Callable[[dict], None] | None = None,
     threads: int | str | None = "auto",
+    refill: bool = False,
+    refill_group: int = 1,
 ) -> LoopResult:
     """Run the self-improvement loop; see the module docstring.
 
@@ -195,6 +199,14 @@ def self_improve(
             re-chosen before every step; :class:`~protorch.threads.ThreadGovernor`), which keeps
             the loop fast both on an idle machine and where another program holds a core
             (docs/contention.md).
+        refill: keep ``batch_size`` environments in flight in one long-lived optimiser and give a
+            slot the next environment as soon as its problems stop, adding each accepted solution
+            to the map as it comes (:mod:`.refill`: the paper's sequential loop with ``B``
+            workers). Needs an optimiser that restarts single problems (``can_restart``: PRO with
+            ``relevance_every=1``, RWR, CEM). A metrics row and checkpoint are written each time
+            ``batch_size`` more environments finished; a resumed run keeps every finished one.
+        refill_group: with ``refill``, finished environments are added and their slots refilled
+            once this many are done (1: each as it comes; more: fewer adds to the map).
     """
     with ThreadGovernor(threads) as governor:
         return _improve(task, promp, dataset, optimizer=optimizer, optimizer_kwargs=optimizer_kwargs,
@@ -203,17 +215,20 @@ def self_improve(
                         sample_steps=sample_steps, seed=seed, eval_envs=eval_envs, min_var=min_var,
                         var_floor=var_floor, eval_dtype=eval_dtype, run_dir=run_dir,
                         checkpoint_every=checkpoint_every, resume=resume, progress=progress, desc=desc,
-                        on_step=on_step, governor=governor)
+                        on_step=on_step, governor=governor, refill=refill,
+                        refill_group=refill_group)
 
 
 def _improve(task, promp, dataset, *, optimizer, optimizer_kwargs, env_map, num_envs, batch_size, add_only,
              choice, solved, labeler, each_label, sample_steps, seed, eval_envs, min_var, var_floor, eval_dtype,
-             run_dir, checkpoint_every, resume, progress, desc, on_step, governor) -> LoopResult:
+             run_dir, checkpoint_every, resume, progress, desc, on_step, governor, refill,
+             refill_group) -> LoopResult:
     """The body of :func:`self_improve` (the same arguments), run inside its thread setting."""
     settings = LoopSettings(num_envs=num_envs, batch_size=batch_size, add_only=add_only, choice=choice,
                             each_label=each_label, sample_steps=sample_steps, seed=seed, min_var=min_var,
-                            var_floor=var_floor, checkpoint_every=checkpoint_every)
-    _check_inputs(dataset, optimizer_kwargs, labeler, each_label, run_dir, resume)
+                            var_floor=var_floor, checkpoint_every=checkpoint_every, refill=refill,
+                            refill_group=refill_group)
+    _check_inputs(dataset, optimizer, optimizer_kwargs, labeler, each_label, run_dir, resume, refill)
     run_dir = None if run_dir is None else writable_folder(run_dir)
     ev = Evaluator.build(task, promp, eval_dtype=eval_dtype, sample_steps=settings.sample_steps, labeler=labeler,
                          dtype=dataset.dtype)
@@ -233,7 +248,27 @@ def _improve(task, promp, dataset, *, optimizer, optimizer_kwargs, env_map, num_
         state.rows.append({"step": 0, "envs_done": 0, "dataset_size": len(data),
                            "eval_success": ev.eval_success(gp, eval_envs), "seconds": 0.0})
     bar = _progress_bar(progress, settings.num_envs, len(state.tried), desc)
-    while state.step < settings.num_steps:
+
+    def finish_step(row: dict) -> None:
+        """Complete a refill loop's metrics row, checkpoint and report it."""
+        governor.step()
+        state.step += 1
+        row.update(step=state.step, envs_done=len(state.tried), dataset_size=len(data),
+                   eval_success=ev.eval_success(gp, eval_envs),
+                   success_rate=round((state.successes + row["success"]) / len(state.tried), 6),
+                   seconds=round(state.elapsed(), 3))
+        state.rows.append(row)
+        if settings.is_checkpoint_step(state.step) or len(state.tried) == settings.num_envs:
+            state.checkpoint(data, gp)
+        _show(bar, row, state.successes / len(state.tried), len(data))
+        if on_step is not None:
+            on_step(row)
+
+    if settings.refill:
+        labels = torch.unique(gp.labels).cpu() if settings.each_label else None  # (K,) fixed for the run
+        refill_loop(ev=ev, gp=gp, data=data, pool=pool, state=state, settings=settings, optimizer=optimizer,
+                    optimizer_kwargs=optimizer_kwargs, solved=solved, labels=labels, finish_step=finish_step)
+    while not settings.refill and state.step < settings.num_steps:
         governor.step()  # "auto": the cores other programs leave free now
         state.step += 1
         pick = choose(pool, state.tried, data.env, settings.batch_size, settings.choice)  # (b,)
@@ -263,7 +298,8 @@ def _improve(task, promp, dataset, *, optimizer, optimizer_kwargs, env_map, num_
                       pool=pool, resumed_from=state.resumed_from)
 
 
-def _check_inputs(dataset, optimizer_kwargs: dict, labeler, each_label: bool, run_dir, resume: bool) -> None:
+def _check_inputs(dataset, optimizer, optimizer_kwargs: dict, labeler, each_label: bool, run_dir, resume: bool,
+                  refill: bool) -> None:
     """Refuse, before any work, what :class:`LoopSettings` cannot see."""
     if each_label and labeler is None:
         raise ValueError("each_label=True needs a labeler")
@@ -273,6 +309,18 @@ def _check_inputs(dataset, optimizer_kwargs: dict, labeler, each_label: bool, ru
         raise ValueError("the initial data set is empty: add demonstrations or priors first")
     if resume and run_dir is None:
         raise ValueError("resume=True needs a run_dir")
+    if refill and not can_refill(optimizer, optimizer_kwargs):
+        raise ValueError(f"refill=True needs an optimiser that restarts single problems (PRO with relevance_every=1, "
+                         f"RWR, CEM); {optimizer.__name__} with these settings cannot: set refill=False")
+
+
+def can_refill(optimizer: type, optimizer_kwargs: dict) -> bool:
+    """Whether ``optimizer(**optimizer_kwargs)`` can restart single problems (``can_restart``),
+    asked of one built on a small problem."""
+    if getattr(optimizer, "can_restart", False) is False:
+        return False
+    kw = {k: v for k, v in optimizer_kwargs.items() if k != "seed"}
+    return bool(optimizer(torch.zeros(1, 2), torch.ones(1, 2), seed=0, **kw).can_restart)
 
 
 def _progress_bar(enabled: bool, total: int, initial: int, desc: str):

@@ -136,13 +136,14 @@ def choose(pool: Tensor, tried: list[int], known: Tensor, batch_size: int, choic
     return cand[:b]
 
 
-def infer(ev: Evaluator, env_map, env: Tensor, *, each_label: bool, min_var: float) -> Problems:
+def infer(ev: Evaluator, env_map, env: Tensor, *, each_label: bool, min_var: float,
+          labels: Tensor | None = None) -> Problems:
     """The problems at ``env (b, E)``: one per environment, started from the GP map's prediction
-    (Eq. 7, 8), or with ``each_label`` one per (known label, environment), label-major; the
-    variance floored by ``min_var``."""
+    (Eq. 7, 8), or with ``each_label`` one per (known label, environment), label-major (the
+    labels ``labels (K,)``, default the map's); the variance floored by ``min_var``."""
     b = env.shape[0]
     if each_label:
-        labs = torch.unique(env_map.labels).cpu()  # (K,)
+        labs = torch.unique(env_map.labels).cpu() if labels is None else labels.cpu()  # (K,)
         k = labs.numel()
         env = env.repeat(k, 1)  # (P, E), P = K b
         mu, var = env_map.predict(env, labels=labs.repeat_interleave(b).to(env_map.labels.device))

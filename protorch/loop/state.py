@@ -69,6 +69,10 @@ def run_signature(settings: LoopSettings, optimizer: type, optimizer_kwargs: dic
         sig["labels"] = True
     if settings.each_label:
         sig["each_label"] = True
+    if settings.refill:
+        sig["refill"] = True
+        if settings.refill_group != 1:
+            sig["refill_group"] = settings.refill_group
     return sig
 
 
@@ -186,7 +190,9 @@ class RunState:
         if not self.rows:
             env_map.fit(dataset.env, dataset.mean, dataset.var, dataset.label)
             return
-        sizes = [int(self.rows[0]["dataset_size"])] + [int(r.get("added") or 0) for r in self.rows[1:]]
+        # a step's adds: one (the step loop) or, with refill, one per finishing iteration ("adds")
+        sizes = [int(self.rows[0]["dataset_size"])] + [int(n) for r in self.rows[1:]
+                                                       for n in r.get("adds", [r.get("added") or 0])]
         if sum(sizes) != len(dataset):
             raise ValueError(f"{self.checkpoint_file}: the loop state does not match its data set "
                              f"({sum(sizes)} != {len(dataset)})")

@@ -73,6 +73,9 @@ class BaseOptimizer(nn.Module):
     """
 
     can_draw_ahead = True  # every random number comes through _randn (see draw_ahead)
+    # restart() gives a problem's row a new problem between iterations (the loop's refill); an
+    # optimiser whose state reads the global iteration or pools iterations sets this to False
+    can_restart = True
 
     def __init__(
         self,
@@ -137,6 +140,8 @@ class BaseOptimizer(nn.Module):
         self.history: dict[str, list[Tensor]] = {"cost": [], "cost_min": [], "cost_max": [], "mean": [], "var": []}
         self.relevance_seconds: list[float] = []
         self.rollouts = torch.zeros(mean2.shape[0], dtype=torch.long)  # (B,) samples told while active
+        self.age = torch.zeros(mean2.shape[0], dtype=torch.long)  # (B,) iterations since each row's problem began
+        self.history_limit: int | None = None  # keep only this many iterations of history (None: all)
         self._gen: Generator[Tensor, Tensor, None] | None = None
         self._next: Tensor | None = None
         # the objective whose costs the pending ask's update reads (None: it reads all of them);
@@ -321,8 +326,39 @@ class BaseOptimizer(nn.Module):
         if cost is not None:
             for key, c in zip(("cost", "cost_min", "cost_max"), cost):
                 self.history[key].append(c)  # (B, O)
+        self.age += 1
         if len(self.history["cost"]) >= self.convergence.window:
-            self.converged |= self.convergence(self.history)
+            # a restarted row's window must hold its own problem's iterations only (a no-op
+            # without restarts: every row's age is then the iteration count)
+            self.converged |= self.convergence(self.history) & (self.age >= self.convergence.window).to(
+                self.converged.device)
+        if self.history_limit is not None:
+            for v in self.history.values():
+                del v[:-self.history_limit]
+
+    def restart(self, rows: Tensor, mean: Tensor, var: Tensor) -> None:
+        """Give rows ``rows (r,)`` new problems started at ``mean, var (r, N)``, between two
+        iterations: their distribution, convergence flag, age and rollout count start afresh; the
+        other rows are untouched (the loop's refill, :func:`protorch.loop.self_improve`). Needs
+        ``history_limit`` (a long-lived optimiser keeps only the iterations its rule reads)."""
+        if not self.can_restart:
+            raise ValueError(f"{type(self).__name__} cannot restart single problems (its state is not per problem)")
+        if self._asked is not None or self._next is not None:
+            raise RuntimeError("restart() is only possible between iterations")
+        rows = torch.as_tensor(rows, dtype=torch.long, device=self.mean.device).reshape(-1)
+        mean = torch.as_tensor(mean, dtype=self.mean.dtype, device=self.mean.device)
+        var = torch.as_tensor(var, dtype=self.mean.dtype, device=self.mean.device)
+        if tuple(mean.shape) != (rows.numel(), self.num_weights) or mean.shape != var.shape:
+            raise ValueError(f"restart needs mean and var ({rows.numel()}, {self.num_weights}), got "
+                             f"{tuple(mean.shape)} and {tuple(var.shape)}")
+        if bool((var < 0).any()):
+            raise ValueError("var must be >= 0")
+        self.mean[rows] = mean
+        self.var[rows] = var
+        self.converged[rows] = False
+        cpu = rows.cpu()
+        self.age[cpu] = 0
+        self.rollouts[cpu] = 0
 
     def mark_converged(self, mask) -> None:
         """Declare problems finished from outside, e.g. once their mean already solves the task

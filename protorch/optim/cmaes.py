@@ -43,6 +43,8 @@ class CMAES(BaseOptimizer):
     Needs pycma: ``pip install "protorch[peers]"`` (or ``pip install cma``).
     """
 
+    can_restart = False  # its state is not per problem (global iteration, pooled or external state)
+
     def __init__(
         self,
         mean: Tensor,

@@ -179,6 +179,8 @@ class EPRO(BaseOptimizer):
     ``(B, O, N)`` the last ``f`` and ``g``.
     """
 
+    can_restart = False  # its state is not per problem (global iteration, pooled or external state)
+
     def __init__(
         self,
         mean: Tensor,

@@ -61,6 +61,12 @@ class PRO(BaseOptimizer):
         self.relevance: Tensor | None = None  # (B, O, N)
         self.history["relevance"] = []
 
+    @property
+    def can_restart(self) -> bool:
+        """A restarted problem needs its own relevance at its next iteration: only when every
+        iteration computes it (``relevance_every=1``)."""
+        return self.relevance_every == 1
+
     def _due(self) -> bool:
         if self.relevance is None:
             return True

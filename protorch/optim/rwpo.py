@@ -48,6 +48,7 @@ class RWPO(PRO):
         Other arguments: :class:`PRO` / :class:`BaseOptimizer`.
     """
 
+    can_restart = False  # its state is not per problem (global iteration, pooled or external state)
     can_draw_ahead = False  # the relevance learning draws from the generator itself
 
     def __init__(

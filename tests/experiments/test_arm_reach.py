@@ -128,7 +128,8 @@ def test_gp_sparse_runs_the_same_loop_as_the_exact_maps_nearest_k(tmp_path):
 
 @pytest.mark.slow
 def test_prepare_builds_labelled_demonstrations_and_priors():
-    c = cfg()
+    assert cfg()["task"]["collision"] == "volume"  # the default plans with the volumes
+    c = cfg("task.collision=skeleton")  # every straight prior kept
     s = c["settings"]
     setup = prepare(optimizer=c["optimizer"], task=c["task"], gp=c["gp"], promp=s["promp"], loop=s["loop"],
                     test=s["test"], dynamic={"episodes": 0})
@@ -196,7 +197,7 @@ def test_loop_over_the_table_grid_iterates_the_initial_data_and_tests_both_regio
 def test_the_skeleton_can_objective_reaches_the_task_from_the_config(gen):
     """task.can_objective=skeleton: the experiment's task reads the skeleton in the can objective
     (the benchmark's choice, docs/peers.md 3d) and the end effector in the other two."""
-    c = cfg("task.can_objective=skeleton")
+    c = cfg("task.can_objective=skeleton", "task.collision=skeleton")
     s = c["settings"]
     setup = prepare(optimizer=c["optimizer"], task=c["task"], gp=c["gp"], promp=s["promp"], loop=s["loop"],
                     test=s["test"], dynamic={"episodes": 0})

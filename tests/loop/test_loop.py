@@ -72,6 +72,16 @@ def loop(task, promp, ds, **kw):
     return self_improve(task, promp, ds, **kw)
 
 
+class Crash(Exception):
+    pass
+
+
+def crash_at_2(row):
+    """An ``on_step`` that crashes the loop after its second step's checkpoint."""
+    if row["step"] == 2:
+        raise Crash
+
+
 def learned(ds):
     return ds.origin == ORIGINS.index("learned")
 
@@ -267,14 +277,6 @@ def test_checkpoints_are_atomic_loadable_and_match_the_csv(tmp_path, monkeypatch
 def test_resume_after_a_crash_equals_an_uninterrupted_run(tmp_path):
     task, promp, ds = setup()
     whole = loop(task, promp, ds, num_envs=12, batch_size=3)
-
-    class Crash(Exception):
-        pass
-
-    def crash_at_2(row):
-        if row["step"] == 2:
-            raise Crash
-
     run = tmp_path / "run"
     with pytest.raises(Crash):
         loop(task, promp, setup()[2], num_envs=12, batch_size=3, run_dir=run, on_step=crash_at_2)

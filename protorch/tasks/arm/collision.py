@@ -36,10 +36,10 @@ import torch
 from torch import Tensor
 
 from ...robots import capsule_index, capsule_segments
-from .geometry import segment_cylinder_distance
+from .geometry import segment_axis_distance, segment_cylinder_distance
 
-__all__ = ["COLLISIONS", "CAN_OBJECTIVES", "check_collision", "check_volumes", "frames_gap", "above_table",
-           "end_capsules", "end_volume_near"]
+__all__ = ["COLLISIONS", "CAN_OBJECTIVES", "check_collision", "check_volumes", "frames_gap", "capsules_gap",
+           "above_table", "end_capsules", "end_volume_near"]
 
 COLLISIONS = ("skeleton", "volume")
 CAN_OBJECTIVES = ("ee", "volume", "skeleton")
@@ -72,9 +72,40 @@ def frames_gap(task, frames: Tensor, env: Tensor) -> Tensor:
     if task.collision == "skeleton":
         return task.skeleton_distance(frames[..., :3, 3], env) - task.can_radius
     a, b, r = capsule_segments(frames, task.kinematics.frame_names, task.robot.capsule_list())  # (..., T, C, 3), (C,)
+    return capsules_gap(a, b, r, env, task.can_radius, task.can_height)
+
+
+# the bounds of capsules_gap hold to round-off and the golden-section search's tolerance: a margin
+# far above both (1 mm; float32 round-off at the arm's scale is ~1e-7 m) keeps every capsule
+# whose exact distance may be the smallest
+PRUNE_SLACK = 1e-3
+
+
+def capsules_gap(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, height: float) -> Tensor:
+    """Smallest signed distance between capsules ``a -> b`` of radius ``r`` (``(..., T, C, 3)``,
+    ``(C,)``) and the can of ``env (..., 4)`` (a solid cylinder of ``radius`` from 0 to ``height``):
+    ``(...)``, the same numbers as evaluating
+    :func:`~protorch.tasks.arm.geometry.segment_cylinder_distance` on every capsule and step.
+
+    Only the capsules that can hold the minimum are searched: a segment's distance to the can's
+    axis segment (exact, closed form) bounds its distance to the solid cylinder from above, and
+    that minus the can's radius from below (the cylinder lies between the axis segment and the axis
+    segment grown by the radius), so a capsule whose lower bound exceeds the smallest upper bound
+    (plus :data:`PRUNE_SLACK`) cannot be the nearest; the exact search (elementwise, so each
+    capsule's number is the one the full evaluation gives) runs on the rest, typically a few
+    percent of them."""
     axis = env[..., None, None, 0:2]  # (..., 1, 1, 2)
-    d = segment_cylinder_distance(a, b, axis, task.can_radius, 0.0, task.can_height) - r  # (..., T, C)
-    return d.flatten(-2).amin(-1)
+    upper = segment_axis_distance(a, b, axis, 0.0, height) - r  # (..., T, C) >= the exact gap
+    if not bool(torch.isfinite(upper).all()):  # NaN in: the full evaluation (which propagates it)
+        return (segment_cylinder_distance(a, b, axis, radius, 0.0, height) - r).flatten(-2).amin(-1)
+    best = upper.flatten(-2).amin(-1)  # (...)
+    idx = torch.nonzero(upper - radius <= best[..., None, None] + PRUNE_SLACK, as_tuple=True)  # the candidates
+    shape = upper.shape
+    near = segment_cylinder_distance(a.expand(*shape, 3)[idx], b.expand(*shape, 3)[idx],
+                                     axis.expand(*shape, 2)[idx], radius, 0.0, height)  # (n,)
+    gap = torch.full_like(upper, float("inf"))
+    gap[idx] = near - r.expand(shape)[idx]
+    return gap.flatten(-2).amin(-1)
 
 
 def above_table(task, frames: Tensor) -> Tensor:
@@ -117,20 +148,26 @@ def end_volume_near(kinematics, traj: Tensor, env: Tensor, capsules: dict, can_h
     of the objective's capsules (:func:`end_capsules`): ``traj (..., T, J)``, ``env (..., 4)`` ->
     ``(..., ceil(T / 2))``; the can's radius is not subtracted, so it reads like the end
     effector's distance to the axis. Also returns the end link's positions at every step ``(..., T, 3)``."""
-    frames = kinematics.ee_frame(traj)  # (..., T, 4, 4)
     axis = env[..., None, None, 0:2]  # (..., 1, 1, 2)
-    traj, coarse = traj[..., ::2, :], frames[..., ::2, :, :]  # every other step: the shaping term's cost halved
+    full, traj = traj, traj[..., ::2, :]  # every other step: the shaping term's cost halved
+    coarse = kinematics.ee_frame(traj)  # (..., T', 4, 4) the end link's pose where the capsules are read
+    path = torch.empty(*full.shape[:-1], 3, dtype=full.dtype, device=full.device)  # (..., T, 3)
+    path[..., ::2, :] = coarse[..., :3, 3]  # ee_frame's origin is ee_position's, to the bit
+    path[..., 1::2, :] = kinematics.ee_position(full[..., 1::2, :])
     near = []
     for frame, (a, b, r) in capsules.items():
         a, b, r = a.to(traj), b.to(traj), r.to(traj)
-        if frame is None:
-            rot, pos = coarse[..., None, :3, :3], coarse[..., None, :3, 3]  # (..., T', 1, 3, 3), (..., T', 1, 3)
-            pa, pb = (rot @ a[:, :, None])[..., 0] + pos, (rot @ b[:, :, None])[..., 0] + pos  # (..., T, C, 3)
+        if frame is None:  # the ends in the end link's frame, all placed by one matrix product
+            ends = torch.cat([a, b])  # (2C, 3)
+            ends = torch.cat([ends, torch.ones_like(ends[:, :1])], 1)  # (2C, 4) homogeneous
+            placed = (coarse[..., :3, :].reshape(-1, 4) @ ends.T).unflatten(0, (*coarse.shape[:-2], 3))  # (..., T', 3, 2C)
+            placed = placed.transpose(-1, -2)  # (..., T', 2C, 3)
+            pa, pb = placed[..., : a.shape[0], :].contiguous(), placed[..., a.shape[0]:, :].contiguous()  # (..., T', C, 3)
         else:
             ends = kinematics.frame_points(traj, frame, torch.cat([a, b]))  # (..., T, 2C, 3)
             pa, pb = ends[..., : a.shape[0], :], ends[..., a.shape[0]:, :]
         near.append(_axis_proxy(pa, pb, axis, can_height) - r)  # (..., T, C)
-    return torch.cat(near, -1).amin(-1), frames[..., :3, 3]
+    return torch.cat(near, -1).amin(-1), path
 
 
 def _axis_proxy(pa: Tensor, pb: Tensor, axis: Tensor, height: float) -> Tensor:

@@ -9,7 +9,7 @@ import torch
 
 from protorch.robots import capsule_segments
 from protorch.tasks import ArmReachTask
-from protorch.tasks.arm.collision import end_volume_near
+from protorch.tasks.arm.collision import capsules_gap, end_volume_near
 from protorch.tasks.arm.geometry import point_cylinder_distance, segment_cylinder_distance
 
 
@@ -31,6 +31,25 @@ def test_volume_gap_is_the_capsules_distance_to_the_can(seed):
     env = task.sample_envs(1, gen)[0]
     gap = float(task.can_gap(q, env))
     assert gap == pytest.approx(_sampled_gap(task, q, env), abs=1e-6)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_the_pruned_volume_gap_equals_the_search_on_every_capsule_bit_for_bit(dtype):
+    """capsules_gap searches only the capsules whose bounds allow the minimum: the same numbers as
+    the golden-section search on all of them, near the can (many overlaps) and far from it; NaN in
+    gives NaN out."""
+    gen = torch.Generator().manual_seed(7)
+    task = ArmReachTask(collision="volume")
+    for scale in (0.15, 0.6):
+        q = (task.start_config() + scale * torch.randn(40, 20, 7, generator=gen, dtype=torch.float64)).to(dtype)
+        env = task.sample_envs(40, gen, dtype=dtype)  # (40, 4)
+        a, b, r = capsule_segments(task.kinematics.frames(q), task.kinematics.frame_names)  # (40, 20, C, 3)
+        full = segment_cylinder_distance(a, b, env[:, None, None, :2], task.can_radius, 0.0, task.can_height) - r
+        want = full.flatten(-2).amin(-1)  # (40,)
+        assert torch.equal(capsules_gap(a, b, r, env, task.can_radius, task.can_height), want)
+    a[3, 5, 2, 0] = float("nan")
+    got = capsules_gap(a, b, r, env, task.can_radius, task.can_height)
+    assert bool(got[3].isnan()) and not bool(got[:3].isnan().any())
 
 
 def test_point_and_segment_cylinder_distances_over_the_top_beside_and_through_the_can():

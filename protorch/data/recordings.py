@@ -2,8 +2,8 @@
 
 A recordings folder holds one CSV file per demonstration (``*.csv``, read in name order). Its
 first line is a header naming the columns: ``time`` (seconds, strictly increasing, any and
-varying rate), one column per joint named as the task names it (the arm: ``panda_joint1`` ...
-``panda_joint7``, radians, in any order; other columns, e.g. a gripper's, are ignored), and the
+varying rate), one column per joint named as the task names it (the arm: its robot's joint names,
+radians, in any order; other columns, e.g. a gripper's, are ignored), and the
 environment columns (the arm: ``can_x, can_y, goal_x, goal_y``, metres, one value per row, as
 motion capture reads them; the recording's environment is their mean over its rows). A recording
 without environment columns takes its environment from ``STEM.json`` beside it:

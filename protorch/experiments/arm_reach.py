@@ -346,7 +346,7 @@ def check_robot(robot, task_cfg: dict, physics_runs: bool):
     robot = load_robot(robot)
     if physics_runs:
         check_inertials(robot)
-    keys = ArmReachExperiment.task_keys - {"_target_", "demos", "demo_envs", "demos_per_env", "priors",
+    keys = ArmReachExperiment.task_keys - {"_target_", "demos", "recordings", "demo_envs", "demos_per_env", "priors",
                                             "prior_clear", "prior_detours", "prior_grid"}
     task = ArmReachTask(robot=robot, **_boxes({k: v for k, v in task_cfg.items() if k in keys}))
     check_reach(task, check_region(task_cfg.get("prior_grid", "rectangles"), "task.prior_grid"))

@@ -19,38 +19,17 @@ An optimiser built from an unbatched ``mean (N,)`` speaks unbatched shapes: ``as
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Callable, Generator
 
 import torch
 from torch import Tensor, nn
 
-from ..checks import all_finite, check_int, check_number, check_positive, check_tensor
+from ..checks import check_int, check_number, check_positive, check_tensor
+from .contract import OptimizeResult, check_costs
 from .convergence import make_rule
 from .draws import NormalDraws
 
 __all__ = ["BaseOptimizer", "OptimizeResult"]
-
-
-@dataclass
-class OptimizeResult:
-    """What an optimiser returns: the final distribution and how it got there.
-
-    ``history`` holds per-iteration tensors stacked on a leading iteration axis:
-    ``cost (I, B, O)`` (mean cost of the samples each objective was updated with),
-    ``mean (I, B, N)``, ``var (I, B, N)`` and, for relevance-based optimisers,
-    ``relevance (I, B, O, N)``. ``rollouts (B,)`` counts the samples told while each problem was
-    still active (the ones a caller evaluates; a converged problem's are never read). The batch
-    dimension is dropped for unbatched optimisers.
-    """
-
-    mean: Tensor
-    var: Tensor
-    converged: Tensor
-    iterations: int
-    history: dict[str, Tensor] = field(default_factory=dict)
-    relevance_seconds: list[float] = field(default_factory=list)
-    rollouts: Tensor | None = None
 
 
 class BaseOptimizer(nn.Module):
@@ -266,32 +245,13 @@ class BaseOptimizer(nn.Module):
             raise
 
     def _checked_costs(self, costs) -> Tensor:
-        """``costs`` as ``(B, S, O)`` in the distribution's dtype, or an error naming what is
-        wrong; nothing changes before every check passed."""
-        costs = check_tensor(costs, "costs")
-        if not costs.is_floating_point():
-            costs = costs.to(self.mean.dtype)
-        if not self.batched:
-            costs = costs[None]
-        if costs.ndim == 2:
-            costs = costs[..., None]
-        expect = tuple(self._asked.shape[:2])
-        if costs.ndim != 3 or tuple(costs.shape[:2]) != expect:
-            raise ValueError(
-                f"costs must be (B, S, O) with (B, S) = {expect} (unbatched: (S, O)), got {tuple(costs.shape)}"
-            )
-        if self.num_objectives is not None and costs.shape[-1] != self.num_objectives:
-            raise ValueError(f"expected {self.num_objectives} objective(s), got costs of shape {tuple(costs.shape)}")
-        c = getattr(self, "objective_weights", None)
-        if c is not None and tuple(c.shape) != (costs.shape[-1],):
-            raise ValueError(f"objective_weights must be ({costs.shape[-1]},) to match the costs' "
-                             f"{costs.shape[-1]} objective(s), got shape {tuple(c.shape)}")
-        cast = costs.to(self.mean.dtype)
-        if cast is not costs and not all_finite(cast):
-            raise ValueError(f"costs overflow the optimiser's {self.mean.dtype} (largest |cost| "
-                             f"{float(costs.abs().max()):.3g}): rescale them or use dtype=torch.float64")
+        """``costs`` as ``(B, S, O)`` in the distribution's dtype (:func:`~.contract.check_costs`);
+        nothing changes before every check passed."""
+        cast = check_costs(costs, batched=self.batched, expect=tuple(self._asked.shape[:2]), dtype=self.mean.dtype,
+                           num_objectives=self.num_objectives,
+                           objective_weights=getattr(self, "objective_weights", None))
         if self.num_objectives is None:
-            self.num_objectives = costs.shape[-1]
+            self.num_objectives = cast.shape[-1]
         return cast
 
     def _snapshot(self) -> dict:

@@ -60,7 +60,9 @@ def test_the_robot_group_reaches_the_experiment(tmp_path):
     (lambda p: _write(p, user_arm_urdf(scale=0.5)), (), r"task\.goal_box: the target \(0\.660, -0\.240\) .* out of "
                                                           r"the my_arm arm's reach"),
     (lambda p: write_user_arm(p), ("task.goal_box=[[0.66,1.4],[-0.2,0.2]]",), r"goal_box .* must lie on the table"),
-    (lambda p: write_user_arm(p), ("robot.capsules=none", "settings.physics.run=always"),
+    (lambda p: write_user_arm(p), ("robot.capsules=none",),
+     r"collision=volume needs the robot's capsules: my_arm has none \(robot\.capsules"),
+    (lambda p: write_user_arm(p), ("robot.capsules=none", "task.collision=skeleton", "settings.physics.run=always"),
      r"robot\.capsules: the my_arm arm has no collision volumes"),
 ])
 def test_bad_robot_input_is_refused_before_any_work(tmp_path, make, overrides, line):

@@ -43,7 +43,8 @@ def test_the_pruned_volume_gap_equals_the_search_on_every_capsule_bit_for_bit(dt
     for scale in (0.15, 0.6):
         q = (task.start_config() + scale * torch.randn(40, 20, 7, generator=gen, dtype=torch.float64)).to(dtype)
         env = task.sample_envs(40, gen, dtype=dtype)  # (40, 4)
-        a, b, r = capsule_segments(task.kinematics.frames(q), task.kinematics.frame_names)  # (40, 20, C, 3)
+        a, b, r = capsule_segments(task.kinematics.frames(q), task.kinematics.frame_names,
+                                   task.robot.capsule_list())  # (40, 20, C, 3)
         full = segment_cylinder_distance(a, b, env[:, None, None, :2], task.can_radius, 0.0, task.can_height) - r
         want = full.flatten(-2).amin(-1)  # (40,)
         assert torch.equal(capsules_gap(a, b, r, env, task.can_radius, task.can_height), want)

@@ -117,7 +117,8 @@ pin_mkl_code_path()  # the app's MKL code path, before MKL's first call
 import torch
 from protorch.control.episodes import check_timing
 from protorch.primitives.promp import ProMP
-from protorch.robots.panda import PANDA_MAX_ACCELERATION
+from protorch.robots import load_robot
+PANDA_MAX_ACCELERATION = load_robot("panda").max_acceleration
 from protorch.sim.episodes import FixedMeans, run_physics_episodes
 from protorch.sim.scene import build_scene, controller_model
 from protorch.tasks import ArmReachTask

@@ -120,7 +120,9 @@ def main(argv: list[str] | None = None) -> None:
     commits = sorted({m.get("commit", "?") for m in metas})
     cmd = "python benchmarks/external/table.py " + shlex.join(sys.argv[1:] if argv is None else argv)
     runs_cmds = sorted({m["command"] for m in metas})
-    text = "\n".join(lines) + "\n\n" + f"Table: `{cmd}`; runs at commit(s) {', '.join(commits)}:\n" + "\n".join(
+    first = commits[0].split("+")[0]  # the docs' convention (tests/docs_tables.py): commit and command above the table
+    comment = f'<!-- measured: commit={first} command="{cmd}" -->'
+    text = comment + "\n" + "\n".join(lines) + "\n\n" + f"Table: `{cmd}`; runs at commit(s) {', '.join(commits)}:\n" + "\n".join(
         f"`{c}`" + ("" if i == len(runs_cmds) - 1 else ",") for i, c in enumerate(runs_cmds))
     if args.doc:
         write_doc(Path(args.doc), args.marker, text)

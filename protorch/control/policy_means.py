@@ -94,6 +94,8 @@ class ClassMeans:
             parts = [self._solve(c, self._neighbours(c, env)) for c in cls]
             if len(parts) == 1:  # views, no copies
                 Es, coef, mu0 = (x[None] for x in parts[0])  # (1, k, d), (1, k, N), (1, N)
+            elif len({p[0].shape[0] for p in parts}) > 1:  # a class with fewer than k entries: one by one
+                return torch.stack([m0 + rbf(env[None], E, self.alpha)[0] @ cf for E, cf, m0 in parts])  # (K', N)
             else:
                 Es = torch.stack([p[0] for p in parts])  # (K', k, d)
                 coef = torch.stack([p[1] for p in parts])  # (K', k, N)

@@ -102,7 +102,8 @@ def test_table_reads_each_run_at_the_budget(table, tmp_path):
     doc.write_text("a\n<!-- t -->\nold\n<!-- /t -->\nb\n")
     table.main([str(path), "--at", "200", "--doc", str(doc), "--marker", "t"])
     text = doc.read_text()
-    assert text.startswith("a\n<!-- t -->\n| task") and "old" not in text and text.endswith("<!-- /t -->\nb\n")
+    assert text.startswith("a\n<!-- t -->\n<!-- measured: commit=abc command=\"python benchmarks/external/table.py ")
+    assert "-->\n| task" in text and "old" not in text and text.endswith("<!-- /t -->\nb\n")
     assert "runs at commit(s) abc" in text
 
 

@@ -49,7 +49,9 @@ def test_config_holds_the_papers_settings():
 
 @pytest.mark.slow
 def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
-    m = run_experiment(cfg(), tmp_path)
+    # the skeleton keeps every straight prior, so the counts below are the grid's (the volume
+    # default's clearing and detours: test_prepare_builds_labelled_demonstrations_and_priors)
+    m = run_experiment(cfg("task.collision=skeleton"), tmp_path)
     assert m["loop"]["seconds"] > 0  # a duration, not a rate (over 1 s on a loaded machine)
     for path in (("test", "success_rate"), ("dynamic", "success_rate"),
                  ("baselines", "labels_off", "test", "success_rate"),
@@ -76,12 +78,13 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     off = protorch.load(tmp_path / "baselines" / "labels_off_loop")
     assert torch.unique(off.env_map.labels).tolist() == [0]
     # a finished run resumes at once, unchanged; without resume it is refused
-    again = run_experiment(cfg("resume=true"), tmp_path)
+    again = run_experiment(cfg("task.collision=skeleton", "resume=true"), tmp_path)
     assert again["loop"]["resumed_from"] == again["loop"]["steps"] and again["test"] == m["test"]
     with pytest.raises(FileExistsError, match="resume=true"):
         run_experiment(cfg(), tmp_path)
     # the trained map scored on other held-out environments and episodes (fresh evaluation seeds)
-    other = run_experiment(cfg("resume=true", "+settings.test.seed=12345", "+settings.dynamic.seed=54321"), tmp_path)
+    other = run_experiment(cfg("task.collision=skeleton", "resume=true", "+settings.test.seed=12345",
+                                "+settings.dynamic.seed=54321"), tmp_path)
     assert other["loop"]["resumed_from"] == other["loop"]["steps"]
     assert other["test"]["seed"] == 12345 and other["dynamic"]["seed"] == 54321
     assert m["test"]["seed"] != 12345 and m["dynamic"]["seed"] != 54321
@@ -169,7 +172,7 @@ def test_volume_task_keeps_only_the_priors_clear_of_the_can_under_its_volumes():
 @pytest.mark.slow
 def test_loop_over_the_table_grid_iterates_the_initial_data_and_tests_both_regions(tmp_path):
     c = cfg("task.prior_grid=table", "settings.loop.choice=dataset", "settings.loop.num_envs=12",
-            "settings.baselines=[labels_off]")
+            "settings.baselines=[labels_off]", "task.collision=skeleton")  # every straight prior kept: 30
     assert c["task"]["prior_grid"] == "table" and c["settings"]["loop"]["choice"] == "dataset"
     m = run_experiment(c, tmp_path)
     grid = m["priors"]["grid"]

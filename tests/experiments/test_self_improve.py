@@ -44,13 +44,13 @@ def test_a_task_outside_protorch_runs_the_whole_pipeline(tmp_path):
     for rate in (m["test"]["success_rate"], m["demos_only"]["test"]["success_rate"]):
         assert 0.0 <= rate <= 1.0
     assert m["loop"]["seconds"] > 0 and m["test"]["num_envs"] == 8
-    model = protorch.load(run)  # the checkpoint rebuilds the map
-    assert model.env_map.num_points == m["loop"]["dataset_size"] == m["demos"]["envs"] + m["loop"]["added"]
-    sys.path.insert(0, str(tmp_path))
+    sys.path.insert(0, str(tmp_path))  # the policy rebuilds the run's task: its module must be importable
     try:
+        model = protorch.load(run)  # the checkpoint rebuilds the map
         task = task_class("my_disc_task.ReachAroundADisc")(radius=0.12)
     finally:
         sys.path.remove(str(tmp_path))
+    assert model.env_map.num_points == m["loop"]["dataset_size"] == m["demos"]["envs"] + m["loop"]["added"]
     envs = task.sample_envs(8, torch.Generator().manual_seed(2_000_003), dtype=torch.float64)
     ok = task.success(model.mean_trajectory(envs), envs)  # the loaded map reproduces the run's test number
     assert float(ok.double().mean()) == m["test"]["success_rate"]

@@ -33,6 +33,7 @@ between passing it on the left and on the right on the fly.
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 from typing import Sequence
 
@@ -79,7 +80,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
 
     task_keys = frozenset({"_target_", "demos", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin",
                            "goal_tol", "start_tol", "can_radius", "can_height", "clearance", "deviation",
-                           "collision", "can_objective", "prior_clear", "prior_detours",
+                           "collision", "can_objective", "prior_clear", "prior_detours", "plan_margin",
                            "prior_grid", "region", "reach", "can_box", "goal_box", "table",
                            "recordings"})
     loop_keys = frozenset({"labels", "each_label"})
@@ -124,6 +125,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
         if self.prior_clear not in (True, False, "auto"):
             raise ValueError(f"task.prior_clear must be true, false or auto, got {self.prior_clear!r}")
         detours = task_cfg.pop("prior_detours", "auto")
+        plan_margin = task_cfg.pop("plan_margin", None)
         check_region(task_cfg.get("region", "rectangles"), "task.region")
         self.nearest_k = self.map_options.get("nearest_k")
         task_cfg.pop("_target_", None)
@@ -131,6 +133,12 @@ class ArmReachExperiment(SelfImprovementExperiment):
         if self.prior_clear == "auto":
             self.prior_clear = self.task.collision == "volume"
         self.prior_detours = check_detours(detours, self.task.collision)
+        self.loop_task = self.task
+        if plan_margin is not None:  # the loop accepts a solution only this far from the can; the tests keep `margin`
+            if isinstance(plan_margin, bool) or not isinstance(plan_margin, (int, float)) or not plan_margin >= 0:
+                raise ValueError(f"task.plan_margin must be null or a distance >= 0 (m), got {plan_margin!r}")
+            self.loop_task = copy.copy(self.task)
+            self.loop_task.margin = float(plan_margin)
 
     def make_demonstrations(self) -> None:
         """The demonstrated environments are drawn over the rectangles whatever ``task.region``;
@@ -347,7 +355,7 @@ def check_robot(robot, task_cfg: dict, physics_runs: bool):
     if physics_runs:
         check_inertials(robot)
     keys = ArmReachExperiment.task_keys - {"_target_", "demos", "recordings", "demo_envs", "demos_per_env", "priors",
-                                            "prior_clear", "prior_detours", "prior_grid"}
+                                            "prior_clear", "prior_detours", "prior_grid", "plan_margin"}
     task = ArmReachTask(robot=robot, **_boxes({k: v for k, v in task_cfg.items() if k in keys}))
     check_reach(task, check_region(task_cfg.get("prior_grid", "rectangles"), "task.prior_grid"))
     if physics_runs:

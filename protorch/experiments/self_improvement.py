@@ -245,7 +245,7 @@ class SelfImprovementExperiment:
         kw = {"desc": desc, **self.loop_kwargs, **args, **overrides}
         if kw["refill"] == "auto":  # on where the loop's optimiser can restart single problems
             kw["refill"] = can_refill(kw["optimizer"], kw["optimizer_kwargs"])
-        return self_improve(self.task, self.promp, data, env_map=self.env_map, **kw)
+        return self_improve(getattr(self, "loop_task", self.task), self.promp, data, env_map=self.env_map, **kw)
 
     def evaluate(self, model) -> tuple[dict, dict | None, object]:
         """``(test metrics, moving-test metrics, the episodes)`` of a map (an EnvToProMP)."""

@@ -369,6 +369,8 @@ class ArmReachTaskSettings:
                                       "collision (true, false, auto: with collision=volume)")
     prior_detours: typing.Any = setting("auto", "distances (m) beside the can of the detour priors on both sides; "
                                         "auto: [0.18, 0.24] with collision=volume, [] with the skeleton")
+    plan_margin: typing.Optional[float] = setting(None, "the loop's margin: it accepts a solution only this far "
+                                                  "from the can (the tests keep margin); null: margin", ge=0)
 
 
 TASK_SCHEMAS: dict[str, type] = {"point_particle": PointParticleTaskSettings, "arm_reach": ArmReachTaskSettings}

@@ -10,8 +10,8 @@ of the command line (:mod:`protorch.robots.loader`; docs/your_own_robot.md).
 """
 
 from .description import Capsule, Inertial, PointMass, Robot, capsule_index, capsule_segments
-from .kinematics import ArmKinematics
+from .kinematics import ArmKinematics, PointPlan
 from .loader import ROBOTS_DIR, RobotError, check_inertials, load_robot, shipped_robots
 
-__all__ = ["ArmKinematics", "Robot", "Capsule", "Inertial", "PointMass", "RobotError", "ROBOTS_DIR", "load_robot",
+__all__ = ["ArmKinematics", "PointPlan", "Robot", "Capsule", "Inertial", "PointMass", "RobotError", "ROBOTS_DIR", "load_robot",
            "shipped_robots", "check_inertials", "capsule_index", "capsule_segments"]

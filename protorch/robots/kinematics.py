@@ -22,19 +22,29 @@ and is about 100 times faster on a CPU (``benchmarks/arm.py``).
 
 from __future__ import annotations
 
+import bisect
 import xml.etree.ElementTree as ET
+from collections.abc import Sequence
+from typing import NamedTuple
 from pathlib import Path
 
 import torch
 from torch import Tensor, nn
 
 from ..checks import check_tensor
+from .ik import inverse_kinematics
 from .urdf import default_chain, parse_urdf, read_urdf, urdf_links
 
-__all__ = ["ArmKinematics", "urdf_links", "parse_urdf"]
+__all__ = ["ArmKinematics", "PointPlan", "urdf_links", "parse_urdf"]
 
 _SNAP = 1e-7
 
+
+class PointPlan(NamedTuple):
+    """Points fixed on the arm's links, prepared for :meth:`ArmKinematics.carry_points`."""
+    start: Tensor  # (M, 3) float64: each point in the frame after its last joint's rotation, ordered by that joint
+    after: list  # per joint k, the index of the first point (in that order) after joint k
+    back: Tensor | None  # the permutation back to the caller's order (None: already in it)
 
 
 def _joint_limits_from_xml(text: str, names: list[str]) -> tuple[list[float], list[float], list[float]]:
@@ -212,6 +222,17 @@ class ArmKinematics(nn.Module):
         translations). About four times :meth:`ee_position`'s cost; equal to the last of
         :meth:`frames` to round-off."""
         q = self.check_joints(q, finite=False)
+        x, y, z = self.ee_frame_rows(q)  # (4, P) each
+        out = torch.zeros(*q.shape[:-1], 4, 4, dtype=q.dtype, device=q.device)
+        out[..., :3, :] = torch.stack([x, y, z], 0).permute(2, 0, 1).reshape(*q.shape[:-1], 3, 4)
+        out[..., 3, 3] = 1.0
+        return out
+
+    def ee_frame_rows(self, q: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """:meth:`ee_frame`'s top three rows, component-major over the flattened batch ``P``:
+        ``x, y, z (4, P)``, whose columns are the end link's x, y and z axes and its origin (no
+        transposes or copies: what a caller placing points on the end link wants)."""
+        q = self.check_joints(q, finite=False)
         qt = q.reshape(-1, self.num_joints).T  # (J, P)
         c, s = torch.cos(qt), torch.sin(qt)  # (J, P)
         tail = torch.tensor(self._maps[-1], dtype=q.dtype, device=q.device)  # (3, 4) end link in the last joint's frame
@@ -221,107 +242,102 @@ class ArmKinematics(nn.Module):
         for j in range(self.num_joints - 1, -1, -1):
             x, y = c[j] * x - s[j] * y, s[j] * x + c[j] * y
             x, y, z = self._affine(j, x, y, z, translate=origin)
-        out = torch.zeros(*q.shape[:-1], 4, 4, dtype=q.dtype, device=q.device)
-        out[..., :3, :] = torch.stack([x, y, z], 0).permute(2, 0, 1).reshape(*q.shape[:-1], 3, 4)
-        out[..., 3, 3] = 1.0
-        return out
+        return x, y, z
 
     def skeleton(self, q: Tensor) -> Tensor:
         """The origins of all frames, root to end link, by the compiled path: ``(..., J) ->
-        (..., F, 3)``, equal to :meth:`link_positions` to round-off at a fraction of its cost.
-        Every origin is carried back through the joints before its frame, all frames at once
-        (the frames after joint ``k`` are a suffix of the chain: one slice per joint). Any
-        floating dtype; the shape is checked, the values are not."""
+        (..., F, 3)``, equal to :meth:`link_positions` to round-off at a fraction of its cost
+        (:meth:`carry_points` of the frames' origins). Any floating dtype; the shape is checked,
+        the values are not."""
         q = self.check_joints(q, finite=False)
+        pts = torch.tensor(self._origins, dtype=q.dtype, device=q.device)  # (F, 3): each origin after its joint's rotation
+        return self._carry(q, pts, self._after_joint)
+
+    def point_plan(self, frames: Sequence[str], points: Tensor) -> "PointPlan":
+        """What :meth:`carry_points` needs to place ``points (M, 3)``, each fixed in its frame
+        ``frames[m]`` (any order): each point in the frame after the last joint before its frame
+        (float64), the points ordered by that joint, and per joint the first point after it."""
+        points = check_tensor(points, "points", ndim=2).to(torch.float64).cpu()
+        if points.shape != (len(frames), 3):
+            raise ValueError(f"points must be ({len(frames)}, 3), one per frame, got {tuple(points.shape)}")
+        for f in frames:
+            if f not in self._frame_maps:
+                raise ValueError(f"the chain has no frame {f!r}; its frames are {self.frame_names}")
+        joints = [self._frame_maps[f][0] for f in frames]
+        order = sorted(range(len(frames)), key=lambda m: joints[m])  # stable: by the joints before each point
+        fixed = torch.tensor([self._frame_maps[frames[m]][1] for m in order], dtype=torch.float64)  # (M, 3, 4)
+        start = (fixed[:, :, :3] @ points[order][:, :, None])[..., 0] + fixed[:, :, 3]  # (M, 3)
+        after = [bisect.bisect_right([joints[m] for m in order], k) for k in range(self.num_joints)]
+        back = None if order == list(range(len(frames))) else torch.tensor(order).argsort()
+        return PointPlan(start, after, back)
+
+    def carry_points(self, q: Tensor, plan: "PointPlan") -> Tensor:
+        """The points of ``plan`` (:meth:`point_plan`) at joints ``q (..., J)``: ``(..., M, 3)`` in
+        the root frame, in the plan's order of points, by the compiled path: every point carried
+        back through the joints before its frame only, all points at once (ordered by frame, the
+        points after joint ``k`` are a suffix: one slice per joint). Any floating dtype; the shape
+        is checked, the values are not."""
+        q = self.check_joints(q, finite=False)
+        out = self._carry(q, plan.start.to(q), plan.after)
+        return out if plan.back is None else out.index_select(-2, plan.back.to(q.device))
+
+    def carry_points_rows(self, q: Tensor, plan: "PointPlan") -> tuple[Tensor, Tensor, Tensor]:
+        """:meth:`carry_points` component-major over the flattened batch ``P``: ``x, y, z (M, P)``."""
+        q = self.check_joints(q, finite=False)
+        x, y, z = self._carry_rows(q, plan.start.to(q), plan.after)
+        if plan.back is None:
+            return x, y, z
+        back = plan.back.to(q.device)
+        return x.index_select(0, back), y.index_select(0, back), z.index_select(0, back)
+
+    def _carry(self, q: Tensor, pts: Tensor, after: Sequence[int]) -> Tensor:
+        """Points ``pts (M, 3)``, each in the frame after its last joint's rotation and ordered by
+        that joint (``after[k]``: the first point after joint ``k``), at ``q (..., J)``: ``(..., M, 3)``."""
+        x, y, z = self._carry_rows(q, pts, after)  # (M, P) each
+        return torch.stack([x, y, z], -1).transpose(0, 1).reshape(*q.shape[:-1], pts.shape[0], 3)
+
+    def _carry_rows(self, q: Tensor, pts: Tensor, after: Sequence[int]) -> tuple[Tensor, Tensor, Tensor]:
         qt = q.reshape(-1, self.num_joints).T  # (J, P)
         c, s = torch.cos(qt), torch.sin(qt)  # (J, P)
-        pts = torch.tensor(self._origins, dtype=q.dtype, device=q.device)  # (F, 3): each origin after its joint's rotation
-        x, y, z = (pts[:, i, None].expand(-1, qt.shape[1]).clone() for i in range(3))  # (F, P)
-        for k, lo in reversed(list(enumerate(self._after_joint))):  # lo: the first frame after joint k
-            xs, ys = c[k] * x[lo:] - s[k] * y[lo:], s[k] * x[lo:] + c[k] * y[lo:]  # (F - lo, P)
+        x, y, z = (pts[:, i, None].expand(-1, qt.shape[1]).clone() for i in range(3))  # (M, P)
+        for k, lo in reversed(list(enumerate(after))):  # lo: the first point after joint k
+            if lo >= pts.shape[0]:
+                continue
+            xs, ys = c[k] * x[lo:] - s[k] * y[lo:], s[k] * x[lo:] + c[k] * y[lo:]  # (M - lo, P)
             xs, ys, zs = self._affine(k, xs, ys, z[lo:])
             x[lo:], y[lo:], z[lo:] = xs, ys, zs
-        return torch.stack([x, y, z], -1).transpose(0, 1).reshape(*q.shape[:-1], self.num_frames, 3)
+        return x, y, z
 
-    def frame_points(self, q: Tensor, frame: str, points: Tensor) -> Tensor:
-        """Points fixed in the frame ``frame`` (``points (P, 3)``) at joints ``q (..., J)``:
-        ``(..., P, 3)``, by the compiled path through the joints before that frame only (a point
-        on link 5 costs five rotations, not seven)."""
-        if frame not in self._frame_maps:
-            raise ValueError(f"the chain has no frame {frame!r}; its frames are {self.frame_names}")
-        q = self.check_joints(q, finite=False)
-        j, fixed = self._frame_maps[frame]
-        fixed = torch.tensor(fixed, dtype=q.dtype, device=q.device)  # (3, 4)
-        p = points.to(q) @ fixed[:, :3].T + fixed[:, 3]  # (P, 3) in the frame after joint j's rotation
-        qt = q.reshape(-1, self.num_joints).T  # (J, B)
-        c, s = torch.cos(qt), torch.sin(qt)
-        x, y, z = (p[:, i, None].expand(-1, qt.shape[1]) for i in range(3))  # (P, B)
-        for k in range(j - 1, -1, -1):
-            x, y = c[k] * x - s[k] * y, s[k] * x + c[k] * y
-            x, y, z = self._affine(k, x, y, z)
-        return torch.stack([x, y, z], -1).transpose(0, 1).reshape(*q.shape[:-1], p.shape[0], 3)
+    def jacobian_pose(self, q: Tensor) -> tuple[Tensor, Tensor]:
+        """The end link's geometric Jacobian and pose by the compiled chain: ``q (B, J) -> (B, 6, J),
+        (B, 4, 4)``, equal to :meth:`jacobian` and the last of :meth:`frames` to round-off at a
+        fraction of ``pytorch_kinematics``' cost for small batches: the frames are accumulated
+        forward, ``F_{k+1} = F_k Rz(q_k) G_k``, joint ``k`` turning about ``F_k``'s z axis through
+        its origin (column ``k``: ``z_k x (p - o_k)`` over ``z_k``)."""
+        q = self._on_device(self.check_joints(q))
+        maps = torch.tensor(self._maps, dtype=q.dtype, device=q.device)  # (J+1, 3, 4)
+        frame = maps[0].expand(q.shape[0], 3, 4)  # (B, 3, 4) F_0
+        c, s = torch.cos(q)[:, None], torch.sin(q)[:, None]  # (B, 1, J)
+        axes, origins = [], []
+        for k in range(self.num_joints):
+            axes.append(frame[:, :, 2])
+            origins.append(frame[:, :, 3])
+            x, y = frame[:, :, 0], frame[:, :, 1]  # (B, 3)
+            rot = torch.stack([c[:, :, k] * x + s[:, :, k] * y, c[:, :, k] * y - s[:, :, k] * x, frame[:, :, 2]], -1)
+            frame = torch.cat([rot @ maps[k + 1][:, :3], (rot @ maps[k + 1][:, 3:]) + frame[:, :, 3:]], -1)
+        z, o = torch.stack(axes, -1), torch.stack(origins, -1)  # (B, 3, J)
+        lin = torch.linalg.cross(z, frame[:, :, 3:] - o, dim=1)  # (B, 3, J)
+        pose = torch.cat([frame, torch.tensor([[[0.0, 0.0, 0.0, 1.0]]], dtype=q.dtype, device=q.device)
+                          .expand(q.shape[0], 1, 4)], 1)  # (B, 4, 4)
+        return torch.cat([lin, z], 1), pose
 
     # ------------------------------------------------------------------- IK
-    def inverse(
-        self,
-        position: Tensor,
-        q0: Tensor,
-        *,
-        rotation: Tensor | None = None,
-        rest: Tensor | None = None,
-        iters: int = 30,
-        damping: float = 0.02,
-        rotation_weight: float = 0.3,
-        null_gain: float = 0.2,
-        max_step: float = 0.3,
-        tol: float = 1e-5,
-    ) -> tuple[Tensor, Tensor]:
+    def inverse(self, position: Tensor, q0: Tensor, **options) -> tuple[Tensor, Tensor]:
         """Damped-least-squares inverse kinematics of the end link, batched:
-        ``position (B, 3)`` (and optionally ``rotation (B, 3, 3)``) from ``q0 (B, J)``.
-
-        Each iteration: ``dq = J^T (J J^T + damping^2 I)^-1 e`` with ``e`` the position error and
-        ``rotation_weight`` times the orientation error ``0.5 sum_i r_i x r*_i``; plus, when
-        ``rest (J,)`` or ``(B, J)`` is given, ``null_gain (rest - q)`` projected onto the
-        Jacobian's null space (keeps the elbow near a posture); the step is scaled to at most
-        ``max_step`` rad and the result clamped into the joint limits. Stops early once every
-        position error (and orientation error, in rad) is below ``tol``. Returns
-        ``(q (B, J), position error (B,))``.
-        """
-        q = self._on_device(self.check_joints(q0, "q0")).clone()  # (B, J)
-        position = check_tensor(position, "position", ndim=2).to(q)  # (B, 3)
-        if position.shape != (q.shape[0], 3):
-            raise ValueError(f"position must be ({q.shape[0]}, 3), got {tuple(position.shape)}")
-        if rotation is not None:
-            rotation = check_tensor(rotation, "rotation", ndim=3).to(q)  # (B, 3, 3)
-        eye6 = torch.eye(6 if rotation is not None else 3, dtype=q.dtype, device=q.device)
-        eye_j = torch.eye(self.num_joints, dtype=q.dtype, device=q.device)
-        lo, hi = self.lower.to(q), self.upper.to(q)
-        err = torch.full((q.shape[0],), float("inf"), dtype=q.dtype, device=q.device)
-        for _ in range(int(iters)):
-            jac, pose = self.chain.jacobian(q, ret_eef_pose=True)  # (B, 6, J), (B, 4, 4)
-            e_p = position - pose[:, :3, 3]  # (B, 3)
-            err = e_p.norm(dim=-1)  # (B,)
-            done = err < tol  # (B,)
-            if rotation is not None:
-                e_o = 0.5 * torch.linalg.cross(pose[:, :3, :3], rotation, dim=1).sum(-1)  # (B, 3)
-                done = done & (e_o.norm(dim=-1) < tol)
-            if bool(done.all()):
-                break
-            if rotation is not None:
-                e = torch.cat([e_p, rotation_weight * e_o], -1)  # (B, 6)
-                jac = torch.cat([jac[:, :3], rotation_weight * jac[:, 3:]], 1)  # (B, 6, J)
-            else:
-                e, jac = e_p, jac[:, :3]  # (B, 3), (B, 3, J)
-            jjt = jac @ jac.transpose(1, 2) + damping**2 * eye6  # (B, r, r)
-            pinv = jac.transpose(1, 2) @ torch.linalg.inv(jjt)  # (B, J, r) damped pseudo-inverse
-            dq = (pinv @ e[..., None])[..., 0]  # (B, J)
-            if rest is not None:  # the exact projector (the damped one would leak into the task)
-                exact = jac.transpose(1, 2) @ torch.linalg.inv(jac @ jac.transpose(1, 2) + 1e-9 * eye6)
-                null = eye_j - exact @ jac  # (B, J, J)
-                dq = dq + (null @ (null_gain * (rest.to(q) - q))[..., None])[..., 0]
-            scale = (max_step / dq.abs().amax(-1, keepdim=True).clamp_min(1e-12)).clamp(max=1.0)  # (B, 1)
-            q = torch.minimum(torch.maximum(q + scale * dq, lo), hi)
-        return q, err
+        :func:`protorch.robots.ik.inverse_kinematics` (its options: ``rotation``, ``rest``,
+        ``iters``, ``damping``, ``rotation_weight``, ``null_gain``, ``max_step``, ``tol``, ``compiled``).
+        Returns ``(q (B, J), position error (B,))``."""
+        return inverse_kinematics(self, position, q0, **options)
 
     # ---------------------------------------------------------------- compile
     def _compile(self, frames) -> None:

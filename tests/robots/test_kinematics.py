@@ -204,3 +204,43 @@ def test_compiled_end_frame_equals_the_full_chain(kin, gen):
     assert fast.shape == (3, 5, 4, 4)
     assert torch.allclose(fast, full, atol=1e-12)
     assert torch.allclose(kin.ee_frame(q.float()), full.float(), atol=1e-5)
+
+
+@pytest.mark.parametrize("robot", ["panda", "iiwa14"])
+def test_carried_points_equal_the_full_chains_frames(robot, gen):
+    """carry_points places points fixed on any links (given in any order) as the full chain's
+    frames place them: the capsules' ends of two arms, float64 and float32, any batch shape."""
+    from protorch.robots import capsule_segments
+
+    desc = load_robot(robot)
+    k = desc.kinematics()
+    caps = desc.capsule_list()
+    links = [c.link for c in caps]
+    plan = k.point_plan(links + links, torch.tensor([c.a for c in caps] + [c.b for c in caps], dtype=F64))
+    q = torch.tensor(desc.home, dtype=F64) + 0.5 * torch.randn(4, 6, k.num_joints, generator=gen, dtype=F64)
+    a, b, _ = capsule_segments(k.frames(q), k.frame_names, caps)  # (4, 6, C, 3)
+    ends = k.carry_points(q, plan)  # (4, 6, 2C, 3)
+    assert ends.shape == (4, 6, 2 * len(caps), 3)
+    tol = 1e-12 if robot == "panda" else 1e-6  # the iiwa's URDF angles are snapped to within 1e-7 (module docstring)
+    assert torch.allclose(ends, torch.cat([a, b], -2), atol=tol)
+    assert torch.allclose(k.carry_points(q.float(), plan).double(), ends, atol=2e-5)
+    x, y, z = k.carry_points_rows(q, plan)  # (2C, P) component-major
+    assert torch.equal(torch.stack([x, y, z], -1).transpose(0, 1).reshape(ends.shape), ends)
+    with pytest.raises(ValueError, match="no frame 'nope'"):
+        k.point_plan(["nope"], torch.zeros(1, 3))
+    with pytest.raises(ValueError, match=r"points must be \(2, 3\)"):
+        k.point_plan(links[:2], torch.zeros(3, 3))
+
+
+@pytest.mark.parametrize("robot", ["panda", "iiwa14"])
+def test_compiled_jacobian_and_pose_equal_pytorch_kinematics(robot, gen):
+    desc = load_robot(robot)
+    k = desc.kinematics()
+    q = torch.tensor(desc.home, dtype=F64) + 0.7 * torch.randn(50, k.num_joints, generator=gen, dtype=F64)
+    jac, pose = k.jacobian_pose(q)  # (50, 6, J), (50, 4, 4)
+    tol = 1e-12 if robot == "panda" else 1e-6
+    assert torch.allclose(jac, k.jacobian(q), atol=tol)
+    assert torch.allclose(pose, k.frames(q)[:, -1], atol=tol)
+    ik_chain, _ = k.inverse(pose[:5, :3, 3] + 0.02, q[:5], rotation=pose[:5, :3, :3])
+    ik_fast, _ = k.inverse(pose[:5, :3, 3] + 0.02, q[:5], rotation=pose[:5, :3, :3], compiled=True)
+    assert torch.allclose(ik_fast, ik_chain, atol=1e-6)  # the IK follows the same steps

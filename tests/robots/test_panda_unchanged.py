@@ -1,7 +1,12 @@
 """The Panda's numbers are those of main before the robot description (9e99b1a): forward
 kinematics, the objectives, success and gaps of fixed trajectories under the skeleton and the
 volumes, the demonstrator's IK, the MuJoCo scene and a rollout in it, equal to the last bit
-(``tests/robots/panda_reference.py`` says how ``data/panda_9e99b1a.json`` was computed)."""
+(``tests/robots/panda_reference.py`` says how ``data/panda_9e99b1a.json`` was computed).
+
+One exception: the volumes' arm-can gaps (``volume/*/gap``) are computed since by the compiled
+kinematics (the capsules placed by ``ArmKinematics.carry_points`` instead of
+``pytorch_kinematics``' frames), equal to round-off: they are compared to 1e-12 m; the volumes'
+success verdicts and costs are still compared exactly."""
 
 from __future__ import annotations
 
@@ -22,4 +27,7 @@ def test_the_pandas_numbers_are_those_of_main_before_the_robot_description():
         pytest.skip("mujoco is not installed: the scene's numbers are not compared")
     assert sorted(got) == sorted(want)
     for key in want:
-        assert got[key] == want[key], key
+        if key.startswith("volume/") and key.endswith("/gap"):
+            assert got[key] == pytest.approx(want[key], abs=1e-12, rel=0), key
+        else:
+            assert got[key] == want[key], key

@@ -24,7 +24,7 @@ fingers, the last link), which pass beside it, and the robot's forearm's
 (:attr:`~protorch.robots.Robot.forearm_link`, the Panda's link 5), which passes over it when the
 hand passes beside (:func:`end_capsules`, :func:`end_volume_near`). They are placed by the compiled
 kinematics (:meth:`~protorch.robots.ArmKinematics.ee_frame`,
-:meth:`~protorch.robots.ArmKinematics.frame_points`: about six times the end effector's cost,
+:meth:`~protorch.robots.ArmKinematics.carry_points`: about six times the end effector's cost,
 where the full chain would be a hundred) so the objectives stay affordable in the loop; each
 capsule's distance is taken at its point horizontally nearest the can's axis (horizontal distance
 and height above the can's top combined: exact below the top, a cheap stand-in above it).
@@ -35,11 +35,11 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ...robots import capsule_index, capsule_segments
-from .geometry import segment_axis_distance, segment_cylinder_distance
+from ...robots import PointPlan, capsule_index, capsule_segments
+from .geometry import point_cylinder_distance, segment_axis_distance, segment_cylinder_distance
 
 __all__ = ["COLLISIONS", "CAN_OBJECTIVES", "check_collision", "check_volumes", "frames_gap", "capsules_gap",
-           "above_table", "end_capsules", "end_volume_near"]
+           "above_table", "end_capsules", "end_volume_near", "capsule_plan", "capsule_ends", "capsules_above_table", "joints_clearance"]
 
 COLLISIONS = ("skeleton", "volume")
 CAN_OBJECTIVES = ("ee", "volume", "skeleton")
@@ -75,6 +75,24 @@ def frames_gap(task, frames: Tensor, env: Tensor) -> Tensor:
     return capsules_gap(a, b, r, env, task.can_radius, task.can_height)
 
 
+def capsule_plan(kinematics, capsules) -> PointPlan:
+    """The capsules' end points (``a`` of every capsule, then ``b``) prepared for
+    :meth:`~protorch.robots.ArmKinematics.carry_points`."""
+    links = [c.link for c in capsules]
+    pts = torch.tensor([c.a for c in capsules] + [c.b for c in capsules], dtype=torch.float64)  # (2C, 3)
+    return kinematics.point_plan(links + links, pts)
+
+
+def capsule_ends(kinematics, traj: Tensor, plan: PointPlan) -> tuple[Tensor, Tensor]:
+    """The capsules of ``plan`` (:func:`capsule_plan`) placed at joints ``traj (..., J)``: ``a``,
+    ``b`` ``(..., C, 3)`` in the base frame, by the compiled kinematics (equal to
+    :func:`~protorch.robots.capsule_segments` of the chain's frames to round-off, several times
+    cheaper)."""
+    ends = kinematics.carry_points(traj, plan)  # (..., 2C, 3)
+    c = ends.shape[-2] // 2
+    return ends[..., :c, :], ends[..., c:, :]
+
+
 # the bounds of capsules_gap hold to round-off and the golden-section search's tolerance: a margin
 # far above both (1 mm; float32 round-off at the arm's scale is ~1e-7 m) keeps every capsule
 # whose exact distance may be the smallest
@@ -87,24 +105,40 @@ def capsules_gap(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, he
     ``(...)``, the same numbers as evaluating
     :func:`~protorch.tasks.arm.geometry.segment_cylinder_distance` on every capsule and step.
 
-    Only the capsules that can hold the minimum are searched: a segment's distance to the can's
-    axis segment (exact, closed form) bounds its distance to the solid cylinder from above, and
-    that minus the can's radius from below (the cylinder lies between the axis segment and the axis
-    segment grown by the radius), so a capsule whose lower bound exceeds the smallest upper bound
+    Only the capsules that can hold the minimum are searched, in two rounds of bounds. First from
+    each segment's midpoint ``m`` and half horizontal length ``l``: the midpoint's distance to the
+    cylinder bounds the segment's from above; ``max(|m - axis|_xy - l - radius, -z_max,
+    z_min - height)`` from below (every point of the segment is that far outside the cylinder's
+    side or its bottom or top plane). Then, for the capsules left, the segment's exact distance to
+    the can's axis segment (closed form) bounds its distance to the solid cylinder from above, and
+    that minus the can's radius from below (the cylinder lies between the axis segment and the
+    axis segment grown by the radius). A capsule whose lower bound exceeds the smallest upper bound
     (plus :data:`PRUNE_SLACK`) cannot be the nearest; the exact search (elementwise, so each
     capsule's number is the one the full evaluation gives) runs on the rest, typically a few
     percent of them."""
     axis = env[..., None, None, 0:2]  # (..., 1, 1, 2)
-    upper = segment_axis_distance(a, b, axis, 0.0, height) - r  # (..., T, C) >= the exact gap
-    if not bool(torch.isfinite(upper).all()):  # NaN in: the full evaluation (which propagates it)
+    if not (bool(torch.isfinite(a).all()) and bool(torch.isfinite(b).all())):  # NaN in: the full evaluation
         return (segment_cylinder_distance(a, b, axis, radius, 0.0, height) - r).flatten(-2).amin(-1)
-    best = upper.flatten(-2).amin(-1)  # (...)
-    idx = torch.nonzero(upper - radius <= best[..., None, None] + PRUNE_SLACK, as_tuple=True)  # the candidates
+    m = 0.5 * (a + b)  # (..., T, C, 3)
+    half = 0.5 * (b[..., :2] - a[..., :2]).norm(dim=-1)  # (..., T, C)
+    za, zb = a[..., 2], b[..., 2]
+    lower = torch.maximum((m[..., :2] - axis).norm(dim=-1) - half - radius,
+                          torch.maximum(-torch.maximum(za, zb), torch.minimum(za, zb) - height)) - r  # (..., T, C)
+    upper = point_cylinder_distance(m, axis, radius, 0.0, height) - r  # (..., T, C)
     shape = upper.shape
-    near = segment_cylinder_distance(a.expand(*shape, 3)[idx], b.expand(*shape, 3)[idx],
-                                     axis.expand(*shape, 2)[idx], radius, 0.0, height)  # (n,)
+    best = upper.flatten(-2).amin(-1)  # (...)
+    idx = torch.nonzero(lower <= best[..., None, None] + PRUNE_SLACK, as_tuple=True)  # the first round's candidates
+    a_i, b_i, ax_i, r_i = (a.expand(*shape, 3)[idx], b.expand(*shape, 3)[idx], axis.expand(*shape, 2)[idx],
+                           r.expand(shape)[idx])  # (n, 3), (n, 3), (n, 2), (n,)
+    upper_i = segment_axis_distance(a_i, b_i, ax_i, 0.0, height) - r_i  # (n,) >= the exact gap
+    bound = torch.full_like(upper, float("inf"))
+    bound[idx] = upper_i
+    best = torch.minimum(best, bound.flatten(-2).amin(-1))  # (...)
+    keep = upper_i - radius <= best.expand(shape[:-2])[idx[:-2]] + PRUNE_SLACK if len(shape) > 2 else \
+        upper_i - radius <= best + PRUNE_SLACK  # (n,) the second round's candidates
+    near = segment_cylinder_distance(a_i[keep], b_i[keep], ax_i[keep], radius, 0.0, height)  # (n',)
     gap = torch.full_like(upper, float("inf"))
-    gap[idx] = near - r.expand(shape)[idx]
+    gap[tuple(i[keep] for i in idx)] = near - r_i[keep]
     return gap.flatten(-2).amin(-1)
 
 
@@ -113,17 +147,32 @@ def above_table(task, frames: Tensor) -> Tensor:
     step: ``frames (..., T, F, 4, 4) -> (...)`` bool."""
     if task.collision == "skeleton":
         return (frames[..., 1:, 2, 3] >= 0).flatten(-2).all(-1)
-    capsules = task.robot.capsule_list()
-    moving = torch.tensor([c.link not in task.robot.base_links for c in capsules], device=frames.device)
-    a, b, r = capsule_segments(frames, task.kinematics.frame_names, capsules)  # (..., T, C, 3)
+    a, b, r = capsule_segments(frames, task.kinematics.frame_names, task.robot.capsule_list())  # (..., T, C, 3)
+    return capsules_above_table(task, a, b, r)
+
+
+def joints_clearance(task, traj: Tensor, env: Tensor) -> tuple[Tensor, Tensor]:
+    """Under the volumes, from joints ``traj (..., T, J)`` and ``env (..., 4)``: the arm-can gap
+    (:func:`frames_gap`) and whether the arm stays above the table (:func:`above_table`), both
+    ``(...)``, the capsules placed by the compiled kinematics (``task.capsule_plan``)."""
+    a, b = capsule_ends(task.kinematics, traj, task.capsule_plan)  # (..., T, C, 3)
+    r = task.capsule_radii.to(a)  # (C,)
+    return capsules_gap(a, b, r, env, task.can_radius, task.can_height), capsules_above_table(task, a, b, r)
+
+
+def capsules_above_table(task, a: Tensor, b: Tensor, r: Tensor) -> Tensor:
+    """:func:`above_table` of placed capsules ``a``, ``b`` ``(..., T, C, 3)`` of radius ``r (C,)``
+    (the robot's capsules in :meth:`~protorch.robots.Robot.capsule_list`'s order): ``(...)``."""
+    moving = torch.tensor([c.link not in task.robot.base_links for c in task.robot.capsule_list()], device=a.device)
     low = torch.minimum(a[..., 2], b[..., 2]) - r  # (..., T, C)
     return (low[..., moving] >= 0).flatten(-2).all(-1)
 
 
 def end_capsules(kinematics, robot) -> dict:
-    """The capsules the volume objective reads (module docstring), as ``{frame: (a (C, 3), b (C, 3),
-    radius (C,))}`` float64: those on links rigidly attached to the end link, in the end link's
-    frame (under the key ``None``), and those of the robot's forearm link (if it has one) in its own."""
+    """The capsules the volume objective reads (module docstring) as a dict: under the key ``None``
+    those on links rigidly attached to the end link, ``(a (C, 3), b (C, 3), radius (C,))`` float64 in
+    the end link's frame; under the robot's forearm link (if it has one) its capsules as
+    ``(plan, radius (C,))`` (:func:`capsule_plan`)."""
     names = kinematics.frame_names
     fixed = [names[-1]]
     for i in range(len(names) - 1, 0, -1):  # back from the end link until the last revolute joint
@@ -138,8 +187,8 @@ def end_capsules(kinematics, robot) -> dict:
     out = {None: capsule_segments(rel, names, [c for c in capsules if c.link in fixed])}
     forearm = [c for c in capsules if c.link == robot.forearm_link]
     if forearm:
-        eye = torch.eye(4, dtype=torch.float64).expand(len(names), 4, 4)
-        out[robot.forearm_link] = capsule_segments(eye, names, forearm)
+        out[robot.forearm_link] = (capsule_plan(kinematics, forearm),
+                                   torch.tensor([c.radius for c in forearm], dtype=torch.float64))
     return out
 
 
@@ -147,36 +196,39 @@ def end_volume_near(kinematics, traj: Tensor, env: Tensor, capsules: dict, can_h
     """At every other step, the smallest distance between the can's axis segment and the surfaces
     of the objective's capsules (:func:`end_capsules`): ``traj (..., T, J)``, ``env (..., 4)`` ->
     ``(..., ceil(T / 2))``; the can's radius is not subtracted, so it reads like the end
-    effector's distance to the axis. Also returns the end link's positions at every step ``(..., T, 3)``."""
-    axis = env[..., None, None, 0:2]  # (..., 1, 1, 2)
+    effector's distance to the axis. Also returns the end link's positions at every step ``(..., T, 3)``.
+    Computed component-major over the flattened batch (rows ``(C, P)``, no transposes)."""
     full, traj = traj, traj[..., ::2, :]  # every other step: the shaping term's cost halved
-    coarse = kinematics.ee_frame(traj)  # (..., T', 4, 4) the end link's pose where the capsules are read
+    lead = traj.shape[:-1]  # (..., T')
+    cx, cy = (env[..., None, i].expand(lead).reshape(-1) for i in (0, 1))  # (P,) the can's axis at each pose
     path = torch.empty(*full.shape[:-1], 3, dtype=full.dtype, device=full.device)  # (..., T, 3)
-    path[..., ::2, :] = coarse[..., :3, 3]  # ee_frame's origin is ee_position's, to the bit
     path[..., 1::2, :] = kinematics.ee_position(full[..., 1::2, :])
-    near = []
-    for frame, (a, b, r) in capsules.items():
-        a, b, r = a.to(traj), b.to(traj), r.to(traj)
-        if frame is None:  # the ends in the end link's frame, all placed by one matrix product
-            ends = torch.cat([a, b])  # (2C, 3)
+    near = None
+    for frame, caps in capsules.items():
+        r = caps[-1].to(traj)[:, None]  # (C, 1)
+        if frame is None:  # the ends in the end link's frame, all placed by one matrix product per row
+            rows = kinematics.ee_frame_rows(traj)  # x, y, z (4, P): the end link's axes and origin
+            path[..., ::2, :] = torch.stack([row[3] for row in rows], -1).reshape(*lead, 3)  # ee_position's, to the bit
+            ends = torch.cat([caps[0], caps[1]]).to(traj)  # (2C, 3)
             ends = torch.cat([ends, torch.ones_like(ends[:, :1])], 1)  # (2C, 4) homogeneous
-            placed = (coarse[..., :3, :].reshape(-1, 4) @ ends.T).unflatten(0, (*coarse.shape[:-2], 3))  # (..., T', 3, 2C)
-            placed = placed.transpose(-1, -2)  # (..., T', 2C, 3)
-            pa, pb = placed[..., : a.shape[0], :].contiguous(), placed[..., a.shape[0]:, :].contiguous()  # (..., T', C, 3)
+            x, y, z = (ends @ row for row in rows)  # (2C, P)
         else:
-            ends = kinematics.frame_points(traj, frame, torch.cat([a, b]))  # (..., T, 2C, 3)
-            pa, pb = ends[..., : a.shape[0], :], ends[..., a.shape[0]:, :]
-        near.append(_axis_proxy(pa, pb, axis, can_height) - r)  # (..., T, C)
-    return torch.cat(near, -1).amin(-1), path
+            x, y, z = kinematics.carry_points_rows(traj, caps[0])  # (2C, P)
+        c = r.shape[0]
+        d = _axis_proxy(x[:c], y[:c], z[:c], x[c:], y[c:], z[c:], cx, cy, can_height).sub_(r).amin(0)  # (P,)
+        near = d if near is None else torch.minimum(near, d)
+    return near.reshape(lead), path
 
 
-def _axis_proxy(pa: Tensor, pb: Tensor, axis: Tensor, height: float) -> Tensor:
-    """A cheap stand-in for the distance of segments ``pa -> pb`` to the can's axis segment: at the
-    segment's point horizontally nearest the axis, the horizontal distance and the height above the
-    can's top, combined (exact for a segment below the top or level; the objective's shaping only)."""
-    d = pb - pa  # (..., 3)
-    w = axis - pa[..., :2]  # (..., 2)
-    u = ((w * d[..., :2]).sum(-1) / d[..., :2].square().sum(-1).clamp_min(1e-12)).clamp(0.0, 1.0)  # (...)
-    h = (w - u[..., None] * d[..., :2]).norm(dim=-1)
-    v = (pa[..., 2] + u * d[..., 2] - height).clamp(min=0.0)
-    return torch.sqrt(h.square() + v.square())
+def _axis_proxy(ax: Tensor, ay: Tensor, az: Tensor, bx: Tensor, by: Tensor, bz: Tensor, cx: Tensor, cy: Tensor,
+                height: float) -> Tensor:
+    """A cheap stand-in for the distance of segments ``a -> b`` (component rows ``(C, P)``) to the
+    can's axis segment over ``(cx, cy)`` (``(P,)``): at the segment's point horizontally nearest
+    the axis, the horizontal distance and the height above the can's top, combined (exact for a
+    segment below the top or level; the objective's shaping only): ``(C, P)``."""
+    dx, dy, dz = bx - ax, by - ay, bz - az  # (C, P)
+    wx, wy = cx - ax, cy - ay  # (C, P)
+    u = (wx * dx).addcmul_(wy, dy).div_((dx * dx).addcmul_(dy, dy).clamp_min_(1e-12)).clamp_(0.0, 1.0)
+    hx, hy = wx.addcmul_(u, dx, value=-1.0), wy.addcmul_(u, dy, value=-1.0)
+    v = dz.mul_(u).add_(az).sub_(height).clamp_(min=0.0)
+    return (hx * hx).addcmul_(hy, hy).addcmul_(v, v).sqrt_()

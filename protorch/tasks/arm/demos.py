@@ -41,9 +41,11 @@ def read_arm_demos(task, folder, cleaning=None) -> tuple[DemoFolder, Tensor]:
     return demos, labels  # (n,)
 
 
-def follow_path(task, path: Tensor, *, iters: int = 8, first_iters: int = 60) -> tuple[Tensor, Tensor]:
+def follow_path(task, path: Tensor, *, iters: int = 8, first_iters: int = 60, compiled: bool = False
+                ) -> tuple[Tensor, Tensor]:
     """:meth:`~protorch.tasks.ArmReachTask.ik_path` of ``task``: joint trajectories following the
-    end-effector paths ``(n, T, 3)``; ``(q (n, T, 7), position error (n, T))``."""
+    end-effector paths ``(n, T, 3)``; ``(q (n, T, 7), position error (n, T))``. ``compiled``: the
+    compiled chain's Jacobian (:meth:`~protorch.robots.ArmKinematics.jacobian_pose`)."""
     path = check_tensor(path, "path", ndim=3)
     kin = task.kinematics
     dtype, device = kin.lower.dtype, kin.lower.device
@@ -55,7 +57,8 @@ def follow_path(task, path: Tensor, *, iters: int = 8, first_iters: int = 60) ->
     out = torch.empty(n, t_len, kin.num_joints, dtype=dtype, device=device)
     err = torch.empty(n, t_len, dtype=dtype, device=device)
     for t in range(t_len):
-        q, err[:, t] = kin.inverse(path[:, t], q, rotation=rot, rest=rest, iters=first_iters if t == 0 else iters)
+        q, err[:, t] = kin.inverse(path[:, t], q, rotation=rot, rest=rest, iters=first_iters if t == 0 else iters,
+                                   compiled=compiled)
         out[:, t] = q
     return out, err
 

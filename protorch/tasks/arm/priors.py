@@ -9,7 +9,8 @@ added to the map's data before the loop with the average demonstrated variance.
   side, the demonstrator's path without its noise (:func:`~protorch.tasks.arm.demos.detour_paths`:
   through a point that far beside the can) at the first of the distances whose mean succeeds
   under the task's collision model and passes on that side; none where the straight prior already
-  holds that side. They give the volume-planned map a collision-free mean near every grid node on
+  holds that side. Their IK uses the compiled chain's Jacobian
+  (:meth:`~protorch.robots.ArmKinematics.jacobian_pose`, equal to round-off and several times faster). They give the volume-planned map a collision-free mean near every grid node on
   both sides, which the straight priors alone cannot (docs/physics.md).
 """
 
@@ -19,7 +20,7 @@ import torch
 from torch import Tensor
 
 from ...primitives.promp import ProMP
-from .demos import detour_paths
+from .demos import detour_paths, follow_path
 from .reach import LEFT, RIGHT, ArmReachTask
 from .workspace import prior_grid_nodes
 
@@ -41,10 +42,11 @@ def check_detours(value, collision: str) -> tuple[float, ...]:
     return tuple(sorted(out))
 
 
-def _weights(task: ArmReachTask, promp: ProMP, paths: Tensor) -> tuple[Tensor, Tensor]:
-    """Joint trajectories following end-effector ``paths (n, T, 3)`` (by IK) and their ProMP
-    weights: ``(q (n, T, 7) in the ProMP's dtype and device, w (n, N) float64 on the CPU)``."""
-    q, _ = task.ik_path(paths)  # (n, T, 7)
+def _weights(task: ArmReachTask, promp: ProMP, paths: Tensor, compiled: bool = False) -> tuple[Tensor, Tensor]:
+    """Joint trajectories following end-effector ``paths (n, T, 3)`` (by IK; ``compiled``: with the
+    compiled chain's Jacobian) and their ProMP weights: ``(q (n, T, 7) in the ProMP's dtype and
+    device, w (n, N) float64 on the CPU)``."""
+    q, _ = follow_path(task, paths, compiled=compiled)  # (n, T, 7)
     q = q.to(promp.basis)
     return q, promp.weights(q).cpu().to(torch.float64)
 
@@ -76,7 +78,8 @@ def grid_priors(task: ArmReachTask, promp: ProMP, n: int, over: str = "rectangle
         for d in detours:
             if todo.numel() == 0:
                 break
-            _, wd = _weights(task, promp, detour_paths(task, grid[todo], side, d, promp.num_steps))  # (m, N)
+            paths = detour_paths(task, grid[todo], side, d, promp.num_steps)  # (m, T, 3)
+            _, wd = _weights(task, promp, paths, compiled=True)  # (m, N) (the straight priors keep the chain's IK)
             env = grid[todo].to(promp.basis)
             td = promp.trajectory(wd.to(promp.basis))  # (m, T, 7)
             ok = (task.success(td, env) & (task.side(td, env) == side)).cpu()  # (m,)

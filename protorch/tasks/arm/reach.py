@@ -51,20 +51,12 @@ from torch import Tensor
 
 from ...checks import check_tensor
 from ...robots import Robot, load_robot
-from .collision import (CAN_OBJECTIVES, above_table, check_collision, check_volumes, end_capsules,
-                            end_volume_near, frames_gap)
+from .collision import (CAN_OBJECTIVES, above_table, capsule_plan, check_collision, check_volumes, end_capsules,
+                        end_volume_near, frames_gap, joints_clearance)
 from .demos import follow_path, ik_demonstrations, straight_paths
 from .deviation import DEVIATIONS, deviation
-from .geometry import (
-    LEFT,
-    RIGHT,
-    SIDES,
-    down_rotation,
-    segment_axis_distance,
-)
-from .workspace import check_workspace, prior_grid_nodes
-from .workspace import sample_envs as sample_region
-from .workspace import valid_envs as valid_in_region
+from .geometry import LEFT, RIGHT, SIDES, down_rotation, segment_axis_distance
+from .workspace import check_workspace, prior_grid_nodes, sample_envs as sample_region, valid_envs as valid_in_region
 from ..base import Task
 
 __all__ = ["ArmReachTask", "LEFT", "RIGHT", "SIDES", "segment_axis_distance", "down_rotation"]
@@ -144,6 +136,9 @@ class ArmReachTask(Task):
         if "volume" in (self.collision, self.can_objective):
             check_volumes(self.robot, self.kinematics.frame_names)
         self.end_capsules = end_capsules(self.kinematics, self.robot) if self.can_objective == "volume" else None
+        volume = self.collision == "volume"  # the success check's capsules, placed by the compiled kinematics
+        self.capsule_plan = capsule_plan(self.kinematics, self.robot.capsule_list()) if volume else None
+        self.capsule_radii = torch.tensor([c.radius for c in self.robot.capsule_list()], dtype=torch.float64)
         if self.start_q is None:
             self.start_q = self.robot.home
         q0 = torch.tensor(self.start_q, dtype=torch.float64)
@@ -346,6 +341,8 @@ class ArmReachTask(Task):
         """Smallest distance between the arm's surface (under :attr:`collision`) and the can's over
         all steps: ``(...)`` (success needs ``> margin``; :func:`~protorch.tasks.arm.collision.frames_gap`)."""
         traj, env = self._prepare(traj, env)
+        if self.capsule_plan is not None:
+            return joints_clearance(self, traj, env)[0]
         return frames_gap(self, self.kinematics.frames(traj), env)
 
     def frames_gap(self, frames: Tensor, env: Tensor) -> Tensor:
@@ -356,13 +353,16 @@ class ArmReachTask(Task):
         """Start and end within tolerance, the arm more than ``margin`` from the can and above the
         table (under :attr:`collision`), joint limits respected; every step: ``(...)``."""
         traj, env = self._prepare(traj, env)
-        frames = self.kinematics.frames(traj)  # (..., T, F, 4, 4)
-        ee = frames[..., -1, :3, 3]  # (..., T, 3)
+        if self.capsule_plan is not None:  # the volumes: the compiled kinematics
+            ee = self.kinematics.ee_position(traj)  # (..., T, 3)
+            gap, table = joints_clearance(self, traj, env)
+        else:
+            frames = self.kinematics.frames(traj)  # (..., T, F, 4, 4)
+            ee, gap, table = frames[..., -1, :3, 3], frames_gap(self, frames, env), above_table(self, frames)
         ok_start = (ee[..., 0, :] - self.start_position(ee.dtype, ee.device)).norm(dim=-1) <= self.start_tol
         ok_goal = (ee[..., -1, :] - self.goal_point(env)).norm(dim=-1) <= self.goal_tol
-        clear = frames_gap(self, frames, env) > self.margin
         limits = self.kinematics.within_limits(traj).all(-1)
-        return ok_start & ok_goal & clear & limits & above_table(self, frames)
+        return ok_start & ok_goal & (gap > self.margin) & limits & table
 
     # ---------------------------------------------------------------- demonstrations
     def ik_path(self, path: Tensor, *, iters: int = 8, first_iters: int = 60) -> tuple[Tensor, Tensor]:

@@ -1,6 +1,6 @@
 """The arm's default run before and after it planned with the volumes, side by side (on demand).
 
-    python benchmarks/arm_default.py [--seeds 0 1 2] [--before-seeds 0] [--quick] [--out FILE] [override ...]
+    python benchmarks/arm_default.py [--seeds 0 1 2] [--before-seeds 0] [--together] [--quick] [--out FILE] [override ...]
 
 ``before``: the default of protorch before the volumes became it, ``experiment=arm_reach
 task.collision=skeleton settings.loop.refill=false`` (the skeleton plan, the step loop);
@@ -8,7 +8,9 @@ task.collision=skeleton settings.loop.refill=false`` (the skeleton plan, the ste
 a fresh ``python -m protorch`` process into a temporary folder, timed by its wall clock; the runs
 of a seed alternate (before, after) so both see the same load. Printed per run: wall seconds,
 the loop's and the priors' seconds (``metrics.json``), the kinematic and the MuJoCo held-out and
-moving success; then per seed with both runs the wall-time ratio after / before. ``--out`` writes
+moving success; then per seed with both runs the wall-time ratio after / before. ``--together``
+runs a seed's before and after at the same time, ``threads=1`` each (two cores: both see the same
+load, the fairest comparison on a machine that is not idle). ``--out`` writes
 the rows as JSON. ``--quick``: a reduced budget (300 environments and priors, 50 held-out, 10
 moving episodes), a check that the script works. The machine's load changes absolute times:
 compare the rows of one run.
@@ -21,6 +23,7 @@ import json
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -29,16 +32,38 @@ BEFORE = ["task.collision=skeleton", "settings.loop.refill=false"]
 QUICK = ["settings.loop.num_envs=300", "task.priors=300", "settings.test.num_envs=50", "settings.dynamic.episodes=10"]
 
 
+def start_run(name: str, seed: int, extra: list[str], overrides: list[str]) -> dict:
+    """Start ``python -m protorch experiment=arm_reach seed=<seed> <extra> <overrides>`` in a
+    temporary folder; :func:`finish_run` waits for it."""
+    tmp = tempfile.TemporaryDirectory(prefix=f"arm_default_{name}_")
+    cmd = [sys.executable, "-m", "protorch", "experiment=arm_reach", f"seed={seed}", "settings.progress=false",
+           "settings.physics.render=false", "plot=false", f"hydra.run.dir={tmp.name}", *extra, *overrides]
+    run = {"name": name, "seed": seed, "extra": extra, "overrides": overrides, "tmp": tmp, "cmd": cmd,
+           "t0": time.perf_counter()}
+    run["proc"] = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+    def wait():  # the wall clock stops when the process ends, whichever run is waited for first
+        run["err"] = run["proc"].communicate()[1]
+        run["wall"] = time.perf_counter() - run["t0"]
+
+    run["waiter"] = threading.Thread(target=wait)
+    run["waiter"].start()
+    return run
+
+
 def one_run(name: str, seed: int, extra: list[str], overrides: list[str]) -> dict:
     """``python -m protorch experiment=arm_reach seed=<seed> <extra> <overrides>``, timed."""
-    with tempfile.TemporaryDirectory(prefix=f"arm_default_{name}_") as tmp:
-        cmd = [sys.executable, "-m", "protorch", "experiment=arm_reach", f"seed={seed}", "settings.progress=false",
-               "settings.physics.render=false", "plot=false", f"hydra.run.dir={tmp}", *extra, *overrides]
-        t = time.perf_counter()
-        out = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
-        wall = time.perf_counter() - t
-        if out.returncode != 0:
-            raise RuntimeError(f"{' '.join(cmd)} failed ({out.returncode}):\n{out.stderr[-3000:]}")
+    return finish_run(start_run(name, seed, extra, overrides))
+
+
+def finish_run(run: dict) -> dict:
+    """Wait for a :func:`start_run` process; its row."""
+    name, seed, extra, overrides = run["name"], run["seed"], run["extra"], run["overrides"]
+    with run["tmp"] as tmp:
+        run["waiter"].join()
+        wall, err = run["wall"], run["err"]
+        if run["proc"].returncode != 0:
+            raise RuntimeError(f"{' '.join(run['cmd'])} failed ({run['proc'].returncode}):\n{err[-3000:]}")
         m = json.loads((Path(tmp) / "metrics.json").read_text())
     phys = m.get("physics") or {}
     return {"name": name, "seed": seed, "command": " ".join(["python -m protorch experiment=arm_reach", f"seed={seed}",
@@ -62,6 +87,7 @@ def main(argv=None) -> list[dict]:
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="seeds of the default (after) run")
     p.add_argument("--before-seeds", type=int, nargs="*", default=[0], help="seeds also run as before, for the ratio")
     p.add_argument("--quick", action="store_true", help="a reduced budget (a check that the script works)")
+    p.add_argument("--together", action="store_true", help="a seed's before and after at once, threads=1 each")
     p.add_argument("--out", type=Path, help="write the rows as JSON")
     p.add_argument("overrides", nargs="*", help="more Hydra overrides for both")
     a = p.parse_args(argv)
@@ -69,9 +95,14 @@ def main(argv=None) -> list[dict]:
     rows = []
     for seed in a.seeds:
         runs = ([("before", BEFORE)] if seed in a.before_seeds else []) + [("after", [])]
-        for name, extra in runs:
-            rows.append(one_run(name, seed, extra, overrides))
-            show(rows[-1])
+        if a.together:
+            started = [start_run(name, seed, extra, overrides + ["threads=1"]) for name, extra in runs]
+            done = [finish_run(r) for r in started]
+        else:
+            done = [one_run(name, seed, extra, overrides) for name, extra in runs]
+        for row in done:
+            rows.append(row)
+            show(row)
             if a.out:
                 a.out.write_text(json.dumps(rows, indent=1))
         pair = {r["name"]: r for r in rows if r["seed"] == seed}

@@ -15,7 +15,8 @@ between passing it on the left and on the right on the fly.
    classes apart, a new environment starts from the class whose predicted mean has the lowest
    summed objectives. Checkpointed in ``<out_dir>/checkpoint`` (``protorch.load(out_dir)``),
    resumable.
-3. Evaluation with the same label-aware inference on 200 held-out environments, and on 100
+3. Evaluation with the label-aware inference (the class whose mean passes the task's check,
+   then the lowest summed objectives: :func:`~protorch.gp.model.label_aware_mean`) on 200 held-out environments, and on 100
    episodes in which the can or the target is moved once or twice while the arm moves
    (:func:`protorch.control.arm.run_arm_episodes`: the map queried every control step, the arm
    switching classes when the objectives of the rest of the motion say so). When either

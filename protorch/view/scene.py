@@ -4,8 +4,8 @@
 and rebuilds its task from the run's ``config.yaml``; :func:`scene_state` turns one environment
 into what is drawn: the map's mean trajectory, trajectories of weight samples (the spread), the
 success check of the mean, its costs and the inference time. The arm uses the label-aware
-inference (:func:`protorch.gp.model.label_aware_mean`): the homotopy class whose mean scores
-lowest is chosen and shown. The samples use fixed standard-normal draws (``eps``), so a small
+inference (:func:`protorch.gp.model.label_aware_mean`): the homotopy class whose mean passes the
+task's check and scores lowest is chosen and shown. The samples use fixed standard-normal draws (``eps``), so a small
 change of the environment moves every drawn sample a little instead of redrawing them.
 """
 
@@ -24,7 +24,7 @@ from torch import Tensor
 
 from ..checks import check_tensor
 from ..data.checkpoint import checkpoint_path, load
-from ..gp.model import EnvToProMP
+from ..gp.model import EnvToProMP, feasible_first_score
 from ..tasks.arm.reach import SIDES, ArmReachTask
 from ..tasks.point_particle import PointParticleTask
 
@@ -233,14 +233,10 @@ def particle_state(run: ViewRun, env, eps: Tensor, *, check: bool = True) -> Sce
     return check_state(run, state) if check else state
 
 
-def _arm_score(promp, task):
-    """:func:`~protorch.gp.model.label_aware_mean`'s score: the summed objectives of a mean."""
-    return lambda mu, e: task.costs(promp.trajectory(mu), e).sum(-1)
-
-
 def arm_state(run: ViewRun, env, eps: Tensor, *, check: bool = True, poses: int = 5) -> SceneState:
     """The arm's scene for ``env (4,)``: the label-aware choice of class (the class whose mean
-    scores lowest, as :func:`~protorch.gp.model.label_aware_mean`, here with its variance), its
+    passes the task's check and scores lowest, as :func:`~protorch.gp.model.label_aware_mean`, here
+    with its variance), its
     mean joint trajectory, end-effector path and frame origins at ``poses`` phases (the last one
     the end), and the end-effector paths of weight samples."""
     t0 = time.perf_counter()
@@ -248,7 +244,7 @@ def arm_state(run: ViewRun, env, eps: Tensor, *, check: bool = True, poses: int 
     model, task = run.model, run.task
     promp = model.promp
     with torch.no_grad():
-        best = model.env_map.predict_best(q, _arm_score(promp, task), need_var=True)
+        best = model.env_map.predict_best(q, feasible_first_score(promp, task), need_var=True)
         t1 = time.perf_counter()
         mu, var = best.mean, best.var  # (1, N), (1, N)
         w = mu + var.clamp_min(0).sqrt() * eps.to(mu)  # (S, N)

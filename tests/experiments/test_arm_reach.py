@@ -215,3 +215,19 @@ def test_the_skeleton_can_objective_reaches_the_task_from_the_config(gen):
     torch.testing.assert_close(c_sk[:, [0, 2]], c_ee[:, [0, 2]])
     d = c_sk[:, 0] - (task.ee_path(traj[:, idx])[:, 0] - task.start_position()).norm(dim=-1)  # the deviation
     torch.testing.assert_close(c_sk[:, 1], task.clearance - near.clamp(max=task.clearance) + d)
+
+
+def test_plan_margin_is_the_loops_margin_and_the_tests_keep_margin():
+    c = cfg("task.priors=20", "task.plan_margin=0.03")
+    s = c["settings"]
+    setup = prepare(optimizer=c["optimizer"], task=c["task"] | {"prior_detours": []}, gp=c["gp"], promp=s["promp"],
+                    loop=s["loop"], test=s["test"], dynamic={"episodes": 0})
+    assert setup.task.margin == 0.01 and setup.loop_task.margin == 0.03  # the volumes' test margin is kept
+    assert setup.loop_task.kinematics is setup.task.kinematics  # the same arm, only the margin differs
+    traj = setup.promp.trajectory(setup.prior_mean)
+    gap = setup.task.can_gap(traj, setup.prior_envs)  # (P,)
+    assert torch.equal(setup.loop_task.success(traj, setup.prior_envs),
+                       setup.task.success(traj, setup.prior_envs) & (gap > 0.03))
+    with pytest.raises(ValueError, match="task.plan_margin"):
+        prepare(optimizer=c["optimizer"], task=c["task"] | {"plan_margin": -0.01}, gp=c["gp"], promp=s["promp"],
+                loop=s["loop"], test=s["test"], dynamic={"episodes": 0})

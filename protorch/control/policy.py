@@ -287,7 +287,9 @@ class Policy(EnvToProMP):
     def mean_trajectory(self, env: Tensor, labels=None) -> Tensor:
         """``(B, d)`` -> mean trajectories ``(B, T, D)``; with several classes and ``labels=None``
         each environment's class is chosen by the label-aware inference (the held-out test's:
-        the class whose whole mean trajectory passes the task's check, then the lowest summed objectives)."""
+        the lowest summed objectives of the whole mean trajectory, the class :meth:`reference` starts a
+        motion with; the held-out test also checks each class's mean first: ``label_aware_mean(...,
+        check=True)``)."""
         if labels is None and self.labels.numel() > 1:
             if self.task is None:
                 raise ValueError(f"the data has several labels {self.labels.tolist()}: pass labels=, or load the "

@@ -165,7 +165,7 @@ def physics_section(exp, model, out_dir: Path, plot: bool) -> dict:
                   threads=max(1, torch.get_num_threads()), feasible=cfg["feasible_scale"] if cfg["feasible"] else None)
     envs = exp.test_envs
     with torch.no_grad():
-        best = label_aware_mean(model.env_map, promp, task, envs, dtype=promp.basis.dtype)
+        best = label_aware_mean(model.env_map, promp, task, envs, dtype=promp.basis.dtype, check=True)
         kin_test = task.success(promp.trajectory(best.mean), envs).cpu().numpy()
     walk = envs[:, None].expand(-1, timing.total + 1, -1).cpu()
     test = run_physics_episodes(scene, ctrl, FixedMeans(best.mean), promp, timing, walk, **common)

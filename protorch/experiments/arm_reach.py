@@ -16,7 +16,8 @@ between passing it on the left and on the right on the fly.
    summed objectives. Checkpointed in ``<out_dir>/checkpoint`` (``protorch.load(out_dir)``),
    resumable.
 3. Evaluation with the label-aware inference (the class whose mean passes the task's check,
-   then the lowest summed objectives: :func:`~protorch.gp.model.label_aware_mean`) on 200 held-out environments, and on 100
+   then the lowest summed objectives: :func:`~protorch.gp.model.label_aware_mean` with
+   ``check=True``) on 200 held-out environments, and on 100
    episodes in which the can or the target is moved once or twice while the arm moves
    (:func:`protorch.control.arm.run_arm_episodes`: the map queried every control step, the arm
    switching classes when the objectives of the rest of the motion say so). When either
@@ -376,7 +377,7 @@ def check_robot(robot, task_cfg: dict, physics_runs: bool):
 def _test(task: ArmReachTask, model, envs: torch.Tensor, seed: int) -> dict:
     """Success of the label-aware mean trajectories on the held-out environments."""
     with torch.no_grad():
-        best = label_aware_mean(model.env_map, model.promp, task, envs, dtype=model.promp.basis.dtype)
+        best = label_aware_mean(model.env_map, model.promp, task, envs, dtype=model.promp.basis.dtype, check=True)
         traj = model.promp.trajectory(best.mean)  # (Q, T, 7)
         ok = task.success(traj, envs)  # (Q,)
         c = task.costs(traj, envs)  # (Q, 3)

@@ -2,9 +2,10 @@
 
 :class:`EnvToProMP` wraps a ProMP and an environment map: environments ``(B, E)`` -> weight
 Gaussians. :func:`label_aware_mean` picks, per environment, the class (homotopy label) whose
-predicted mean trajectory passes the task's own check (``task.success``: for the arm, clear of the
-can and the table under its collision model) and, among those (or among all when none passes),
-has the lowest summed cost: a robot checks its plan before it moves.
+predicted mean trajectory has the lowest summed cost (the paper's, and the online choice's at the
+start of a motion); with ``check=True`` (the held-out tests) a class whose mean passes the task's
+own check (``task.success``: for the arm, clear of the can and the table under its collision
+model) comes first: a robot checks its plan before it moves.
 """
 
 from __future__ import annotations
@@ -51,24 +52,26 @@ class EnvToProMP(nn.Module):
         return f"task_name={self.task_name!r}, env_dim={self.env_dim}"
 
 
-def feasible_first_score(promp, task, dtype=None):
+def feasible_first_score(promp, task, dtype=None, check: bool = True):
     """The label-aware inference's score of means ``(P, N)`` at environments ``(P, E)``: the summed
     task objectives of the mean trajectory, plus :data:`INFEASIBLE` where the trajectory fails
     ``task.success`` (so a class whose mean passes the check always beats one whose mean does not;
-    between two of a kind the lower cost wins): ``(P,)``."""
+    between two of a kind the lower cost wins): ``(P,)``. ``check=False``: the summed objectives alone."""
 
     def score(mu: Tensor, e: Tensor) -> Tensor:
         traj = promp.trajectory(mu if dtype is None else mu.to(dtype))  # (P, T, D)
         e = e.to(traj.dtype)
         cost = task.costs(traj, e).sum(-1)  # (P,)
+        if not check:
+            return cost
         return cost + INFEASIBLE * (~task.success(traj, e)).to(cost.dtype)
 
     return score
 
 
-def label_aware_mean(env_map, promp, task, env: torch.Tensor, dtype=torch.float32):
+def label_aware_mean(env_map, promp, task, env: torch.Tensor, dtype=torch.float32, check: bool = False):
     """The label-aware inference (module docstring): every label's predicted mean scored by
-    :func:`feasible_first_score`, the best kept. Returns the :class:`~protorch.gp.BestPrediction`
-    (``mean (Q, N)``, ``label (Q,)``, ``scores (Q, K)``)."""
+    :func:`feasible_first_score` (``check``: the task's check first), the best kept. Returns the
+    :class:`~protorch.gp.BestPrediction` (``mean (Q, N)``, ``label (Q,)``, ``scores (Q, K)``)."""
     p = copy.deepcopy(promp).to(dtype) if promp.basis.dtype != dtype else promp
-    return env_map.predict_best(env, feasible_first_score(p, task, dtype), need_var=False)
+    return env_map.predict_best(env, feasible_first_score(p, task, dtype, check), need_var=False)

@@ -178,7 +178,7 @@ def experiment_figures(out_dir, task, model, off_model, test_envs, res, off_loop
         known = torch.unique(model.env_map.labels).tolist()
         paths = {k: task.ee_path(promp.trajectory(model.env_map.predict_mean(env, k))) for k in known}
 
-        best = label_aware_mean(model.env_map, promp, task, env, dtype=promp.basis.dtype)
+        best = label_aware_mean(model.env_map, promp, task, env, dtype=promp.basis.dtype, check=True)
         ok = task.success(promp.trajectory(best.mean), env)
         off = None if off_model is None else task.ee_path(promp.trajectory(off_model.env_map.predict_mean(env)))
     fig = new_figure((3.2 * 3, 3.4 * 2))

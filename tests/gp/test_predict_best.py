@@ -52,3 +52,31 @@ def test_non_finite_scores_lose_and_bad_scores_are_refused(two_class_map):
         two_class_map.predict_best(q, lambda mu, e: mu.sum(-1), candidates=[0, 7])
     with pytest.raises(ValueError, match="E must be"):
         two_class_map.predict_best(torch.zeros(2, 3, dtype=F64), lambda mu, e: mu.sum(-1))
+
+
+def test_the_checked_label_aware_mean_prefers_a_class_whose_mean_passes_the_tasks_check(two_class_map):
+    """label_aware_mean(check=True): a class whose mean fails task.success loses to one whose mean
+    passes, whatever their costs; between two of a kind (both pass, both fail) the lower cost wins;
+    check=False is the costs alone."""
+    from protorch.gp.model import INFEASIBLE, label_aware_mean
+
+    class Identity:  # a "ProMP" whose trajectory is its weights as one step of 3 dofs
+        basis = torch.zeros(1, dtype=F64)
+
+        def trajectory(self, w):
+            return w[..., None, :]  # (P, 1, 3)
+
+    class Task:  # costs prefer +1 weights (label 0); success: a positive first weight, except where env > 0.7
+        def costs(self, traj, env):
+            return (traj[:, 0] - 1.0).square()  # (P, 3)
+
+        def success(self, traj, env):
+            return (traj[:, 0, 0] < 0) | (env[:, 0] > 0.7)
+
+    q = torch.tensor([[0.2], [0.5], [0.9]], dtype=F64)
+    plain = label_aware_mean(two_class_map, Identity(), Task(), q, dtype=F64)
+    checked = label_aware_mean(two_class_map, Identity(), Task(), q, dtype=F64, check=True)
+    assert plain.label.tolist() == [0, 0, 0]  # the costs alone: label 0 everywhere
+    assert checked.label.tolist() == [1, 1, 0]  # label 0 fails the check below 0.7; both pass at 0.9
+    torch.testing.assert_close(checked.scores[:2, 0], plain.scores[:2, 0] + INFEASIBLE)
+    torch.testing.assert_close(checked.scores[:, 1], plain.scores[:, 1])

@@ -145,13 +145,15 @@ def main() -> None:
         for kind in args.kinds.split(","):
             envs = environments(policy, args.calls, kind)
             policy.reset()
+            swaps0 = getattr(policy.means, "updates", 0)
             ts, cpu, misses = time_calls(policy, envs)
             for what, xs in (("wall", ts), ("cpu", cpu)):
                 ms = [x * 1e3 for x in xs]
                 print(f"  {kind:8s} {what:4s} {len(ms)} calls: median {_percentile(ms, 0.5):.3f} ms, "
                       f"p99 {_percentile(ms, 0.99):.3f} ms, max {max(ms):.3f} ms, first {ms[0]:.3f} ms")
-            print(f"  {kind:8s} new neighbour sets solved at {misses / len(ts):.1%} of the calls; load average "
-                  f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+            swaps = getattr(policy.means, "updates", 0) - swaps0
+            print(f"  {kind:8s} new neighbour sets solved at {misses / len(ts):.1%} of the calls ({swaps / len(ts):.1%} "
+                  f"by a swap update); load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     if args.continuity:
         continuity(args.run, args.continuity)
 

@@ -17,6 +17,7 @@ __all__ = ["ClassMeans", "EndEffector", "basis3"]
 
 MAX_UPDATES = 64  # swaps applied to one factorised set before the next new set is factorised afresh
 SPARE = 60  # known environments beyond the k nearest kept as the candidates of the next searches
+MAX_SWAPS = 2  # a new set differing from the current one by more environments is factorised afresh
 MARGIN = 1e-9  # metres (environment units) of slack in the test that the neighbours cannot have changed
 
 
@@ -43,9 +44,11 @@ class ClassMeans:
     inequality on the distances found at the last full search, whether the set can have changed
     (it cannot while the environment moved by less than half the gap between the ``k``-th and the
     ``k+1``-th distance); otherwise one distance pass and a ``topk`` find the set, as the map does
-    (ties by insertion order). The solve ``A^-1 (MU_S - mu0)`` of a set is cached (``cache_size``
-    sets); a new set that differs from the current one by one environment is solved by a rank-2
-    update of the current set's inverse (``A^-1`` with one row and column replaced: one rank-1
+    (ties by insertion order), over the ``k + SPARE`` nearest of the last full pass while they
+    certainly hold the set (:meth:`_search`). The solve ``A^-1 (MU_S - mu0)`` of a set is cached
+    (``cache_size`` sets); a new set that differs from the current one by one environment (or
+    :data:`MAX_SWAPS`, one after the other) is solved by a rank-2 update of the current set's
+    inverse (``A^-1`` with one row and column replaced: one rank-1
     downdate, one rank-1 update, per weight) and one step of iterative refinement against ``A``
     itself, otherwise (or after :data:`MAX_UPDATES` chained swaps) factorised afresh with the
     map's own :func:`~protorch.gp.kernels.posdef_cholesky`, float64 throughout."""
@@ -152,10 +155,10 @@ class ClassMeans:
         exact = not bool(jitter.any())  # a jittered factor is not A's: no updates from it
         return _Set(list(rows), Es, coef, mu0, chol=L if exact else None, K=K, MUs=MUs, VARs=VARs)
 
-    def _swap(self, c: int, old: _Set, out: int, new: int) -> _Set | None:
+    def _swap(self, c: int, old: _Set, out: int, new: int, solve: bool = True) -> _Set | None:
         """``old`` with the environment ``out`` replaced by ``new`` (rows of class ``c``): the
-        inverse by a rank-1 downdate and a rank-1 update per weight, the coefficients by one
-        product and one step of iterative refinement; ``None`` if the update is unusable."""
+        inverse by a rank-1 downdate and a rank-1 update per weight, the coefficients (``solve``)
+        by one product and one step of iterative refinement; ``None`` if the update is unusable."""
         if old.inv is None:
             old.inv = torch.cholesky_inverse(old.chol)  # (N, k, k)
             old.chol = None
@@ -183,6 +186,8 @@ class ClassMeans:
         K[j], K[:, j] = b, b
         MUs, VARs = old.MUs.clone(), old.VARs.clone()  # (k, N)
         MUs[j], VARs[j] = self.MU[c][new], self.VAR[c][new]
+        if not solve:
+            return _Set(rows, Es, None, None, inv=inv, K=K, MUs=MUs, VARs=VARs, depth=old.depth + 1)
         mu0 = MUs.mean(0)  # (N,)
         y = MUs - mu0  # (k, N)
         coef = torch.bmm(inv, y.T[..., None])[..., 0].T  # (k, N)
@@ -213,9 +218,11 @@ class ClassMeans:
         else:
             self.misses += 1
             if cur is not None and cur.depth < MAX_UPDATES and (cur.inv is not None or cur.chol is not None):
-                gone, came = set(cur.rows).difference(rows), set(rows).difference(cur.rows)
-                if len(gone) == 1:
-                    hit = self._swap(c, cur, gone.pop(), came.pop())
+                gone, came = sorted(set(cur.rows).difference(rows)), sorted(set(rows).difference(cur.rows))
+                if len(gone) <= MAX_SWAPS:
+                    hit = cur
+                    for i, (out, new) in enumerate(zip(gone, came)):  # one swap after the other
+                        hit = None if hit is None else self._swap(c, hit, out, new, solve=i == len(gone) - 1)
                     self.updates += hit is not None
             if hit is None:
                 hit = self._factorise(c, rows)

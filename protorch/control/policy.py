@@ -7,17 +7,22 @@ measured now. What it computes, per call:
 
 1. **The map's answer for every class** (homotopy label) at ``env``: Eq. 7 of the environment
    map (:class:`ClassMeans`). With ``nearest_k`` (the arm's 30 nearest known environments of the
-   class) the neighbours are found per call and the solve ``A^-1 (MU - mu0)`` of each neighbour
-   set is cached (computed once per set, float64, with the map's own
-   :func:`~protorch.gp.kernels.posdef_cholesky`), so a call whose neighbours did not change
-   costs one kernel vector and one product for all classes; without ``nearest_k`` (torch
+   class) each class keeps its neighbour set from call to call: a triangle-inequality test says
+   whether the set can have changed, a search over the nearest candidates of the last full pass
+   (or a full pass) finds it if so, and a new set's solve ``A^-1 (MU - mu0)`` (float64) is cached;
+   a set that differs from the last by one or two environments is solved by rank-2 updates of
+   the last set's inverse (one refinement step against ``A``), any other by the map's own
+   :func:`~protorch.gp.kernels.posdef_cholesky`. Between decisions only the tracked class's mean
+   is computed (one kernel vector, one product); the other classes' sets are brought up to date
+   every ``decision_dt / 4`` so that a decision rarely solves. Without ``nearest_k`` (torch
    backend) the map's own cached solve is used. Other maps are asked through ``predict_mean``.
 2. **The class choice with hysteresis of the moving test** (:mod:`protorch.control.arm_choice`,
    the same functions): every ``decision_dt`` seconds (the run's ``settings.dynamic.dt``: the
    moving test decides at its control instants) each class is scored and the current class is kept
    unless another one is better by more than ``switch_margin``. For the arm the score is
    :func:`~protorch.control.arm_choice.rest_scores`, the objectives of the rest of the motion
-   from the end effector of ``q`` (the measured joints); with ``q=None`` the arm is taken to be
+   from the end effector of ``q`` (the measured joints; that end effector and the classes' mean
+   paths at the objectives' phases in one pass of :class:`~protorch.control.policy_means.EndEffector`); with ``q=None`` the arm is taken to be
    on each class's own mean at ``t``. For a task without an end-effector path (a user's own
    task) the score is the task's summed objectives of each class's whole mean trajectory (the
    label-aware inference, :func:`~protorch.gp.model.label_aware_mean`). A map with one class

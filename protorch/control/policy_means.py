@@ -73,7 +73,7 @@ class ClassMeans:
             self.MU = [MU[r].contiguous() for r in self.rows]  # (Mg, N)
             self.VAR = [VAR[r].contiguous() for r in self.rows]  # (Mg, N)
             self.k = [min(k_near, r.numel()) for r in self.rows]
-            self.cache: OrderedDict = OrderedDict()  # sorted rows -> _Set
+            self.cache: OrderedDict = OrderedDict()  # (class, sorted rows) -> _Set
             self.factored: OrderedDict = OrderedDict()  # the sets holding a factor (id -> _Set), newest last
             self.reset()
         elif getattr(env_map, "backend", "") == "torch" and groups is not None:
@@ -212,9 +212,10 @@ class ClassMeans:
         cur = self.current[c]
         if cur is not None and sorted(cur.rows) == list(rows):
             return cur
-        hit = self.cache.get(rows)
+        key = (c, rows)
+        hit = self.cache.get(key)
         if hit is not None:
-            self.cache.move_to_end(rows)
+            self.cache.move_to_end(key)
         else:
             self.misses += 1
             if cur is not None and cur.depth < MAX_UPDATES and (cur.inv is not None or cur.chol is not None):
@@ -226,7 +227,7 @@ class ClassMeans:
                     self.updates += hit is not None
             if hit is None:
                 hit = self._factorise(c, rows)
-            self.cache[rows] = hit
+            self.cache[key] = hit
             if len(self.cache) > self.cache_size:
                 self.cache.popitem(last=False)
             if hit.inv is not None or hit.chol is not None:

@@ -53,7 +53,8 @@ def toy_policy(nearest_k=None, seed=0, backend="torch", **kw) -> Policy:
     return Policy(promp, env_map, "two_ways", task=TwoWays(), **{"duration": 2.0, "switch_margin": 0.05, **kw})
 
 
-@pytest.mark.parametrize("nearest_k, backend", [(None, "torch"), (8, "torch"), (8, "gpytorch"), (8, "sparse")])
+@pytest.mark.parametrize("nearest_k, backend", [(None, "torch"), (8, "torch"), (8, "gpytorch"), (8, "sparse"),
+                                                (20, "torch")])  # 20: every entry of a class, the same rows in both
 def test_class_means_equal_the_maps_prediction(nearest_k, backend):
     pol = toy_policy(nearest_k, backend=backend)
     envs = torch.rand(20, 2, generator=torch.Generator().manual_seed(1), dtype=F64)

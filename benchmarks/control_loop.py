@@ -14,7 +14,8 @@ the environment changing at every call. Two motions of the environment:
 Printed: median, p99 and max (ms), the first call included (it is the first call after ``load``),
 of the wall-clock time and of the calling thread's CPU time (``time.thread_time``: on a shared
 machine the wall clock also counts the time the thread waited for a core), the share of calls
-that solved a new neighbour set, and the load average. Load and warm-up time is printed apart.
+that solved a new neighbour set (and of those by a swap update of the last set's inverses), and
+the load average. Load and warm-up time is printed apart.
 
 Continuity (``--continuity N``): the run's moving test re-simulated (its own environments and moves,
 :func:`protorch.control.arm.run_arm_episodes`); the policy's class at every instant of every

@@ -14,7 +14,8 @@ the environment changing at every call. Two motions of the environment:
 Printed: median, p99 and max (ms), the first call included (it is the first call after ``load``),
 of the wall-clock time and of the calling thread's CPU time (``time.thread_time``: on a shared
 machine the wall clock also counts the time the thread waited for a core), the share of calls
-that solved a new neighbour set, and the load average. Load and warm-up time is printed apart.
+that solved a new neighbour set (and of those by a swap update of the last set's inverses), and
+the load average. Load and warm-up time is printed apart.
 
 Continuity (``--continuity N``): the run's moving test re-simulated (its own environments and moves,
 :func:`protorch.control.arm.run_arm_episodes`); the policy's class at every instant of every
@@ -145,13 +146,15 @@ def main() -> None:
         for kind in args.kinds.split(","):
             envs = environments(policy, args.calls, kind)
             policy.reset()
+            swaps0 = getattr(policy.means, "updates", 0)
             ts, cpu, misses = time_calls(policy, envs)
             for what, xs in (("wall", ts), ("cpu", cpu)):
                 ms = [x * 1e3 for x in xs]
                 print(f"  {kind:8s} {what:4s} {len(ms)} calls: median {_percentile(ms, 0.5):.3f} ms, "
                       f"p99 {_percentile(ms, 0.99):.3f} ms, max {max(ms):.3f} ms, first {ms[0]:.3f} ms")
-            print(f"  {kind:8s} new neighbour sets solved at {misses / len(ts):.1%} of the calls; load average "
-                  f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+            swaps = getattr(policy.means, "updates", 0) - swaps0
+            print(f"  {kind:8s} new neighbour sets solved at {misses / len(ts):.1%} of the calls ({swaps / len(ts):.1%} "
+                  f"by a swap update); load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     if args.continuity:
         continuity(args.run, args.continuity)
 

@@ -28,14 +28,17 @@ def velocity_command_acceleration(q: Tensor, qd: Tensor, m: Tensor, m_vel: Tenso
     return torch.maximum(torch.minimum((v_cmd - qd) / dt, amax), -amax)  # (E, J)
 
 
-def rest_scores(task, promp, means: Tensor, env: Tensor, ee_now: Tensor, rest: Tensor) -> Tensor:
+def rest_scores(task, promp, means: Tensor, env: Tensor, ee_now: Tensor, rest: Tensor,
+                path: Tensor | None = None) -> Tensor:
     """Summed objectives of the rest of the motion for every class: the way from the end effector
     now (``ee_now (E, 3)``) over to the class's mean path, then that path at the phases ``rest
-    (P',)``; ``means (K, E, N)`` -> ``(K, E)``."""
+    (P',)``; ``means (K, E, N)`` -> ``(K, E)``. ``path (K, E, P', 3)``: that mean path's end
+    effector at ``rest`` when the caller has it already (computed from ``means`` otherwise)."""
     k, n_env = means.shape[:2]
     start = ee_now.expand(k, n_env, 3)  # (K, E, 3)
     if rest.numel():
-        path = task.ee_path(promp.trajectory(means, phase=rest))  # (K, E, P', 3)
+        if path is None:
+            path = task.ee_path(promp.trajectory(means, phase=rest))  # (K, E, P', 3)
         # the way over, sampled densely: a switch must not cross the can
         bridge = start[..., None, :] + _BRIDGE.to(path)[:, None] * (path[..., :1, :] - start[..., None, :])
         path = torch.cat([bridge, path], -2)  # (K, E, 8 + P', 3)

@@ -7,17 +7,22 @@ measured now. What it computes, per call:
 
 1. **The map's answer for every class** (homotopy label) at ``env``: Eq. 7 of the environment
    map (:class:`ClassMeans`). With ``nearest_k`` (the arm's 30 nearest known environments of the
-   class) the neighbours are found per call and the solve ``A^-1 (MU - mu0)`` of each neighbour
-   set is cached (computed once per set, float64, with the map's own
-   :func:`~protorch.gp.kernels.posdef_cholesky`), so a call whose neighbours did not change
-   costs one kernel vector and one product for all classes; without ``nearest_k`` (torch
+   class) each class keeps its neighbour set from call to call: a triangle-inequality test says
+   whether the set can have changed, a search over the nearest candidates of the last full pass
+   (or a full pass) finds it if so, and a new set's solve ``A^-1 (MU - mu0)`` (float64) is cached;
+   a set that differs from the last by one or two environments is solved by rank-2 updates of
+   the last set's inverse (one refinement step against ``A``), any other by the map's own
+   :func:`~protorch.gp.kernels.posdef_cholesky`. Between decisions only the tracked class's mean
+   is computed (one kernel vector, one product); the other classes' sets are brought up to date
+   every ``decision_dt / 4`` so that a decision rarely solves. Without ``nearest_k`` (torch
    backend) the map's own cached solve is used. Other maps are asked through ``predict_mean``.
 2. **The class choice with hysteresis of the moving test** (:mod:`protorch.control.arm_choice`,
    the same functions): every ``decision_dt`` seconds (the run's ``settings.dynamic.dt``: the
    moving test decides at its control instants) each class is scored and the current class is kept
    unless another one is better by more than ``switch_margin``. For the arm the score is
    :func:`~protorch.control.arm_choice.rest_scores`, the objectives of the rest of the motion
-   from the end effector of ``q`` (the measured joints); with ``q=None`` the arm is taken to be
+   from the end effector of ``q`` (the measured joints; that end effector and the classes' mean
+   paths at the objectives' phases in one pass of :class:`~protorch.control.policy_means.EndEffector`); with ``q=None`` the arm is taken to be
    on each class's own mean at ``t``. For a task without an end-effector path (a user's own
    task) the score is the task's summed objectives of each class's whole mean trajectory (the
    label-aware inference, :func:`~protorch.gp.model.label_aware_mean`). A map with one class
@@ -40,6 +45,7 @@ backwards within a motion (a smaller ``t`` than the last is taken as the last).
 
 from __future__ import annotations
 
+import bisect
 import math
 from typing import NamedTuple
 
@@ -53,7 +59,8 @@ from ..data.files import atomic_write_bytes
 from ..gp.kernels import rbf
 from ..gp.model import EnvToProMP, label_aware_mean
 from .arm_choice import hysteresis_choice, rest_scores
-from .policy_means import ClassMeans, basis3
+from ..tasks.arm.reach import ArmReachTask
+from .policy_means import ClassMeans, EndEffector, basis3
 
 __all__ = ["Policy", "Reference", "ClassMeans", "DEFAULT_BLEND"]
 
@@ -67,6 +74,21 @@ class Reference(NamedTuple):
     qd: Tensor  # (D,) velocity
     qdd: Tensor  # (D,) acceleration
     label: int  # the class tracked (0 for a map with one class)
+
+
+class _Motion:
+    """The state of one motion (:meth:`Policy.reset` starts a new one), kept apart from the
+    module's attributes so that writing it at every call is cheap."""
+
+    __slots__ = ("current", "slot", "w", "t", "off", "fresh")
+
+    def __init__(self) -> None:
+        self.current: int | None = None  # row of Policy.labels
+        self.slot = -1  # the decision slot of the last decision
+        self.w: Tensor | None = None  # (1, N) the weights tracked at the last call
+        self.t = 0.0
+        self.off: Tensor | None = None  # (2, D) offset and its velocity at t
+        self.fresh = 0.0  # when the other classes' neighbour sets were last brought up to date
 
 
 class Policy(EnvToProMP):
@@ -102,10 +124,20 @@ class Policy(EnvToProMP):
         kw = dict(dtype=torch.float64, device=promp.basis.device)
         self._P = promp.to(torch.float64) if promp.basis.dtype != torch.float64 else promp
         self._d, self._kb = promp.num_dof, promp.num_basis
+        self._device = promp.basis.device
         arm = task is not None and callable(getattr(task, "ee_path", None)) and callable(getattr(task, "path_costs", None))
         self._arm = arm
         if arm:
             self._grid = self._P.phase[task.cost_indices(promp.num_steps)].to(**kw)  # (P,) the objectives' phases
+            self._grid_list = self._grid.tolist()
+            self._phi_grid = self._P.basis_at(self._grid).to(**kw)  # (P, K) the basis there, for every decision
+            kin = getattr(task, "kinematics", None)
+            fold = isinstance(task, ArmReachTask) and type(task).ee_path is ArmReachTask.ee_path
+            self._ee = EndEffector(kin, device=self._device) if fold else task.ee_path  # (P, J) -> (P, 3)
+        self._label_list = self.labels.tolist()
+        # the other classes' neighbour sets are kept fresh between decisions (a decision then
+        # rarely has a new set to solve): every refresh_dt seconds
+        self._refresh_dt = self.decision_dt / 4
         # the basis and its derivatives at every whole millisecond of the motion (a 1 kHz loop's
         # calls), scaled to time derivatives: (T_ms + 1, 3, K)
         ms = torch.arange(int(math.floor(self.duration * 1000)) + 1, **kw) * 1e-3
@@ -113,6 +145,7 @@ class Policy(EnvToProMP):
             torch.tensor([1.0, 1.0 / self.duration, 1.0 / self.duration ** 2], **kw)[:, None]
         self._phi_end = basis3(self._P, 1.0)  # (3, K)
         self._phi_end[1:] = 0.0  # held: no velocity, no acceleration
+        self._decays: dict = {}
         self._at_jump = self._decay(0.0) if math.isfinite(self.blend) else None  # (3, 2)
         self._scale = torch.tensor([1.0, 1.0 / self.duration, 1.0 / self.duration ** 2], **kw)[:, None]  # (3, 1)
         self.reset()
@@ -122,20 +155,27 @@ class Policy(EnvToProMP):
     # ----------------------------------------------------------------- state
     def reset(self) -> None:
         """Start a new motion: no class chosen, no offset, no time."""
-        self.current: int | None = None  # row of self.labels
-        self._slot = -1  # the decision slot of the last decision
-        self._w = None  # (N,) the weights tracked at the last call
-        self._t = 0.0
-        self._off = None  # (2, D) offset and its velocity at self._t
+        self._m = _Motion()
+        if self.means.mode == "nearest":
+            self.means.reset()
+
+    @property
+    def current(self) -> int | None:
+        """The row (into :attr:`labels`) of the class tracked now (``None`` before the first call)."""
+        return self._m.current
 
     def _warm_up(self) -> None:
         gen = torch.Generator().manual_seed(0)
         sample = getattr(self.task, "sample_envs", None)
         envs = sample(3, gen) if callable(sample) else self.env_map.E[:3]
-        for e in envs.to(torch.float64):
+        envs = envs.to(torch.float64)
+        for e in envs:
             for t in (0.0, 0.5 * self.duration, 2 * self.decision_dt):
                 self.reference(e, t)
             self.reset()
+        for i in range(41):  # a walk from one to the next: neighbour sets swapped, decisions made
+            self.reference(envs[0] + (envs[1] - envs[0]) * (i / 40), i * 1e-3)
+        self.reset()
 
     # ----------------------------------------------------------------- checks
     def _joints(self, x, name: str, like: Tensor) -> Tensor | None:
@@ -145,8 +185,9 @@ class Policy(EnvToProMP):
             x = torch.as_tensor(x, dtype=torch.float64)
         if x.shape != (self._d,):
             raise ValueError(f"{name} must be ({self._d},) joint values, got shape {tuple(x.shape)}")
-        x = x.to(like)
-        if not bool(torch.isfinite(x).all()):
+        if x.dtype != like.dtype or x.device != like.device:
+            x = x.to(like)
+        if not all(map(math.isfinite, x.tolist())):
             raise ValueError(f"{name} holds NaN or inf: {x.tolist()}")
         return x
 
@@ -156,48 +197,65 @@ class Policy(EnvToProMP):
             env = torch.as_tensor(env, dtype=torch.float64)
         if env.shape != (d,):
             raise ValueError(f"env must be ({d},) for task {self.task_name!r} (env_dim {d}), got shape {tuple(env.shape)}")
-        env = env.to(dtype=torch.float64, device=self._P.basis.device)
-        if not bool(torch.isfinite(env).all()):
-            raise ValueError(f"env holds NaN or inf: {env.tolist()}")
+        if env.dtype != torch.float64 or env.device != self._device:
+            env = env.to(dtype=torch.float64, device=self._device)
+        point = env.tolist()
+        if not all(map(math.isfinite, point)):
+            raise ValueError(f"env holds NaN or inf: {point}")
         t = float(t)
         if not math.isfinite(t) or t < 0:
             raise ValueError(f"t must be a finite time >= 0 (seconds since the motion started), got {t!r}")
-        return env, t, self._joints(q, "q", env), self._joints(qd, "qd", env)
+        return env, t, self._joints(q, "q", env), self._joints(qd, "qd", env), point
 
     # ----------------------------------------------------------------- the class choice
-    def _scores(self, means: Tensor, env: Tensor, z: float, q: Tensor | None) -> Tensor:
-        """Each class's score ``(K,)`` (module docstring, item 2)."""
+    def _scores(self, means: Tensor, env: Tensor, z: float, q: Tensor | None, phi: Tensor) -> Tensor:
+        """Each class's score ``(K,)`` (module docstring, item 2); ``phi (K,)`` the basis at ``z``."""
         task = self.task
         if not self._arm:
             return task.costs(self._P.trajectory(means), env.expand(means.shape[0], -1)).sum(-1)  # (K,)
-        if q is None:  # the arm on each class's own mean now
-            pos = means.unflatten(-1, (self._d, self._kb)) @ basis3(self._P, z)[0]  # (K, D)
-            ee = task.ee_path(pos)[:, None]  # (K, 1, 3)
-        else:
-            ee = task.ee_path(q)[None]  # (1, 3)
-        rest = self._grid[self._grid > z]  # (P',)
-        return rest_scores(task, self._P, means[:, None], env[None], ee, rest)[:, 0]  # (K,)
+        k = means.shape[0]
+        w = means.view(k, self._d, self._kb)  # (K, D, Kb)
+        ahead = len(self._grid_list) - bisect.bisect_right(self._grid_list, z)  # the objectives' phases after z
+        now = w @ phi if q is None else q[None]  # (K, D) the arm on each class's own mean now, or (1, D) measured
+        traj = self._phi_grid[len(self._grid_list) - ahead:] @ w.transpose(1, 2)  # (K, P', D) the rest of each mean
+        ee = self._ee(torch.cat([now, traj.reshape(-1, self._d)]))  # (K or 1 + K P', 3) one kinematics pass
+        start, path = ee[: now.shape[0], None], ee[now.shape[0]:].view(k, 1, ahead, 3)
+        rest = self._grid[len(self._grid_list) - ahead:]  # (P',)
+        return rest_scores(task, self._P, means[:, None], env[None], start, rest, path=path)[:, 0]  # (K,)
 
-    def choose(self, env: Tensor, t: float, q: Tensor | None = None) -> tuple[int, Tensor]:
-        """The class row (into :attr:`labels`) tracked at ``t`` and its mean weights ``(N,)``:
+    def choose(self, env: Tensor, t: float, q: Tensor | None = None, point: list[float] | None = None,
+               phi: Tensor | None = None) -> tuple[int, Tensor]:
+        """The class row (into :attr:`labels`) tracked at ``t`` and its mean weights ``(1, N)``:
         a decision (every class asked, scored, hysteresis) at the first call and whenever ``t``
-        enters a new ``decision_dt`` slot; between decisions only the current class is asked."""
+        enters a new ``decision_dt`` slot; between decisions only the current class is asked (and
+        every ``decision_dt / 4`` the other classes' neighbour sets brought up to date).
+        ``point``: ``env.tolist()``; ``phi (3, K)``: :meth:`basis_at` ``t``."""
         z = min(t / self.duration, 1.0)
-        if self.labels.numel() == 1:
-            self.current = 0
-            return 0, self.means(env)[0]
+        means = self.means
+        if point is None:
+            point = env.tolist()
+        if len(self._label_list) == 1:
+            self._m.current = 0
+            return 0, means.mean(0, env, point)
         if self.task is None:
             raise ValueError(f"this map has the classes {self.labels.tolist()}: choosing one needs the run's task "
                              "(protorch.load(run_dir) of a run folder with its config.yaml)")
         slot = int(math.floor(t / self.decision_dt + 1e-9))
-        if self.current is not None and slot <= self._slot:
-            return self.current, self.means(env, [self.current])[0]
-        means = self.means(env)  # (K, N)
-        scores = self._scores(means, env, z, q)[:, None]  # (K, 1)
-        cur = None if self.current is None else torch.tensor([self.current])
-        self.current = int(hysteresis_choice(scores, cur, self.switch_margin)[0])
-        self._slot = slot
-        return self.current, means[self.current]
+        m = self._m
+        if m.current is not None and slot <= m.slot:
+            if means.mode == "nearest" and t - m.fresh >= self._refresh_dt:
+                for c in range(len(self._label_list)):
+                    if c != m.current:
+                        means.neighbour_set(c, env, point)
+                m.fresh = t
+            return m.current, means.mean(m.current, env, point)
+        every = means(env)  # (K, N)
+        phi = self.basis_at(t) if phi is None else phi
+        scores = self._scores(every, env, z, q, phi[0])[:, None]  # (K, 1)
+        cur = None if m.current is None else torch.tensor([m.current])
+        m.current = c = int(hysteresis_choice(scores, cur, self.switch_margin)[0])
+        m.slot, m.fresh = slot, t
+        return c, every[c:c + 1]
 
     # ----------------------------------------------------------------- the reference
     def reference(self, env, t, q=None, qd=None) -> Reference:
@@ -216,45 +274,60 @@ class Policy(EnvToProMP):
         Returns:
             :class:`Reference` ``(q, qd, qdd (D,), label)``.
         """
-        env, t, q, qd = self._check(env, t, q, qd)
-        t = max(t, self._t)
+        env, t, q, qd, point = self._check(env, t, q, qd)
+        m = self._m
+        t = max(t, m.t)
         with torch.no_grad():
-            c, w = self.choose(env, t, q)
-            z = min(t / self.duration, 1.0)
-            phi = self._phi_end if z >= 1.0 else self._phi_at(t)  # (3, K) d/dt = d/dz / duration
-            state = phi @ w.unflatten(-1, (self._d, self._kb)).T  # (3, D) position, velocity, acceleration
-            off = None
-            if self._off is not None:  # the offset decays from the last call to now
-                off = self._decay(t - self._t, 2) @ self._off  # (2, D)
-            if self._w is not None and self.blend < math.inf and not torch.equal(w, self._w):  # the mean jumped: the offset absorbs it
-                jump = phi[:2] @ self._w.unflatten(-1, (self._d, self._kb)).T - state[:2]  # (2, D)
-                off = jump if off is None else off + jump
-            if self._w is None and q is not None and self.blend < math.inf:  # start where the arm is
-                v = torch.zeros_like(q) if qd is None else qd
-                off = torch.stack([q - state[0], v - state[1]])  # (2, D)
-            if off is not None:
-                self._off = off
-                state = state + self._at_jump @ off  # (3, D) the offset now and its acceleration
-            self._w, self._t = w, t
-        return Reference(state[0], state[1], state[2], int(self.labels[c]))
+            phi = self.basis_at(t)  # (3, K)
+            c, w = self.choose(env, t, q, point, phi)  # w (1, N)
+            state = torch.mm(phi, w.view(self._d, self._kb).T)  # (3, D) position, velocity, acceleration
+            if self.blend < math.inf:
+                jump = None
+                if m.w is not None:  # the mean's change since the last call (0 at a fixed environment)
+                    jump = torch.mm(phi[:2], (m.w - w).view(self._d, self._kb).T)  # (2, D)
+                elif q is not None:  # start where the arm is
+                    v = torch.zeros_like(q) if qd is None else qd
+                    jump = torch.stack([q - state[0], v - state[1]])  # (2, D)
+                off = m.off
+                if off is not None:  # the offset decays from the last call to now, the jump added
+                    dec = self._decay(t - m.t, 2)  # (2, 2)
+                    off = torch.mm(dec, off) if jump is None else torch.addmm(jump, dec, off)
+                else:
+                    off = jump
+                if off is not None:
+                    m.off = off
+                    state = torch.addmm(state, self._at_jump, off)  # (3, D) the offset now and its acceleration
+            m.w, m.t = w, t
+        return Reference(state[0], state[1], state[2], self._label_list[c])
 
-    def _phi_at(self, t: float) -> Tensor:
-        """The basis and its time derivatives at ``t < duration``: ``(3, K)`` (from the table at
-        a whole millisecond)."""
+    def basis_at(self, t: float) -> Tensor:
+        """The basis and its time derivatives at ``t``: ``(3, K)`` (d/dt = d/dz / duration; from
+        the table at a whole millisecond; past ``duration`` the last point, held)."""
+        if t / self.duration >= 1.0:
+            return self._phi_end
         i = round(t * 1000.0)
-        if abs(t * 1000.0 - i) < 1e-9 and i < self._phi_ms.shape[0] and abs(i * 1e-3 - t) == 0.0:
+        if i < self._phi_ms.shape[0] and i * 1e-3 == t:
             return self._phi_ms[i]
         return basis3(self._P, t / self.duration) * self._scale
 
     def _decay(self, s: float, rows: int = 3) -> Tensor:
         """The critically damped decay (module docstring, item 4) as a matrix: ``(rows, 2)``
         maps an offset ``(d0, v0) (2, D)`` to its position, velocity (and acceleration) ``s``
-        seconds later."""
+        seconds later (the few intervals of a fixed-rate loop are kept)."""
+        key = (s, rows)
+        hit = self._decays.get(key)
+        if hit is None:
+            if len(self._decays) >= 64:
+                self._decays.clear()
+            hit = self._decays[key] = self._decay_matrix(s, rows)
+        return hit
+
+    def _decay_matrix(self, s: float, rows: int) -> Tensor:
         w = self.blend
         e = math.exp(-w * s)
         m = [[(1 + w * s) * e, s * e], [-w * w * s * e, (1 - w * s) * e],
              [(-w * w + w ** 3 * s) * e, (-2 * w + w * w * s) * e]]
-        return torch.tensor(m[:rows], dtype=torch.float64, device=self._P.basis.device)
+        return torch.tensor(m[:rows], dtype=torch.float64, device=self._device)
 
     # ----------------------------------------------------------------- out of Python
     def export(self, path) -> "Path":

@@ -53,7 +53,8 @@ def toy_policy(nearest_k=None, seed=0, backend="torch", **kw) -> Policy:
     return Policy(promp, env_map, "two_ways", task=TwoWays(), **{"duration": 2.0, "switch_margin": 0.05, **kw})
 
 
-@pytest.mark.parametrize("nearest_k, backend", [(None, "torch"), (8, "torch"), (8, "gpytorch"), (8, "sparse")])
+@pytest.mark.parametrize("nearest_k, backend", [(None, "torch"), (8, "torch"), (8, "gpytorch"), (8, "sparse"),
+                                                (20, "torch")])  # 20: every entry of a class, the same rows in both
 def test_class_means_equal_the_maps_prediction(nearest_k, backend):
     pol = toy_policy(nearest_k, backend=backend)
     envs = torch.rand(20, 2, generator=torch.Generator().manual_seed(1), dtype=F64)
@@ -62,6 +63,37 @@ def test_class_means_equal_the_maps_prediction(nearest_k, backend):
         want = pol.env_map.predict_mean(e.expand(2, -1), torch.tensor([0, 1]))  # (2, N)
         torch.testing.assert_close(fast, want, rtol=0, atol=1e-12)
         torch.testing.assert_close(pol.means(e, [1])[0], want[1], rtol=0, atol=1e-12)
+
+
+def test_class_means_along_a_walk_equal_the_maps_prediction():
+    """A slowly moving environment on a map large enough for the candidate search, with neighbour
+    sets changing by one environment (swap updates) and by more (new factorisations)."""
+    g = torch.Generator().manual_seed(5)
+    promp = ProMP(2, 6, 30)
+    m = 600
+    E = torch.rand(m, 2, generator=g, dtype=F64)  # (M, 2)
+    MU = torch.randn(m, promp.num_weights, generator=g, dtype=F64)  # (M, N)
+    VAR = 10 ** (-3 + torch.rand(m, promp.num_weights, generator=g, dtype=F64))  # (M, N)
+    env_map = make_env_map("torch", 30.0, nearest_k=10).fit(E, MU, VAR, torch.arange(m) % 2)
+    means = ClassMeans(env_map)
+    steps = torch.linspace(0, 1, 400, dtype=F64)[:, None]
+    walk = torch.tensor([0.2, 0.3], dtype=F64) + steps * torch.tensor([0.5, 0.4], dtype=F64)  # (400, 2)
+    walk = walk + 2e-3 * torch.randn(walk.shape, generator=g, dtype=F64)  # noisy: sets flip back and forth
+    for i, e in enumerate(walk):
+        fast = means(e) if i % 3 == 0 else means(e, [i % 2])  # (K', N)
+        want = env_map.predict_mean(e.expand(2, -1), torch.tensor([0, 1]))  # (2, N)
+        torch.testing.assert_close(fast, want if i % 3 == 0 else want[i % 2:i % 2 + 1], rtol=0, atol=1e-12)
+    assert means.updates > 20 and means.misses > means.updates  # both kinds of solve ran
+    assert means.full_searches < 0.5 * 400  # the candidates served most searches
+
+
+def test_the_fast_end_effector_equals_the_kinematics():
+    from protorch.control.policy_means import EndEffector
+    from protorch.tasks.arm.reach import ArmReachTask
+
+    kin = ArmReachTask().kinematics
+    q = kin.lower + (kin.upper - kin.lower) * torch.rand(40, 7, generator=torch.Generator().manual_seed(6), dtype=F64)
+    torch.testing.assert_close(EndEffector(kin)(q), kin.ee_position(q), rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("nearest_k", [None, 8])

@@ -49,17 +49,17 @@ import bisect
 import math
 from typing import NamedTuple
 
-import torch
-from torch import Tensor
-
 import io
 from pathlib import Path
 
+import torch
+from torch import Tensor
+
 from ..data.files import atomic_write_bytes
-from ..gp.kernels import rbf
 from ..gp.model import EnvToProMP, label_aware_mean
-from .arm_choice import hysteresis_choice, rest_scores
 from ..tasks.arm.reach import ArmReachTask
+from .arm_choice import hysteresis_choice, rest_scores
+from .policy_export import ExportProgram
 from .policy_means import ClassMeans, EndEffector, basis3
 
 __all__ = ["Policy", "Reference", "ClassMeans", "DEFAULT_BLEND"]
@@ -343,7 +343,7 @@ class Policy(EnvToProMP):
         are not checked by the program. Written atomically."""
         if self.labels.numel() > 1 and self.task is None:
             raise ValueError("this map has several classes: exporting the class choice needs the run's task")
-        program = _Program(self)
+        program = ExportProgram(self)
         env = self.env_map.E[0].to(torch.float64)
         args = (env, torch.tensor(0.5 * self.duration, dtype=torch.float64))
         try:
@@ -374,75 +374,3 @@ class Policy(EnvToProMP):
     def extra_repr(self) -> str:
         return (f"{super().extra_repr()}, experiment={self.experiment!r}, classes={self.labels.tolist()}, "
                 f"duration={self.duration:g}, switch_margin={self.switch_margin:g}, decision_dt={self.decision_dt:g}")
-
-
-class _Program(torch.nn.Module):
-    """:meth:`Policy.export`'s computation, ``(env (d,), t ()) -> (q, qd, qdd (D,), label ())``,
-    written with static shapes only (``torch.export``)."""
-
-    def __init__(self, policy: Policy) -> None:
-        super().__init__()
-        self.p = policy
-        m = policy.means
-        self.mode = m.mode
-        kw = dict(dtype=torch.float64)
-        self.register_buffer("labels", policy.labels.clone())
-        if m.mode == "nearest":
-            for c in range(len(m.E)):
-                self.register_buffer(f"E{c}", m.E[c].clone())
-                self.register_buffer(f"MU{c}", m.MU[c].clone())
-                self.register_buffer(f"VAR{c}", m.VAR[c].clone())
-        elif m.mode == "exact":
-            self.register_buffer("E_all", m.E_all.clone())
-            self.register_buffer("coef", m.coef.clone())
-            self.register_buffer("mu0", m.mu0.clone())
-            self.register_buffer("mask", m.mask.clone())
-        else:
-            raise ValueError(f"export supports maps with nearest_k or the torch backend, not {policy.env_map.backend!r} "
-                             "without nearest_k")
-        if policy._arm:
-            self.register_buffer("grid", policy._grid.clone().to(**kw))  # (P,)
-
-    def _means(self, env: Tensor) -> Tensor:
-        m, out = self.p.means, []
-        if self.mode == "exact":
-            kq = rbf(env[None], self.E_all, m.alpha)  # (1, M)
-            return self.mu0 + (self.mask * kq) @ self.coef  # (K, N)
-        for c in range(len(m.E)):
-            E, MU, VAR, k = getattr(self, f"E{c}"), getattr(self, f"MU{c}"), getattr(self, f"VAR{c}"), m.k[c]
-            d2 = (torch.cdist(env[None], E, compute_mode="donot_use_mm_for_euclid_dist") ** 2)[0]  # (Mg,) as sq_dist
-            idx = torch.sort(d2, stable=True).indices[:k]  # (k,) ties by insertion order, as the map
-            Es, MUs, VARs = E[idx], MU[idx], VAR[idx]  # (k, d), (k, N), (k, N)
-            A = rbf(Es, Es, m.alpha)[None].expand(MU.shape[1], k, k) + torch.diag_embed(VARs.T)  # (N, k, k)
-            L = torch.linalg.cholesky(A)  # (N, k, k)
-            mu0 = MUs.mean(0)  # (N,)
-            coef = torch.cholesky_solve((MUs - mu0).T[..., None], L)[..., 0]  # (N, k)
-            kq = rbf(env[None], Es, m.alpha)[0]  # (k,)
-            out.append(mu0 + coef @ kq)  # (N,)
-        return torch.stack(out)  # (K, N)
-
-    def forward(self, env: Tensor, t: Tensor):
-        p = self.p
-        z = torch.clamp(t / p.duration, max=1.0)  # ()
-        means = self._means(env)  # (K, N)
-        k = means.shape[0]
-        if k == 1:
-            c = torch.zeros((), dtype=torch.long)
-        elif p._arm:  # rest_scores for every count of the grid's phases still ahead, the right one taken
-            task, grid = p.task, self.grid
-            pos = means.unflatten(-1, (p._d, p._kb)) @ basis3(p._P, z)[0]  # (K, D)
-            ee = task.ee_path(pos)[:, None]  # (K, 1, 3)
-            n = grid.shape[0]
-            table = torch.stack([rest_scores(task, p._P, means[:, None], env[None], ee, grid[n - r:])[:, 0]
-                                 for r in range(n + 1)])  # (P + 1, K) scores with the last r phases ahead
-            ahead = (grid > z).sum()  # ()
-            c = torch.argmin(table[ahead])
-        else:
-            scores = p.task.costs(p._P.trajectory(means), env.expand(k, -1)).sum(-1)  # (K,)
-            c = torch.argmin(scores)
-        w = means[c]  # (N,)
-        phi = basis3(p._P, z) * p._scale  # (3, K)
-        moving = (z < 1.0).to(torch.float64)
-        phi = torch.cat([phi[:1], phi[1:] * moving])  # held at the end: no velocity, no acceleration
-        state = phi @ w.unflatten(-1, (p._d, p._kb)).T  # (3, D)
-        return state[0], state[1], state[2], self.labels[c]

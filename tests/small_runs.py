@@ -37,12 +37,16 @@ def _comparable(v):
     return "nan" if isinstance(v, float) and math.isnan(v) else v
 
 
-def small_run(name: str, threads: int, out_dir: Path | None = None) -> dict:
+def small_run(name: str, threads: int, out_dir: Path | None = None, physics: bool = True) -> dict:
     """``{metrics key: value}`` of a small run of ``name`` at ``threads`` torch threads, timing keys
-    and provenance left out, plus ``checkpoint:<folder>``: a hash of each checkpoint's tensors."""
+    and provenance left out, plus ``checkpoint:<folder>``: a hash of each checkpoint's tensors.
+    ``physics=False``: the arm's MuJoCo episodes left out (``settings.physics.run=never``)."""
+    cfg = {"name": name, "seed": 0, "threads": threads, "plot": False, **SMALL[name]}
+    if not physics and name == "arm_reach":
+        cfg["settings"] = {**cfg["settings"], "physics": {"run": "never"}}
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(out_dir or tmp)
-        m = run_experiment({"name": name, "seed": 0, "threads": threads, "plot": False, **SMALL[name]}, out)
+        m = run_experiment(cfg, out)
         flat = {k: _comparable(v) for k, v in flatten_metrics(m).items()
                 if "seconds" not in k and k != "settings.threads" and not k.startswith(("run.", "summary."))}
         for path in sorted(out.rglob("dataset.safetensors")):

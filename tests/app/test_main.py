@@ -36,9 +36,12 @@ TINY = {
     ],
     "arm_reach": [
         "settings.loop.num_envs=10", "settings.loop.batch_size=10", "optimizer.max_iter=3", "optimizer.num_samples=20",
-        "optimizer.relevance_samples=20", "task.priors=20", "task.demo_envs=2", "settings.test.num_envs=6",
+        "optimizer.relevance_samples=20", "task.priors=10", "task.demo_envs=2", "settings.test.num_envs=6",
         "settings.dynamic.episodes=2", "settings.dynamic.duration=1.0", "settings.dynamic.hold=0.2",
         "settings.baselines=[labels_off]", "settings.progress=false",
+        # the volume default's detour priors at one distance, and the physics episodes without their
+        # pictures (made in a subprocess, and what it writes is not read here: tests/sim/test_render.py)
+        "task.prior_detours=[0.18]", "settings.physics.render=false",
     ],
     "self_improve": [
         "task._target_=examples.reach_around_a_disc.ReachAroundADisc", "settings.loop.num_envs=6",
@@ -46,6 +49,10 @@ TINY = {
         "settings.test.num_envs=8", "task.demo_envs=4",
     ],
 }
+
+
+# the pictures an experiment must write besides its *.png (each over 10 kB)
+FIGURES = {"point_particle": ("success_vs_iteration.png", "test_grid.png", "online_frames.png", "online_episode.gif")}
 
 
 def run_cli(args, cwd=ROOT, env=None, check=True):
@@ -79,6 +86,10 @@ def test_experiment_runs_end_to_end_at_a_tiny_budget(name, tmp_path):
     assert (tmp_path / "config.yaml").is_file()
     pngs = list(tmp_path.glob("*.png"))
     assert pngs and all(p.stat().st_size > 10_000 for p in pngs)
+    for figure in FIGURES.get(name, ()):
+        assert (tmp_path / figure).stat().st_size > 10_000, figure
+        if figure.endswith(".gif"):
+            assert (tmp_path / figure).read_bytes()[:6] in (b"GIF87a", b"GIF89a"), figure
 
 
 def test_bad_beta_is_refused_with_a_clear_error(tmp_path):

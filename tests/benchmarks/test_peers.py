@@ -49,7 +49,7 @@ def test_new_tasks_at_a_tiny_budget(peers, one_thread, tmp_path):
     import json
 
     problems = peers.beam_problems(1, "position") + peers.beam_problems(1, "orientation")
-    problems += peers.arm_problems(1, priors=60, demo_envs=4)
+    problems += peers.arm_problems(1, priors=60, demo_envs=4, prior_detours="[]")  # the straight priors only
     for p in problems:
         peers.check_nuisance(p)
         assert not p.success(p.mean)
@@ -99,8 +99,9 @@ def test_the_arm_objective_changes_the_costs_not_the_problems(peers):
     assert peers.parse_args(["--arm-objective", "ee"]).arm_objective == "ee"
     with pytest.raises(SystemExit):
         peers.parse_args(["--arm-objective", "hand"])
-    (ee,) = peers.arm_problems(1, 0, can_objective="ee", priors=60, demo_envs=4)
-    (sk,) = peers.arm_problems(1, 0, can_objective="skeleton", priors=60, demo_envs=4)
+    small = {"priors": 60, "demo_envs": 4, "prior_detours": "[]"}  # the straight priors only
+    (ee,) = peers.arm_problems(1, 0, can_objective="ee", **small)
+    (sk,) = peers.arm_problems(1, 0, can_objective="skeleton", **small)
     assert torch.equal(ee.env, sk.env) and torch.equal(ee.mean, sk.mean) and torch.equal(ee.var, sk.var)
     assert sk.task_obj.can_objective == "skeleton" and ee.task_obj.can_objective == "ee"
     w = sk.mean + sk.var.sqrt() * torch.randn(8, sk.mean.shape[0], generator=torch.Generator().manual_seed(0),

@@ -237,4 +237,4 @@ def check_export(pol: Policy, tmp_path: Path, envs: torch.Tensor, calls: int = 1
 @pytest.mark.parametrize("nearest_k", [None, 8])
 def test_the_exported_program_runs_without_protorch_and_equals_reference(tmp_path, nearest_k):
     pol = toy_policy(nearest_k)
-    check_export(pol, tmp_path, torch.rand(300, 2, generator=torch.Generator().manual_seed(4), dtype=F64))
+    check_export(pol, tmp_path, torch.rand(300, 2, generator=torch.Generator().manual_seed(4), dtype=F64), calls=300)

@@ -75,7 +75,7 @@ def test_the_policy_reproduces_the_moving_tests_class_switches(policy):
 
 def test_the_exported_arm_program_runs_without_protorch_and_equals_reference(policy, tmp_path):
     envs = policy.task.sample_envs(200, torch.Generator().manual_seed(3))
-    check_export(policy, tmp_path, envs, calls=1000)
+    check_export(policy, tmp_path, envs, calls=300)
 
 
 def _example():

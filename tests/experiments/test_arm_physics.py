@@ -28,7 +28,7 @@ def _replay():
 
 @pytest.mark.slow
 def test_tiny_run_writes_physics_metrics_and_episodes_the_replay_agrees_with(tmp_path):
-    m = run_experiment(cfg("task.collision=volume", "settings.baselines=[]"), tmp_path)
+    m = run_experiment(cfg("task.collision=volume", "settings.baselines=[]", "task.prior_detours=[]"), tmp_path)
     p = m["physics"]
     for section, n in (("test", 6), ("dynamic", 3)):
         s = p[section]

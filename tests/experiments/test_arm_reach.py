@@ -27,6 +27,10 @@ TINY = [
 ]
 
 
+# for a run whose MuJoCo episodes are not under test (they are in test_arm_physics.py)
+NO_PHYSICS = "settings.physics.run=never"
+
+
 def cfg(*overrides: str) -> dict:
     with initialize_config_dir(config_dir=str(config_dir()), version_base=None):
         c = compose(config_name="config", overrides=["experiment=arm_reach", *TINY, *overrides])
@@ -51,7 +55,7 @@ def test_config_holds_the_papers_settings():
 def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     # the skeleton keeps every straight prior, so the counts below are the grid's (the volume
     # default's clearing and detours: test_prepare_builds_labelled_demonstrations_and_priors)
-    m = run_experiment(cfg("task.collision=skeleton"), tmp_path)
+    m = run_experiment(cfg("task.collision=skeleton", NO_PHYSICS), tmp_path)
     assert m["loop"]["seconds"] > 0  # a duration, not a rate (over 1 s on a loaded machine)
     for path in (("test", "success_rate"), ("dynamic", "success_rate"),
                  ("baselines", "labels_off", "test", "success_rate"),
@@ -78,12 +82,12 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     off = protorch.load(tmp_path / "baselines" / "labels_off_loop")
     assert torch.unique(off.env_map.labels).tolist() == [0]
     # a finished run resumes at once, unchanged; without resume it is refused
-    again = run_experiment(cfg("task.collision=skeleton", "resume=true"), tmp_path)
+    again = run_experiment(cfg("task.collision=skeleton", NO_PHYSICS, "resume=true"), tmp_path)
     assert again["loop"]["resumed_from"] == again["loop"]["steps"] and again["test"] == m["test"]
     with pytest.raises(FileExistsError, match="resume=true"):
         run_experiment(cfg(), tmp_path)
     # the trained map scored on other held-out environments and episodes (fresh evaluation seeds)
-    other = run_experiment(cfg("task.collision=skeleton", "resume=true", "+settings.test.seed=12345",
+    other = run_experiment(cfg("task.collision=skeleton", NO_PHYSICS, "resume=true", "+settings.test.seed=12345",
                                 "+settings.dynamic.seed=54321"), tmp_path)
     assert other["loop"]["resumed_from"] == other["loop"]["steps"]
     assert other["test"]["seed"] == 12345 and other["dynamic"]["seed"] == 54321
@@ -117,10 +121,11 @@ def test_bad_settings_are_refused_before_any_work(tmp_path, override, match):
 @pytest.mark.slow
 def test_gp_sparse_runs_the_same_loop_as_the_exact_maps_nearest_k(tmp_path):
     """The arm's map is the authors' local GPs (gp.nearest_k = 30): gp=sparse finds the same
-    neighbours with its k-d tree and solves the same systems, so the whole run is the same."""
+    neighbours with its k-d tree and solves the same systems, so the whole run is the same (the
+    detour priors kept: without them no moving episode switches class, and the switch rates are NaN)."""
     runs = {}
     for gp in ("torch", "sparse"):
-        m = run_experiment(cfg(f"gp={gp}", "settings.baselines=[]"), tmp_path / gp)
+        m = run_experiment(cfg(f"gp={gp}", "settings.baselines=[]", NO_PHYSICS), tmp_path / gp)
         runs[gp] = m
         assert protorch.load(tmp_path / gp).env_map.backend == gp
     for key in ("test", "dynamic", "demos", "priors"):
@@ -172,7 +177,7 @@ def test_volume_task_keeps_only_the_priors_clear_of_the_can_under_its_volumes():
 @pytest.mark.slow
 def test_loop_over_the_table_grid_iterates_the_initial_data_and_tests_both_regions(tmp_path):
     c = cfg("task.prior_grid=table", "settings.loop.choice=dataset", "settings.loop.num_envs=12",
-            "settings.baselines=[labels_off]", "task.collision=skeleton")  # every straight prior kept: 30
+            "settings.baselines=[labels_off]", "task.collision=skeleton", NO_PHYSICS)  # every straight prior kept: 30
     assert c["task"]["prior_grid"] == "table" and c["settings"]["loop"]["choice"] == "dataset"
     m = run_experiment(c, tmp_path)
     grid = m["priors"]["grid"]

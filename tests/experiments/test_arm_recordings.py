@@ -1,7 +1,9 @@
 """The arm trained from timestamped recordings (task.demos=FOLDER of *.csv) at a tiny budget: the
-cleaning report in the metrics, one environment per measured group, and the figure."""
+cleaning report in the metrics and one environment per measured group."""
 
 from __future__ import annotations
+
+from functools import partial
 
 import pytest
 
@@ -9,17 +11,23 @@ from protorch.experiments import run_experiment
 from tests.benchmarks import benchmark_module
 from tests.experiments.test_arm_reach import cfg
 
+# what the recordings are cleaned for is not under test here: the loop, its map and its test at
+# their cheapest (no detour priors, no physics, no baselines)
+CHEAP = ["task.prior_detours=[]", "settings.physics.run=never", "settings.baselines=[]"]
+
 
 @pytest.mark.slow
-def test_tiny_arm_run_from_recordings(tmp_path):
+def test_tiny_arm_run_from_recordings(tmp_path, monkeypatch):
     with benchmark_module("recordings.py", "bench_recordings") as bench:
+        # the 2 environments recorded, not the experiment's 20 (their IK demonstrations unused)
+        monkeypatch.setattr(bench, "synthetic_demos", partial(bench.synthetic_demos, envs=2))
         info = bench.make_recordings(tmp_path / "rec", 0, count=6)  # 2 environments x 3, at 100 / 500 / 1000 Hz
     assert [i["rate"] for i in info] == [100, 500, 1000] * 2
-    m = run_experiment(cfg(f"task.demos={tmp_path / 'rec' / 'csv'}"), tmp_path / "run")
+    m = run_experiment(cfg(f"task.demos={tmp_path / 'rec' / 'csv'}", *CHEAP), tmp_path / "run")
     rec = m["demos"]["recordings"]
     assert m["demos"]["count"] == 6 and m["demos"]["entries"] == 2 and rec["grouping"]["groups"] == 2
     assert rec["grouping"]["derived"] and 0.005 < rec["grouping"]["tolerance"] < 0.2
-    off = run_experiment(cfg(f"task.demos={tmp_path / 'rec' / 'csv'}", "task.recordings.trim=false",
+    off = run_experiment(cfg(f"task.demos={tmp_path / 'rec' / 'csv'}", *CHEAP, "task.recordings.trim=false",
                              "task.recordings.align=false", "task.recordings.group_tol=0.05"), tmp_path / "off")
     rec_off = off["demos"]["recordings"]
     assert rec_off["grouping"]["tolerance"] == 0.05 and rec_off["trimmed_s"]["max"] == 0

@@ -102,16 +102,18 @@ def test_a_users_own_urdf_runs_the_arm_experiment_with_physics_from_the_command_
     pytest.importorskip("mujoco")
     write_user_arm(tmp_path)  # not shipped with protorch: 6 joints, collision cylinders, inertials
     proc = cli(["experiment=arm_reach", "robot=custom", "robot.urdf=my_arm.urdf", "robot.end_link=tool0",
-                f"robot.home={HOME}", "settings.loop.num_envs=20", "task.priors=20", "settings.test.num_envs=10",
-                "settings.dynamic.episodes=4", "settings.baselines=[]", "settings.physics.run=always",
-                "settings.physics.render=false", "settings.progress=false", "optimizer.max_iter=10",
+                f"robot.home={HOME}", "settings.loop.num_envs=10", "task.priors=10", "task.prior_detours=[0.18]",
+                "task.demo_envs=2", "settings.test.num_envs=6", "settings.dynamic.episodes=2",
+                "settings.dynamic.duration=1.0", "settings.dynamic.hold=0.2", "settings.baselines=[]",
+                "settings.physics.run=always", "settings.physics.render=false", "settings.progress=false",
+                "optimizer.max_iter=3", "optimizer.num_samples=20", "optimizer.relevance_samples=20",
                 "hydra.run.dir=out"], tmp_path)
     assert proc.returncode == 0, proc.stderr[-3000:]
     run = tmp_path / "out"
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["robot"]["name"] == "my_arm" and metrics["robot"]["joints"] == 6
     with np.load(run / "physics" / "episodes.npz") as f:
-        assert f["q"].shape[-1] == 6 and f["q"].shape[0] == 10 + 4  # held-out + moving episodes, 6 joints
+        assert f["q"].shape[-1] == 6 and f["q"].shape[0] == 6 + 2  # held-out + moving episodes, 6 joints
     assert (run / "arm_3d.png").is_file()
 
 

@@ -100,14 +100,12 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.skipif(not HUMAN.is_dir(), reason="the authors' human demonstrations are not in ../shared/data")
-def test_cli_with_the_human_demonstrations_and_figures(tmp_path):
-    run_cli(["experiment=point_particle", *TINY, f"task.demos={HUMAN}", f"hydra.run.dir={tmp_path}"])
+def test_cli_with_the_human_demonstrations(tmp_path):
+    # the figures (the same code whichever demonstrations): tests/app/test_main.py's end-to-end run
+    run_cli(["experiment=point_particle", *TINY, f"task.demos={HUMAN}", "plot=false", f"hydra.run.dir={tmp_path}"])
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert m["demos"] == {"source": str(HUMAN), "count": 90, "envs": 30, "marked": 0}
-    for name in ("success_vs_iteration.png", "test_grid.png", "online_frames.png"):
-        assert (tmp_path / name).stat().st_size > 10_000, name
-    gif = (tmp_path / "online_episode.gif").read_bytes()
-    assert gif[:6] in (b"GIF87a", b"GIF89a") and len(gif) > 10_000
+    assert not list(tmp_path.glob("*.png"))
     assert protorch.load(tmp_path).env_map.num_points == m["loop"]["dataset_size"]
 
 
@@ -129,7 +127,7 @@ def test_bad_settings_are_refused_before_any_work(tmp_path, override, error, mes
 @pytest.mark.slow
 def test_sigkill_mid_loop_then_resume_completes_with_every_finished_environment(tmp_path):
     run = tmp_path / "run"
-    args = ["experiment=point_particle", "settings.loop.num_envs=200", "settings.loop.batch_size=2",
+    args = ["experiment=point_particle", "settings.loop.num_envs=60", "settings.loop.batch_size=2",
             "optimizer.max_iter=15", "optimizer.num_samples=20", "optimizer.relevance_samples=20",
             "settings.test.num_envs=10", "settings.dynamic.episodes=2", "settings.baselines=[]", "plot=false",
             "settings.progress=false", f"hydra.run.dir={run}"]
@@ -146,16 +144,16 @@ def test_sigkill_mid_loop_then_resume_completes_with_every_finished_environment(
     proc.wait()
     killed = TrajectoryDataset.load(ckpt)
     state = killed.metadata["loop"]
-    assert 1 <= state["step"] < 100 and not (run / "metrics.json").exists()
+    assert 1 <= state["step"] < 30 and not (run / "metrics.json").exists()
     run_cli([*args, "resume=true"])
     m = json.loads((run / "metrics.json").read_text())
-    assert m["loop"]["resumed_from"] >= state["step"] and m["loop"]["envs_tried"] == 200
+    assert m["loop"]["resumed_from"] >= state["step"] and m["loop"]["envs_tried"] == 60
     final = TrajectoryDataset.load(ckpt)
     assert final.metadata["loop"]["tried"][: len(state["tried"])] == state["tried"]
     n = len(killed)
     assert final.env[:n].equal(killed.env) and final.mean[:n].equal(killed.mean)
     rows = list(csv.DictReader((run / "loop_metrics.csv").open()))
-    assert [int(r["step"]) for r in rows] == list(range(101))
+    assert [int(r["step"]) for r in rows] == list(range(31))
 
 
 @pytest.mark.slow

@@ -59,9 +59,9 @@ def provenance() -> str:
             f"MKL_CBWR={os.environ.get('MKL_CBWR', 'the app pin')}")
 
 
-def sweep(name: str, seeds: list[int], out: Path, overrides: list[str], jobs: int) -> Path:
-    """Run the multirun over ``seeds`` into ``out/name`` (Hydra's basic launcher, or joblib with ``jobs`` > 1)."""
-    folder = out / name
+def sweep(name: str, seeds: list[int], folder: Path, overrides: list[str], jobs: int) -> Path:
+    """Run experiment ``name``'s multirun over ``seeds`` into ``folder`` (Hydra's basic launcher, or
+    joblib with ``jobs`` > 1)."""
     cmd = [sys.executable, "-m", "protorch", "-m", f"experiment={name}", f"seed={','.join(map(str, seeds))}",
            "threads=1", "plot=false", f"hydra.sweep.dir={folder}", *overrides]
     if jobs > 1:
@@ -104,16 +104,16 @@ def main() -> int:
     for name in args.experiments:
         folder = args.out / name
         if not (args.reuse and finished(folder, args.seeds)):
-            sweep(name, args.seeds, args.out, args.overrides, args.jobs)
+            sweep(name, args.seeds, folder, args.overrides, args.jobs)
         subprocess.run([sys.executable, "-m", "protorch.app.report", str(folder), "--spread", "--no-figure"],
                        cwd=ROOT, check=True, capture_output=True)
         text = (folder / SPREAD_FILE).read_text()
         print(text, flush=True)
         tables.append(text)
         if args.check_seed is not None:
-            check = sweep(f"{name}_seed{args.check_seed}", [args.check_seed], args.out, args.overrides, 1) \
-                if not (args.reuse and finished(args.out / f"{name}_seed{args.check_seed}", [args.check_seed])) \
-                else args.out / f"{name}_seed{args.check_seed}"
+            check = args.out / f"{name}_seed{args.check_seed}"  # the experiment is still ``name``
+            if not (args.reuse and finished(check, [args.check_seed])):
+                sweep(name, [args.check_seed], check, args.overrides, 1)
             run = next(r for r in collect(check).runs if r.status == OK)
             spreads = next(iter(seed_spread(collect(folder)).values()))
             bad = outside(spreads, run, {k: w for k, w in widen.items() if any(s.key == k for s in spreads)})

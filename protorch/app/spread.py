@@ -34,7 +34,7 @@ class Spread:
     label: str
     method: str
     seeds: list[int]
-    values: list[float]  # (S,) in the order of ``seeds``
+    values: list[float]  # (S,) in the order of ``seeds`` (ints where the metric is a count)
 
     @property
     def mean(self) -> float:
@@ -63,7 +63,7 @@ def headline_values(run: RunRecord) -> dict[str, tuple[str, str, float]]:
         if isinstance(v, (int, float)) and not math.isnan(v):
             key = k[len(_PREFIX):-len(_SUFFIX)]
             out[key] = (str(run.metrics.get(f"{_PREFIX}{key}.label", key)),
-                        str(run.metrics.get(f"{_PREFIX}{key}.method", "")), float(v))
+                        str(run.metrics.get(f"{_PREFIX}{key}.method", "")), v)  # an int stays one (71, not 71.0)
     return out
 
 

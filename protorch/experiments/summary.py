@@ -175,7 +175,10 @@ def format_value(key: str, v) -> str:
         return f"{float(v):.3f}"
     if isinstance(v, int):
         return f"{v:,}"
-    return f"{v:,.0f}" if abs(v) >= 1000 else f"{v:#.3g}"
+    if abs(v) >= 1000:
+        return f"{v:,.0f}"
+    out = f"{v:#.3g}"  # 3 significant digits, trailing zeros kept (1.00) ...
+    return out[:-1] if out.endswith(".") else out  # ... but 114, not "114." (a mean of iteration counts)
 
 
 def _baseline_line(b: dict) -> str:

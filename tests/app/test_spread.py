@@ -46,6 +46,14 @@ def test_mean_range_and_first_seed_per_group(seeds):
     assert (moving.low, moving.high) == pytest.approx((0.9, 0.94))
 
 
+def test_a_count_keeps_its_integer_form(tmp_path):
+    root = tmp_path / "counts"
+    for seed, n in enumerate((71, 158, 114)):
+        make_run(root, str(seed), ["experiment=fig4_window", f"seed={seed}"], {"name": "fig4_window", "seed": seed},
+                 {"summary": {"headline": {"pro.iterations": {"label": "iterations", "method": "PRO", "value": n}}}})
+    assert "| iterations | PRO | `pro.iterations` | 114 | 71 - 158 | 71 |" in spread_markdown(rep.collect(root))
+
+
 def test_the_table_and_the_cli(seeds, capsys):
     text = spread_markdown(rep.collect(seeds))
     assert "## gp.alpha=0.001" in text and "5 seeds: 0, 1, 2, 3, 4" in text

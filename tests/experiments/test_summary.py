@@ -39,6 +39,7 @@ def test_values_print_with_the_fixed_precision_of_their_kind():
     assert format_value("loop.seconds", 41.26) == "41.3 s" and format_value("pro.relevance_seconds", 0.0011) == "1.1 ms"
     assert format_value("loop.rollouts", 1234567) == "1,234,567" and format_value("dynamic.switches", 33) == "33"
     assert format_value("pro.irrelevant_std_ratio", 1.0) == "1.00" and format_value("x.ratio", 0.000312) == "0.000312"
+    assert format_value("pro.iterations", 114.2) == "114" and format_value("pro.iterations", 71.0) == "71.0"
     assert format_value("pro.success", True) == "yes" and format_value("a.rate", None) == "-"
     assert format_value("dynamic.success_rate", math.nan) == "n/a"
     # a metric another module adds prints by its kind too

@@ -4,8 +4,8 @@
 and rebuilds its task from the run's ``config.yaml``; :func:`scene_state` turns one environment
 into what is drawn: the map's mean trajectory, trajectories of weight samples (the spread), the
 success check of the mean, its costs and the inference time. The arm uses the label-aware
-inference (:func:`protorch.gp.model.label_aware_mean`): the homotopy class whose mean passes the
-task's check and scores lowest is chosen and shown. The samples use fixed standard-normal draws (``eps``), so a small
+inference (:func:`protorch.gp.model.label_aware_mean`): the homotopy class whose mean scores
+lowest (the summed objectives, as the policy chooses) is chosen and shown. The samples use fixed standard-normal draws (``eps``), so a small
 change of the environment moves every drawn sample a little instead of redrawing them.
 """
 
@@ -235,8 +235,7 @@ def particle_state(run: ViewRun, env, eps: Tensor, *, check: bool = True) -> Sce
 
 def arm_state(run: ViewRun, env, eps: Tensor, *, check: bool = True, poses: int = 5) -> SceneState:
     """The arm's scene for ``env (4,)``: the label-aware choice of class (the class whose mean
-    passes the task's check and scores lowest, as :func:`~protorch.gp.model.label_aware_mean`, here
-    with its variance), its
+    scores lowest, as :func:`~protorch.gp.model.label_aware_mean`, here with its variance), its
     mean joint trajectory, end-effector path and frame origins at ``poses`` phases (the last one
     the end), and the end-effector paths of weight samples."""
     t0 = time.perf_counter()
@@ -244,7 +243,7 @@ def arm_state(run: ViewRun, env, eps: Tensor, *, check: bool = True, poses: int 
     model, task = run.model, run.task
     promp = model.promp
     with torch.no_grad():
-        best = model.env_map.predict_best(q, feasible_first_score(promp, task), need_var=True)
+        best = model.env_map.predict_best(q, feasible_first_score(promp, task, check=False), need_var=True)
         t1 = time.perf_counter()
         mu, var = best.mean, best.var  # (1, N), (1, N)
         w = mu + var.clamp_min(0).sqrt() * eps.to(mu)  # (S, N)

@@ -135,7 +135,6 @@ class ArmReachExperiment(SelfImprovementExperiment):
         if self.prior_clear == "auto":
             self.prior_clear = self.task.collision == "volume"
         self.prior_detours = check_detours(detours, self.task.collision)
-        self.loop_task = self.task
         if plan_margin is not None:  # the loop accepts a solution only this far from the can; the tests keep `margin`
             if isinstance(plan_margin, bool) or not isinstance(plan_margin, (int, float)) or not plan_margin >= 0:
                 raise ValueError(f"task.plan_margin must be null or a distance >= 0 (m), got {plan_margin!r}")

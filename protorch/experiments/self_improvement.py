@@ -91,6 +91,7 @@ class SelfImprovementExperiment:
     pre_loop_baselines: frozenset = frozenset()  # baselines computed before the loop
     loop_baselines: frozenset = frozenset()  # baselines with a loop of their own (<out_dir>/baselines/<name>)
     baseline_section: str | None = "baselines"  # where their metrics go (None: the top level)
+    loop_task = None  # the task the loop optimises and accepts with, where it differs from the tests' (None: task)
 
     def __new__(cls, *args, **settings):
         self = super().__new__(cls)
@@ -245,7 +246,8 @@ class SelfImprovementExperiment:
         kw = {"desc": desc, **self.loop_kwargs, **args, **overrides}
         if kw["refill"] == "auto":  # on where the loop's optimiser can restart single problems
             kw["refill"] = can_refill(kw["optimizer"], kw["optimizer_kwargs"])
-        return self_improve(getattr(self, "loop_task", self.task), self.promp, data, env_map=self.env_map, **kw)
+        task = self.task if self.loop_task is None else self.loop_task
+        return self_improve(task, self.promp, data, env_map=self.env_map, **kw)
 
     def evaluate(self, model) -> tuple[dict, dict | None, object]:
         """``(test metrics, moving-test metrics, the episodes)`` of a map (an EnvToProMP)."""

@@ -15,7 +15,7 @@ import copy
 import torch
 from torch import Tensor, nn
 
-__all__ = ["EnvToProMP", "label_aware_mean", "feasible_first_score", "INFEASIBLE"]
+__all__ = ["EnvToProMP", "label_aware_mean", "class_score", "INFEASIBLE"]
 
 INFEASIBLE = 1e6  # added to the score of a mean that fails the task's check (summed costs are O(1)-O(10))
 
@@ -52,11 +52,11 @@ class EnvToProMP(nn.Module):
         return f"task_name={self.task_name!r}, env_dim={self.env_dim}"
 
 
-def feasible_first_score(promp, task, dtype=None, check: bool = True):
+def class_score(promp, task, dtype=None, check: bool = False):
     """The label-aware inference's score of means ``(P, N)`` at environments ``(P, E)``: the summed
-    task objectives of the mean trajectory, plus :data:`INFEASIBLE` where the trajectory fails
-    ``task.success`` (so a class whose mean passes the check always beats one whose mean does not;
-    between two of a kind the lower cost wins): ``(P,)``. ``check=False``: the summed objectives alone."""
+    task objectives of the mean trajectory; with ``check``, plus :data:`INFEASIBLE` where the
+    trajectory fails ``task.success`` (so a class whose mean passes the check always beats one
+    whose mean does not; between two of a kind the lower cost wins): ``(P,)``."""
 
     def score(mu: Tensor, e: Tensor) -> Tensor:
         traj = promp.trajectory(mu if dtype is None else mu.to(dtype))  # (P, T, D)
@@ -71,7 +71,7 @@ def feasible_first_score(promp, task, dtype=None, check: bool = True):
 
 def label_aware_mean(env_map, promp, task, env: torch.Tensor, dtype=torch.float32, check: bool = False):
     """The label-aware inference (module docstring): every label's predicted mean scored by
-    :func:`feasible_first_score` (``check``: the task's check first), the best kept. Returns the
+    :func:`class_score` (``check``: the task's check first), the best kept. Returns the
     :class:`~protorch.gp.BestPrediction` (``mean (Q, N)``, ``label (Q,)``, ``scores (Q, K)``)."""
     p = copy.deepcopy(promp).to(dtype) if promp.basis.dtype != dtype else promp
-    return env_map.predict_best(env, feasible_first_score(p, task, dtype, check), need_var=False)
+    return env_map.predict_best(env, class_score(p, task, dtype, check), need_var=False)

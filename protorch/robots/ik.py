@@ -52,7 +52,8 @@ def inverse_kinematics(
     lo, hi = kin.lower.to(q), kin.upper.to(q)
     err = torch.full((q.shape[0],), float("inf"), dtype=q.dtype, device=q.device)
     for _ in range(int(iters)):
-        jac, pose = kin.jacobian_pose(q) if compiled else kin.chain.jacobian(q, ret_eef_pose=True)  # (B, 6, J), (B, 4, 4)
+        # (B, 6, J), (B, 4, 4)
+        jac, pose = kin.jacobian_pose(q) if compiled else kin.chain.jacobian(q, ret_eef_pose=True)
         e_p = position - pose[:, :3, 3]  # (B, 3)
         err = e_p.norm(dim=-1)  # (B,)
         done = err < tol  # (B,)

@@ -25,8 +25,8 @@ from __future__ import annotations
 import bisect
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
-from typing import NamedTuple
 from pathlib import Path
+from typing import NamedTuple
 
 import torch
 from torch import Tensor, nn
@@ -251,7 +251,7 @@ class ArmKinematics(nn.Module):
         the values are not."""
         q = self.check_joints(q, finite=False)
         pts = torch.tensor(self._origins, dtype=q.dtype, device=q.device)  # (F, 3): each origin after its joint's rotation
-        return self._carry(q, pts, self._after_joint)
+        return self._stack_rows(q, *self._carry_rows(q, pts, self._after_joint))
 
     def point_plan(self, frames: Sequence[str], points: Tensor) -> "PointPlan":
         """What :meth:`carry_points` needs to place ``points (M, 3)``, each fixed in its frame
@@ -278,8 +278,7 @@ class ArmKinematics(nn.Module):
         points after joint ``k`` are a suffix: one slice per joint). Any floating dtype; the shape
         is checked, the values are not."""
         q = self.check_joints(q, finite=False)
-        out = self._carry(q, plan.start.to(q), plan.after)
-        return out if plan.back is None else out.index_select(-2, plan.back.to(q.device))
+        return self._stack_rows(q, *self.carry_points_rows(q, plan))
 
     def carry_points_rows(self, q: Tensor, plan: "PointPlan") -> tuple[Tensor, Tensor, Tensor]:
         """:meth:`carry_points` component-major over the flattened batch ``P``: ``x, y, z (M, P)``."""
@@ -290,13 +289,16 @@ class ArmKinematics(nn.Module):
         back = plan.back.to(q.device)
         return x.index_select(0, back), y.index_select(0, back), z.index_select(0, back)
 
-    def _carry(self, q: Tensor, pts: Tensor, after: Sequence[int]) -> Tensor:
-        """Points ``pts (M, 3)``, each in the frame after its last joint's rotation and ordered by
-        that joint (``after[k]``: the first point after joint ``k``), at ``q (..., J)``: ``(..., M, 3)``."""
-        x, y, z = self._carry_rows(q, pts, after)  # (M, P) each
-        return torch.stack([x, y, z], -1).transpose(0, 1).reshape(*q.shape[:-1], pts.shape[0], 3)
+    @staticmethod
+    def _stack_rows(q: Tensor, x: Tensor, y: Tensor, z: Tensor) -> Tensor:
+        """Component rows ``x, y, z (M, P)`` over the flattened batch of ``q (..., J)`` as points
+        ``(..., M, 3)``."""
+        return torch.stack([x, y, z], -1).transpose(0, 1).reshape(*q.shape[:-1], x.shape[0], 3)
 
     def _carry_rows(self, q: Tensor, pts: Tensor, after: Sequence[int]) -> tuple[Tensor, Tensor, Tensor]:
+        """Points ``pts (M, 3)``, each in the frame after its last joint's rotation and ordered by
+        that joint (``after[k]``: the first point after joint ``k``), at ``q (..., J)``: their rows
+        ``x, y, z (M, P)``."""
         qt = q.reshape(-1, self.num_joints).T  # (J, P)
         c, s = torch.cos(qt), torch.sin(qt)  # (J, P)
         x, y, z = (pts[:, i, None].expand(-1, qt.shape[1]).clone() for i in range(3))  # (M, P)

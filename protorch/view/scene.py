@@ -24,7 +24,7 @@ from torch import Tensor
 
 from ..checks import check_tensor
 from ..data.checkpoint import checkpoint_path, load
-from ..gp.model import EnvToProMP, feasible_first_score
+from ..gp.model import EnvToProMP, class_score
 from ..tasks.arm.reach import SIDES, ArmReachTask
 from ..tasks.point_particle import PointParticleTask
 
@@ -243,7 +243,7 @@ def arm_state(run: ViewRun, env, eps: Tensor, *, check: bool = True, poses: int 
     model, task = run.model, run.task
     promp = model.promp
     with torch.no_grad():
-        best = model.env_map.predict_best(q, feasible_first_score(promp, task, check=False), need_var=True)
+        best = model.env_map.predict_best(q, class_score(promp, task), need_var=True)
         t1 = time.perf_counter()
         mu, var = best.mean, best.var  # (1, N), (1, N)
         w = mu + var.clamp_min(0).sqrt() * eps.to(mu)  # (S, N)

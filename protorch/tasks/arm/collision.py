@@ -39,7 +39,8 @@ from ...robots import PointPlan, capsule_index, capsule_segments
 from .geometry import point_cylinder_distance, segment_axis_distance, segment_cylinder_distance
 
 __all__ = ["COLLISIONS", "CAN_OBJECTIVES", "check_collision", "check_volumes", "frames_gap", "capsules_gap",
-           "above_table", "end_capsules", "end_volume_near", "capsule_plan", "capsule_ends", "capsules_above_table", "joints_clearance"]
+           "above_table", "end_capsules", "end_volume_near", "capsule_plan", "capsule_ends",
+           "capsules_above_table", "joints_clearance"]
 
 COLLISIONS = ("skeleton", "volume")
 CAN_OBJECTIVES = ("ee", "volume", "skeleton")
@@ -134,8 +135,7 @@ def capsules_gap(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, he
     bound = torch.full_like(upper, float("inf"))
     bound[idx] = upper_i
     best = torch.minimum(best, bound.flatten(-2).amin(-1))  # (...)
-    keep = upper_i - radius <= best.expand(shape[:-2])[idx[:-2]] + PRUNE_SLACK if len(shape) > 2 else \
-        upper_i - radius <= best + PRUNE_SLACK  # (n,) the second round's candidates
+    keep = upper_i - radius <= best[idx[:-2]] + PRUNE_SLACK  # (n,) the second round's candidates
     near = segment_cylinder_distance(a_i[keep], b_i[keep], ax_i[keep], radius, 0.0, height)  # (n',)
     gap = torch.full_like(upper, float("inf"))
     gap[tuple(i[keep] for i in idx)] = near - r_i[keep]

@@ -10,8 +10,9 @@ added to the map's data before the loop with the average demonstrated variance.
   through a point that far beside the can) at the first of the distances whose mean succeeds
   under the task's collision model and passes on that side; none where the straight prior already
   holds that side. Their IK uses the compiled chain's Jacobian
-  (:meth:`~protorch.robots.ArmKinematics.jacobian_pose`, equal to round-off and several times faster). They give the volume-planned map a collision-free mean near every grid node on
-  both sides, which the straight priors alone cannot (docs/physics.md).
+  (:meth:`~protorch.robots.ArmKinematics.jacobian_pose`, equal to round-off and several times
+  faster). They give the volume-planned map a collision-free mean near every grid node on both
+  sides, which the straight priors alone cannot (docs/physics.md).
 """
 
 from __future__ import annotations

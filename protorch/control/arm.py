@@ -155,6 +155,7 @@ def run_arm_episodes(
     move_window: tuple[float, float] = (0.1, 0.6),
     place_clearance: float = 0.05,
     switch_margin: float = 0.02,
+    check: bool = True,
     generator: torch.Generator | None = None,
     reuse_answers: bool = True,
     record: bool = True,
@@ -180,6 +181,10 @@ def run_arm_episodes(
             uniformly from ``moves``), in which phase range, and how far from the arm a moved
             can stays (beyond its radius).
         switch_margin: hysteresis of the class choice, in units of the summed objectives.
+        check: pass over a class whose plan for the rest of the motion, from the arm's joints
+            now, touches the can (the task's collision model and ``margin``) while another
+            class's is clear (:func:`~protorch.control.arm_choice.rest_blocked`); ``False``: the
+            summed objectives alone choose.
         reuse_answers: the map is asked every control step, but an environment that did not
             change since the last step gets its last answer again (the map is a pure function
             of it) instead of a new GP solve; ``False`` solves every step (same result, slower).
@@ -213,7 +218,8 @@ def run_arm_episodes(
         envs = env0[:, None].repeat(1, timing.total + 1, 1)  # (E, T+1, 4), rewritten by the moves
         schedule = draw_moves(env0.shape[0], timing.moving, moves, (lo_w, hi_w), generator)
     choice = ArmClassChoice(task, env_map, promp, envs, schedule, timing.total, place_clearance=place_clearance,
-                            switch_margin=switch_margin, generator=generator, reuse_answers=reuse_answers)
+                            switch_margin=switch_margin, generator=generator, reuse_answers=reuse_answers,
+                            check=bool(check))
     if max_acceleration is None:
         max_acceleration = task.robot.max_acceleration
     arm = _KinematicArm(choice, task, timing, kp=kp, max_acceleration=max_acceleration)

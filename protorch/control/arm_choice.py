@@ -14,7 +14,7 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
-__all__ = ["ArmClassChoice", "hysteresis_choice", "rest_scores", "draw_moves", "apply_moves", "velocity_command_acceleration"]
+__all__ = ["ArmClassChoice", "hysteresis_choice", "rest_scores", "rest_blocked", "draw_moves", "apply_moves", "velocity_command_acceleration"]
 
 _BRIDGE = torch.linspace(0.0, 1.0, 9, dtype=torch.float64)[:-1]  # (8,) from the arm to a class's path
 
@@ -47,10 +47,31 @@ def rest_scores(task, promp, means: Tensor, env: Tensor, ee_now: Tensor, rest: T
     return task.path_costs(path, env.expand(k, n_env, 4), start=start).sum(-1)  # (K, E)
 
 
-def hysteresis_choice(scores: Tensor, current: Tensor | None, switch_margin: float) -> Tensor:
+def rest_blocked(task, promp, means: Tensor, env: Tensor, now: Tensor, z: float, rest: Tensor) -> Tensor:
+    """Whether each class's plan for the rest of the motion touches the can: the joints from
+    ``now`` (``(E, J)``, the arm; or ``(K, E, J)``) straight over to the class's mean at the phase
+    ``z``, then that mean at ``z`` and the phases ``rest (P',)``, checked by the task's own
+    :meth:`~protorch.tasks.ArmReachTask.can_gap` (its collision model) against ``margin``:
+    ``means (K, E, N)``, ``env (E, 4)`` -> ``(K, E)`` bool (True: blocked)."""
+    k, n_env = means.shape[:2]
+    phases = torch.cat([rest.new_tensor([z]), rest])  # (1 + P',)
+    traj = promp.trajectory(means, phase=phases)  # (K, E, 1 + P', J)
+    now = now.to(traj).expand(k, n_env, traj.shape[-1])[..., None, :]  # (K, E, 1, J)
+    bridge = now + _BRIDGE.to(traj)[:, None] * (traj[..., :1, :] - now)  # (K, E, 8, J)
+    gap = task.can_gap(torch.cat([bridge, traj], -2), env.expand(k, n_env, env.shape[-1]))  # (K, E)
+    return gap <= task.margin
+
+
+def hysteresis_choice(scores: Tensor, current: Tensor | None, switch_margin: float,
+                      blocked: Tensor | None = None) -> Tensor:
     """The class each of ``E`` systems tracks, ``scores (K, E)`` -> ``(E,)`` indices into the
     ``K`` classes: the lowest score, where every class but the ``current (E,)`` one (``None``:
-    none yet) pays ``switch_margin`` (hysteresis: two nearly equal classes would otherwise chatter)."""
+    none yet) pays ``switch_margin`` (hysteresis: two nearly equal classes would otherwise chatter).
+    ``blocked (K, E)`` (:func:`rest_blocked`): a blocked class is chosen only where every class
+    is blocked (then the scores alone decide)."""
+    if blocked is not None:
+        blocked = blocked & ~blocked.all(0)  # (K, E) where some class is clear
+        scores = torch.where(blocked, torch.inf, scores)
     if current is not None:
         k = scores.shape[0]
         scores = scores + switch_margin * (torch.arange(k, device=scores.device)[:, None] != current.to(scores.device))
@@ -98,13 +119,15 @@ class ArmClassChoice:
     at the current environments ``envs[:, t]`` (an unchanged environment reuses its last answer
     when ``reuse_answers``), scores each class on the rest of the motion from the end effector
     of ``q (E, J)`` and keeps the current class unless another one is better by more than
-    ``switch_margin``. Records ``labels (E, T+1)``, ``moved (E,)`` and ``queries``."""
+    ``switch_margin``; with ``check``, a class whose plan for the rest of the motion from ``q``
+    touches the can (:func:`rest_blocked`) is passed over while another class is clear. Records ``labels (E, T+1)``, ``moved (E,)`` and ``queries``."""
 
     def __init__(self, task, env_map, promp, envs: Tensor, schedule: list[list[int]], total: int, *,
-                 place_clearance: float, switch_margin: float, generator, reuse_answers: bool) -> None:
+                 place_clearance: float, switch_margin: float, generator, reuse_answers: bool,
+                 check: bool = False) -> None:
         kw = dict(dtype=envs.dtype, device=envs.device)
         self.task, self.env_map, self.promp, self.envs = task, env_map, promp, envs  # envs (E, T+1, 4)
-        self.generator, self.reuse = generator, reuse_answers
+        self.generator, self.reuse, self.check = generator, reuse_answers, bool(check)
         self.place_clearance, self.switch_margin = place_clearance, switch_margin
         self.cand = torch.unique(env_map.labels)  # (K,) the classes
         # phases the objectives of the rest of the motion are evaluated on
@@ -136,8 +159,10 @@ class ArmClassChoice:
             self.answered = env_t.clone()
             self.queries += k * idx.numel()
         # ---- each class scored on the rest of the motion from where the arm is now
-        ee = task.kinematics.ee_position(q.to(self.means))  # (E, 3)
-        scores = rest_scores(task, self.promp, self.means, env_t, ee, self.grid[self.grid > z])  # (K, E)
-        self.current = hysteresis_choice(scores, self.current, self.switch_margin)  # (E,)
+        q = q.to(self.means)
+        rest = self.grid[self.grid > z]  # (P',)
+        scores = rest_scores(task, self.promp, self.means, env_t, task.kinematics.ee_position(q), rest)  # (K, E)
+        blocked = rest_blocked(task, self.promp, self.means, env_t, q, z, rest) if self.check and k > 1 else None
+        self.current = hysteresis_choice(scores, self.current, self.switch_margin, blocked)  # (E,)
         self.labels[:, t] = self.cand[self.current]
         return self.means[self.current, torch.arange(n_env, device=envs.device)]  # (E, N)

@@ -58,7 +58,7 @@ from torch import Tensor
 from ..data.files import atomic_write_bytes
 from ..gp.model import EnvToProMP, label_aware_mean
 from ..tasks.arm.reach import ArmReachTask
-from .arm_choice import hysteresis_choice, rest_scores
+from .arm_choice import hysteresis_choice, rest_blocked, rest_scores
 from .policy_export import ExportProgram
 from .policy_means import ClassMeans, EndEffector, basis3
 
@@ -102,6 +102,8 @@ class Policy(EnvToProMP):
         duration: seconds from phase 0 to phase 1 (the run's ``settings.dynamic.duration``).
         switch_margin: the class choice's hysteresis (summed objectives).
         decision_dt: seconds between class decisions (the run's control step ``settings.dynamic.dt``).
+        check: pass over an arm class whose plan for the rest of the motion touches the can while
+            another's is clear (the run's ``settings.dynamic.check``; :func:`~protorch.control.arm_choice.rest_blocked`).
         blend: decay rate (1/s) of the offset that keeps the reference continuous (``inf``: no
             offset, the reference is the chosen mean itself and jumps with it).
         warm_up: call :meth:`reference` a few times now so that the first real call is not slower.
@@ -109,7 +111,7 @@ class Policy(EnvToProMP):
 
     def __init__(self, promp, env_map, task_name: str = "", *, task=None, duration: float = 3.0,
                  switch_margin: float = 0.0, decision_dt: float = 0.02, blend: float = DEFAULT_BLEND,
-                 warm_up: bool = True, experiment: str = "") -> None:
+                 warm_up: bool = True, experiment: str = "", check: bool = False) -> None:
         super().__init__(promp, env_map, task_name)
         for name, v in (("duration", duration), ("decision_dt", decision_dt), ("blend", blend)):
             if not (isinstance(v, (int, float)) and (math.isfinite(v) or name == "blend") and v > 0):
@@ -119,6 +121,7 @@ class Policy(EnvToProMP):
         self.task, self.experiment = task, experiment
         self.duration, self.switch_margin = float(duration), float(switch_margin)
         self.decision_dt, self.blend = float(decision_dt), float(blend)
+        self.check = bool(check)
         self.means = ClassMeans(env_map)
         self.labels = self.means.labels  # (K,)
         kw = dict(dtype=torch.float64, device=promp.basis.device)
@@ -252,8 +255,14 @@ class Policy(EnvToProMP):
         every = means(env)  # (K, N)
         phi = self.basis_at(t) if phi is None else phi
         scores = self._scores(every, env, z, q, phi[0])[:, None]  # (K, 1)
+        blocked = None
+        if self.check and self._arm:
+            k = every.shape[0]
+            now = q[None] if q is not None else (every.view(k, self._d, self._kb) @ phi[0])[:, None]  # (1|K, 1, D)
+            rest = self._grid[bisect.bisect_right(self._grid_list, z):]  # (P',) the phases after z
+            blocked = rest_blocked(self.task, self._P, every[:, None], env[None], now, z, rest)  # (K, 1)
         cur = None if m.current is None else torch.tensor([m.current])
-        m.current = c = int(hysteresis_choice(scores, cur, self.switch_margin)[0])
+        m.current = c = int(hysteresis_choice(scores, cur, self.switch_margin, blocked)[0])
         m.slot, m.fresh = slot, t
         return c, every[c:c + 1]
 
@@ -373,4 +382,5 @@ class Policy(EnvToProMP):
 
     def extra_repr(self) -> str:
         return (f"{super().extra_repr()}, experiment={self.experiment!r}, classes={self.labels.tolist()}, "
-                f"duration={self.duration:g}, switch_margin={self.switch_margin:g}, decision_dt={self.decision_dt:g}")
+                f"duration={self.duration:g}, switch_margin={self.switch_margin:g}, decision_dt={self.decision_dt:g}, "
+                f"check={self.check}")

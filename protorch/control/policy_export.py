@@ -8,10 +8,25 @@ import torch
 from torch import Tensor
 
 from ..gp.kernels import rbf
+from ..tasks.arm.collision import capsule_ends
+from ..tasks.arm.geometry import segment_cylinder_distance
 from .arm_choice import rest_scores
 from .policy_means import basis3
 
-__all__ = ["ExportProgram"]
+__all__ = ["ExportProgram", "static_gaps"]
+
+
+def static_gaps(task, q: Tensor, env: Tensor) -> Tensor:
+    """The arm's gap to the can at each configuration ``q (..., J)``: ``(...)``, the numbers of
+    :meth:`~protorch.tasks.ArmReachTask.can_gap` of one step, with static shapes only (every
+    capsule searched, the same numbers as the task's pruned search; the skeleton's placed by the
+    compiled chain, equal to the task's to round-off)."""
+    if getattr(task, "capsule_plan", None) is None:  # the skeleton
+        return task.skeleton_distance(task.kinematics.skeleton(q)[..., None, :, :], env) - task.can_radius
+    a, b = capsule_ends(task.kinematics, q, task.capsule_plan)  # (..., C, 3)
+    axis = env[..., None, 0:2]  # (..., 1, 2)
+    d = segment_cylinder_distance(a, b, axis, task.can_radius, 0.0, task.can_height)  # (..., C)
+    return (d - task.capsule_radii.to(d)).amin(-1)
 
 
 class ExportProgram(torch.nn.Module):
@@ -74,7 +89,18 @@ class ExportProgram(torch.nn.Module):
             table = torch.stack([rest_scores(task, p._P, means[:, None], env[None], ee, grid[n - r:])[:, 0]
                                  for r in range(n + 1)])  # (P + 1, K) scores with the last r phases ahead
             ahead = (grid > z).sum()  # ()
-            c = torch.argmin(table[ahead])
+            scores = table[ahead]  # (K,)
+            if p.check:  # rest_blocked: each class's own mean now, then its mean at the phases ahead
+                traj = (p._phi_grid @ means.unflatten(-1, (p._d, p._kb)).transpose(1, 2))  # (K, P, D)
+                g = static_gaps(task, traj, env.expand(k, n, env.shape[-1]))  # (K, P)
+                tail = torch.flip(torch.cummin(torch.flip(g, [-1]), -1).values, [-1])  # (K, P) min over phases i..P-1
+                tail = torch.cat([tail, torch.full_like(tail[:, :1], torch.inf)], -1)  # (K, P + 1)
+                gap = torch.minimum(static_gaps(task, pos, env.expand(k, env.shape[-1])),
+                                    tail.index_select(1, (n - ahead)[None])[:, 0])  # (K,)
+                blocked = gap <= task.margin
+                blocked = blocked & ~blocked.all()
+                scores = torch.where(blocked, torch.inf, scores)
+            c = torch.argmin(scores)
         else:
             scores = p.task.costs(p._P.trajectory(means), env.expand(k, -1)).sum(-1)  # (K,)
             c = torch.argmin(scores)

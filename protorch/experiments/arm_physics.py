@@ -175,7 +175,8 @@ def physics_section(exp, model, out_dir: Path, plot: bool) -> dict:
     if kin is not None and kin.num_episodes:
         choice = ArmClassChoice(task, model.env_map, promp, kin.envs.clone(), [[] for _ in range(kin.num_episodes)],
                                 timing.total, place_clearance=float(dyn["place_clearance"]),
-                                switch_margin=float(dyn["switch_margin"]), generator=None, reuse_answers=True)
+                                switch_margin=float(dyn["switch_margin"]), generator=None, reuse_answers=True,
+                                check=bool(dyn["check"]))
         dynamic = run_physics_episodes(scene, ctrl, choice, promp, timing, kin.envs.cpu(), **common)
         kin_dyn = kin.success.cpu().numpy()
         sw = count_switches(torch.from_numpy(dynamic.labels))

@@ -62,7 +62,7 @@ def _moving_test_defaults(name: str) -> dict:
     else:
         return {}
     return {k: p.default for k, p in inspect.signature(fn).parameters.items()
-            if k in ("duration", "dt", "switch_margin") and p.default is not inspect.Parameter.empty}
+            if k in ("duration", "dt", "switch_margin", "check") and p.default is not inspect.Parameter.empty}
 
 
 def load_policy(run: str | Path, *, device=None, dtype=None, backend: str | None = None, warm_up: bool = True,
@@ -75,7 +75,7 @@ def load_policy(run: str | Path, *, device=None, dtype=None, backend: str | None
     ``device``, ``dtype`` (float64 by default), ``backend``: of the map (as
     :func:`protorch.data.checkpoint.load`; the policy's per-call path is float64 whatever the map's
     dtype). ``options`` override :class:`~protorch.control.policy.Policy`'s settings
-    (``duration``, ``switch_margin``, ``decision_dt``, ``blend``)."""
+    (``duration``, ``switch_margin``, ``decision_dt``, ``blend``, ``check``)."""
     dtype = torch.float64 if dtype is None else dtype
 
     p = Path(run)
@@ -109,7 +109,7 @@ def load_policy(run: str | Path, *, device=None, dtype=None, backend: str | None
         task.to(model.promp.basis.device)
     dyn = {**_moving_test_defaults(cfg["name"]), **dict(getattr(exp, "dyn_cfg", {}) or {})}
     settings = {"duration": float(dyn.get("duration", 1.0)), "switch_margin": float(dyn.get("switch_margin", 0.0)),
-                "decision_dt": float(dyn.get("dt", 0.01)), **options}
+                "decision_dt": float(dyn.get("dt", 0.01)), "check": bool(dyn.get("check", False)), **options}
     with torch.no_grad():
         return Policy(model.promp, model.env_map, model.task_name, task=task, experiment=cfg["name"],
                       warm_up=warm_up, **settings)

@@ -270,6 +270,8 @@ class ArmDynamic:
     move_window: list[float] = setting([0.1, 0.6], "fraction of the motion in which the moves happen")
     place_clearance: float = setting(0.05, "clearance of a moved object to the arm (m)", ge=0)
     switch_margin: float = setting(0.02, "cost margin before the arm switches class", ge=0)
+    check: bool = setting(True, "pass over a class whose plan for the rest of the motion touches the can "
+                          "(false: the summed objectives alone choose)")
 
 
 @dataclass

@@ -55,14 +55,17 @@ def walks(m: int) -> torch.Tensor:
     return torch.stack(out)
 
 
-def test_the_policy_reproduces_the_moving_tests_class_switches(policy):
+@pytest.mark.parametrize("check", [False, True])
+def test_the_policy_reproduces_the_moving_tests_class_switches(policy, check, monkeypatch):
+    """With and without the plan check (the policy reads the run's ``dynamic.check``)."""
     task = policy.task
+    monkeypatch.setattr(policy, "check", check)
     m = int(round(policy.duration / 0.02))
     runs = [run_arm_episodes(policy, task, walk=walks(m), duration=policy.duration, hold=0.3, dt=0.02,
-                             switch_margin=policy.switch_margin),
+                             switch_margin=policy.switch_margin, check=check),
             run_arm_episodes(policy, task, task.sample_envs(6, torch.Generator().manual_seed(1)),
                              duration=policy.duration, hold=0.3, dt=0.02, switch_margin=policy.switch_margin,
-                             generator=torch.Generator().manual_seed(2))]
+                             generator=torch.Generator().manual_seed(2), check=check)]
     switches = 0
     for res in runs:
         switches += int(res.switches.sum())
@@ -73,7 +76,38 @@ def test_the_policy_reproduces_the_moving_tests_class_switches(policy):
     assert switches >= 1  # the episodes do switch classes
 
 
-def test_the_exported_arm_program_runs_without_protorch_and_equals_reference(policy, tmp_path):
+def test_the_checked_choice_never_tracks_a_blocked_plan_while_another_is_clear(policy):
+    """At every decision of the moving test with ``check``, the tracked class's plan for the rest
+    of the motion from the arm's joints clears the can, unless every class's plan touches it;
+    and the check changes decisions on these episodes (against ``check=False``)."""
+    from protorch.control.arm_choice import rest_blocked
+
+    task = ArmReachTask(cost_steps=6, collision="volume")
+    envs = task.sample_envs(30, torch.Generator().manual_seed(1))
+    runs = {c: run_arm_episodes(policy, task, envs, duration=policy.duration, hold=0.3, dt=0.02,
+                                switch_margin=policy.switch_margin, generator=torch.Generator().manual_seed(2),
+                                check=c) for c in (False, True)}
+    res = runs[True]
+    assert bool((runs[False].labels != res.labels).any())
+    grid = policy.promp.phase[task.cost_indices(policy.promp.num_steps)].to(F64)
+    cand = torch.unique(policy.env_map.labels)
+    moving = res.num_moving_steps
+    passed_over = 0
+    for i in range(moving + 1):
+        z = min(i / moving, 1.0)
+        env = res.envs[:, i]  # (E, 4)
+        means = torch.stack([policy.env_map.predict_mean(env, torch.full((env.shape[0],), int(c))) for c in cand])
+        blocked = rest_blocked(task, policy.promp, means.to(F64), env, res.q[:, i], z, grid[grid > z])  # (K, E)
+        chosen = (res.labels[:, i][None] == cand[:, None]).to(torch.long).argmax(0)  # (E,)
+        on_blocked = blocked.gather(0, chosen[None])[0]
+        assert not bool((on_blocked & ~blocked.all(0)).any()), i
+        passed_over += int((blocked.any(0) & ~blocked.all(0)).sum())
+    assert passed_over >= 1
+
+
+@pytest.mark.parametrize("check", [False, True])
+def test_the_exported_arm_program_runs_without_protorch_and_equals_reference(policy, tmp_path, check, monkeypatch):
+    monkeypatch.setattr(policy, "check", check)
     envs = policy.task.sample_envs(200, torch.Generator().manual_seed(3))
     check_export(policy, tmp_path, envs, calls=300)
 

@@ -14,6 +14,8 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
+from ..tasks.arm.collision import capsule_ends, capsules_clear
+
 __all__ = ["ArmClassChoice", "hysteresis_choice", "rest_scores", "rest_blocked", "draw_moves", "apply_moves", "velocity_command_acceleration"]
 
 _BRIDGE = torch.linspace(0.0, 1.0, 9, dtype=torch.float64)[:-1]  # (8,) from the arm to a class's path
@@ -58,8 +60,11 @@ def rest_blocked(task, promp, means: Tensor, env: Tensor, now: Tensor, z: float,
     traj = promp.trajectory(means, phase=phases)  # (K, E, 1 + P', J)
     now = now.to(traj).expand(k, n_env, traj.shape[-1])[..., None, :]  # (K, E, 1, J)
     bridge = now + _BRIDGE.to(traj)[:, None] * (traj[..., :1, :] - now)  # (K, E, 8, J)
-    gap = task.can_gap(torch.cat([bridge, traj], -2), env.expand(k, n_env, env.shape[-1]))  # (K, E)
-    return gap <= task.margin
+    plan, env = torch.cat([bridge, traj], -2), env.expand(k, n_env, env.shape[-1])  # (K, E, 9 + P', J), (K, E, 4)
+    if getattr(task, "capsule_plan", None) is not None:  # the volumes: the same verdict as can_gap, cheaper
+        a, b = capsule_ends(task.kinematics, plan, task.capsule_plan)  # (K, E, 9 + P', C, 3)
+        return ~capsules_clear(a, b, task.capsule_radii.to(a), env, task.can_radius, task.can_height, task.margin)
+    return task.can_gap(plan, env) <= task.margin
 
 
 def hysteresis_choice(scores: Tensor, current: Tensor | None, switch_margin: float,

@@ -39,6 +39,7 @@ from ...robots import PointPlan, capsule_index, capsule_segments
 from .geometry import point_cylinder_distance, segment_axis_distance, segment_cylinder_distance
 
 __all__ = ["COLLISIONS", "CAN_OBJECTIVES", "check_collision", "check_volumes", "frames_gap", "capsules_gap",
+           "capsules_clear",
            "above_table", "end_capsules", "end_volume_near", "capsule_plan", "capsule_ends",
            "capsules_above_table", "joints_clearance"]
 
@@ -140,6 +141,31 @@ def capsules_gap(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, he
     gap = torch.full_like(upper, float("inf"))
     gap[tuple(i[keep] for i in idx)] = near - r_i[keep]
     return gap.flatten(-2).amin(-1)
+
+
+def capsules_clear(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, height: float,
+                   margin: float) -> Tensor:
+    """Whether :func:`capsules_gap` ``> margin``: ``(...)`` bool, the same verdict at a fraction
+    of the cost where the capsules are far from the can or plainly in it. Each capsule's exact
+    distance to the can's axis segment minus the can's radius bounds its gap from below, the
+    distance itself from above (:func:`capsules_gap`); the exact search runs only on the capsules
+    whose bounds straddle ``margin`` and of the batch entries no bound decides."""
+    axis = env[..., None, None, 0:2]  # (..., 1, 1, 2)
+    shape = torch.broadcast_shapes(a.shape[:-1], axis.shape[:-1])  # (..., T, C)
+    upper = segment_axis_distance(a, b, axis, 0.0, height) - r  # (..., T, C) >= the exact gap
+    lower = upper - radius  # (..., T, C) <= the exact gap
+    # PRUNE_SLACK: the bounds hold to round-off, so a bound within the slack of margin decides nothing
+    hit = (upper <= margin - PRUNE_SLACK).flatten(-2).any(-1)  # (...) a capsule surely within margin
+    unsure = (lower <= margin + PRUNE_SLACK) & ~hit[..., None, None]  # (..., T, C) to be searched
+    clear = ~hit
+    if bool(unsure.any()):
+        idx = torch.nonzero(unsure, as_tuple=True)
+        a_i, b_i, ax_i = a.expand(*shape, 3)[idx], b.expand(*shape, 3)[idx], axis.expand(*shape, 2)[idx]
+        near = segment_cylinder_distance(a_i, b_i, ax_i, radius, 0.0, height) - r.expand(shape)[idx]  # (n,)
+        within = torch.zeros(shape, dtype=torch.bool, device=a.device)
+        within[idx] = near <= margin
+        clear = clear & ~within.flatten(-2).any(-1)
+    return clear
 
 
 def above_table(task, frames: Tensor) -> Tensor:

@@ -9,7 +9,7 @@ import torch
 
 from protorch.robots import capsule_segments
 from protorch.tasks import ArmReachTask
-from protorch.tasks.arm.collision import capsules_gap, end_volume_near
+from protorch.tasks.arm.collision import capsules_clear, capsules_gap, end_volume_near
 from protorch.tasks.arm.geometry import point_cylinder_distance, segment_cylinder_distance
 
 
@@ -51,6 +51,24 @@ def test_the_pruned_volume_gap_equals_the_search_on_every_capsule_bit_for_bit(dt
     a[3, 5, 2, 0] = float("nan")
     got = capsules_gap(a, b, r, env, task.can_radius, task.can_height)
     assert bool(got[3].isnan()) and not bool(got[:3].isnan().any())
+
+
+@pytest.mark.parametrize("margin", [-0.02, 0.0, 0.01, 0.05])
+def test_capsules_clear_is_the_gap_above_the_margin_verdict_for_verdict(margin):
+    """capsules_clear decides by bounds where it can and searches the rest: the same verdict as
+    capsules_gap > margin, near the can and far from it, including gaps at the margin itself."""
+    gen = torch.Generator().manual_seed(11)
+    task = ArmReachTask(collision="volume")
+    for scale in (0.15, 0.6):
+        q = task.start_config() + scale * torch.randn(60, 12, 7, generator=gen, dtype=torch.float64)
+        env = task.sample_envs(60, gen)  # (60, 4)
+        a, b, r = capsule_segments(task.kinematics.frames(q), task.kinematics.frame_names,
+                                   task.robot.capsule_list())  # (60, 12, C, 3)
+        gap = capsules_gap(a, b, r, env, task.can_radius, task.can_height)  # (60,)
+        for m in (margin, float(gap[0]), float(gap[1])):  # the margin, and gaps met exactly
+            got = capsules_clear(a, b, r, env, task.can_radius, task.can_height, m)
+            assert torch.equal(got, gap > m)
+        assert 0 < int((gap > margin).sum()) < 60 or scale == 0.6
 
 
 def test_point_and_segment_cylinder_distances_over_the_top_beside_and_through_the_can():

@@ -24,7 +24,11 @@ then the first ``N`` episodes with a class switch replayed at 1 kHz through ``po
 (the environment and joints of the test's instant): the largest change of ``q_r`` and ``qd_r``
 between consecutive calls, against the same with the offset off (``blend=inf``: the chosen mean).
 
-    python benchmarks/control_loop.py RUN_DIR [--calls 10000] [--backends torch,gpytorch,sparse] [--continuity 10]
+    python benchmarks/control_loop.py RUN_DIR [--calls 10000] [--backends torch,gpytorch,sparse] [--check on,off]
+        [--continuity 10]
+
+``--check on,off`` times the class choice with and without its plan check (the run's
+``dynamic.check``, on by default: :func:`protorch.control.arm_choice.rest_blocked`) side by side.
 """
 
 from __future__ import annotations
@@ -132,17 +136,20 @@ def main() -> None:
     ap.add_argument("--calls", type=int, default=10_000)
     ap.add_argument("--backends", default="torch,gpytorch,sparse")
     ap.add_argument("--kinds", default="moving,jumping")
+    ap.add_argument("--check", default="run",
+                    help="the class choice's plan check: run (the run's dynamic.check), or on,off (both, side by side)")
     ap.add_argument("--continuity", type=int, default=0, metavar="EPISODES",
                     help="also the continuity over this many switching episodes of the moving test")
     args = ap.parse_args()
     torch.set_num_threads(1)
     print(f"torch {torch.__version__}, 1 thread, run {args.run}")
-    for backend in args.backends.split(","):
+    checks = [None] if args.check == "run" else [{"on": True, "off": False}[c] for c in args.check.split(",")]
+    for backend, check in [(b, c) for b in args.backends.split(",") for c in checks]:
         t0 = time.perf_counter()
-        policy = protorch.load(args.run, backend=backend)
+        policy = protorch.load(args.run, backend=backend, **({} if check is None else {"check": check}))
         load_s = time.perf_counter() - t0
-        print(f"backend {backend}: map of {policy.env_map.num_points} environments, classes "
-              f"{policy.labels.tolist()}, load + warm-up {load_s:.2f} s")
+        print(f"backend {backend}, plan check {'on' if policy.check else 'off'}: map of {policy.env_map.num_points} "
+              f"environments, classes {policy.labels.tolist()}, load + warm-up {load_s:.2f} s")
         for kind in args.kinds.split(","):
             envs = environments(policy, args.calls, kind)
             policy.reset()

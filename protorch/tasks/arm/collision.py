@@ -36,7 +36,7 @@ import torch
 from torch import Tensor
 
 from ...robots import PointPlan, capsule_index, capsule_segments
-from .geometry import point_cylinder_distance, segment_axis_distance, segment_cylinder_distance
+from .geometry import point_cylinder_distance, segment_axis_closest, segment_axis_distance, segment_cylinder_distance
 
 __all__ = ["COLLISIONS", "CAN_OBJECTIVES", "check_collision", "check_volumes", "frames_gap", "capsules_gap",
            "capsules_clear",
@@ -146,17 +146,21 @@ def capsules_gap(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, he
 def capsules_clear(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, height: float,
                    margin: float) -> Tensor:
     """Whether :func:`capsules_gap` ``> margin``: ``(...)`` bool, the same verdict at a fraction
-    of the cost where the capsules are far from the can or plainly in it. Each capsule's exact
-    distance to the can's axis segment minus the can's radius bounds its gap from below, the
-    distance itself from above (:func:`capsules_gap`); the exact search runs only on the capsules
-    whose bounds straddle ``margin`` and of the batch entries no bound decides."""
+    of the cost (a gap within the search's tolerance, about 1e-9 m, of ``margin`` aside). Bounds of each capsule's gap in closed form: from below, its segment's distance
+    ``d`` to the can's axis segment minus the can's radius (the cylinder lies within that
+    distance of its axis); from above, the can's distance at the segment's point closest to the
+    axis. Where that point is level with the can's side both are the same number (the exact gap);
+    the golden-section search runs only on capsules whose bounds straddle ``margin`` (the segment
+    nearest the can's rim or top) in batch entries no bound has decided."""
     axis = env[..., None, None, 0:2]  # (..., 1, 1, 2)
     shape = torch.broadcast_shapes(a.shape[:-1], axis.shape[:-1])  # (..., T, C)
-    upper = segment_axis_distance(a, b, axis, 0.0, height) - r  # (..., T, C) >= the exact gap
-    lower = upper - radius  # (..., T, C) <= the exact gap
-    # PRUNE_SLACK: the bounds hold to round-off, so a bound within the slack of margin decides nothing
-    hit = (upper <= margin - PRUNE_SLACK).flatten(-2).any(-1)  # (...) a capsule surely within margin
-    unsure = (lower <= margin + PRUNE_SLACK) & ~hit[..., None, None]  # (..., T, C) to be searched
+    d, u = segment_axis_closest(a, b, axis, 0.0, height)  # (..., T, C)
+    lower = d - radius - r  # (..., T, C) <= the exact gap
+    upper = point_cylinder_distance(a + u[..., None] * (b - a), axis, radius, 0.0, height) - r  # >= the exact gap
+    # bounds in closed form hold to round-off: within a few ulps of margin they decide nothing
+    slack = 64 * torch.finfo(a.dtype).eps
+    hit = (upper <= margin - slack).flatten(-2).any(-1)  # (...) a capsule surely within margin
+    unsure = (lower <= margin + slack) & (upper > margin - slack) & ~hit[..., None, None]  # (..., T, C)
     clear = ~hit
     if bool(unsure.any()):
         idx = torch.nonzero(unsure, as_tuple=True)

@@ -8,6 +8,7 @@ import torch
 from torch import Tensor
 
 __all__ = ["LEFT", "RIGHT", "SIDES", "down_rotation", "point_segment_distance", "segment_axis_distance",
+           "segment_axis_closest",
            "point_cylinder_distance", "segment_cylinder_distance"]
 
 _GOLDEN = (5 ** 0.5 - 1) / 2  # 0.618...
@@ -21,16 +22,9 @@ def down_rotation(dtype=torch.float64, device=None) -> Tensor:
     return torch.tensor([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]], dtype=dtype, device=device)
 
 
-def segment_axis_distance(a: Tensor, b: Tensor, axis_xy: Tensor, z0: float, z1: float) -> Tensor:
-    """Exact distance between the segments ``a -> b`` (``(..., 3)``) and the vertical axis segment
-    ``{(axis_x, axis_y, z): z0 <= z <= z1}`` (``axis_xy (..., 2)``): ``(...)``.
-
-    Along the segment ``p(u) = a + u (b - a)`` the squared distance is
-    ``h(u)^2 + v(u)^2`` with ``h`` the horizontal distance and ``v = max(0, z(u) - z1, z0 - z(u))``,
-    a convex piecewise quadratic; its minimum over ``[0, 1]`` is at an end, a breakpoint
-    (``z(u) = z0`` or ``z1``) or a stationary point of a piece, so evaluating it at those seven
-    candidates is exact.
-    """
+def _axis_candidates(a: Tensor, b: Tensor, axis_xy: Tensor, z0: float, z1: float) -> tuple[Tensor, Tensor]:
+    """:func:`segment_axis_distance`'s seven candidate parameters ``u (..., 7)`` and the squared
+    distances there ``(..., 7)``."""
     shape = torch.broadcast_shapes(a.shape[:-1], b.shape[:-1], axis_xy.shape[:-1])
     a, b = a.expand(*shape, 3), b.expand(*shape, 3)
     P = a[..., :2] - axis_xy  # (..., 2)
@@ -51,7 +45,28 @@ def segment_axis_distance(a: Tensor, b: Tensor, axis_xy: Tensor, z0: float, z1: 
     h = P[..., None, :] + u[..., None] * Q[..., None, :]  # (..., 7, 2)
     z = za[..., None] + u * dz[..., None]  # (..., 7)
     v = torch.clamp(torch.maximum(z - z1, z0 - z), min=0.0)  # (..., 7)
-    return (h.square().sum(-1) + v.square()).amin(-1).sqrt()  # (...)
+    return u, h.square().sum(-1) + v.square()
+
+
+def segment_axis_distance(a: Tensor, b: Tensor, axis_xy: Tensor, z0: float, z1: float) -> Tensor:
+    """Exact distance between the segments ``a -> b`` (``(..., 3)``) and the vertical axis segment
+    ``{(axis_x, axis_y, z): z0 <= z <= z1}`` (``axis_xy (..., 2)``): ``(...)``.
+
+    Along the segment ``p(u) = a + u (b - a)`` the squared distance is
+    ``h(u)^2 + v(u)^2`` with ``h`` the horizontal distance and ``v = max(0, z(u) - z1, z0 - z(u))``,
+    a convex piecewise quadratic; its minimum over ``[0, 1]`` is at an end, a breakpoint
+    (``z(u) = z0`` or ``z1``) or a stationary point of a piece, so evaluating it at those seven
+    candidates is exact.
+    """
+    return _axis_candidates(a, b, axis_xy, z0, z1)[1].amin(-1).sqrt()  # (...)
+
+
+def segment_axis_closest(a: Tensor, b: Tensor, axis_xy: Tensor, z0: float, z1: float) -> tuple[Tensor, Tensor]:
+    """:func:`segment_axis_distance` (the same numbers) and the segment's parameter ``u`` of a
+    closest point: both ``(...)``."""
+    u, d2 = _axis_candidates(a, b, axis_xy, z0, z1)  # (..., 7) each
+    best, i = d2.min(-1)  # (...)
+    return best.sqrt(), u.gather(-1, i[..., None])[..., 0]
 
 
 def point_segment_distance(p: Tensor, s: Tensor, g: Tensor) -> Tensor:

@@ -136,12 +136,14 @@ class ProMP(nn.Module):
         return torch.stack(out)  # (n, T, D)
 
     def weights(self, demos: Tensor | Sequence[Tensor]) -> Tensor:
-        """Ridge-regression weights of each demonstration: ``(n, N)``."""
+        """Ridge-regression weights of each demonstration: ``(n, N)``. The products and the
+        solve run on one torch thread: the same bits at any thread count."""
         y = self._stack_demos(demos)  # (n, T, D)
         phi = self.basis  # (T, K)
-        gram = phi.T @ phi + self.ridge * torch.eye(self.num_basis, dtype=phi.dtype, device=phi.device)
-        rhs = torch.einsum("tk,ntd->nkd", phi, y)  # (n, K, D)
-        w = torch.linalg.solve(gram, rhs)  # (n, K, D)
+        with one_thread():  # MKL (under the app's MKL_CBWR) gave other bits on 2 threads, 60 to 4,000 demos
+            gram = phi.T @ phi + self.ridge * torch.eye(self.num_basis, dtype=phi.dtype, device=phi.device)
+            rhs = torch.einsum("tk,ntd->nkd", phi, y)  # (n, K, D)
+            w = torch.linalg.solve(gram, rhs)  # (n, K, D)
         return w.transpose(-1, -2).reshape(y.shape[0], self.num_weights)  # (n, N)
 
     def fit(

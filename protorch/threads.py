@@ -26,7 +26,7 @@ import torch
 
 from .checks import check_int
 
-__all__ = ["AUTO", "torch_threads", "ThreadGovernor", "LoadProbe", "available_cores", "threads_for", "core_budget",
+__all__ = ["AUTO", "torch_threads", "one_thread", "ThreadGovernor", "LoadProbe", "available_cores", "threads_for", "core_budget",
            "beside_workers"]
 
 AUTO = "auto"
@@ -153,3 +153,20 @@ def torch_threads(n: int | str | None) -> Iterator[int]:
     after it (also when the block raises). Yields the number in effect."""
     with ThreadGovernor(n) as gov:
         yield torch.get_num_threads() if gov.fixed is None else gov.fixed
+
+
+@contextmanager
+def one_thread() -> Iterator[None]:
+    """Run the block on one torch thread (MKL's too) and restore the number after it; nothing is
+    switched when torch already runs one. For an operation whose bits depend on the thread count,
+    such as MKL's matrix products under a pinned code path (the app's ``MKL_CBWR``), which split
+    their columns between threads and give other last bits on two threads than on one."""
+    n = torch.get_num_threads()
+    if n == 1:
+        yield
+        return
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(n)

@@ -157,3 +157,60 @@ def test_the_physics_episodes_are_the_same_at_one_and_two_threads():
                           check=True)
     runs = json.loads(proc.stdout.strip().splitlines()[-1])
     assert runs["1"] == runs["2"]
+
+
+def test_one_thread_runs_the_block_on_one_thread_and_restores_the_number():
+    from protorch.threads import one_thread
+
+    with torch_threads(2):
+        with one_thread():
+            assert torch.get_num_threads() == 1
+        assert torch.get_num_threads() == 2
+        with pytest.raises(RuntimeError):
+            with one_thread():
+                raise RuntimeError("boom")
+        assert torch.get_num_threads() == 2
+    with torch_threads(1), one_thread():
+        assert torch.get_num_threads() == 1
+
+
+_TRAJECTORY_RUN = """
+import hashlib, json
+from protorch.app.main import pin_mkl_code_path
+pin_mkl_code_path()  # the app's MKL code path, before MKL's first call
+import torch
+from protorch.primitives.promp import ProMP
+
+def digest(x):
+    return hashlib.sha256(x.numpy().tobytes()).hexdigest()[:16]
+
+promp = ProMP(7, num_basis=10, num_steps=100, dtype=torch.float32)
+fit = ProMP(7, num_basis=10, num_steps=100, dtype=torch.float64)
+g = torch.Generator().manual_seed(0)
+shapes = [(4, 100, 70), (200, 70), (20, 100, 70)]  # a cost chunk of the loop's samples, a batch of means, more
+ws = [torch.randn(*s, generator=g) for s in shapes]
+demos = [torch.randn(n, 100, 7, generator=g, dtype=torch.float64).cumsum(1) / 10 for n in (60, 2004)]  # demos, priors
+out = {}
+for threads in (1, 2):
+    torch.set_num_threads(threads)
+    out[threads] = [digest(promp.trajectory(w)) for w in ws] + [digest(fit.weights(y)) for y in demos]
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.slow
+def test_the_promp_trajectories_and_weights_are_the_same_at_one_and_two_threads():
+    """The ProMP's basis product (trajectories at the loop's sizes) and its ridge regression (the
+    weights of 60 demonstrations and of 2,004 priors) under the app's MKL code path, at threads=1
+    and threads=2 in one process, bit for bit: MKL on two threads gave other last bits for each
+    (the ``(4, 100, 70)`` cost chunk of the reduced arm run among them), which the loop carried
+    into its data set."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.run([sys.executable, "-c", _TRAJECTORY_RUN], cwd=root, capture_output=True, text=True, check=True)
+    runs = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert runs["1"] == runs["2"]

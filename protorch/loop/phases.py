@@ -18,6 +18,7 @@ import torch
 from torch import Tensor
 
 from ..data.dataset import TrajectoryDataset
+from ..threads import one_thread
 from .settings import LoopSettings
 
 __all__ = ["Evaluator", "Problems", "Solutions", "accept", "add", "choose", "infer", "optimise", "step_row"]
@@ -66,7 +67,8 @@ class Evaluator:
         rows = basis.new_zeros(max(16, len(steps)), basis.shape[1])  # (>= 16, K)
         rows[:len(steps)] = basis[list(steps)]
         wk = w.to(basis.dtype).unflatten(-1, (self.promp_sample.num_dof, self.promp_sample.num_basis))  # (..., D, K)
-        return torch.einsum("tk,...dk->...td", rows, wk)[..., :len(steps), :]  # (..., len(steps), D)
+        with one_thread():  # as ProMP.trajectory: the same bits at any thread count
+            return torch.einsum("tk,...dk->...td", rows, wk)[..., :len(steps), :]  # (..., len(steps), D)
 
     def here(self, x: Tensor) -> Tensor:
         """``x`` in the evaluation dtype, on the ProMP's device."""

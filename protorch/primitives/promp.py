@@ -17,6 +17,7 @@ import torch
 from torch import Tensor, nn
 
 from ..checks import check_int, check_number, check_positive, check_tensor
+from ..threads import one_thread
 
 __all__ = ["ProMP", "gaussian_basis", "resample"]
 
@@ -135,12 +136,14 @@ class ProMP(nn.Module):
         return torch.stack(out)  # (n, T, D)
 
     def weights(self, demos: Tensor | Sequence[Tensor]) -> Tensor:
-        """Ridge-regression weights of each demonstration: ``(n, N)``."""
+        """Ridge-regression weights of each demonstration: ``(n, N)``. The products and the
+        solve run on one torch thread: the same bits at any thread count."""
         y = self._stack_demos(demos)  # (n, T, D)
         phi = self.basis  # (T, K)
-        gram = phi.T @ phi + self.ridge * torch.eye(self.num_basis, dtype=phi.dtype, device=phi.device)
-        rhs = torch.einsum("tk,ntd->nkd", phi, y)  # (n, K, D)
-        w = torch.linalg.solve(gram, rhs)  # (n, K, D)
+        with one_thread():  # MKL (under the app's MKL_CBWR) gave other bits on 2 threads, 60 to 4,000 demos
+            gram = phi.T @ phi + self.ridge * torch.eye(self.num_basis, dtype=phi.dtype, device=phi.device)
+            rhs = torch.einsum("tk,ntd->nkd", phi, y)  # (n, K, D)
+            w = torch.linalg.solve(gram, rhs)  # (n, K, D)
         return w.transpose(-1, -2).reshape(y.shape[0], self.num_weights)  # (n, N)
 
     def fit(
@@ -205,12 +208,14 @@ class ProMP(nn.Module):
         return gaussian_basis(phase, self.centers, self.width)
 
     def trajectory(self, w: Tensor, phase: Tensor | None = None) -> Tensor:
-        """Weights ``(..., N)`` -> trajectories ``(..., T, D)`` (or ``(..., P, D)`` at ``phase``)."""
+        """Weights ``(..., N)`` -> trajectories ``(..., T, D)`` (or ``(..., P, D)`` at ``phase``).
+        The product runs on one torch thread: the same bits at any thread count."""
         if w.shape[-1] != self.num_weights:
             raise ValueError(f"w must end in {self.num_weights} weights, got shape {tuple(w.shape)}")
         phi = self.basis if phase is None else self.basis_at(phase)  # (T, K)
         w = w.to(phi.dtype).unflatten(-1, (self.num_dof, self.num_basis))  # (..., D, K)
-        return torch.einsum("tk,...dk->...td", phi, w)  # (..., T, D)
+        with one_thread():  # MKL's product (under the app's MKL_CBWR) gives other bits on 2 threads
+            return torch.einsum("tk,...dk->...td", phi, w)  # (..., T, D)
 
     def _require_fitted(self) -> None:
         if not bool(self.fitted):

@@ -160,7 +160,9 @@ def one_thread() -> Iterator[None]:
     """Run the block on one torch thread (MKL's too) and restore the number after it; nothing is
     switched when torch already runs one. For an operation whose bits depend on the thread count,
     such as MKL's matrix products under a pinned code path (the app's ``MKL_CBWR``), which split
-    their columns between threads and give other last bits on two threads than on one."""
+    their columns between threads and give other last bits on two threads than on one. Not
+    :func:`torch_threads` ``(1)``: this sits in hot paths (every ProMP product), so it skips the
+    governor's bookkeeping and does nothing at all on one thread."""
     n = torch.get_num_threads()
     if n == 1:
         yield

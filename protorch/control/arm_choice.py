@@ -16,7 +16,7 @@ from torch import Tensor
 
 from ..tasks.arm.collision import capsule_ends, capsules_clear
 
-__all__ = ["ArmClassChoice", "hysteresis_choice", "rest_scores", "rest_blocked", "draw_moves", "apply_moves", "velocity_command_acceleration"]
+__all__ = ["ArmClassChoice", "hysteresis_choice", "rest_scores", "rest_blocked", "checked_choice", "draw_moves", "apply_moves", "velocity_command_acceleration"]
 
 _BRIDGE = torch.linspace(0.0, 1.0, 9, dtype=torch.float64)[:-1]  # (8,) from the arm to a class's path
 
@@ -81,6 +81,25 @@ def hysteresis_choice(scores: Tensor, current: Tensor | None, switch_margin: flo
         k = scores.shape[0]
         scores = scores + switch_margin * (torch.arange(k, device=scores.device)[:, None] != current.to(scores.device))
     return scores.argmin(0)
+
+
+def checked_choice(task, promp, means: Tensor, env: Tensor, now: Tensor, z: float, rest: Tensor, scores: Tensor,
+                   current: Tensor | None, switch_margin: float) -> Tensor:
+    """:func:`hysteresis_choice` with the plan check of :func:`rest_blocked`, checking only what
+    can change the choice: each system's choice by the scores first, every class only where that
+    class's plan is blocked (a clear choice stands whatever the other classes' plans, so this is
+    the choice that checking every class gives). ``means (K, E, N)``, ``env (E, 4)``, ``now``
+    ``(E, J)`` (the arm) or ``(K, E, J)`` (per class), ``scores (K, E)`` -> ``(E,)``."""
+    c = hysteresis_choice(scores, current, switch_margin)  # (E,)
+    e = torch.arange(means.shape[1], device=means.device)
+    per_class = now.dim() == 3
+    bad = rest_blocked(task, promp, means[c, e][None], env, now[c, e] if per_class else now, z, rest)[0]  # (E,)
+    if bool(bad.any()):
+        i = torch.nonzero(bad).flatten()  # (n,) the systems whose choice is blocked
+        blocked = rest_blocked(task, promp, means[:, i], env[i], now[:, i] if per_class else now[i], z, rest)  # (K, n)
+        c = c.clone()
+        c[i] = hysteresis_choice(scores[:, i], None if current is None else current[i], switch_margin, blocked)
+    return c
 
 
 def draw_moves(num: int, moving: int, moves: Sequence[int], window: tuple[float, float],
@@ -167,7 +186,10 @@ class ArmClassChoice:
         q = q.to(self.means)
         rest = self.grid[self.grid > z]  # (P',)
         scores = rest_scores(task, self.promp, self.means, env_t, task.kinematics.ee_position(q), rest)  # (K, E)
-        blocked = rest_blocked(task, self.promp, self.means, env_t, q, z, rest) if self.check and k > 1 else None
-        self.current = hysteresis_choice(scores, self.current, self.switch_margin, blocked)  # (E,)
+        if self.check and k > 1:
+            self.current = checked_choice(task, self.promp, self.means, env_t, q, z, rest, scores, self.current,
+                                          self.switch_margin)  # (E,)
+        else:
+            self.current = hysteresis_choice(scores, self.current, self.switch_margin)  # (E,)
         self.labels[:, t] = self.cand[self.current]
         return self.means[self.current, torch.arange(n_env, device=envs.device)]  # (E, N)

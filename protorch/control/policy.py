@@ -58,7 +58,7 @@ from torch import Tensor
 from ..data.files import atomic_write_bytes
 from ..gp.model import EnvToProMP, label_aware_mean
 from ..tasks.arm.reach import ArmReachTask
-from .arm_choice import hysteresis_choice, rest_blocked, rest_scores
+from .arm_choice import checked_choice, hysteresis_choice, rest_scores
 from .policy_export import ExportProgram
 from .policy_means import ClassMeans, EndEffector, basis3
 
@@ -256,15 +256,14 @@ class Policy(EnvToProMP):
         phi = self.basis_at(t) if phi is None else phi
         scores = self._scores(every, env, z, q, phi[0])[:, None]  # (K, 1)
         cur = None if m.current is None else torch.tensor([m.current])
-        c = int(hysteresis_choice(scores, cur, self.switch_margin)[0])
-        if self.check and self._arm:  # the scores' choice stands if its plan is clear; else every class checked
+        if self.check and self._arm:  # the moving test's checked choice
             k = every.shape[0]
-            now = q[None, None] if q is not None else (every.view(k, self._d, self._kb) @ phi[0])[:, None]  # (1|K, 1, D)
+            now = q[None] if q is not None else (every.view(k, self._d, self._kb) @ phi[0])[:, None]  # (1, D) | (K, 1, D)
             rest = self._grid[bisect.bisect_right(self._grid_list, z):]  # (P',) the phases after z
-            one = now if q is not None else now[c:c + 1]
-            if bool(rest_blocked(self.task, self._P, every[c:c + 1, None], env[None], one, z, rest)[0, 0]):
-                blocked = rest_blocked(self.task, self._P, every[:, None], env[None], now, z, rest)  # (K, 1)
-                c = int(hysteresis_choice(scores, cur, self.switch_margin, blocked)[0])
+            c = int(checked_choice(self.task, self._P, every[:, None], env[None], now, z, rest, scores, cur,
+                                   self.switch_margin)[0])
+        else:
+            c = int(hysteresis_choice(scores, cur, self.switch_margin)[0])
         m.current = c
         m.slot, m.fresh = slot, t
         return c, every[c:c + 1]

@@ -36,7 +36,8 @@ import torch
 from torch import Tensor
 
 from ...robots import PointPlan, capsule_index, capsule_segments
-from .geometry import point_cylinder_distance, segment_axis_closest, segment_axis_distance, segment_cylinder_distance
+from .geometry import (point_cylinder_distance, segment_axis_closest, segment_axis_distance, segment_cylinder_distance,
+                       segment_cylinder_within)
 
 __all__ = ["COLLISIONS", "CAN_OBJECTIVES", "check_collision", "check_volumes", "frames_gap", "capsules_gap",
            "capsules_clear",
@@ -150,7 +151,7 @@ def capsules_clear(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, 
     ``d`` to the can's axis segment minus the can's radius (the cylinder lies within that
     distance of its axis); from above, the can's distance at the segment's point closest to the
     axis. Where that point is level with the can's side both are the same number (the exact gap);
-    the golden-section search runs only on capsules whose bounds straddle ``margin`` (the segment
+    the golden-section search (:func:`~protorch.tasks.arm.geometry.segment_cylinder_within`, stopped once decided) runs only on capsules whose bounds straddle ``margin`` (the segment
     nearest the can's rim or top) in batch entries no bound has decided."""
     axis = env[..., None, None, 0:2]  # (..., 1, 1, 2)
     shape = torch.broadcast_shapes(a.shape[:-1], axis.shape[:-1])  # (..., T, C)
@@ -165,9 +166,8 @@ def capsules_clear(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, 
     if bool(unsure.any()):
         idx = torch.nonzero(unsure, as_tuple=True)
         a_i, b_i, ax_i = a.expand(*shape, 3)[idx], b.expand(*shape, 3)[idx], axis.expand(*shape, 2)[idx]
-        near = segment_cylinder_distance(a_i, b_i, ax_i, radius, 0.0, height) - r.expand(shape)[idx]  # (n,)
         within = torch.zeros(shape, dtype=torch.bool, device=a.device)
-        within[idx] = near <= margin
+        within[idx] = segment_cylinder_within(a_i, b_i, ax_i, radius, 0.0, height, r.expand(shape)[idx], margin)
         clear = clear & ~within.flatten(-2).any(-1)
     return clear
 

@@ -9,7 +9,7 @@ from torch import Tensor
 
 __all__ = ["LEFT", "RIGHT", "SIDES", "down_rotation", "point_segment_distance", "segment_axis_distance",
            "segment_axis_closest",
-           "point_cylinder_distance", "segment_cylinder_distance"]
+           "point_cylinder_distance", "segment_cylinder_distance", "segment_cylinder_within"]
 
 _GOLDEN = (5 ** 0.5 - 1) / 2  # 0.618...
 
@@ -94,6 +94,18 @@ def segment_cylinder_distance(a: Tensor, b: Tensor, axis_xy: Tensor, radius: flo
     the segment's parameter finds the minimum: after ``iters`` steps the bracket is
     ``0.618^iters`` of the segment's length (``4e-9`` for 40), and the ends are evaluated too.
     """
+    f, lo, hi = _along(a, b, axis_xy, radius, z0, z1)
+    x1, x2 = hi - _GOLDEN, lo + _GOLDEN
+    f1, f2 = f(x1), f(x2)
+    for _ in range(int(iters)):
+        lo, x1, f1, x2, f2, hi, _ = _golden_step(f, lo, x1, f1, x2, f2, hi)
+    ends = torch.minimum(f(torch.zeros_like(lo)), f(torch.ones_like(lo)))
+    return torch.minimum(torch.minimum(f1, f2), ends)
+
+
+def _along(a: Tensor, b: Tensor, axis_xy: Tensor, radius: float, z0: float, z1: float):
+    """The signed distance along the segments as a function of their parameter, and the bracket
+    ``[0, 1]``."""
     shape = torch.broadcast_shapes(a.shape[:-1], b.shape[:-1], axis_xy.shape[:-1])
     a, b, axis_xy = a.expand(*shape, 3), b.expand(*shape, 3), axis_xy.expand(*shape, 2)
     d = b - a
@@ -101,15 +113,67 @@ def segment_cylinder_distance(a: Tensor, b: Tensor, axis_xy: Tensor, radius: flo
     def f(u: Tensor) -> Tensor:
         return point_cylinder_distance(a + u[..., None] * d, axis_xy, radius, z0, z1)
 
-    lo, hi = torch.zeros(shape, dtype=a.dtype, device=a.device), torch.ones(shape, dtype=a.dtype, device=a.device)
+    return f, torch.zeros(shape, dtype=a.dtype, device=a.device), torch.ones(shape, dtype=a.dtype, device=a.device)
+
+
+def _golden_step(f, lo, x1, f1, x2, f2, hi):
+    """One step of the golden-section search: the new bracket, its interior points and values,
+    and whether the left part was kept (``left``: the minimum lies in ``[lo, x2]``)."""
+    left = f1 < f2
+    lo, hi = torch.where(left, lo, x1), torch.where(left, x2, hi)
+    new = torch.where(left, hi - _GOLDEN * (hi - lo), lo + _GOLDEN * (hi - lo))
+    fn = f(new)
+    x1, x2 = torch.where(left, new, x2), torch.where(left, x1, new)
+    f1, f2 = torch.where(left, fn, f2), torch.where(left, f1, fn)
+    return lo, x1, f1, x2, f2, hi, left
+
+
+def segment_cylinder_within(a: Tensor, b: Tensor, axis_xy: Tensor, radius: float, z0: float, z1: float,
+                            r: Tensor, margin: float, iters: int = 40, every: int = 3) -> Tensor:
+    """Whether ``segment_cylinder_distance(a, b, ...) - r <= margin``: ``(...)`` bool, the same
+    verdict from the same golden-section steps, each entry stopped once it is decided: within as
+    soon as a point evaluated is (the search's result is the smallest value it evaluated), clear
+    as soon as a lower bound of the distance over the bracket exceeds ``margin + r`` (by 1e-12:
+    round-off; the search's result is never below the true minimum). The bound is convexity's
+    (the signed distance to a convex body is convex along a segment): outside the two interior
+    points the line through them, between them the larger of the lines through each interior
+    point and its bracket end. Checked every ``every`` steps; entries still open after ``iters``
+    steps take the search's own result."""
+    f, lo, hi = _along(a, b, axis_xy, radius, z0, z1)
+    r = r.expand(lo.shape)
+    f_lo, f_hi = f(lo), f(hi)  # the ends, which the full search evaluates last
     x1, x2 = hi - _GOLDEN, lo + _GOLDEN
     f1, f2 = f(x1), f(x2)
-    for _ in range(int(iters)):
-        left = f1 < f2  # the minimum lies in [lo, x2]
-        lo, hi = torch.where(left, lo, x1), torch.where(left, x2, hi)
-        new = torch.where(left, hi - _GOLDEN * (hi - lo), lo + _GOLDEN * (hi - lo))
-        fn = f(new)
-        x1, x2 = torch.where(left, new, x2), torch.where(left, x1, new)
-        f1, f2 = torch.where(left, fn, f2), torch.where(left, f1, fn)
-    ends = torch.minimum(f(torch.zeros_like(lo)), f(torch.ones_like(lo)))
-    return torch.minimum(torch.minimum(f1, f2), ends)
+    best = torch.minimum(torch.minimum(f1, f2), torch.minimum(f_lo, f_hi))  # the smallest value evaluated
+    within = best - r <= margin
+    open_ = ~within
+    for i in range(int(iters)):
+        if i and i % every == 0:
+            open_ = open_ & ~(_convex_bound(lo, f_lo, x1, f1, x2, f2, hi, f_hi) - r > margin + 1e-12)
+            if not bool(open_.any()):
+                return within
+        f1o, f2o = f1, f2
+        lo, x1, f1, x2, f2, hi, left = _golden_step(f, lo, x1, f1, x2, f2, hi)
+        f_lo, f_hi = torch.where(left, f_lo, f1o), torch.where(left, f2o, f_hi)
+        best = torch.minimum(best, torch.minimum(f1, f2))
+        hit = open_ & (best - r <= margin)
+        within, open_ = within | hit, open_ & ~hit
+    return within
+
+
+def _convex_bound(lo, f_lo, x1, f1, x2, f2, hi, f_hi) -> Tensor:
+    """A lower bound of a convex function over ``[lo, hi]`` from its values at ``lo < x1 < x2 <
+    hi``: on ``[lo, x1]`` and ``[x2, hi]`` the line through the interior points (extended), on
+    ``[x1, x2]`` the larger of the lines through ``lo, x1`` and through ``x2, hi`` (extended),
+    smallest at ``x1``, ``x2`` or where they cross."""
+    s = (f2 - f1) / (x2 - x1)
+    outer = torch.minimum(torch.minimum(f1 - s * (x1 - lo), f1), torch.minimum(f2 + s * (hi - x2), f2))
+    s1, s2 = (f1 - f_lo) / (x1 - lo), (f_hi - f2) / (hi - x2)
+
+    def g(x):
+        return torch.maximum(f1 + s1 * (x - x1), f2 + s2 * (x - x2))
+
+    cross = ((f2 - s2 * x2) - (f1 - s1 * x1)) / (s1 - s2)
+    cross = torch.where(torch.isfinite(cross), cross, x1)
+    inner = torch.minimum(torch.minimum(g(x1), g(x2)), g(torch.minimum(torch.maximum(cross, x1), x2)))
+    return torch.minimum(outer, inner)

@@ -10,7 +10,7 @@ import torch
 from protorch.robots import capsule_segments
 from protorch.tasks import ArmReachTask
 from protorch.tasks.arm.collision import capsules_clear, capsules_gap, end_volume_near
-from protorch.tasks.arm.geometry import point_cylinder_distance, segment_cylinder_distance
+from protorch.tasks.arm.geometry import point_cylinder_distance, segment_cylinder_distance, segment_cylinder_within
 
 
 def _sampled_gap(task, q, env):
@@ -69,6 +69,29 @@ def test_capsules_clear_is_the_gap_above_the_margin_verdict_for_verdict(margin):
             got = capsules_clear(a, b, r, env, task.can_radius, task.can_height, m)
             assert torch.equal(got, gap > m)
         assert 0 < int((gap > margin).sum()) < 60 or scale == 0.6
+
+
+@pytest.mark.parametrize("margin", [0.0, 0.01, 0.05])
+def test_the_stopped_search_gives_the_full_searchs_verdict(margin):
+    """segment_cylinder_within stops each segment once a point within the margin is found or
+    convexity's bound clears it: the verdict of the full 40-step search, on segments around the
+    can (slanted, vertical: a flat distance, horizontal), and at margins equal to the results."""
+    gen = torch.Generator().manual_seed(5)
+    n, radius, height = 20000, 0.0375, 0.23
+    a = torch.rand(n, 3, generator=gen, dtype=torch.float64) * torch.tensor([0.4, 0.4, 0.5]) - torch.tensor([0.2, 0.2, 0.1])
+    b = a + (torch.rand(n, 3, generator=gen, dtype=torch.float64) - 0.5) * 0.3
+    b[: n // 10, :2] = a[: n // 10, :2]
+    b[n // 10: n // 5, 2] = a[n // 10: n // 5, 2]
+    axis, r = torch.zeros(n, 2, dtype=torch.float64), 0.06 * torch.rand(n, generator=gen, dtype=torch.float64)
+    full = segment_cylinder_distance(a, b, axis, radius, 0.0, height) - r  # (n,)
+    got = segment_cylinder_within(a, b, axis, radius, 0.0, height, r, margin)
+    assert torch.equal(got, full <= margin)
+    assert 0 < int(got.sum()) < n
+    for i in range(40):  # each margin met exactly: the search's own value decides
+        one = segment_cylinder_within(a[i:i + 1], b[i:i + 1], axis[i:i + 1], radius, 0.0, height, r[i:i + 1], float(full[i]))
+        assert bool(one[0])
+        assert not bool(segment_cylinder_within(a[i:i + 1], b[i:i + 1], axis[i:i + 1], radius, 0.0, height, r[i:i + 1],
+                                                float(full[i]) - 1e-6)[0])
 
 
 def test_point_and_segment_cylinder_distances_over_the_top_beside_and_through_the_can():

@@ -80,7 +80,7 @@ class _Motion:
     """The state of one motion (:meth:`Policy.reset` starts a new one), kept apart from the
     module's attributes so that writing it at every call is cheap."""
 
-    __slots__ = ("current", "slot", "w", "t", "off", "fresh")
+    __slots__ = ("current", "slot", "w", "t", "off", "fresh", "turn")
 
     def __init__(self) -> None:
         self.current: int | None = None  # row of Policy.labels
@@ -89,6 +89,7 @@ class _Motion:
         self.t = 0.0
         self.off: Tensor | None = None  # (2, D) offset and its velocity at t
         self.fresh = 0.0  # when the other classes' neighbour sets were last brought up to date
+        self.turn = 0  # the other class to bring up to date next
 
 
 class Policy(EnvToProMP):
@@ -139,7 +140,7 @@ class Policy(EnvToProMP):
             self._ee = EndEffector(kin, device=self._device) if fold else task.ee_path  # (P, J) -> (P, 3)
         self._label_list = self.labels.tolist()
         # the other classes' neighbour sets are kept fresh between decisions (a decision then
-        # rarely has a new set to solve): every refresh_dt seconds
+        # rarely has a new set to solve): every refresh_dt seconds, on calls that solved nothing
         self._refresh_dt = self.decision_dt / 4
         # the basis and its derivatives at every whole millisecond of the motion (a 1 kHz loop's
         # calls), scaled to time derivatives: (T_ms + 1, 3, K)
@@ -231,7 +232,8 @@ class Policy(EnvToProMP):
         """The class row (into :attr:`labels`) tracked at ``t`` and its mean weights ``(1, N)``:
         a decision (every class asked, scored, hysteresis) at the first call and whenever ``t``
         enters a new ``decision_dt`` slot; between decisions only the current class is asked (and
-        every ``decision_dt / 4`` the other classes' neighbour sets brought up to date).
+        every ``decision_dt / 4``, on a call that solved no set of its own, another class's
+        neighbour set brought up to date).
         ``point``: ``env.tolist()``; ``phi (3, K)``: :meth:`basis_at` ``t``."""
         z = min(t / self.duration, 1.0)
         means = self.means
@@ -246,12 +248,18 @@ class Policy(EnvToProMP):
         slot = int(math.floor(t / self.decision_dt + 1e-9))
         m = self._m
         if m.current is not None and slot <= m.slot:
-            if means.mode == "nearest" and t - m.fresh >= self._refresh_dt:
-                for c in range(len(self._label_list)):
-                    if c != m.current:
-                        means.neighbour_set(c, env, point)
-                m.fresh = t
-            return m.current, means.mean(m.current, env, point)
+            solved = means.misses if means.mode == "nearest" else 0
+            w = means.mean(m.current, env, point)
+            if means.mode == "nearest" and t - m.fresh >= self._refresh_dt and means.misses == solved:
+                # on a call that solved nothing for its own class (a refresh that solves a set
+                # would otherwise double the call's time): the other classes, one per call
+                others = [c for c in range(len(self._label_list)) if c != m.current]
+                c = others[m.turn % len(others)]
+                means.neighbour_set(c, env, point)
+                m.turn += 1
+                if m.turn % len(others) == 0:
+                    m.fresh = t
+            return m.current, w
         every = means(env)  # (K, N)
         phi = self.basis_at(t) if phi is None else phi
         scores = self._scores(every, env, z, q, phi[0])[:, None]  # (K, 1)

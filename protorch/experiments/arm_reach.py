@@ -239,7 +239,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
     def loop_metrics(self, res: LoopResult) -> dict:
         learned = res.dataset.origin == 2
         lab = res.dataset.label[learned]
-        return {**loop_summary(res), "added": int(learned.sum()), "added_left": int((lab == LEFT).sum()),
+        return {**super().loop_metrics(res), "added": int(learned.sum()), "added_left": int((lab == LEFT).sum()),
                 "added_right": int((lab == RIGHT).sum())}
 
     def baseline(self, name: str, out_dir: Path, model) -> tuple[dict, object]:

@@ -126,6 +126,7 @@ class SelfImprovementExperiment:
                              f"relevance_every=1, rwr, cem), not {optimizer.get('name', self.optimizer[0].__name__)}: "
                              f"set loop.refill=auto or false")
         self.seconds: dict = {}
+        self.refill_used: bool | None = None  # loop.refill as the method's loop ran it (run_loop)
         self.configure(task_cfg, loop_cfg)
 
     # ------------------------------------------------------------------ task-specific parts
@@ -172,7 +173,9 @@ class SelfImprovementExperiment:
         return None, None
 
     def loop_metrics(self, res: LoopResult) -> dict:
-        return loop_summary(res)
+        """The loop's metrics entry (:func:`loop_summary`) and whether its slots were refilled
+        (``loop.refill=auto`` resolved for the loop's optimiser)."""
+        return {**loop_summary(res), "refill": self.refill_used}
 
     def baseline(self, name: str, out_dir: Path, model) -> tuple[dict, object]:
         """A baseline without a loop of its own: ``(metrics entry, artefact for the figures)``;
@@ -246,6 +249,8 @@ class SelfImprovementExperiment:
         kw = {"desc": desc, **self.loop_kwargs, **args, **overrides}
         if kw["refill"] == "auto":  # on where the loop's optimiser can restart single problems
             kw["refill"] = can_refill(kw["optimizer"], kw["optimizer_kwargs"])
+        if variant is None:
+            self.refill_used = bool(kw["refill"])  # for the metrics (the settings keep "auto")
         task = self.task if self.loop_task is None else self.loop_task
         return self_improve(task, self.promp, data, env_map=self.env_map, **kw)
 

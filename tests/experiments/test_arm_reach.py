@@ -69,6 +69,7 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     assert isinstance(m["dynamic"]["switches"], int) and m["dynamic"]["episodes"] == 3
     assert m["baselines"]["labels_off"]["dynamic"]["switches"] == 0  # one class: nothing to switch to
     assert m["test"]["num_envs"] == 6 and m["loop"]["envs_tried"] == 10
+    assert m["loop"]["refill"] is True  # loop.refill=auto as the loop resolved it for PRO
     assert m["demos"]["count"] == 6 and m["demos"]["left"] > 0 and m["demos"]["right"] > 0
     assert m["priors"]["count"] == 30 and m["priors"]["left"] + m["priors"]["right"] == 30
     assert m["priors"]["grid"]["over"] == "rectangles" and m["priors"]["grid"]["kept"] == 30

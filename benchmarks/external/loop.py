@@ -200,6 +200,37 @@ def summarise(rows: list[dict]) -> dict:
             "median_pos_dist": med("pos_dist"), "median_rot_dist": med("rot_dist")}
 
 
+def report(path: str) -> str:
+    """The markdown table of docs/external.md from a results file (no fancy_gym needed)."""
+    out = json.loads(Path(path).read_text())
+    s, rows, st = out.get("summary", {}), out["rows"], out["meta"]["settings"]
+    h, t = s.get("heldout", {}), s.get("train", {})
+    started = sum(r.get("initial_success", 0) for r in rows[1:])
+    curve = ", ".join(f"{r['envs_done']}: {r['eval_success']:.2f}" for r in rows
+                      if r["envs_done"] % 5 == 0 or r is rows[-1])
+    cm = lambda d: f"{100 * d['median_pos_dist']:.1f} cm, {d['median_rot_dist']:.2f} rad" if d else "-"  # noqa: E731
+    lines = [
+        "| quantity | value |", "|---|---|",
+        f"| training goal poses tried (loop steps, `B = 1`) | {rows[-1]['envs_done']} |",
+        f"| training poses whose optimised mean succeeds | {sum(r.get('success', 0) for r in rows[1:])} / {rows[-1]['envs_done']} |",
+        f"| ... already solved by the map's prediction (0 iterations) | {started} |",
+        f"| training episodes (optimiser samples + distinct means executed) | {s.get('episodes', rows[-1]['episodes'])} |",
+        f"| optimiser samples (`loop.rollouts`) | {s.get('rollouts', '-')} |",
+        f"| **held-out unseen goal poses: the map's mean succeeds** | **{h.get('success', '-')} / {h.get('poses', '-')}** |",
+        f"| held-out: median box distance to its goal (position, rotation) | {cm(h)} |",
+        f"| held-out: median return of the map's mean | {h.get('median_return', float('nan')):.1f} |",
+        f"| training poses: median box distance of the optimised means | {cm(t)} |",
+        f"| held-out success against training poses tried | {curve} |",
+        f"| wall time (shared 2-core machine, `nice -n 19`) | {s.get('wall_seconds', rows[-1]['wall_seconds']) / 60:.0f} min |",
+        f"| settings | {st['optimizer']}, {st['samples']} samples, <= {st['max_iter']} iterations a pose, "
+        f"start N(0, {st['start_std']}^2 I), alpha {st['alpha']}, min_var {st['min_var']}, var_floor {st['var_floor']}, "
+        f"add_only {st['add_only']}, choice {st['choice']}, seed {st['seed']} |",
+    ]
+    if out.get("partial"):
+        lines.append(f"| (partial: the run had tried {rows[-1]['envs_done']} of {st['train']} poses) | |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--train", type=int, default=20, help="training goal poses the loop tries")
@@ -218,7 +249,11 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--workers", type=int, default=1, help="processes the episodes are spread over")
     ap.add_argument("--json", default=None, help="results file (default benchmarks/results/external/box_goal_loop.json)")
     ap.add_argument("--smoke", action="store_true", help="2 training poses, 3 iterations, 3 held-out poses")
+    ap.add_argument("--report", metavar="JSON", help="print the markdown table of a results file and exit")
     args = ap.parse_args(argv)
+    if args.report:
+        print(report(args.report))
+        return {}
     if args.smoke:
         args.train, args.heldout, args.max_iter = 2, 3, 3
         args.json = args.json or "/tmp/box_goal_loop_smoke.json"

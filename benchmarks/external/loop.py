@@ -200,6 +200,21 @@ def summarise(rows: list[dict]) -> dict:
             "median_pos_dist": med("pos_dist"), "median_rot_dist": med("rot_dist")}
 
 
+def floats(text: str) -> tuple[float, float]:
+    """``"LO,HI"`` -> ``(LO, HI)`` with ``LO <= HI``."""
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected LO,HI (two numbers), got {text!r}") from None
+    if not lo <= hi:
+        raise argparse.ArgumentTypeError(f"expected LO <= HI, got {text!r}")
+    return lo, hi
+
+
+def fmt_ranges(r: dict) -> str:
+    return ", ".join(f"{k} [{r[k][0]:.3g}, {r[k][1]:.3g}]" for k in ("x", "y", "yaw"))
+
+
 def report(path: str) -> str:
     """The markdown table of docs/external.md from a results file (no fancy_gym needed)."""
     out = json.loads(Path(path).read_text())
@@ -222,6 +237,7 @@ def report(path: str) -> str:
         f"| training poses: median box distance of the optimised means | {cm(t)} |",
         f"| held-out success against training poses tried | {curve} |",
         f"| wall time (shared 2-core machine, `nice -n 19`) | {s.get('wall_seconds', rows[-1]['wall_seconds']) / 60:.0f} min |",
+        f"| goal poses (x m, y m, yaw rad) | {fmt_ranges(out['meta']['ranges'])} |",
         f"| settings | {st['optimizer']}, {st['samples']} samples, <= {st['max_iter']} iterations a pose, "
         f"start N(0, {st['start_std']}^2 I), alpha {st['alpha']}, min_var {st['min_var']}, var_floor {st['var_floor']}, "
         f"add_only {st['add_only']}, choice {st['choice']}, seed {st['seed']} |",
@@ -245,6 +261,10 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--add-only", default="all", choices=("all", "success", "converged"))
     ap.add_argument("--choice", default="nearest", choices=("nearest", "random"),
                     help="the next training pose: the untried one nearest a known pose (the authors' curriculum) or in draw order")
+    ap.add_argument("--x-range", type=floats, default=X_RANGE, metavar="LO,HI", help="goal x (m)")
+    ap.add_argument("--y-range", type=floats, default=Y_RANGE, metavar="LO,HI", help="goal y (m)")
+    ap.add_argument("--yaw-range", type=floats, default=YAW_RANGE, metavar="LO,HI",
+                    help="goal yaw (rad about z; the box starts at pi)")
     ap.add_argument("--seed", type=int, default=0, help="training poses and optimiser seeds; held-out: seed + 1")
     ap.add_argument("--workers", type=int, default=1, help="processes the episodes are spread over")
     ap.add_argument("--json", default=None, help="results file (default benchmarks/results/external/box_goal_loop.json)")
@@ -275,13 +295,13 @@ def main(argv: list[str] | None = None) -> dict:
     kwargs = {"num_samples": args.samples, "max_iter": args.max_iter, "tol": 0.0}
     kwargs.update({"PRO": {"beta": 0.05, "relevance_samples": args.samples, "noise_floor": 3.0},
                    "CEM": {"elite_frac": 0.1}}.get(args.optimizer, {}))
-    task = BoxGoalTask(workers=args.workers)
+    task = BoxGoalTask(x_range=args.x_range, y_range=args.y_range, yaw_range=args.yaw_range, workers=args.workers)
     promp = identity_promp()
     heldout = task.sample_envs(args.heldout, torch.Generator().manual_seed(args.seed + 1))  # (Q, 3)
     task.mark_heldout(heldout)
     meta = {"command": "python benchmarks/external/loop.py " + shlex.join(sys.argv[1:] if argv is None else argv),
             "commit": commit(), "fancy_gym": getattr(fancy_gym, "__version__", "0.3.0"), "mujoco": mujoco.__version__,
-            "ranges": {"x": list(X_RANGE), "y": list(Y_RANGE), "yaw": list(YAW_RANGE)},
+            "ranges": {"x": list(args.x_range), "y": list(args.y_range), "yaw": list(args.yaw_range)},
             "settings": {k: v for k, v in vars(args).items() if k != "json"},
             "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
     out: dict = {"meta": meta, "rows": [], "partial": True}

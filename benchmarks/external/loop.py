@@ -4,7 +4,7 @@ Set up once (its own venv; fancy_gym pins mujoco 2.3.3): ``bash benchmarks/exter
 
     benchmarks/external/.venv/bin/python benchmarks/external/loop.py --smoke     # minutes
     benchmarks/external/.venv/bin/python benchmarks/external/loop.py \\
-        --train 20 --heldout 30 --max-iter 30 --json benchmarks/results/external/box_goal_loop.json
+        --train 20 --heldout 30 --max-iter 30 --json benchmarks/results/external/loop/box_goal_loop.json
 
 The task (:class:`BoxGoalTask`) is a task of the user's-own-task kind (docs/your_own_task.md):
 the environment vector is the goal pose ``(x, y, yaw)`` of ``fancy_ProMP/BoxPushingDense-v0``,
@@ -267,7 +267,7 @@ def main(argv: list[str] | None = None) -> dict:
                     help="goal yaw (rad about z; the box starts at pi)")
     ap.add_argument("--seed", type=int, default=0, help="training poses and optimiser seeds; held-out: seed + 1")
     ap.add_argument("--workers", type=int, default=1, help="processes the episodes are spread over")
-    ap.add_argument("--json", default=None, help="results file (default benchmarks/results/external/box_goal_loop.json)")
+    ap.add_argument("--json", default=None, help="results file (default benchmarks/results/external/loop/box_goal_loop.json)")
     ap.add_argument("--smoke", action="store_true", help="2 training poses, 3 iterations, 3 held-out poses")
     ap.add_argument("--report", metavar="JSON", help="print the markdown table of a results file and exit")
     args = ap.parse_args(argv)
@@ -277,7 +277,7 @@ def main(argv: list[str] | None = None) -> dict:
     if args.smoke:
         args.train, args.heldout, args.max_iter = 2, 3, 3
         args.json = args.json or "/tmp/box_goal_loop_smoke.json"
-    args.json = args.json or str(Path(__file__).resolve().parents[2] / "benchmarks/results/external/box_goal_loop.json")
+    args.json = args.json or str(Path(__file__).resolve().parents[2] / "benchmarks/results/external/loop/box_goal_loop.json")
     for name in ("train", "heldout", "samples", "max_iter", "workers"):
         if getattr(args, name) < 1:
             raise SystemExit(f"error: --{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")

@@ -87,9 +87,31 @@ class Outcome:
     rot_dist: float = float("nan")
 
 
-def run_episode(env, weights: np.ndarray, context: int) -> Outcome:
-    """``env.reset(seed=context)`` then one black-box step with ``weights (N,)``."""
+def set_box_goal(env, goal) -> None:
+    """Put box pushing's goal pose at ``goal = (x, y, yaw)`` (metres, radians about z), after a reset.
+
+    fancy_gym 0.3.0's ``BoxPushingEnvBase.reset_model`` draws the goal and writes it into the MuJoCo
+    model's bodies ``target_pos`` and ``replan_target_pos`` (position and quaternion, ``w`` first);
+    success and reward read ``replan_target_pos``. This writes both the same way (``z = -0.01``, as
+    the env's own goals) and recomputes the derived quantities with ``mj_forward``."""
+    import mujoco
+
+    u = env.unwrapped
+    x, y, yaw = (float(v) for v in goal)
+    quat = np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+    for body in ("target_pos", "replan_target_pos"):
+        i = u.model.body(body).id
+        u.model.body_pos[i] = (x, y, -0.01)
+        u.model.body_quat[i] = quat
+    mujoco.mj_forward(u.model, u.data)
+
+
+def run_episode(env, weights: np.ndarray, context: int, goal=None) -> Outcome:
+    """``env.reset(seed=context)`` (then, for box pushing, the goal pose ``goal = (x, y, yaw)`` if
+    given: :func:`set_box_goal`) then one black-box step with ``weights (N,)``."""
     env.reset(seed=int(context))
+    if goal is not None:
+        set_box_goal(env, goal)
     _, ret, _, _, info = env.step(np.asarray(weights, dtype=np.float64))
     last = {k: np.asarray(v).reshape(-1)[-1] for k, v in info.items()
             if k in ("is_success", "box_goal_pos_dist", "box_goal_rot_dist") and np.size(v)}
@@ -116,11 +138,13 @@ class Episodes:
         env = self.env or make_env(self.name)
         return int(env.action_space.shape[0])
 
-    def __call__(self, weights: np.ndarray, context: int) -> list[Outcome]:
-        """``weights (S, N)`` -> ``S`` outcomes, each from its own reset to ``context``."""
+    def __call__(self, weights: np.ndarray, context: int, goals=None) -> list[Outcome]:
+        """``weights (S, N)`` -> ``S`` outcomes, each from its own reset to ``context`` (and box
+        pushing's goal pose ``goals[s] = (x, y, yaw)``, if given: ``(S, 3)``)."""
+        goals = [None] * len(weights) if goals is None else goals
         if self.pool is None:
-            return [run_episode(self.env, w, context) for w in weights]
-        return self.pool.starmap(_worker_episode, [(w, context) for w in weights])
+            return [run_episode(self.env, w, context, g) for w, g in zip(weights, goals)]
+        return self.pool.starmap(_worker_episode, [(w, context, g) for w, g in zip(weights, goals)])
 
     def close(self) -> None:
         if self.pool is not None:
@@ -139,5 +163,5 @@ def _init_worker(name: str) -> None:
     _ENV = make_env(name)
 
 
-def _worker_episode(weights: np.ndarray, context: int) -> Outcome:
-    return run_episode(_ENV, weights, context)
+def _worker_episode(weights: np.ndarray, context: int, goal=None) -> Outcome:
+    return run_episode(_ENV, weights, context, goal)

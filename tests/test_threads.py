@@ -214,3 +214,46 @@ def test_the_promp_trajectories_and_weights_are_the_same_at_one_and_two_threads(
     proc = subprocess.run([sys.executable, "-c", _TRAJECTORY_RUN], cwd=root, capture_output=True, text=True, check=True)
     runs = json.loads(proc.stdout.strip().splitlines()[-1])
     assert runs["1"] == runs["2"]
+
+
+_ARM_COSTS_RUN = """
+import hashlib, json
+from protorch.app.main import pin_mkl_code_path
+pin_mkl_code_path()  # the app's MKL code path, before MKL's first call
+import torch
+from protorch.tasks import ArmReachTask
+
+def digest(x):
+    return hashlib.sha256(x.numpy().tobytes()).hexdigest()[:16]
+
+task = ArmReachTask(collision="volume")  # its can objective: the end link's capsules
+g = torch.Generator().manual_seed(0)
+lo, hi = task.kinematics.lower.float(), task.kinematics.upper.float()
+q = lo + (hi - lo) * torch.rand(18, 100, 25, 7, generator=g)  # (c, S, T', D) a cost chunk of the reduced arm run
+env = task.sample_envs(18, g, dtype=torch.float32)[:, None]  # (c, 1, 4)
+out = {}
+for threads in (1, 2):
+    torch.set_num_threads(threads)
+    out[threads] = [digest(task.costs(q, env)), digest(task.success(q, env)), digest(task.side(q, env))]
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.slow
+def test_the_arm_costs_are_the_same_at_one_and_two_threads():
+    """The arm's objectives (float32, volume can objective), success and class on a cost chunk of
+    the reduced arm run's size (18 problems x 100 samples x 25 steps) under the app's MKL code
+    path, at threads=1 and threads=2 in one process, bit for bit: the can objective places the end
+    link's capsule ends with one ``(2C, 4) @ (4, P)`` product per coordinate, whose columns MKL
+    split between two threads with other last bits. In the reduced arm run that changed one can
+    objective value of its 133rd cost evaluation (48,600 values) at threads=2, and with it one
+    learned entry of its data set."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.run([sys.executable, "-c", _ARM_COSTS_RUN], cwd=root, capture_output=True, text=True, check=True)
+    runs = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert runs["1"] == runs["2"]

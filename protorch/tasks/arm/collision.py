@@ -36,6 +36,7 @@ import torch
 from torch import Tensor
 
 from ...robots import PointPlan, capsule_index, capsule_segments
+from ...threads import one_thread
 from .geometry import (point_cylinder_distance, segment_axis_closest, segment_axis_distance, segment_cylinder_distance,
                        segment_cylinder_within)
 
@@ -241,7 +242,8 @@ def end_volume_near(kinematics, traj: Tensor, env: Tensor, capsules: dict, can_h
             path[..., ::2, :] = torch.stack([row[3] for row in rows], -1).reshape(*lead, 3)  # ee_position's, to the bit
             ends = torch.cat([caps[0], caps[1]]).to(traj)  # (2C, 3)
             ends = torch.cat([ends, torch.ones_like(ends[:, :1])], 1)  # (2C, 4) homogeneous
-            x, y, z = (ends @ row for row in rows)  # (2C, P)
+            with one_thread():  # MKL splits the P columns between threads: other last bits on two than on one
+                x, y, z = (ends @ row for row in rows)  # (2C, P)
         else:
             x, y, z = kinematics.carry_points_rows(traj, caps[0])  # (2C, P)
         c = r.shape[0]

@@ -248,7 +248,7 @@ class Policy(EnvToProMP):
         slot = int(math.floor(t / self.decision_dt + 1e-9))
         m = self._m
         if m.current is not None and slot <= m.slot:
-            solved = means.misses if means.mode == "nearest" else 0
+            solved = means.misses
             w = means.mean(m.current, env, point)
             if means.mode == "nearest" and t - m.fresh >= self._refresh_dt and means.misses == solved:
                 # on a call that solved nothing for its own class (a refresh that solves a set

@@ -148,12 +148,15 @@ def capsules_gap(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, he
 def capsules_clear(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, height: float,
                    margin: float) -> Tensor:
     """Whether :func:`capsules_gap` ``> margin``: ``(...)`` bool, the same verdict at a fraction
-    of the cost (a gap within the search's tolerance, about 1e-9 m, of ``margin`` aside). Bounds of each capsule's gap in closed form: from below, its segment's distance
-    ``d`` to the can's axis segment minus the can's radius (the cylinder lies within that
-    distance of its axis); from above, the can's distance at the segment's point closest to the
-    axis. Where that point is level with the can's side both are the same number (the exact gap);
-    the golden-section search (:func:`~protorch.tasks.arm.geometry.segment_cylinder_within`, stopped once decided) runs only on capsules whose bounds straddle ``margin`` (the segment
-    nearest the can's rim or top) in batch entries no bound has decided."""
+    of the cost (a gap within the search's tolerance, about 1e-9 m, of ``margin`` aside).
+
+    Bounds of each capsule's gap in closed form: from below, its segment's distance ``d`` to the
+    can's axis segment minus the can's radius (the cylinder lies within that distance of its
+    axis); from above, the can's distance at the segment's point closest to the axis. Where that
+    point is level with the can's side both are the same number (the exact gap). The
+    golden-section search (:func:`~protorch.tasks.arm.geometry.segment_cylinder_within`, each
+    capsule stopped once decided) runs only on capsules whose bounds straddle ``margin`` (the
+    segment nearest the can's rim or top) in batch entries no bound has decided."""
     axis = env[..., None, None, 0:2]  # (..., 1, 1, 2)
     shape = torch.broadcast_shapes(a.shape[:-1], axis.shape[:-1])  # (..., T, C)
     d, u = segment_axis_closest(a, b, axis, 0.0, height)  # (..., T, C)

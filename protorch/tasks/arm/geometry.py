@@ -27,10 +27,11 @@ def _axis_candidates(a: Tensor, b: Tensor, axis_xy: Tensor, z0: float, z1: float
     distances there ``(..., 7)``."""
     shape = torch.broadcast_shapes(a.shape[:-1], b.shape[:-1], axis_xy.shape[:-1])
     a, b = a.expand(*shape, 3), b.expand(*shape, 3)
-    P = a[..., :2] - axis_xy  # (..., 2)
-    Q = b[..., :2] - a[..., :2]  # (..., 2)
+    # component by component: the same numbers as sums over a last axis of 2, which torch reduces slowly
+    px, py = a[..., 0] - axis_xy[..., 0], a[..., 1] - axis_xy[..., 1]  # (...) a's horizontal offset from the axis
+    qx, qy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]  # (...)
     za, dz = a[..., 2], b[..., 2] - a[..., 2]  # (...)
-    pq, qq = (P * Q).sum(-1), (Q * Q).sum(-1)  # (...)
+    pq, qq = px * qx + py * qy, qx * qx + qy * qy  # (...)
     tiny = torch.finfo(a.dtype).tiny
 
     def ratio(num, den):
@@ -42,10 +43,10 @@ def _axis_candidates(a: Tensor, b: Tensor, axis_xy: Tensor, z0: float, z1: float
         ratio(z0 - za, dz), ratio(z1 - za, dz),
     ]
     u = torch.stack(cands, -1).clamp(0.0, 1.0)  # (..., 7)
-    h = P[..., None, :] + u[..., None] * Q[..., None, :]  # (..., 7, 2)
+    hx, hy = px[..., None] + u * qx[..., None], py[..., None] + u * qy[..., None]  # (..., 7) horizontal offsets
     z = za[..., None] + u * dz[..., None]  # (..., 7)
     v = torch.clamp(torch.maximum(z - z1, z0 - z), min=0.0)  # (..., 7)
-    return u, h.square().sum(-1) + v.square()
+    return u, (hx * hx + hy * hy) + v * v
 
 
 def segment_axis_distance(a: Tensor, b: Tensor, axis_xy: Tensor, z0: float, z1: float) -> Tensor:

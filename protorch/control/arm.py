@@ -45,7 +45,7 @@ from torch import Tensor
 
 from ..checks import check_number, check_tensor
 from ..tasks.arm.collision import above_table
-from .arm_choice import ArmClassChoice, draw_moves, rest_scores, velocity_command_acceleration
+from .arm_choice import ArmClassChoice, Follow, draw_moves, rest_scores, velocity_command_acceleration
 from .episodes import (
     Timing,
     check_timing,
@@ -55,7 +55,7 @@ from .episodes import (
     track,
 )
 
-__all__ = ["ArmEpisodeResult", "run_arm_episodes", "count_switches", "rest_scores"]
+__all__ = ["ArmEpisodeResult", "run_arm_episodes", "count_switches", "rest_scores", "arm_follow"]
 
 def count_switches(labels: Tensor) -> Tensor:
     """Changes of the tracked class per episode: ``labels (E, T+1) -> (E,)`` long."""
@@ -217,11 +217,11 @@ def run_arm_episodes(
             raise ValueError(f"env0 holds no environment: shape {tuple(env0.shape)}")
         envs = env0[:, None].repeat(1, timing.total + 1, 1)  # (E, T+1, 4), rewritten by the moves
         schedule = draw_moves(env0.shape[0], timing.moving, moves, (lo_w, hi_w), generator)
-    choice = ArmClassChoice(task, env_map, promp, envs, schedule, timing.total, place_clearance=place_clearance,
-                            switch_margin=switch_margin, generator=generator, reuse_answers=reuse_answers,
-                            check=bool(check))
     if max_acceleration is None:
         max_acceleration = task.robot.max_acceleration
+    choice = ArmClassChoice(task, env_map, promp, envs, schedule, timing.total, place_clearance=place_clearance,
+                            switch_margin=switch_margin, generator=generator, reuse_answers=reuse_answers,
+                            check=bool(check), follow=arm_follow(task, kp, max_acceleration, timing, **kw))
     arm = _KinematicArm(choice, task, timing, kp=kp, max_acceleration=max_acceleration)
     run = track(arm, promp, timing, envs.shape[0], task.start_config(**kw), record=record, markers=False)
     q = run.positions  # (E, T+1, J)
@@ -242,6 +242,15 @@ def run_arm_episodes(
                             promp=promp, task=task)
 
 
+def arm_follow(task, kp: float, max_acceleration, timing: Timing, dtype=torch.float64, device=None) -> Follow:
+    """The moving tests' velocity command for the plan check's rollout
+    (:class:`~protorch.control.arm_choice.Follow`): gain ``kp``, the robot's velocity limits,
+    ``max_acceleration`` (per joint or one number), the control step and the motion's duration."""
+    kw = dict(dtype=dtype, device=device)
+    return Follow(float(kp), task.kinematics.max_velocity.to(**kw),
+                  torch.as_tensor(max_acceleration, **kw).expand(task.num_dof), timing.dt, timing.duration)
+
+
 class _KinematicArm:
     """The arm for :func:`~protorch.control.episodes.track`: the class choice
     (:class:`~protorch.control.arm_choice.ArmClassChoice`) answers, the arm moves by the velocity
@@ -253,8 +262,8 @@ class _KinematicArm:
         self.vmax = task.kinematics.max_velocity.to(**kw)  # (J,)
         self.amax = torch.as_tensor(max_acceleration, **kw).expand(task.num_dof)  # (J,)
 
-    def answer(self, t: int, z: float, q: Tensor) -> Tensor:
-        return self.choice.answer(t, z, q)
+    def answer(self, t: int, z: float, q: Tensor, qd: Tensor | None = None) -> Tensor:
+        return self.choice.answer(t, z, q, qd)
 
     def acceleration(self, q: Tensor, qd: Tensor, m: Tensor, m_vel: Tensor) -> Tensor:
         return velocity_command_acceleration(q, qd, m, m_vel, kp=self.kp, vmax=self.vmax, amax=self.amax, dt=self.dt)

@@ -9,14 +9,17 @@ the chosen mean into a motion within the joint velocity and acceleration limits
 
 from __future__ import annotations
 
-from typing import Sequence
+import math
+from typing import NamedTuple, Sequence
 
 import torch
 from torch import Tensor
 
-from ..tasks.arm.collision import capsule_ends, capsules_clear
+from ..tasks.arm.collision import capsule_ends, capsules_clear, capsules_gap
+from .episodes import promp_state_at
 
-__all__ = ["ArmClassChoice", "hysteresis_choice", "rest_scores", "rest_blocked", "checked_choice", "draw_moves", "apply_moves", "velocity_command_acceleration"]
+__all__ = ["ArmClassChoice", "Follow", "hysteresis_choice", "rest_scores", "rest_plan", "rest_blocked", "rest_clearance",
+           "checked_choice", "draw_moves", "apply_moves", "velocity_command_acceleration"]
 
 _BRIDGE = torch.linspace(0.0, 1.0, 9, dtype=torch.float64)[:-1]  # (8,) from the arm to a class's path
 
@@ -49,22 +52,89 @@ def rest_scores(task, promp, means: Tensor, env: Tensor, ee_now: Tensor, rest: T
     return task.path_costs(path, env.expand(k, n_env, 4), start=start).sum(-1)  # (K, E)
 
 
-def rest_blocked(task, promp, means: Tensor, env: Tensor, now: Tensor, z: float, rest: Tensor) -> Tensor:
-    """Whether each class's plan for the rest of the motion touches the can: the joints from
-    ``now`` (``(E, J)``, the arm; or ``(K, E, J)``) straight over to the class's mean at the phase
-    ``z``, then that mean at ``z`` and the phases ``rest (P',)``, checked by the task's own
-    :meth:`~protorch.tasks.ArmReachTask.can_gap` (its collision model) against ``margin``:
-    ``means (K, E, N)``, ``env (E, 4)`` -> ``(K, E)`` bool (True: blocked)."""
+class Follow(NamedTuple):
+    """How the moving tests drive the arm towards the tracked mean (the velocity command of
+    :func:`velocity_command_acceleration` integrated by :func:`~protorch.control.episodes.track`),
+    for :func:`rest_plan` to roll it out: gain ``kp`` (1/s), limits ``vmax``, ``amax`` ``(J,)``,
+    control step ``dt`` and the motion's ``duration`` (s)."""
+
+    kp: float
+    vmax: Tensor
+    amax: Tensor
+    dt: float
+    duration: float
+
+    @property
+    def horizon(self) -> int:
+        """Control steps rolled out: five time constants ``1 / kp`` of the velocity loop, by when
+        the arm has caught up with the mean it tracks."""
+        return max(1, math.ceil(5.0 / (self.kp * self.dt) - 1e-9))
+
+
+def rest_plan(promp, means: Tensor, now: Tensor, z: float, rest: Tensor, qd: Tensor | None = None,
+              follow: Follow | None = None) -> Tensor:
+    """Each class's plan for the rest of the motion as joints ``(K, E, P, J)``: from the arm's
+    joints ``now`` (``(E, J)``, or ``(K, E, J)``) over to the class's mean ``means (K, E, N)``,
+    then along that mean at the phases ``rest (P',)``. The way over: with ``follow`` and the arm's
+    velocities ``qd`` (same shape as ``now``), the path the moving tests' velocity command drives
+    from that state (:class:`Follow`: rolled out for ``follow.horizon`` control steps, every other
+    step kept, the environment as it is now), then the mean at the phases of ``rest`` after the
+    rollout; without them a straight line in joint space to the mean at ``z`` (8 points), then
+    the mean at ``z`` and at ``rest``."""
     k, n_env = means.shape[:2]
-    phases = torch.cat([rest.new_tensor([z]), rest])  # (1 + P',)
-    traj = promp.trajectory(means, phase=phases)  # (K, E, 1 + P', J)
-    now = now.to(traj).expand(k, n_env, traj.shape[-1])[..., None, :]  # (K, E, 1, J)
-    bridge = now + _BRIDGE.to(traj)[:, None] * (traj[..., :1, :] - now)  # (K, E, 8, J)
-    plan, env = torch.cat([bridge, traj], -2), env.expand(k, n_env, env.shape[-1])  # (K, E, 9 + P', J), (K, E, 4)
+    j = promp.num_dof
+    now = now.to(means).expand(k, n_env, j)  # (K, E, J)
+    if follow is None or qd is None:
+        phases = torch.cat([rest.new_tensor([z]), rest])  # (1 + P',)
+        traj = promp.trajectory(means, phase=phases)  # (K, E, 1 + P', J)
+        bridge = now[..., None, :] + _BRIDGE.to(traj)[:, None] * (traj[..., :1, :] - now[..., None, :])  # (K, E, 8, J)
+        return torch.cat([bridge, traj], -2)  # (K, E, 9 + P', J)
+    x, v = now.reshape(-1, j), qd.to(means).expand(k, n_env, j).reshape(-1, j)  # (K E, J)
+    mu = means.reshape(-1, means.shape[-1])  # (K E, N)
+    path = [x]
+    steps = follow.horizon
+    for i in range(steps):  # the semi-implicit Euler step of track()
+        zi = min(z + i * follow.dt / follow.duration, 1.0)
+        m, dm = promp_state_at(promp, mu, zi)  # (K E, J) each
+        m_vel = dm / follow.duration if zi < 1.0 else torch.zeros_like(dm)
+        v = v + velocity_command_acceleration(x, v, m, m_vel, kp=follow.kp, vmax=follow.vmax.to(x),
+                                              amax=follow.amax.to(x), dt=follow.dt) * follow.dt
+        x = x + v * follow.dt
+        if i % 2 == 0 or i == steps - 1:
+            path.append(x)
+    plan = torch.stack(path, 1).reshape(k, n_env, len(path), j)  # (K, E, S, J)
+    later = rest[rest > min(z + steps * follow.dt / follow.duration, 1.0)]  # (P'',) the phases after the rollout
+    if later.numel():
+        plan = torch.cat([plan, promp.trajectory(means, phase=later)], -2)  # (K, E, S + P'', J)
+    return plan
+
+
+def rest_blocked(task, promp, means: Tensor, env: Tensor, now: Tensor, z: float, rest: Tensor,
+                 qd: Tensor | None = None, follow: Follow | None = None) -> Tensor:
+    """Whether each class's plan for the rest of the motion (:func:`rest_plan`) touches the can,
+    checked by the task's own :meth:`~protorch.tasks.ArmReachTask.can_gap` (its collision
+    model) against ``margin``: ``means (K, E, N)``, ``env (E, 4)`` -> ``(K, E)`` bool (True:
+    blocked)."""
+    k, n_env = means.shape[:2]
+    plan = rest_plan(promp, means, now, z, rest, qd, follow)  # (K, E, P, J)
+    env = env.expand(k, n_env, env.shape[-1])  # (K, E, 4)
     if getattr(task, "capsule_plan", None) is not None:  # the volumes: the same verdict as can_gap, cheaper
-        a, b = capsule_ends(task.kinematics, plan, task.capsule_plan)  # (K, E, 9 + P', C, 3)
+        a, b = capsule_ends(task.kinematics, plan, task.capsule_plan)  # (K, E, P, C, 3)
         return ~capsules_clear(a, b, task.capsule_radii.to(a), env, task.can_radius, task.can_height, task.margin)
     return task.can_gap(plan, env) <= task.margin
+
+
+def rest_clearance(task, promp, means: Tensor, env: Tensor, now: Tensor, z: float, rest: Tensor,
+                   qd: Tensor | None = None, follow: Follow | None = None) -> Tensor:
+    """The smallest gap between the arm and the can along each class's plan (:func:`rest_plan`),
+    the number :func:`rest_blocked` compares with ``margin``: ``(K, E)`` (metres)."""
+    k, n_env = means.shape[:2]
+    plan = rest_plan(promp, means, now, z, rest, qd, follow)  # (K, E, P, J)
+    env = env.expand(k, n_env, env.shape[-1])  # (K, E, 4)
+    if getattr(task, "capsule_plan", None) is not None:
+        a, b = capsule_ends(task.kinematics, plan, task.capsule_plan)  # (K, E, P, C, 3)
+        return capsules_gap(a, b, task.capsule_radii.to(a), env, task.can_radius, task.can_height)
+    return task.can_gap(plan, env)
 
 
 def hysteresis_choice(scores: Tensor, current: Tensor | None, switch_margin: float,
@@ -84,21 +154,35 @@ def hysteresis_choice(scores: Tensor, current: Tensor | None, switch_margin: flo
 
 
 def checked_choice(task, promp, means: Tensor, env: Tensor, now: Tensor, z: float, rest: Tensor, scores: Tensor,
-                   current: Tensor | None, switch_margin: float) -> Tensor:
+                   current: Tensor | None, switch_margin: float, qd: Tensor | None = None,
+                   follow: Follow | None = None) -> Tensor:
     """:func:`hysteresis_choice` with the plan check of :func:`rest_blocked`, checking only what
     can change the choice: each system's choice by the scores first, every class only where that
     class's plan is blocked (a clear choice stands whatever the other classes' plans, so this is
-    the choice that checking every class gives). ``means (K, E, N)``, ``env (E, 4)``, ``now``
-    ``(E, J)`` (the arm) or ``(K, E, J)`` (per class), ``scores (K, E)`` -> ``(E,)``."""
+    the choice that checking every class gives); where every class is blocked, the class whose
+    plan keeps the largest gap to the can (:func:`rest_clearance`). ``means (K, E, N)``, ``env
+    (E, 4)``, ``now`` ``(E, J)`` (the arm) or ``(K, E, J)`` (per class), ``qd`` (the arm's
+    velocities, as ``now``) and ``follow``: :func:`rest_plan`'s way over; ``scores (K, E)`` ->
+    ``(E,)``."""
     c = hysteresis_choice(scores, current, switch_margin)  # (E,)
     e = torch.arange(means.shape[1], device=means.device)
     per_class = now.dim() == 3
-    bad = rest_blocked(task, promp, means[c, e][None], env, now[c, e] if per_class else now, z, rest)[0]  # (E,)
+
+    def part(x, i):
+        return None if x is None else (x[:, i] if per_class else x[i])
+
+    bad = rest_blocked(task, promp, means[c, e][None], env, now[c, e] if per_class else now, z, rest,
+                       None if qd is None else (qd[c, e] if per_class else qd), follow)[0]  # (E,)
     if bool(bad.any()):
         i = torch.nonzero(bad).flatten()  # (n,) the systems whose choice is blocked
-        blocked = rest_blocked(task, promp, means[:, i], env[i], now[:, i] if per_class else now[i], z, rest)  # (K, n)
+        blocked = rest_blocked(task, promp, means[:, i], env[i], part(now, i), z, rest, part(qd, i), follow)  # (K, n)
         c = c.clone()
         c[i] = hysteresis_choice(scores[:, i], None if current is None else current[i], switch_margin, blocked)
+        stuck = blocked.all(0)  # (n,) every class blocked: the largest clearance
+        if bool(stuck.any()):
+            s = i[stuck]
+            c[s] = rest_clearance(task, promp, means[:, s], env[s], part(now, s), z, rest, part(qd, s),
+                                  follow).argmax(0)
     return c
 
 
@@ -138,20 +222,24 @@ def apply_moves(task, envs: Tensor, q_now: Tensor, episodes: list[int], t: int, 
 
 class ArmClassChoice:
     """The mean the arm tracks at each instant (module docstring of :mod:`protorch.control.arm`):
-    ``answer(t, z, q) -> (E, N)`` applies the moves scheduled for instant ``t`` (``schedule``, per
+    ``answer(t, z, q, qd) -> (E, N)`` applies the moves scheduled for instant ``t`` (``schedule``, per
     episode, drawn with ``generator``; none for a prescribed walk), asks the map for every class
     at the current environments ``envs[:, t]`` (an unchanged environment reuses its last answer
     when ``reuse_answers``), scores each class on the rest of the motion from the end effector
     of ``q (E, J)`` and keeps the current class unless another one is better by more than
     ``switch_margin``; with ``check``, a class whose plan for the rest of the motion from ``q``
-    touches the can (:func:`rest_blocked`) is passed over while another class is clear. Records ``labels (E, T+1)``, ``moved (E,)`` and ``queries``."""
+    touches the can (:func:`rest_blocked`; with ``follow`` and the arm's velocities ``qd`` the
+    plan starts with the path the velocity command drives from that state, :func:`rest_plan`) is
+    passed over while another class is clear, and where every class is blocked the one whose plan
+    keeps the largest gap is taken (:func:`checked_choice`). Records ``labels (E, T+1)``,
+    ``moved (E,)`` and ``queries``."""
 
     def __init__(self, task, env_map, promp, envs: Tensor, schedule: list[list[int]], total: int, *,
                  place_clearance: float, switch_margin: float, generator, reuse_answers: bool,
-                 check: bool = False) -> None:
+                 check: bool = False, follow: Follow | None = None) -> None:
         kw = dict(dtype=envs.dtype, device=envs.device)
         self.task, self.env_map, self.promp, self.envs = task, env_map, promp, envs  # envs (E, T+1, 4)
-        self.generator, self.reuse, self.check = generator, reuse_answers, bool(check)
+        self.generator, self.reuse, self.check, self.follow = generator, reuse_answers, bool(check), follow
         self.place_clearance, self.switch_margin = place_clearance, switch_margin
         self.cand = torch.unique(env_map.labels)  # (K,) the classes
         # phases the objectives of the rest of the motion are evaluated on
@@ -168,7 +256,7 @@ class ArmClassChoice:
         self.answered = None  # (E, 4) the environments those answers are for
         self.queries = 0
 
-    def answer(self, t: int, z: float, q: Tensor) -> Tensor:
+    def answer(self, t: int, z: float, q: Tensor, qd: Tensor | None = None) -> Tensor:
         task, envs, n_env, k = self.task, self.envs, self.envs.shape[0], self.cand.numel()
         if t in self.by_step:
             apply_moves(task, envs, q, self.by_step[t], t, self.place_clearance, self.generator, self.moved)
@@ -188,7 +276,8 @@ class ArmClassChoice:
         scores = rest_scores(task, self.promp, self.means, env_t, task.kinematics.ee_position(q), rest)  # (K, E)
         if self.check and k > 1:
             self.current = checked_choice(task, self.promp, self.means, env_t, q, z, rest, scores, self.current,
-                                          self.switch_margin)  # (E,)
+                                          self.switch_margin, None if qd is None else qd.to(self.means),
+                                          self.follow)  # (E,)
         else:
             self.current = hysteresis_choice(scores, self.current, self.switch_margin)  # (E,)
         self.labels[:, t] = self.cand[self.current]

@@ -191,9 +191,9 @@ def hold_last(walk: Tensor, held: int) -> Tensor:
 class TrackedSystem(Protocol):
     """What :func:`track` needs of a system (the particle, the arm)."""
 
-    def answer(self, t: int, z: float, x: Tensor) -> Tensor:
+    def answer(self, t: int, z: float, x: Tensor, v: Tensor | None = None) -> Tensor:
         """The mean weights ``(E, N)`` to track at instant ``t`` (phase ``z``), the state being
-        ``x (E, D)``: update the environment, query the map, record."""
+        ``x, v (E, D)``: update the environment, query the map, record."""
 
     def acceleration(self, x: Tensor, v: Tensor, m: Tensor, m_vel: Tensor) -> Tensor:
         """``(E, D)`` acceleration at state ``x, v`` towards the marker ``m`` moving at ``m_vel``."""
@@ -227,7 +227,7 @@ def track(system: TrackedSystem, promp, timing: Timing, num_episodes: int, start
     with torch.no_grad():
         for t in range(total + 1):
             z = timing.phase(t)
-            mu = system.answer(t, z, pos[:, t])  # (E, N)
+            mu = system.answer(t, z, pos[:, t], vel[:, t])  # (E, N)
             m, dm_dz = promp_state_at(promp, mu, z)  # (E, D), (E, D)
             m_vel = dm_dz / timing.duration if t < timing.moving else torch.zeros_like(m)  # (E, D)
             if wt is not None:

@@ -306,7 +306,7 @@ class _ParticlePD:
         self.predict, self.envs, self.num_weights = predict, envs, num_weights  # envs (E, T+1, d)
         self.kp, self.kd, self.mass = kp, kd, mass
 
-    def answer(self, t: int, z: float, x: Tensor) -> Tensor:
+    def answer(self, t: int, z: float, x: Tensor, v: Tensor | None = None) -> Tensor:
         mu = self.predict(self.envs[:, t])  # (E, N)
         n_env = self.envs.shape[0]
         if tuple(mu.shape) != (n_env, self.num_weights):

@@ -6,27 +6,21 @@ velocity and acceleration at time ``t`` (seconds since the motion started) for t
 measured now. What it computes, per call:
 
 1. **The map's answer for every class** (homotopy label) at ``env``: Eq. 7 of the environment
-   map (:class:`ClassMeans`). With ``nearest_k`` (the arm's 30 nearest known environments of the
-   class) each class keeps its neighbour set from call to call: a triangle-inequality test says
-   whether the set can have changed, a search over the nearest candidates of the last full pass
-   (or a full pass) finds it if so, and a new set's solve ``A^-1 (MU - mu0)`` (float64) is cached;
-   a set that differs from the last by one or two environments is solved by rank-2 updates of
-   the last set's inverse (one refinement step against ``A``), any other by the map's own
-   :func:`~protorch.gp.kernels.posdef_cholesky`. Between decisions only the tracked class's mean
-   is computed (one kernel vector, one product); the other classes' sets are brought up to date
-   every ``decision_dt / 4`` so that a decision rarely solves. Without ``nearest_k`` (torch
-   backend) the map's own cached solve is used. Other maps are asked through ``predict_mean``.
+   map (:class:`ClassMeans`: with ``nearest_k`` each class keeps its neighbour set from call to
+   call, a new set solved by rank-2 updates of the last set's inverse or the map's own
+   :func:`~protorch.gp.kernels.posdef_cholesky`, and cached). Between decisions only the tracked
+   class's mean is computed (one kernel vector, one product); the other classes' sets are brought
+   up to date every ``decision_dt / 4`` so that a decision rarely solves. Without ``nearest_k``
+   (torch backend) the map's own cached solve is used; other maps through ``predict_mean``.
 2. **The class choice with hysteresis of the moving test** (:mod:`protorch.control.arm_choice`,
-   the same functions): every ``decision_dt`` seconds (the run's ``settings.dynamic.dt``: the
-   moving test decides at its control instants) each class is scored and the current class is kept
-   unless another one is better by more than ``switch_margin``. For the arm the score is
-   :func:`~protorch.control.arm_choice.rest_scores`, the objectives of the rest of the motion
-   from the end effector of ``q`` (the measured joints; that end effector and the classes' mean
-   paths at the objectives' phases in one pass of :class:`~protorch.control.policy_means.EndEffector`); with ``q=None`` the arm is taken to be
-   on each class's own mean at ``t``. For a task without an end-effector path (a user's own
-   task) the score is the task's summed objectives of each class's whole mean trajectory (the
-   label-aware inference, :func:`~protorch.gp.model.label_aware_mean`). A map with one class
-   has no choice to make.
+   the same functions): every ``decision_dt`` seconds (the run's ``settings.dynamic.dt``) each
+   class is scored and the current class is kept unless another one is better by more than
+   ``switch_margin``. The arm's score: :func:`~protorch.control.arm_choice.rest_scores`, the
+   objectives of the rest of the motion from the end effector of ``q`` (one pass of
+   :class:`~protorch.control.policy_means.EndEffector`; ``q=None``: each class's own mean at
+   ``t``); with ``check`` the plan check from ``q, qd`` (:func:`~protorch.control.arm_choice.checked_choice`).
+   A user's own task: the summed objectives of each class's whole mean trajectory
+   (:func:`~protorch.gp.model.label_aware_mean`). A map with one class has no choice to make.
 3. **The reference**: the chosen class's mean at the phase ``z = min(t / duration, 1)`` and its
    exact time derivatives (basis values and derivatives computed in closed form); after
    ``duration`` the last point is held (velocity and acceleration 0).
@@ -35,9 +29,8 @@ measured now. What it computes, per call:
    critically damped second-order system at rate ``blend`` (1/s): ``d(t) = (d0 + (v0 + w d0) s)
    exp(-w s)``, so ``q_r`` and ``qd_r`` are continuous and return to the mean within a few
    ``1 / blend`` seconds. The first call of a motion with the measured ``q`` starts the
-   reference there the same way (the mean's start and the arm's may differ). At ``duration`` the velocity steps to 0
-   as the mean's does (the hold of the moving test: a mean that ends at rest has no step). At a fixed environment no offset ever arises and the reference is the
-   mean exactly.
+   reference there the same way. At ``duration`` the velocity steps to 0 as the mean's does (the
+   moving test's hold). At a fixed environment no offset arises: the reference is the mean.
 
 :meth:`Policy.reset` starts a new motion (class, offset and time forgotten). ``t`` must not go
 backwards within a motion (a smaller ``t`` than the last is taken as the last).
@@ -46,11 +39,10 @@ backwards within a motion (a smaller ``t`` than the last is taken as the last).
 from __future__ import annotations
 
 import bisect
-import math
-from typing import NamedTuple
-
 import io
+import math
 from pathlib import Path
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -58,7 +50,7 @@ from torch import Tensor
 from ..data.files import atomic_write_bytes
 from ..gp.model import EnvToProMP, label_aware_mean
 from ..tasks.arm.reach import ArmReachTask
-from .arm_choice import checked_choice, hysteresis_choice, rest_scores
+from .arm_choice import Follow, checked_choice, hysteresis_choice, rest_scores
 from .policy_export import ExportProgram
 from .policy_means import ClassMeans, EndEffector, basis3
 
@@ -107,12 +99,15 @@ class Policy(EnvToProMP):
             another's is clear (the run's ``settings.dynamic.check``; :func:`~protorch.control.arm_choice.rest_blocked`).
         blend: decay rate (1/s) of the offset that keeps the reference continuous (``inf``: no
             offset, the reference is the chosen mean itself and jumps with it).
+        kp, max_acceleration: the moving test's velocity command (gain 1/s; limit, ``None``: the
+            robot's) that the plan check rolls out from the measured joints (the run's settings).
         warm_up: call :meth:`reference` a few times now so that the first real call is not slower.
     """
 
     def __init__(self, promp, env_map, task_name: str = "", *, task=None, duration: float = 3.0,
                  switch_margin: float = 0.0, decision_dt: float = 0.02, blend: float = DEFAULT_BLEND,
-                 warm_up: bool = True, experiment: str = "", check: bool = False) -> None:
+                 warm_up: bool = True, experiment: str = "", check: bool = False, kp: float = 10.0,
+                 max_acceleration=None) -> None:
         super().__init__(promp, env_map, task_name)
         for name, v in (("duration", duration), ("decision_dt", decision_dt), ("blend", blend)):
             if not (isinstance(v, (int, float)) and (math.isfinite(v) or name == "blend") and v > 0):
@@ -130,6 +125,7 @@ class Policy(EnvToProMP):
         self._d, self._kb = promp.num_dof, promp.num_basis
         self._device = promp.basis.device
         arm = task is not None and callable(getattr(task, "ee_path", None)) and callable(getattr(task, "path_costs", None))
+        self._follow = None
         self._arm = arm
         if arm:
             self._grid = self._P.phase[task.cost_indices(promp.num_steps)].to(**kw)  # (P,) the objectives' phases
@@ -138,6 +134,11 @@ class Policy(EnvToProMP):
             kin = getattr(task, "kinematics", None)
             fold = isinstance(task, ArmReachTask) and type(task).ee_path is ArmReachTask.ee_path
             self._ee = EndEffector(kin, device=self._device) if fold else task.ee_path  # (P, J) -> (P, 3)
+            amax = getattr(getattr(task, "robot", None), "max_acceleration", None) if max_acceleration is None \
+                else max_acceleration
+            if amax is not None and kin is not None:  # the moving test's velocity command, for the check's rollout
+                self._follow = Follow(float(kp), kin.max_velocity.to(**kw), torch.as_tensor(amax, **kw).expand(self._d),
+                                      self.decision_dt, self.duration)
         self._label_list = self.labels.tolist()
         # the other classes' neighbour sets are kept fresh between decisions (a decision then
         # rarely has a new set to solve): every refresh_dt seconds, on calls that solved nothing
@@ -228,7 +229,7 @@ class Policy(EnvToProMP):
         return rest_scores(task, self._P, means[:, None], env[None], start, rest, path=path)[:, 0]  # (K,)
 
     def choose(self, env: Tensor, t: float, q: Tensor | None = None, point: list[float] | None = None,
-               phi: Tensor | None = None) -> tuple[int, Tensor]:
+               phi: Tensor | None = None, qd: Tensor | None = None) -> tuple[int, Tensor]:
         """The class row (into :attr:`labels`) tracked at ``t`` and its mean weights ``(1, N)``:
         a decision (every class asked, scored, hysteresis) at the first call and whenever ``t``
         enters a new ``decision_dt`` slot; between decisions only the current class is asked (and
@@ -268,8 +269,9 @@ class Policy(EnvToProMP):
             k = every.shape[0]
             now = q[None] if q is not None else (every.view(k, self._d, self._kb) @ phi[0])[:, None]  # (1, D) | (K, 1, D)
             rest = self._grid[bisect.bisect_right(self._grid_list, z):]  # (P',) the phases after z
+            v = None if q is None else (torch.zeros_like(q) if qd is None else qd)[None]  # (1, D) the arm's velocity
             c = int(checked_choice(self.task, self._P, every[:, None], env[None], now, z, rest, scores, cur,
-                                   self.switch_margin)[0])
+                                   self.switch_margin, v, self._follow)[0])
         else:
             c = int(hysteresis_choice(scores, cur, self.switch_margin)[0])
         m.current = c
@@ -287,9 +289,9 @@ class Policy(EnvToProMP):
             q: ``(D,)`` the measured joints (the arm's class choice scores the rest of the motion
                 from their end effector, as the moving test); ``None``: the arm is taken to be on
                 each class's mean.
-            qd: ``(D,)`` the measured joint velocities (or ``None``: 0). At the first call of a
-                motion with ``q`` given the reference starts at ``q, qd`` (the gap to the mean
-                decays as the continuity offset does).
+            qd: ``(D,)`` the measured joint velocities (or ``None``: 0; the plan check rolls the
+                arm out from ``q, qd``). The first call of a motion with ``q`` starts the
+                reference at ``q, qd`` (the gap decays as the continuity offset does).
         Returns:
             :class:`Reference` ``(q, qd, qdd (D,), label)``.
         """
@@ -298,7 +300,7 @@ class Policy(EnvToProMP):
         t = max(t, m.t)
         with torch.inference_mode():  # cheaper per operation than no_grad (no version counters, no views tracked)
             phi = self.basis_at(t)  # (3, K)
-            c, w = self.choose(env, t, q, point, phi)  # w (1, N)
+            c, w = self.choose(env, t, q, point, phi, qd)  # w (1, N)
             state = torch.mm(phi, w.view(self._d, self._kb).T)  # (3, D) position, velocity, acceleration
             if self.blend < math.inf:
                 jump = None

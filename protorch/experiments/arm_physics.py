@@ -33,6 +33,7 @@ import torch
 
 from ..checks import check_number
 from ..control.arm import count_switches, run_arm_episodes
+from ..control.arm import arm_follow
 from ..control.arm_choice import ArmClassChoice
 from ..control.episodes import check_timing
 from ..data.files import atomic_write_bytes
@@ -176,7 +177,8 @@ def physics_section(exp, model, out_dir: Path, plot: bool) -> dict:
         choice = ArmClassChoice(task, model.env_map, promp, kin.envs.clone(), [[] for _ in range(kin.num_episodes)],
                                 timing.total, place_clearance=float(dyn["place_clearance"]),
                                 switch_margin=float(dyn["switch_margin"]), generator=None, reuse_answers=True,
-                                check=bool(dyn["check"]))
+                                check=bool(dyn["check"]),
+                                follow=arm_follow(task, float(dyn["kp"]), common["max_acceleration"], timing))
         dynamic = run_physics_episodes(scene, ctrl, choice, promp, timing, kin.envs.cpu(), **common)
         kin_dyn = kin.success.cpu().numpy()
         sw = count_switches(torch.from_numpy(dynamic.labels))

@@ -54,7 +54,7 @@ class FixedMeans:
     def __init__(self, means: Tensor) -> None:
         self.means = means
 
-    def answer(self, t: int, z: float, q: Tensor) -> Tensor:
+    def answer(self, t: int, z: float, q: Tensor, qd: Tensor | None = None) -> Tensor:
         return self.means
 
 
@@ -288,7 +288,8 @@ def run_physics_episodes(scene, ctrl_model, system, promp, timing: Timing, envs:
                 plant.forward()
                 rec.contacts(plant, scene, 0)
             rec.instant(t, plant, q_r, envs_np[:, t])
-            mu = system.answer(t, timing.phase(t), torch.from_numpy(plant.qpos.copy())).to(**kw).cpu()  # (E, N)
+            mu = system.answer(t, timing.phase(t), torch.from_numpy(plant.qpos.copy()),
+                               torch.from_numpy(plant.qvel.copy())).to(**kw).cpu()  # (E, N)
             if t == total:
                 break
             times = (t * timing.dt + h * torch.arange(n_sub, **kw))  # (n,) the physics steps' start times

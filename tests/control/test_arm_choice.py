@@ -1,5 +1,7 @@
 """The arm's class choice with the plan check: a blocked class is passed over while another is
-clear, every class blocked leaves the choice to the scores, and the hysteresis still holds."""
+clear (hysteresis_choice: every class blocked leaves the choice to the scores, and the hysteresis
+still holds; checked_choice then takes the plan with the largest clearance), and the plan's way
+over is the path the moving test's velocity command drives."""
 
 from __future__ import annotations
 
@@ -24,3 +26,81 @@ def test_every_class_blocked_leaves_the_choice_to_the_scores_and_the_hysteresis(
     # within the margin the current class stays
     assert hysteresis_choice(scores, torch.tensor([1, 0]), 0.05, blocked).tolist() == [1, 1]
     assert hysteresis_choice(scores, torch.tensor([1, 0]), 0.5, blocked).tolist() == [1, 0]
+
+
+def _tracked(task, promp, w, steps, kp=10.0, dt=0.02, duration=1.0):
+    """The moving test's arm (velocity command, semi-implicit Euler of track()) on one fixed mean
+    ``w (E, N)`` from the start configuration: positions and velocities ``(E, steps + 1, J)``."""
+    from protorch.control.arm_choice import velocity_command_acceleration
+    from protorch.control.episodes import Timing, track
+
+    class Fixed:
+        def answer(self, t, z, q, qd=None):
+            return w
+
+        def acceleration(self, q, qd, m, m_vel):
+            return velocity_command_acceleration(q, qd, m, m_vel, kp=kp, vmax=task.kinematics.max_velocity.to(q),
+                                                 amax=torch.as_tensor(task.robot.max_acceleration).to(q).expand(task.num_dof), dt=dt)
+
+    timing = Timing(dt=dt, duration=duration, moving=round(duration / dt), held=steps - round(duration / dt))
+    run = track(Fixed(), promp, timing, w.shape[0], task.start_config(dtype=torch.float64), record=False)
+    return run.positions, run.velocities, timing
+
+
+def test_the_plan_check_rolls_out_the_velocity_command_that_drives_the_arm():
+    """rest_plan's way over with ``follow``: from the arm's state at an instant, the positions the
+    moving test's own loop (track() with the velocity command) reaches at the next instants,
+    every other one kept, while the mean and the environment stay; then the mean itself."""
+    from protorch import ProMP
+    from protorch.control.arm import arm_follow
+    from protorch.control.arm_choice import rest_plan
+    from protorch.tasks.arm.reach import ArmReachTask
+
+    task = ArmReachTask(cost_steps=6)
+    promp = ProMP(task.num_dof, 10, 50)
+    g = torch.Generator().manual_seed(0)
+    start = task.start_config(dtype=torch.float64)
+    w = (start[:, None] + 0.4 * torch.randn(2, task.num_dof, 10, generator=g, dtype=torch.float64)).flatten(1)  # (2, N)
+    pos, vel, timing = _tracked(task, promp, w, steps=70)
+    follow = arm_follow(task, 10.0, task.robot.max_acceleration, timing)
+    rest = torch.linspace(0.1, 1.0, 10, dtype=torch.float64)
+    for t in (3, 20, 45):  # one whose rollout ends in the hold (z = 1 from t = 50)
+        z = timing.phase(t)
+        plan = rest_plan(promp, w[None], pos[:, t], z, rest, vel[:, t], follow)[0]  # (E, P, J)
+        h = follow.horizon
+        kept = [0] + [i + 1 for i in range(h) if i % 2 == 0 or i == h - 1]
+        torch.testing.assert_close(plan[:, :len(kept)], pos[:, [t + i for i in kept]], rtol=0, atol=1e-12)
+        later = rest[rest > min(z + h * timing.dt / timing.duration, 1.0)]
+        torch.testing.assert_close(plan[:, len(kept):], promp.trajectory(w, phase=later), rtol=0, atol=0)
+    # without the velocities: the straight way over to the mean at z (8 points), then the mean
+    plan = rest_plan(promp, w[None], pos[:, 3], timing.phase(3), rest)[0]
+    assert plan.shape[1] == 9 + rest.numel()
+    torch.testing.assert_close(plan[:, 0], pos[:, 3])
+
+
+def test_where_every_class_is_blocked_the_largest_clearance_is_chosen():
+    """checked_choice: a clear class is taken over a blocked one; where every class's plan is
+    blocked, the class whose plan keeps the largest gap (rest_clearance), whatever the scores."""
+    from protorch import ProMP
+    from protorch.control.arm_choice import checked_choice, rest_blocked, rest_clearance
+    from protorch.tasks.arm.reach import ArmReachTask
+
+    task = ArmReachTask(cost_steps=6, collision="volume")
+    promp = ProMP(task.num_dof, 10, 50)
+    start = task.start_config(dtype=torch.float64)
+    g = torch.Generator().manual_seed(3)
+    means = (start[:, None] + 0.3 * torch.randn(2, 40, task.num_dof, 10, generator=g, dtype=torch.float64)).flatten(2)
+    ee = task.kinematics.ee_position(promp.trajectory(means.flatten(0, 1), phase=torch.tensor([0.5], dtype=torch.float64)))
+    env = torch.cat([ee[:40, 0, :2], task.sample_envs(40, g)[:, 2:]], -1)  # the can under class 0's mean at z = 0.5
+    env[20:, :2] = ee[40 + 20:, 0, :2]  # and under class 1's for the last 20 systems
+    rest = torch.linspace(0.3, 1.0, 8, dtype=torch.float64)
+    now = start.expand(40, -1)
+    scores = torch.stack([torch.zeros(40), torch.ones(40)]).to(torch.float64)  # class 0 always scored better
+    blocked = rest_blocked(task, promp, means, env, now, 0.2, rest)  # (K, E)
+    gaps = rest_clearance(task, promp, means, env, now, 0.2, rest)  # (K, E)
+    assert torch.equal(blocked, gaps <= task.margin)
+    c = checked_choice(task, promp, means, env, now, 0.2, rest, scores, None, 0.0)
+    stuck = blocked.all(0)
+    assert bool(stuck.any()) and bool((blocked[0] & ~blocked[1]).any())
+    assert torch.equal(c[stuck], gaps[:, stuck].argmax(0))
+    assert bool((c[blocked[0] & ~blocked[1]] == 1).all()) and bool((c[~blocked[0]] == 0).all())

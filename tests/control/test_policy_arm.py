@@ -71,16 +71,20 @@ def test_the_policy_reproduces_the_moving_tests_class_switches(policy, check, mo
         switches += int(res.switches.sum())
         for e in range(res.q.shape[0]):
             policy.reset()
-            got = [policy.reference(res.envs[e, i], i * res.dt, res.q[e, i]).label for i in range(res.q.shape[1])]
+            got = [policy.reference(res.envs[e, i], i * res.dt, res.q[e, i], res.qd[e, i]).label
+                   for i in range(res.q.shape[1])]
             assert got == res.labels[e].tolist(), e
     assert switches >= 1  # the episodes do switch classes
 
 
 def test_the_checked_choice_never_tracks_a_blocked_plan_while_another_is_clear(policy):
     """At every decision of the moving test with ``check``, the tracked class's plan for the rest
-    of the motion from the arm's joints clears the can, unless every class's plan touches it;
-    and the check changes decisions on these episodes (against ``check=False``)."""
-    from protorch.control.arm_choice import rest_blocked
+    of the motion from the arm's joints and velocities clears the can, unless every class's plan
+    touches it (then the tracked one keeps the largest gap); and the check changes decisions on
+    these episodes (against ``check=False``)."""
+    from protorch.control.arm import arm_follow
+    from protorch.control.arm_choice import rest_blocked, rest_clearance
+    from protorch.control.episodes import check_timing
 
     task = ArmReachTask(cost_steps=6, collision="volume")
     envs = task.sample_envs(30, torch.Generator().manual_seed(1))
@@ -92,15 +96,21 @@ def test_the_checked_choice_never_tracks_a_blocked_plan_while_another_is_clear(p
     grid = policy.promp.phase[task.cost_indices(policy.promp.num_steps)].to(F64)
     cand = torch.unique(policy.env_map.labels)
     moving = res.num_moving_steps
+    timing = check_timing(0.02, policy.duration, 0.3)
+    follow = arm_follow(task, 10.0, task.robot.max_acceleration, timing)  # run_arm_episodes' velocity command
     passed_over = 0
     for i in range(moving + 1):
-        z = min(i / moving, 1.0)
+        z = timing.phase(i)
         env = res.envs[:, i]  # (E, 4)
         means = torch.stack([policy.env_map.predict_mean(env, torch.full((env.shape[0],), int(c))) for c in cand])
-        blocked = rest_blocked(task, policy.promp, means.to(F64), env, res.q[:, i], z, grid[grid > z])  # (K, E)
+        args = (task, policy.promp, means.to(F64), env, res.q[:, i], z, grid[grid > z], res.qd[:, i], follow)
+        blocked = rest_blocked(*args)  # (K, E)
         chosen = (res.labels[:, i][None] == cand[:, None]).to(torch.long).argmax(0)  # (E,)
         on_blocked = blocked.gather(0, chosen[None])[0]
         assert not bool((on_blocked & ~blocked.all(0)).any()), i
+        stuck = blocked.all(0)
+        if bool(stuck.any()):
+            assert torch.equal(chosen[stuck], rest_clearance(*args)[:, stuck].argmax(0)), i
         passed_over += int((blocked.any(0) & ~blocked.all(0)).sum())
     assert passed_over >= 1
 

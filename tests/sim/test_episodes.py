@@ -70,7 +70,7 @@ class _SwitchAt:
     def __init__(self, first, then, k):
         self.first, self.then, self.k = first, then, k
 
-    def answer(self, t, z, q):
+    def answer(self, t, z, q, qd=None):
         return self.first if t < self.k else self.then
 
 

@@ -19,7 +19,7 @@ the load average. Load and warm-up time is printed apart.
 
 Continuity (``--continuity N``): the run's moving test re-simulated (its own environments and moves,
 :func:`protorch.control.arm.run_arm_episodes`); the policy's class at every instant of every
-episode (given the episode's environment and joints of that instant) compared with the test's;
+episode (given the episode's environment, joints and velocities of that instant) compared with the test's;
 then the first ``N`` episodes with a class switch replayed at 1 kHz through ``policy.reference``
 (the environment and joints of the test's instant): the largest change of ``q_r`` and ``qd_r``
 between consecutive calls, against the same with the offset off (``blend=inf``: the chosen mean).
@@ -99,12 +99,13 @@ def continuity(run: str, episodes: int) -> None:
     env0 = exp.sample(exp.episodes, exp.dyn_seed)
     res = run_arm_episodes(policy, policy.task, env0, generator=torch.Generator().manual_seed(exp.dyn_seed),
                            **exp.dyn_cfg)
-    # the class at every instant of every episode, the episode's measured joints given
+    # the class at every instant of every episode, the episode's measured joints and velocities given
     mismatched = 0
     for e in range(res.q.shape[0]):
         policy.reset()
         for s in range(res.q.shape[1]):
-            mismatched += policy.reference(res.envs[e, s], s * res.dt, res.q[e, s]).label != int(res.labels[e, s])
+            mismatched += policy.reference(res.envs[e, s], s * res.dt, res.q[e, s], res.qd[e, s]).label \
+                != int(res.labels[e, s])
     print(f"moving test of {run}: {res.q.shape[0]} episodes, {int(res.switches.sum())} class switches in "
           f"{int((res.switches > 0).sum())} episodes, {int(res.moves.sum())} moves; the policy's class differs from "
           f"the test's at {mismatched} of {res.labels.numel()} instants")
@@ -119,7 +120,7 @@ def continuity(run: str, episodes: int) -> None:
             prev = None
             for i in range((steps - 1) * per + 1):
                 s = i // per
-                r = pol.reference(res.envs[e, s], i * 1e-3, res.q[e, s])
+                r = pol.reference(res.envs[e, s], i * 1e-3, res.q[e, s], res.qd[e, s])
                 if prev is not None:
                     worst[name][0] = max(worst[name][0], float((r.q - prev.q).abs().max()))
                     worst[name][1] = max(worst[name][1], float((r.qd - prev.qd).abs().max()))

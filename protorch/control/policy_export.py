@@ -98,9 +98,11 @@ class ExportProgram(torch.nn.Module):
                 gap = torch.minimum(static_gaps(task, pos, env.expand(k, env.shape[-1])),
                                     tail.index_select(1, (n - ahead)[None])[:, 0])  # (K,)
                 blocked = gap <= task.margin
-                blocked = blocked & ~blocked.all()
-                scores = torch.where(blocked, torch.inf, scores)
-            c = torch.argmin(scores)
+                stuck = blocked.all()  # every class blocked: the largest clearance (checked_choice)
+                scores = torch.where(blocked & ~stuck, torch.inf, scores)
+                c = torch.where(stuck, torch.argmax(gap), torch.argmin(scores))
+            else:
+                c = torch.argmin(scores)
         else:
             scores = p.task.costs(p._P.trajectory(means), env.expand(k, -1)).sum(-1)  # (K,)
             c = torch.argmin(scores)

@@ -16,7 +16,7 @@ import torch
 from torch import Tensor
 
 from ..tasks.arm.collision import capsule_ends, capsules_clear, capsules_gap
-from .episodes import promp_state_at
+from .episodes import basis_derivative_at
 
 __all__ = ["ArmClassChoice", "Follow", "hysteresis_choice", "rest_scores", "rest_plan", "rest_blocked", "rest_clearance",
            "checked_choice", "draw_moves", "apply_moves", "velocity_command_acceleration"]
@@ -90,15 +90,18 @@ def rest_plan(promp, means: Tensor, now: Tensor, z: float, rest: Tensor, qd: Ten
         bridge = now[..., None, :] + _BRIDGE.to(traj)[:, None] * (traj[..., :1, :] - now[..., None, :])  # (K, E, 8, J)
         return torch.cat([bridge, traj], -2)  # (K, E, 9 + P', J)
     x, v = now.reshape(-1, j), qd.to(means).expand(k, n_env, j).reshape(-1, j)  # (K E, J)
-    mu = means.reshape(-1, means.shape[-1])  # (K E, N)
-    path = [x]
     steps = follow.horizon
+    zs = [min(z + i * follow.dt / follow.duration, 1.0) for i in range(steps)]  # the phases of the steps
+    phase = torch.tensor(zs, dtype=means.dtype, device=means.device)  # (H,)
+    wk = means.reshape(-1, j, promp.num_basis)  # (K E, J, Kb)
+    marks = wk @ promp.basis_at(phase).to(means).T  # (K E, J, H) the mean at each step (promp_state_at's)
+    moving = (phase < 1.0).to(means) / follow.duration  # (H,) no marker velocity in the hold
+    vels = wk @ (basis_derivative_at(promp, phase).to(means).T * moving)  # (K E, J, H)
+    vmax, amax = follow.vmax.to(x), follow.amax.to(x)
+    path = [x]
     for i in range(steps):  # the semi-implicit Euler step of track()
-        zi = min(z + i * follow.dt / follow.duration, 1.0)
-        m, dm = promp_state_at(promp, mu, zi)  # (K E, J) each
-        m_vel = dm / follow.duration if zi < 1.0 else torch.zeros_like(dm)
-        v = v + velocity_command_acceleration(x, v, m, m_vel, kp=follow.kp, vmax=follow.vmax.to(x),
-                                              amax=follow.amax.to(x), dt=follow.dt) * follow.dt
+        v = v + velocity_command_acceleration(x, v, marks[..., i], vels[..., i], kp=follow.kp, vmax=vmax, amax=amax,
+                                              dt=follow.dt) * follow.dt
         x = x + v * follow.dt
         if i % 2 == 0 or i == steps - 1:
             path.append(x)

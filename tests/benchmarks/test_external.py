@@ -114,3 +114,16 @@ def test_via_point_reacher_returns_are_finite():
     env = make_env("via_point_reacher")
     out = run_episode(env, np.zeros(env.action_space.shape[0]), 1)
     assert math.isfinite(out.ret) and out.ret < 0
+
+
+def test_resume_keeps_finished_runs_of_the_same_settings(run, tmp_path):
+    meta = {"commit": "abc", "episodes": 100, "samples": 20, "start_std": 1.0, "epro": {}, "pro_beta": 0.05}
+    runs = [{"context": 1, "episodes": 100}, {"context": 2, "episodes": 40, "partial": True},
+            {"context": 3, "episodes": 100, "commit": "def"}]
+    path = tmp_path / "r.json"
+    assert run.resumed(str(path), {**meta, "eval_every": 10}) == []  # no file: nothing to keep
+    path.write_text(json.dumps({"meta": meta, "runs": runs}))
+    kept = run.resumed(str(path), {**meta, "commit": "new", "eval_every": 10})  # eval_every unknown to the file
+    assert [(r["context"], r["commit"]) for r in kept] == [(1, "abc"), (3, "def")]  # the partial run is dropped
+    with pytest.raises(SystemExit, match="other settings.*episodes=100"):
+        run.resumed(str(path), {**meta, "episodes": 200, "eval_every": 10})

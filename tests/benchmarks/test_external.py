@@ -127,3 +127,22 @@ def test_resume_keeps_finished_runs_of_the_same_settings(run, tmp_path):
     assert [(r["context"], r["commit"]) for r in kept] == [(1, "abc"), (3, "def")]  # the partial run is dropped
     with pytest.raises(SystemExit, match="other settings.*episodes=100"):
         run.resumed(str(path), {**meta, "episodes": 200, "eval_every": 10})
+
+
+@pytest.mark.parametrize("task", ["via_point_reacher", "hole_reacher"])
+def test_speed_up_keeps_every_episode_bit_for_bit(task):
+    pytest.importorskip("fancy_gym")
+    from tasks import make_env
+
+    plain, fast = make_env(task, fast=False), make_env(task, fast=True)
+    assert type(fast.unwrapped) is not type(plain.unwrapped)  # the sped-up class is in place
+    rng = np.random.default_rng(3)
+    for k in range(12):  # small and large weights: some episodes collide, some do not
+        w = rng.standard_normal(plain.action_space.shape[0]) * (0.3 if k % 2 else 3.0)
+        plain.reset(seed=k % 3)
+        fast.reset(seed=k % 3)
+        a, b = plain.step(w), fast.step(w)
+        assert a[1] == b[1] and np.array_equal(a[0], b[0]) and a[2:4] == b[2:4]
+        assert a[4]["trajectory_length"] == b[4]["trajectory_length"]
+        for key in ("is_success", "is_collided", "end_effector"):
+            assert np.array_equal(np.asarray(a[4][key]), np.asarray(b[4][key]))

@@ -8,6 +8,8 @@ success: they must be equal, bit for bit; only the timings differ); (2) ``--batc
 20 random weight vectors, run alternately on the plain and the sped-up env (the same weights,
 the same context), timed with ``time.perf_counter``: milliseconds per episode and the ratio.
 Interleaving keeps both under the same load; on a shared machine the ratio is what to read.
+``--profile``: instead, where an episode's time goes (``cProfile`` over ``--batches`` x 20
+episodes of random weights, plain and sped up): the shares of the calls docs/external.md names.
 """
 
 from __future__ import annotations
@@ -63,14 +65,47 @@ def timing(task: str, batches: int, seed: int = 0) -> tuple[float, float]:
     return statistics.median(per[False]), statistics.median(per[True])
 
 
+PROFILED = ("get_trajectory", "get_wrapper_attr", "warn", "_check_self_collision", "check_wall_collision", "render")
+
+
+def profile(task: str, episodes: int, seed: int = 0) -> None:
+    """Print the share of an episode's time each of :data:`PROFILED` takes, plain and sped up."""
+    import cProfile
+    import pstats
+
+    from tasks import make_env, run_episode
+
+    for fast in (False, True):
+        env = make_env(task, fast)
+        w = np.random.default_rng(seed).standard_normal((episodes + 1, env.action_space.shape[0]))  # (E + 1, N)
+        run_episode(env, w[0], 1)  # warm-up: imports, first allocations
+        prof = cProfile.Profile()
+        prof.enable()
+        for x in w[1:]:
+            run_episode(env, x, 1)
+        prof.disable()
+        stats = pstats.Stats(prof)
+        share: dict[str, float] = {}
+        for (_, _, fn), (_, _, _, cum, _) in stats.stats.items():
+            if fn in PROFILED:
+                share[fn] = max(share.get(fn, 0.0), cum / stats.total_tt)  # the outermost call of a recursion
+        parts = ", ".join(f"{fn} {100 * share.get(fn, 0.0):.1f} %" for fn in PROFILED)
+        print(f"{task} ({'sped up' if fast else 'plain'}), shares of the profiled time: {parts}", flush=True)
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--tasks", default="via_point_reacher,hole_reacher")
     ap.add_argument("--optimizer", default="EPRO")
     ap.add_argument("--episodes", type=int, default=400, help="budget of the compared optimiser runs")
     ap.add_argument("--batches", type=int, default=10, help="timed batches of 20 episodes per env")
+    ap.add_argument("--profile", action="store_true", help="where an episode's time goes, instead of the table")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
+    if args.profile:
+        for task in args.tasks.split(","):
+            profile(task, 20 * args.batches)
+        return
     print("| task | optimiser run (seed 0, context 1) | plain env, ms / episode | sped up, ms / episode | ratio |")
     print("|---|---|---|---|---|")
     for task in args.tasks.split(","):

@@ -82,7 +82,8 @@ def summary(runs: list[dict], episodes: int) -> list[str]:
 def curve(runs: list[dict], points: list[int]) -> list[str]:
     groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for r in runs:
-        groups[(r["task"], r["optimizer"])].append(r)
+        if not r.get("partial"):  # a run cut short (still going, or stopped) is not a run of its budget
+            groups[(r["task"], r["optimizer"])].append(r)
     lines = ["| task | optimiser | runs | " + " | ".join(f"{p}" for p in points) + " |",
              "|---|---|---|" + "---|" * len(points)]
     for (task, opt), rs in sorted(groups.items()):

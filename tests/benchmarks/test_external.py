@@ -105,6 +105,9 @@ def test_table_reads_each_run_at_the_budget(table, tmp_path):
     assert text.startswith("a\n<!-- t -->\n<!-- measured: commit=abc command=\"python benchmarks/external/table.py ")
     assert "-->\n| task" in text and "old" not in text and text.endswith("<!-- /t -->\nb\n")
     assert "runs at commit(s) abc" in text
+    cut = {**_run("box_pushing", "EPRO", 3, 0, [-100, -90], [False, False]), "partial": True}
+    lines = {line.split(" | ")[1]: line for line in table.curve([*loaded, cut], [0, 200])[2:]}
+    assert "| EPRO | 2 | -205.0 | -140.0 |" in lines["EPRO"]  # the partial run counts nowhere
 
 
 def test_via_point_reacher_returns_are_finite():

@@ -23,7 +23,9 @@ CMA-ES: a diagonal covariance, pycma's ``CMA_diagonal``), for the diagnosis.
 
 Results: ``--json``, written atomically after every check of the mean (a run still going or cut
 short is there with ``"partial": true`` and the episodes it reached):
-``meta`` (command, commit, versions, settings) and ``runs``, one per run with its ``curve``.
+``meta`` (command, commit, versions, settings) and ``runs``, one per run with its ``curve`` and the
+commit it ran at. ``--resume`` keeps the finished runs of an existing ``--json`` (same settings)
+and runs only the others (a run cut short starts again from its first episode).
 ``python benchmarks/external/table.py FILES...`` turns them into the tables of docs/external.md.
 """
 
@@ -174,6 +176,23 @@ def ints(text: str) -> list[int]:
     return [int(x) for x in text.split(",") if x.strip()]
 
 
+SETTINGS = ("episodes", "samples", "start_std", "epro", "pro_beta", "eval_every")  # what a resumed file must share
+
+
+def resumed(path: str, meta: dict) -> list[dict]:
+    """The finished runs of ``path`` (each stamped with its file's commit if it has none), after
+    checking the file was made with the same settings as ``meta``; [] if there is no such file."""
+    if not Path(path).exists():
+        return []
+    old = json.loads(Path(path).read_text())
+    differ = [k for k in SETTINGS if k in old["meta"] and old["meta"][k] != meta[k]]
+    if differ:
+        was = ", ".join(f"{k}={old['meta'][k]!r}" for k in differ)
+        raise SystemExit(f"--resume: {path} was run with other settings ({was})")
+    return [{**r, "commit": r.get("commit", old["meta"].get("commit", "unknown"))} for r in old["runs"]
+            if not r.get("partial")]
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--tasks", default="hole_reacher", help="comma-separated short names or fancy_gym ids")
@@ -189,6 +208,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--workers", type=int, default=1, help="processes the episodes are spread over")
     ap.add_argument("--json", required=True, help="results file (rewritten after every run)")
     ap.add_argument("--note", default="", help="free text stored in meta")
+    ap.add_argument("--resume", action="store_true", help="keep the finished runs of --json, run the others")
     args = ap.parse_args(argv)
     import fancy_gym
     import mujoco
@@ -199,8 +219,9 @@ def main(argv: list[str] | None = None) -> None:
     meta = {"command": "python benchmarks/external/run.py " + shlex.join(sys.argv[1:] if argv is None else argv),
             "commit": commit(), "fancy_gym": getattr(fancy_gym, "__version__", "0.3.0"), "mujoco": mujoco.__version__,
             "episodes": args.episodes, "samples": args.samples, "start_std": args.start_std, "epro": epro,
-            "pro_beta": args.pro_beta, "note": args.note, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
-    out = {"meta": meta, "runs": []}
+            "pro_beta": args.pro_beta, "eval_every": args.eval_every, "note": args.note, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+    out = {"meta": meta, "runs": resumed(args.json, meta) if args.resume else []}
+    done = {(r["task"], r["optimizer"], r["context"], r["seed"]) for r in out["runs"]}
     for task in args.tasks.split(","):
         tid = task_id(task.strip())
         ev = Episodes(tid, args.workers)
@@ -209,9 +230,12 @@ def main(argv: list[str] | None = None) -> None:
             for name in args.optimizers.split(","):
                 for context in ints(args.contexts):
                     for seed in ints(args.seeds):
+                        if (short_name(tid), name.strip(), context, seed) in done:
+                            continue
                         opt = make_optimizer(name.strip(), n, args.start_std, args.samples, seed, epro=epro,
                                              pro_beta=args.pro_beta)
-                        key = {"task": short_name(tid), "optimizer": name.strip(), "context": context, "seed": seed}
+                        key = {"task": short_name(tid), "optimizer": name.strip(), "context": context, "seed": seed,
+                               "commit": meta["commit"]}
 
                         def progress(partial, key=key):  # the run so far, so a run cut short keeps its curve
                             atomic_write_bytes(args.json, json.dumps({**out, "runs": [*out["runs"], {**key, **partial}]},

@@ -31,7 +31,7 @@ def load(paths: list[str]) -> tuple[list[dict], list[dict]]:
         data = json.loads(Path(p).read_text())
         metas.append(data["meta"])
         for r in data["runs"]:
-            runs.append({**r, "file": Path(p).name, "commit": data["meta"].get("commit", "?")})
+            runs.append({"commit": data["meta"].get("commit", "?"), **r, "file": Path(p).name})  # a run's own commit first
     return runs, metas
 
 
@@ -82,7 +82,8 @@ def summary(runs: list[dict], episodes: int) -> list[str]:
 def curve(runs: list[dict], points: list[int]) -> list[str]:
     groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for r in runs:
-        groups[(r["task"], r["optimizer"])].append(r)
+        if not r.get("partial"):  # a run cut short (still going, or stopped) is not a run of its budget
+            groups[(r["task"], r["optimizer"])].append(r)
     lines = ["| task | optimiser | runs | " + " | ".join(f"{p}" for p in points) + " |",
              "|---|---|---|" + "---|" * len(points)]
     for (task, opt), rs in sorted(groups.items()):
@@ -117,7 +118,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     runs, metas = load(args.files)
     lines = curve(runs, [int(x) for x in args.curve.split(",")]) if args.curve else summary(runs, args.at)
-    commits = sorted({m.get("commit", "?") for m in metas})
+    commits = sorted({r["commit"] for r in runs} or {m.get("commit", "?") for m in metas})
     cmd = "python benchmarks/external/table.py " + shlex.join(sys.argv[1:] if argv is None else argv)
     runs_cmds = sorted({m["command"] for m in metas})
     first = commits[0].split("+")[0]  # the docs' convention (tests/docs_tables.py): commit and command above the table

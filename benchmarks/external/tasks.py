@@ -63,8 +63,9 @@ def patch_via_point_reward() -> None:
     ViaPointReacherEnv._protorch_patched = True
 
 
-def make_env(name: str):
-    """The gymnasium env of a task (warnings of fancy_gym's wrappers silenced)."""
+def make_env(name: str, fast: bool = True):
+    """The gymnasium env of a task (warnings of fancy_gym's wrappers silenced); ``fast``: the same
+    env with its per-step overheads removed (:func:`speed_up`: the same episodes, bit for bit)."""
     import logging
     import warnings
 
@@ -74,7 +75,119 @@ def make_env(name: str):
     import gymnasium as gym
 
     patch_via_point_reward()
-    return gym.make(task_id(name))
+    env = gym.make(task_id(name))
+    return speed_up(env) if fast else env
+
+
+def speed_up(env):
+    """Remove what a reacher episode spends outside its dynamics, without changing any number.
+
+    Profiled (docs/external.md, "The harness's speed"), a ViaPointReacher episode spent about a
+    third of its time in gymnasium 0.29's wrapper attribute look-ups: fancy_gym's black-box wrapper
+    reads ``current_pos`` and ``current_vel`` through ``get_wrapper_attr`` (which builds
+    ``dir(wrapper)``) four times a step, and each read passes three wrappers whose ``__getattr__``
+    formats and issues a deprecation warning (filtered out, but paid for). A third went to the
+    self-collision test, run twice a step on the same state (once by ``step``, again by the reward)
+    with numpy scalars; HoleReacher repeats its wall test the same way. This swaps, per instance,
+    every wrapper's class for a subclass whose look-ups skip the warning and ``dir`` (same answers),
+    and the reacher's class for one that computes each collision test once per state, the
+    self-collision one with fancy_gym's own ``intersect`` on Python floats (the same IEEE double
+    operations). Box pushing keeps its env class (its time is MuJoCo's)."""
+    import gymnasium as gym
+
+    layer = env
+    while isinstance(layer, gym.Wrapper):
+        layer.__class__ = _quiet(type(layer))
+        layer = layer.env
+    base = env.unwrapped
+    if hasattr(base, "_check_self_collision") and hasattr(base, "_joints"):
+        base.__class__ = _memo_collisions(type(base))
+    return env
+
+
+_QUIET: dict[type, type] = {}
+
+
+def _quiet(cls: type) -> type:
+    """``cls`` (a gymnasium Wrapper) with attribute look-ups that skip the deprecation warning and
+    ``dir()``: the same attribute found, the same errors raised."""
+    if getattr(cls, "_protorch_quiet", False):
+        return cls
+    if cls not in _QUIET:
+
+        def __getattr__(self, name):
+            if name.startswith("_"):  # gymnasium's own refusal (private names, _np_random)
+                return cls.__getattr__(self, name)
+            return getattr(self.env, name)
+
+        in_class: dict[str, bool] = {}
+
+        def get_wrapper_attr(self, name):
+            # gymnasium: `name in self.__dir__()`; object.__dir__ lists the instance's __dict__
+            # and the __dict__ of every class of the MRO (fixed once the class is made)
+            if name not in in_class:
+                in_class[name] = any(name in vars(k) for k in type(self).__mro__)
+            if in_class[name] or name in self.__dict__:
+                return getattr(self, name)
+            return self.env.get_wrapper_attr(name)
+
+        import gymnasium as gym
+
+        body = {"_protorch_quiet": True, "__module__": cls.__module__}
+        if cls.__getattr__ is gym.Wrapper.__getattr__:  # a wrapper's own look-up is left alone
+            body["__getattr__"] = __getattr__
+        if cls.get_wrapper_attr is gym.Wrapper.get_wrapper_attr:
+            body["get_wrapper_attr"] = get_wrapper_attr
+        _QUIET[cls] = type(cls.__name__, (cls,), body)
+    return _QUIET[cls]
+
+
+_MEMO: dict[type, type] = {}
+
+
+def _memo_collisions(cls: type) -> type:
+    """``cls`` (a fancy_gym reacher) whose collision tests run once per state: a state is the joint
+    angle array ``step`` has just assigned (a new array every step) at one step count."""
+    if getattr(cls, "_protorch_memo", False):
+        return cls
+    if cls not in _MEMO:
+        from fancy_gym.envs.classic_control.utils import intersect
+
+        def once(self, kind, compute):
+            memo = self.__dict__.setdefault("_protorch_collisions", {})
+            key = (kind, self._steps)
+            hit = memo.get(key)
+            if hit is not None and hit[0] is self._joint_angles:
+                return hit[1]
+            if len(memo) > 8:  # keep only this step's answers
+                memo.clear()
+            value = compute()
+            memo[key] = (self._joint_angles, value)  # holds the array: `is` stays meaningful
+            return value
+
+        def _check_self_collision(self):
+            def compute():
+                if self.allow_self_collision:
+                    return False
+                if np.any(self._joint_angles > self.j_max) or np.any(self._joint_angles < self.j_min):
+                    return True
+                pts = self._joints.tolist()  # (n_links + 1, 2) floats: link i runs pts[i] -> pts[i + 1]
+                n = len(pts) - 1
+                return any(intersect(pts[i], pts[i + 1], pts[j], pts[j + 1]) for i in range(n) for j in range(i + 2, n))
+
+            return once(self, "self", compute)
+
+        body = {"_check_self_collision": _check_self_collision, "_protorch_memo": True, "__module__": cls.__module__}
+        if hasattr(cls, "check_wall_collision"):
+            body["check_wall_collision"] = lambda self: once(self, "wall", lambda: cls.check_wall_collision(self))
+
+        def reset(self, *args, **kwargs):
+            self.__dict__.pop("_protorch_collisions", None)
+            return cls.reset(self, *args, **kwargs)
+
+        body["reset"] = reset
+        _MEMO[cls] = type(cls.__name__, (cls,), body)
+    return _MEMO[cls]
 
 
 @dataclass
@@ -123,19 +236,19 @@ class Episodes:
     """Evaluates batches of weights on one task, in this process (``workers=1``) or spread over a
     pool of processes, each holding its own env."""
 
-    def __init__(self, name: str, workers: int = 1) -> None:
+    def __init__(self, name: str, workers: int = 1, fast: bool = True) -> None:
         self.name = task_id(name)
         self.workers = int(workers)
-        self.env = make_env(self.name) if self.workers <= 1 else None
+        self.env = make_env(self.name, fast) if self.workers <= 1 else None
         self.pool = None
         if self.workers > 1:
             import multiprocessing as mp
 
-            self.pool = mp.get_context("spawn").Pool(self.workers, initializer=_init_worker, initargs=(self.name,))
+            self.pool = mp.get_context("spawn").Pool(self.workers, initializer=_init_worker, initargs=(self.name, fast))
 
     @property
     def num_weights(self) -> int:
-        env = self.env or make_env(self.name)
+        env = self.env or make_env(self.name, fast=False)
         return int(env.action_space.shape[0])
 
     def __call__(self, weights: np.ndarray, context: int, goals=None) -> list[Outcome]:
@@ -155,12 +268,12 @@ class Episodes:
 _ENV = None
 
 
-def _init_worker(name: str) -> None:
+def _init_worker(name: str, fast: bool = True) -> None:
     import os
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     global _ENV
-    _ENV = make_env(name)
+    _ENV = make_env(name, fast)
 
 
 def _worker_episode(weights: np.ndarray, context: int, goal=None) -> Outcome:

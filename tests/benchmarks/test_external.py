@@ -105,6 +105,9 @@ def test_table_reads_each_run_at_the_budget(table, tmp_path):
     assert text.startswith("a\n<!-- t -->\n<!-- measured: commit=abc command=\"python benchmarks/external/table.py ")
     assert "-->\n| task" in text and "old" not in text and text.endswith("<!-- /t -->\nb\n")
     assert "runs at commit(s) abc" in text
+    cut = {**_run("box_pushing", "EPRO", 3, 0, [-100, -90], [False, False]), "partial": True}
+    lines = {line.split(" | ")[1]: line for line in table.curve([*loaded, cut], [0, 200])[2:]}
+    assert "| EPRO | 2 | -205.0 | -140.0 |" in lines["EPRO"]  # the partial run counts nowhere
 
 
 def test_via_point_reacher_returns_are_finite():
@@ -114,3 +117,35 @@ def test_via_point_reacher_returns_are_finite():
     env = make_env("via_point_reacher")
     out = run_episode(env, np.zeros(env.action_space.shape[0]), 1)
     assert math.isfinite(out.ret) and out.ret < 0
+
+
+def test_resume_keeps_finished_runs_of_the_same_settings(run, tmp_path):
+    meta = {"commit": "abc", "episodes": 100, "samples": 20, "start_std": 1.0, "epro": {}, "pro_beta": 0.05}
+    runs = [{"context": 1, "episodes": 100}, {"context": 2, "episodes": 40, "partial": True},
+            {"context": 3, "episodes": 100, "commit": "def"}]
+    path = tmp_path / "r.json"
+    assert run.resumed(str(path), {**meta, "eval_every": 10}) == []  # no file: nothing to keep
+    path.write_text(json.dumps({"meta": meta, "runs": runs}))
+    kept = run.resumed(str(path), {**meta, "commit": "new", "eval_every": 10})  # eval_every unknown to the file
+    assert [(r["context"], r["commit"]) for r in kept] == [(1, "abc"), (3, "def")]  # the partial run is dropped
+    with pytest.raises(SystemExit, match="other settings.*episodes=100"):
+        run.resumed(str(path), {**meta, "episodes": 200, "eval_every": 10})
+
+
+@pytest.mark.parametrize("task", ["via_point_reacher", "hole_reacher"])
+def test_speed_up_keeps_every_episode_bit_for_bit(task):
+    pytest.importorskip("fancy_gym")
+    from tasks import make_env
+
+    plain, fast = make_env(task, fast=False), make_env(task, fast=True)
+    assert type(fast.unwrapped) is not type(plain.unwrapped)  # the sped-up class is in place
+    rng = np.random.default_rng(3)
+    for k in range(12):  # small and large weights: some episodes collide, some do not
+        w = rng.standard_normal(plain.action_space.shape[0]) * (0.3 if k % 2 else 3.0)
+        plain.reset(seed=k % 3)
+        fast.reset(seed=k % 3)
+        a, b = plain.step(w), fast.step(w)
+        assert a[1] == b[1] and np.array_equal(a[0], b[0]) and a[2:4] == b[2:4]
+        assert a[4]["trajectory_length"] == b[4]["trajectory_length"]
+        for key in ("is_success", "is_collided", "end_effector"):
+            assert np.array_equal(np.asarray(a[4][key]), np.asarray(b[4][key]))

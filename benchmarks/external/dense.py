@@ -6,7 +6,7 @@ ProMP tasks, seconds instead of hours (runs in protorch's own venv; no fancy_gym
 A quadratic over ``N = 35`` weights (box pushing's count) that reads every one of them,
 ``c(w) = |A (w - w*)|^2 / N``, ``A = Q diag(s)``, ``Q`` a random rotation, ``s`` log-spaced from 1 to
 ``--cond`` (``cond = 1``: a sphere, where correlated search buys nothing), ``w* ~ N(0, 2^2 I)``,
-the start ``N(0, I)`` as in benchmarks/external/run.py, 20 samples an iteration, ``--episodes``
+the start ``N(0, I)`` as in benchmarks/external/run.py (``--start-std``: others), 20 samples an iteration, ``--episodes``
 evaluations, ``tol = 0``. Per (problem, optimiser): the final mean's cost, the median std of
 the search distribution, and for EPRO how many weights its gate declared read, at a few budgets.
 """
@@ -47,17 +47,19 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--episodes", type=int, default=1600)
     ap.add_argument("--report", default="400,800,1600", help="budgets reported")
     ap.add_argument("--weights", type=int, default=35)
+    ap.add_argument("--start-std", default="1", help="comma-separated start stds (the start N(0, std^2 I))")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     report = ints(args.report)
-    print("| cond | problem | optimiser | " + " | ".join(f"cost at {b}" for b in report)
+    stds = [float(v) for v in args.start_std.split(",")]
+    print("| cond | problem | start std | optimiser | " + " | ".join(f"cost at {b}" for b in report)
           + " | median std at the end | read weights at the end |")
-    print("|---|---|---|" + "---|" * len(report) + "---|---|")
+    print("|---|---|---|---|" + "---|" * len(report) + "---|---|")
     for cond in [float(c) for c in args.cond.split(",")]:
         for seed in ints(args.problems):
             f, _ = problem(seed, args.weights, cond)
-            for name in args.optimizers.split(","):
-                opt = make_optimizer(name, args.weights, 1.0, 20, seed)
+            for std, name in [(s, n) for s in stds for n in args.optimizers.split(",")]:
+                opt = make_optimizer(name, args.weights, std, 20, seed)
                 used, costs = 0, {}
                 while used + 20 <= args.episodes:
                     w = opt.ask()  # (S, N)
@@ -67,7 +69,7 @@ def main(argv: list[str] | None = None) -> None:
                         costs[used] = float(f(opt.mean[0]))
                 d = diagnostics(opt)
                 cells = " | ".join(f"{costs[b]:.4f}" if b in costs else "-" for b in report)
-                print(f"| {cond:g} | {seed} | {name} | {cells} | {d['std_median']:.3f} | {d.get('read', '-')} |", flush=True)
+                print(f"| {cond:g} | {seed} | {std:g} | {name} | {cells} | {d['std_median']:.3f} | {d.get('read', '-')} |", flush=True)
 
 
 if __name__ == "__main__":

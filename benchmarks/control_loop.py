@@ -29,6 +29,12 @@ between consecutive calls, against the same with the offset off (``blend=inf``: 
 
 ``--check on,off`` times the class choice with and without its plan check (the run's
 ``dynamic.check``, on by default: :func:`protorch.control.arm_choice.rest_blocked`) side by side.
+
+``--aoti``: also the program ``policy.export(path, aoti=True)`` writes (AOTInductor, compiled on
+this machine; the compile time is printed), loaded with ``torch._inductor.aoti_load_package`` and
+called on the same environments and times: every call chooses the class afresh (no hysteresis, no
+neighbour set kept), so its cost hardly depends on the call. Its largest difference from
+``reset(); reference(env, t)`` over 200 calls is printed first.
 """
 
 from __future__ import annotations
@@ -86,6 +92,46 @@ def time_calls(policy, envs: torch.Tensor) -> tuple[list[float], list[float], in
     return ts, cpu, policy.means.misses - misses0
 
 
+def time_aoti(policy, kinds: list[str], calls: int) -> None:
+    """The AOTInductor-compiled program of ``policy`` (module docstring, ``--aoti``)."""
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        path = policy.export(Path(tmp) / "policy_aoti.pt2", aoti=True)
+        compile_s = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        program = torch._inductor.aoti_load_package(str(path))
+        load_s = time.perf_counter() - t0
+    envs = environments(policy, 200, "jumping", seed=1)
+    worst, differ = 0.0, 0
+    for i in range(envs.shape[0]):
+        t = 0.0075 * i
+        out = program(envs[i], torch.tensor(t, dtype=torch.float64))
+        policy.reset()
+        r = policy.reference(envs[i], t)
+        worst = max(worst, *(float((a - b).abs().max()) for a, b in zip(out[:3], (r.q, r.qd, r.qdd))))
+        differ += int(out[3]) != r.label
+    print(f"aoti: export + compile {compile_s:.0f} s, load {load_s:.2f} s; against reset(); reference(): largest "
+          f"difference {worst:.2g}, class differs at {differ} of {envs.shape[0]} calls")
+    period = int(round((policy.duration + 1.0) * 1000))
+    for kind in kinds:
+        envs = environments(policy, calls, kind)
+        ts, cpu = [], []
+        for i in range(envs.shape[0]):
+            t = torch.tensor((i % period) * 1e-3, dtype=torch.float64)
+            c0, t0 = time.thread_time(), time.perf_counter()
+            program(envs[i], t)
+            ts.append(time.perf_counter() - t0)
+            cpu.append(time.thread_time() - c0)
+        for what, xs in (("wall", ts), ("cpu", cpu)):
+            ms = [x * 1e3 for x in xs]
+            print(f"  {kind:8s} {what:4s} {len(ms)} calls: median {_percentile(ms, 0.5):.3f} ms, "
+                  f"p99 {_percentile(ms, 0.99):.3f} ms, max {max(ms):.3f} ms, first {ms[0]:.3f} ms")
+        print(f"  {kind:8s} load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+
+
 def continuity(run: str, episodes: int) -> None:
     from omegaconf import OmegaConf
 
@@ -139,6 +185,8 @@ def main() -> None:
     ap.add_argument("--kinds", default="moving,jumping")
     ap.add_argument("--check", default="run",
                     help="the class choice's plan check: run (the run's dynamic.check), or on,off (both, side by side)")
+    ap.add_argument("--aoti", action="store_true",
+                    help="also the AOTInductor-compiled exported program (the first backend's map)")
     ap.add_argument("--continuity", type=int, default=0, metavar="EPISODES",
                     help="also the continuity over this many switching episodes of the moving test")
     args = ap.parse_args()
@@ -163,6 +211,8 @@ def main() -> None:
             swaps = getattr(policy.means, "updates", 0) - swaps0
             print(f"  {kind:8s} new neighbour sets solved at {misses / len(ts):.1%} of the calls ({swaps / len(ts):.1%} "
                   f"by a swap update); load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    if args.aoti:
+        time_aoti(protorch.load(args.run, backend=args.backends.split(",")[0]), args.kinds.split(","), args.calls)
     if args.continuity:
         continuity(args.run, args.continuity)
 

@@ -39,7 +39,6 @@ backwards within a motion (a smaller ``t`` than the last is taken as the last).
 from __future__ import annotations
 
 import bisect
-import io
 import math
 from pathlib import Path
 from typing import NamedTuple
@@ -47,11 +46,10 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from ..data.files import atomic_write_bytes
 from ..gp.model import EnvToProMP, label_aware_mean
 from ..tasks.arm.reach import ArmReachTask
 from .arm_choice import Follow, checked_choice, hysteresis_choice, rest_scores
-from .policy_export import ExportProgram
+from .policy_export import write_program
 from .policy_means import ClassMeans, EndEffector, basis3
 
 __all__ = ["Policy", "Reference", "ClassMeans", "DEFAULT_BLEND"]
@@ -352,7 +350,7 @@ class Policy(EnvToProMP):
         return torch.tensor(m[:rows], dtype=torch.float64, device=self._device)
 
     # ----------------------------------------------------------------- out of Python
-    def export(self, path) -> "Path":
+    def export(self, path, *, aoti: bool = False) -> "Path":
         """Write the per-call computation as a ``torch.export`` program (``.pt2``) that runs
         without protorch: ``torch.export.load(path).module()(env, t)`` with ``env`` a float64
         ``(env_dim,)`` tensor and ``t`` a float64 0-d tensor returns ``(q, qd, qdd (D,), label
@@ -362,21 +360,15 @@ class Policy(EnvToProMP):
         data (with ``nearest_k``: each call finds the neighbours and solves, as the map does,
         without the jitter retry of a factor that fails), the ProMP's basis and, for the arm, the
         objectives of the rest of the motion for every phase slot of the objectives' grid. Inputs
-        are not checked by the program. Written atomically."""
+        are not checked by the program. Written atomically.
+
+        ``aoti=True``: the program compiled ahead of time by AOTInductor into a package (minutes
+        for an arm map) that ``torch._inductor.aoti_load_package(path)`` runs from Python, and
+        libtorch's ``torch::inductor::AOTIModelPackageLoader`` from C++, on a machine of this
+        one's kind (:func:`~protorch.control.policy_export.write_program`)."""
         if self.labels.numel() > 1 and self.task is None:
             raise ValueError("this map has several classes: exporting the class choice needs the run's task")
-        program = ExportProgram(self)
-        env = self.env_map.E[0].to(torch.float64)
-        args = (env, torch.tensor(0.5 * self.duration, dtype=torch.float64))
-        try:
-            ep = torch.export.export(program, args, strict=False)
-        except Exception as exc:
-            raise RuntimeError(f"torch.export could not trace this policy ({type(exc).__name__}: "
-                               f"{str(exc).splitlines()[0] if str(exc) else ''}); a task's costs must be traceable "
-                               "(no Python branches on tensor values)") from exc
-        buf = io.BytesIO()
-        torch.export.save(ep, buf)
-        return atomic_write_bytes(Path(path), buf.getvalue())
+        return write_program(self, Path(path), aoti=aoti)
 
     # ----------------------------------------------------------------- whole trajectories
     def mean_trajectory(self, env: Tensor, labels=None) -> Tensor:

@@ -4,16 +4,20 @@ reference at a time) with static shapes only, for ``torch.export``."""
 
 from __future__ import annotations
 
+import io
+from pathlib import Path
+
 import torch
 from torch import Tensor
 
+from ..data.files import atomic_write_bytes
 from ..gp.kernels import rbf
 from ..tasks.arm.collision import capsule_ends
 from ..tasks.arm.geometry import segment_cylinder_distance
 from .arm_choice import rest_scores
 from .policy_means import basis3
 
-__all__ = ["ExportProgram", "static_gaps"]
+__all__ = ["ExportProgram", "static_gaps", "write_program"]
 
 
 def static_gaps(task, q: Tensor, env: Tensor) -> Tensor:
@@ -23,7 +27,7 @@ def static_gaps(task, q: Tensor, env: Tensor) -> Tensor:
     compiled chain, equal to the task's to round-off)."""
     if getattr(task, "capsule_plan", None) is None:  # the skeleton
         return task.skeleton_distance(task.kinematics.skeleton(q)[..., None, :, :], env) - task.can_radius
-    a, b = capsule_ends(task.kinematics, q, task.capsule_plan)  # (..., C, 3)
+    a, b = capsule_ends(task.kinematics, q, task.capsule_plan, functional=True)  # (..., C, 3), no slice written in place
     axis = env[..., None, 0:2]  # (..., 1, 2)
     d = segment_cylinder_distance(a, b, axis, task.can_radius, 0.0, task.can_height)  # (..., C)
     return (d - task.capsule_radii.to(d)).amin(-1)
@@ -112,3 +116,24 @@ class ExportProgram(torch.nn.Module):
         phi = torch.cat([phi[:1], phi[1:] * moving])  # held at the end: no velocity, no acceleration
         state = phi @ w.unflatten(-1, (p._d, p._kb)).T  # (3, D)
         return state[0], state[1], state[2], self.labels[c]
+
+
+def write_program(policy, path: Path, aoti: bool = False) -> Path:
+    """:meth:`~protorch.control.policy.Policy.export`: trace :class:`ExportProgram` with
+    ``torch.export`` (at the map's first environment and mid-motion) and write it to ``path``
+    atomically; ``aoti``: compiled by AOTInductor into a package first (its shared library is
+    built for this machine's kind of processor, and for the torch version that built it)."""
+    program = ExportProgram(policy)
+    args = (policy.env_map.E[0].to(torch.float64), torch.tensor(0.5 * policy.duration, dtype=torch.float64))
+    try:
+        ep = torch.export.export(program, args, strict=False)
+    except Exception as exc:
+        raise RuntimeError(f"torch.export could not trace this policy ({type(exc).__name__}: "
+                           f"{str(exc).splitlines()[0] if str(exc) else ''}); a task's costs must be traceable "
+                           "(no Python branches on tensor values)") from exc
+    buf = io.BytesIO()
+    if aoti:
+        torch._inductor.aoti_compile_and_package(ep, package_path=buf)
+    else:
+        torch.export.save(ep, buf)
+    return atomic_write_bytes(path, buf.getvalue())

@@ -271,19 +271,22 @@ class ArmKinematics(nn.Module):
         back = None if order == list(range(len(frames))) else torch.tensor(order).argsort()
         return PointPlan(start, after, back)
 
-    def carry_points(self, q: Tensor, plan: "PointPlan") -> Tensor:
+    def carry_points(self, q: Tensor, plan: "PointPlan", *, functional: bool = False) -> Tensor:
         """The points of ``plan`` (:meth:`point_plan`) at joints ``q (..., J)``: ``(..., M, 3)`` in
         the root frame, in the plan's order of points, by the compiled path: every point carried
         back through the joints before its frame only, all points at once (ordered by frame, the
         points after joint ``k`` are a suffix: one slice per joint). Any floating dtype; the shape
-        is checked, the values are not."""
+        is checked, the values are not. ``functional``: the suffixes joined by ``torch.cat``
+        instead of written into slices (the same numbers to the bit; what ``torch.export`` and
+        AOTInductor need, which refuse a slice written in place)."""
         q = self.check_joints(q, finite=False)
-        return self._stack_rows(q, *self.carry_points_rows(q, plan))
+        return self._stack_rows(q, *self.carry_points_rows(q, plan, functional=functional))
 
-    def carry_points_rows(self, q: Tensor, plan: "PointPlan") -> tuple[Tensor, Tensor, Tensor]:
+    def carry_points_rows(self, q: Tensor, plan: "PointPlan", *, functional: bool = False
+                          ) -> tuple[Tensor, Tensor, Tensor]:
         """:meth:`carry_points` component-major over the flattened batch ``P``: ``x, y, z (M, P)``."""
         q = self.check_joints(q, finite=False)
-        x, y, z = self._carry_rows(q, plan.start.to(q), plan.after)
+        x, y, z = self._carry_rows(q, plan.start.to(q), plan.after, functional)
         if plan.back is None:
             return x, y, z
         back = plan.back.to(q.device)
@@ -295,19 +298,25 @@ class ArmKinematics(nn.Module):
         ``(..., M, 3)``."""
         return torch.stack([x, y, z], -1).transpose(0, 1).reshape(*q.shape[:-1], x.shape[0], 3)
 
-    def _carry_rows(self, q: Tensor, pts: Tensor, after: Sequence[int]) -> tuple[Tensor, Tensor, Tensor]:
+    def _carry_rows(self, q: Tensor, pts: Tensor, after: Sequence[int], functional: bool = False
+                    ) -> tuple[Tensor, Tensor, Tensor]:
         """Points ``pts (M, 3)``, each in the frame after its last joint's rotation and ordered by
         that joint (``after[k]``: the first point after joint ``k``), at ``q (..., J)``: their rows
-        ``x, y, z (M, P)``."""
+        ``x, y, z (M, P)``. ``functional``: no tensor written in place (:meth:`carry_points`)."""
         qt = q.reshape(-1, self.num_joints).T  # (J, P)
         c, s = torch.cos(qt), torch.sin(qt)  # (J, P)
-        x, y, z = (pts[:, i, None].expand(-1, qt.shape[1]).clone() for i in range(3))  # (M, P)
+        x, y, z = (pts[:, i, None].expand(-1, qt.shape[1]) for i in range(3))  # (M, P)
+        if not functional:
+            x, y, z = x.clone(), y.clone(), z.clone()
         for k, lo in reversed(list(enumerate(after))):  # lo: the first point after joint k
             if lo >= pts.shape[0]:
                 continue
             xs, ys = c[k] * x[lo:] - s[k] * y[lo:], s[k] * x[lo:] + c[k] * y[lo:]  # (M - lo, P)
             xs, ys, zs = self._affine(k, xs, ys, z[lo:])
-            x[lo:], y[lo:], z[lo:] = xs, ys, zs
+            if functional:
+                x, y, z = (torch.cat([v[:lo], w]) for v, w in ((x, xs), (y, ys), (z, zs)))
+            else:
+                x[lo:], y[lo:], z[lo:] = xs, ys, zs
         return x, y, z
 
     def jacobian_pose(self, q: Tensor) -> tuple[Tensor, Tensor]:

@@ -122,6 +122,25 @@ def test_the_exported_arm_program_runs_without_protorch_and_equals_reference(pol
     check_export(policy, tmp_path, envs, calls=300)
 
 
+def test_the_exported_volume_program_writes_nothing_in_place(policy, tmp_path, monkeypatch):
+    """With the link volumes and the plan check the exported graph holds no in-place operation:
+    AOTInductor (``export(aoti=True)``) refuses a graph that writes into a slice of a constant."""
+    volume = Policy(policy._P, policy.env_map, "arm_reach", task=ArmReachTask(cost_steps=6, collision="volume"),
+                    duration=1.5, switch_margin=0.02, decision_dt=0.02)
+    monkeypatch.setattr(volume, "check", True)
+    program = torch.export.load(volume.export(tmp_path / "volume.pt2"))
+    mutating = sorted({str(n.target) for n in program.graph.nodes if n.op == "call_function"
+                       and getattr(getattr(n.target, "_schema", None), "is_mutable", False)})
+    assert not mutating, f"in-place operations in the exported graph: {mutating}"
+    module = program.module()
+    for env in volume.task.sample_envs(20, torch.Generator().manual_seed(5)):
+        volume.reset()
+        r = volume.reference(env, 0.4)
+        q, qd, qdd, label = module(env, torch.tensor(0.4, dtype=F64))
+        torch.testing.assert_close(q, r.q, rtol=0, atol=1e-9)
+        assert int(label) == r.label
+
+
 def _example():
     spec = importlib.util.spec_from_file_location("control_loop_example", ROOT / "examples" / "control_loop.py")
     mod = importlib.util.module_from_spec(spec)

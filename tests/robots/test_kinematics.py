@@ -226,6 +226,9 @@ def test_carried_points_equal_the_full_chains_frames(robot, gen):
     assert torch.allclose(k.carry_points(q.float(), plan).double(), ends, atol=2e-5)
     x, y, z = k.carry_points_rows(q, plan)  # (2C, P) component-major
     assert torch.equal(torch.stack([x, y, z], -1).transpose(0, 1).reshape(ends.shape), ends)
+    # the functional path (torch.cat, nothing written in place: what AOTInductor compiles) to the bit
+    assert torch.equal(k.carry_points(q, plan, functional=True), ends)
+    assert torch.equal(k.carry_points(q.float(), plan, functional=True), k.carry_points(q.float(), plan))
     with pytest.raises(ValueError, match="no frame 'nope'"):
         k.point_plan(["nope"], torch.zeros(1, 3))
     with pytest.raises(ValueError, match=r"points must be \(2, 3\)"):

@@ -87,12 +87,12 @@ def capsule_plan(kinematics, capsules) -> PointPlan:
     return kinematics.point_plan(links + links, pts)
 
 
-def capsule_ends(kinematics, traj: Tensor, plan: PointPlan) -> tuple[Tensor, Tensor]:
+def capsule_ends(kinematics, traj: Tensor, plan: PointPlan, *, functional: bool = False) -> tuple[Tensor, Tensor]:
     """The capsules of ``plan`` (:func:`capsule_plan`) placed at joints ``traj (..., J)``: ``a``,
     ``b`` ``(..., C, 3)`` in the base frame, by the compiled kinematics (equal to
     :func:`~protorch.robots.capsule_segments` of the chain's frames to round-off, several times
-    cheaper)."""
-    ends = kinematics.carry_points(traj, plan)  # (..., 2C, 3)
+    cheaper); ``functional``: nothing written in place (for ``torch.export``, the same numbers)."""
+    ends = kinematics.carry_points(traj, plan, functional=functional)  # (..., 2C, 3)
     c = ends.shape[-2] // 2
     return ends[..., :c, :], ends[..., c:, :]
 

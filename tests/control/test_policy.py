@@ -6,6 +6,7 @@ runs without protorch and equals policy.reference."""
 from __future__ import annotations
 
 import math
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -238,3 +239,24 @@ def check_export(pol: Policy, tmp_path: Path, envs: torch.Tensor, calls: int = 1
 def test_the_exported_program_runs_without_protorch_and_equals_reference(tmp_path, nearest_k):
     pol = toy_policy(nearest_k)
     check_export(pol, tmp_path, torch.rand(300, 2, generator=torch.Generator().manual_seed(4), dtype=F64), calls=300)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("c++") is None and shutil.which("g++") is None,
+                    reason="AOTInductor compiles C++: no compiler on this machine")
+def test_the_aoti_compiled_program_equals_reference(tmp_path):
+    """``export(aoti=True)``: the package AOTInductor builds, loaded by torch alone, gives the
+    reference and the class of ``reset(); reference(env, t)`` (the hold included)."""
+    pol = toy_policy(8)
+    program = torch._inductor.aoti_load_package(str(pol.export(tmp_path / "policy_aoti.pt2", aoti=True)))
+    g = torch.Generator().manual_seed(6)
+    labels = set()
+    for env, t in zip(torch.rand(100, 2, generator=g, dtype=F64), 1.3 * pol.duration * torch.rand(100, generator=g, dtype=F64)):
+        q, qd, qdd, label = program(env, t)
+        pol.reset()
+        r = pol.reference(env, float(t))
+        for got, want in ((q, r.q), (qd, r.qd), (qdd, r.qdd)):
+            torch.testing.assert_close(got, want, rtol=0, atol=1e-9)
+        assert int(label) == r.label
+        labels.add(r.label)
+    assert labels == {0, 1}

@@ -277,8 +277,8 @@ class ArmKinematics(nn.Module):
         back through the joints before its frame only, all points at once (ordered by frame, the
         points after joint ``k`` are a suffix: one slice per joint). Any floating dtype; the shape
         is checked, the values are not. ``functional``: the suffixes joined by ``torch.cat``
-        instead of written into slices (the same numbers to the bit; what ``torch.export`` and
-        AOTInductor need, which refuse a slice written in place)."""
+        instead of written into slices (the same numbers to the bit; what AOTInductor needs to
+        compile an exported program, it refuses a slice of a constant written in place)."""
         q = self.check_joints(q, finite=False)
         return self._stack_rows(q, *self.carry_points_rows(q, plan, functional=functional))
 

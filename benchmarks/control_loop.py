@@ -75,6 +75,14 @@ def environments(policy, calls: int, kind: str, seed: int = 0) -> torch.Tensor:
     return out
 
 
+def print_times(kind: str, ts: list[float], cpu: list[float]) -> None:
+    """Median, p99, max and first of the calls' wall-clock and CPU seconds, in ms."""
+    for what, xs in (("wall", ts), ("cpu", cpu)):
+        ms = [x * 1e3 for x in xs]
+        print(f"  {kind:8s} {what:4s} {len(ms)} calls: median {_percentile(ms, 0.5):.3f} ms, "
+              f"p99 {_percentile(ms, 0.99):.3f} ms, max {max(ms):.3f} ms, first {ms[0]:.3f} ms")
+
+
 def time_calls(policy, envs: torch.Tensor) -> tuple[list[float], list[float], int]:
     """Wall-clock and CPU seconds (this thread's: what a call costs when its core is free) of each call."""
     period = int(round((policy.duration + 1.0) * 1000))
@@ -125,10 +133,7 @@ def time_aoti(policy, kinds: list[str], calls: int) -> None:
             program(envs[i], t)
             ts.append(time.perf_counter() - t0)
             cpu.append(time.thread_time() - c0)
-        for what, xs in (("wall", ts), ("cpu", cpu)):
-            ms = [x * 1e3 for x in xs]
-            print(f"  {kind:8s} {what:4s} {len(ms)} calls: median {_percentile(ms, 0.5):.3f} ms, "
-                  f"p99 {_percentile(ms, 0.99):.3f} ms, max {max(ms):.3f} ms, first {ms[0]:.3f} ms")
+        print_times(kind, ts, cpu)
         print(f"  {kind:8s} load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
 
 
@@ -204,10 +209,7 @@ def main() -> None:
             policy.reset()
             swaps0 = getattr(policy.means, "updates", 0)
             ts, cpu, misses = time_calls(policy, envs)
-            for what, xs in (("wall", ts), ("cpu", cpu)):
-                ms = [x * 1e3 for x in xs]
-                print(f"  {kind:8s} {what:4s} {len(ms)} calls: median {_percentile(ms, 0.5):.3f} ms, "
-                      f"p99 {_percentile(ms, 0.99):.3f} ms, max {max(ms):.3f} ms, first {ms[0]:.3f} ms")
+            print_times(kind, ts, cpu)
             swaps = getattr(policy.means, "updates", 0) - swaps0
             print(f"  {kind:8s} new neighbour sets solved at {misses / len(ts):.1%} of the calls ({swaps / len(ts):.1%} "
                   f"by a swap update); load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")

@@ -57,19 +57,22 @@ def one_run(name: str, device: str, dtype: str, threads: int) -> tuple[dict, flo
     return flat, seconds
 
 
-def agreement(ref: dict, other: dict) -> tuple[int, int, int]:
-    """``(equal, rates within 0.05, compared)`` over the numeric metrics both runs hold."""
-    equal = close = n = 0
+def agreement(ref: dict, other: dict) -> tuple[int, int, int, int]:
+    """``(equal, compared, rates within 0.05, rates)`` over the numeric metrics of ``ref``
+    (``compared``: those ``other`` holds too; ``rates``: the rates and successes among them)."""
+    equal = n = close = rates = 0
     for k, v in ref.items():
-        w = other.get(k)
-        if not isinstance(v, (int, float)) or isinstance(v, bool) or not isinstance(w, (int, float)):
+        if not isinstance(v, (int, float)) or isinstance(v, bool):
             continue
-        if isinstance(v, float) and math.isnan(v):
+        rate = "rate" in k or "success" in k
+        rates += rate
+        w = other.get(k)
+        if not isinstance(w, (int, float)) or (isinstance(v, float) and math.isnan(v)):
             continue
         n += 1
         equal += v == w
-        close += ("rate" in k or "success" in k) and abs(float(v) - float(w)) <= 0.05
-    return equal, close, n
+        close += rate and abs(float(v) - float(w)) <= 0.05
+    return equal, n, close, rates
 
 
 def main() -> None:
@@ -98,9 +101,7 @@ def main() -> None:
             for dt in dtypes:
                 flat, sec = one_run(name, d, dt, args.threads)
                 ref = flat if ref is None else ref
-                eq, close, n = agreement(ref, flat)
-                rates = sum(1 for k, v in ref.items() if ("rate" in k or "success" in k)
-                            and isinstance(v, (int, float)) and not isinstance(v, bool))
+                eq, n, close, rates = agreement(ref, flat)
                 print(f"{d:<8}{dt:<9}{sec:>9.1f}" + "".join(f"{flat.get(k, float('nan')):>24.3f}" for k in keys)
                       + f"{f'{eq} / {n}':>22}{f'{close} / {rates}':>19}", flush=True)
                 out[f"{name}/{d}/{dt}"] = {"seconds": sec, "metrics": flat}

@@ -2,7 +2,8 @@
 (on demand: ``python benchmarks/arm_volume.py [--quick] [--threads 1]``).
 
 Each row times the same computation two ways on the same inputs (median of ``--repeats``
-calls, one thread by default) and prints their ratio and the largest difference of the results:
+calls, the two ways taking turns call by call, one thread by default) and prints their ratio and
+the largest difference of the results:
 
 1. the robot's capsules placed at ``400 x 100`` float64 configurations: ``pytorch_kinematics``'
    frames + ``capsule_segments`` against the compiled chain (``ArmKinematics.carry_points``);
@@ -12,7 +13,9 @@ calls, one thread by default) and prints their ratio and the largest difference 
 4. the end link's Jacobian and pose of 2000 configurations: ``pytorch_kinematics`` against
    ``ArmKinematics.jacobian_pose``;
 5. the detour priors' IK of 200 paths x 100 steps: ``follow_path`` with the chain's Jacobian
-   against the compiled one.
+   against the compiled one;
+6. the volume gap and table check of as many trajectories as the detour priors check (2,000 x 100
+   steps, float64): in one call against ``joints_clearance``'s pieces (bit-equal: 0).
 
 ``--quick``: small sizes (a check that the script runs, not a measurement).
 """
@@ -27,20 +30,24 @@ import torch
 
 from protorch.robots import capsule_segments
 from protorch.tasks import ArmReachTask
-from protorch.tasks.arm.collision import above_table, capsule_ends, capsules_gap
+from protorch.tasks.arm import collision
+from protorch.tasks.arm.collision import above_table, capsule_ends, capsules_gap, joints_clearance
 from protorch.tasks.arm.demos import detour_paths, follow_path
 from protorch.tasks.arm.geometry import segment_cylinder_distance
 
 
-def timed(fn, repeats: int):
-    """``(median seconds, result)`` of ``repeats`` calls after one warm-up call."""
-    out = fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), out
+def timed(old, new, repeats: int):
+    """``(median seconds, result)`` of ``old`` and of ``new``: ``repeats`` calls each after one
+    warm-up call, taking turns (``old`` first on even repeats, ``new`` first on odd ones), so that
+    on a machine with other work both see the same load."""
+    outs = (old(), new())
+    times: tuple[list[float], list[float]] = ([], [])
+    for i in range(repeats):
+        for j in ((0, 1) if i % 2 == 0 else (1, 0)):
+            t0 = time.perf_counter()
+            (old, new)[j]()
+            times[j].append(time.perf_counter() - t0)
+    return [(statistics.median(t), out) for t, out in zip(times, outs)]
 
 
 def diff(a, b) -> float:
@@ -52,8 +59,7 @@ def diff(a, b) -> float:
 
 
 def row(name: str, old, new, repeats: int) -> None:
-    t_old, r_old = timed(old, repeats)
-    t_new, r_new = timed(new, repeats)
+    (t_old, r_old), (t_new, r_new) = timed(old, new, repeats)
     print(f"{name:52s} {1e3 * t_old:9.1f} ms {1e3 * t_new:9.1f} ms {t_old / t_new:6.1f}x   "
           f"largest difference {diff(r_old, r_new):.1e}", flush=True)
 
@@ -102,6 +108,13 @@ def main(argv=None) -> None:
     detours = detour_paths(task, task.sample_envs(paths, gen), 0, 0.18, 100)  # (paths, 100, 3)
     row(f"detour IK, {paths} paths x 100 steps", lambda: follow_path(task, detours)[0],
         lambda: follow_path(task, detours, compiled=True)[0], max(1, a.repeats // 5))
+    many = 200 if a.quick else 2000
+    if a.quick:  # pieces of 64 trajectories, so that the small check too is taken in pieces
+        collision.CLEARANCE_CHUNK = 64 * steps
+    q_many = task.start_config() + 0.3 * torch.randn(many, steps, kin.num_joints, generator=gen, dtype=torch.float64)
+    env_many = task.sample_envs(many, gen)
+    row(f"volume gap and table, {many} x {steps} (one call / pieces)", lambda: collision._clearance(task, q_many, env_many),
+        lambda: joints_clearance(task, q_many, env_many), a.repeats)
 
 
 if __name__ == "__main__":

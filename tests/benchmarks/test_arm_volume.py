@@ -1,5 +1,6 @@
-"""benchmarks/arm_volume.py at its quick sizes: every row runs, the pruned gap and the success
-verdicts equal the implementations they replace, the placed capsules and the Jacobian to round-off."""
+"""benchmarks/arm_volume.py at its quick sizes: every row runs, the pruned gap, the success
+verdicts and the check in pieces equal the implementations they replace, the placed capsules and
+the Jacobian to round-off."""
 
 from __future__ import annotations
 
@@ -12,11 +13,17 @@ from tests.benchmarks import benchmark_module
 
 @pytest.mark.slow
 def test_the_volume_pieces_agree_with_what_they_replace(capsys):
-    with benchmark_module("arm_volume.py", "_arm_volume") as bench:
-        bench.main(["--quick", "--repeats", "1"])
+    from protorch.tasks.arm import collision
+
+    chunk = collision.CLEARANCE_CHUNK
+    try:
+        with benchmark_module("arm_volume.py", "_arm_volume") as bench:
+            bench.main(["--quick", "--repeats", "1"])
+    finally:
+        collision.CLEARANCE_CHUNK = chunk  # --quick makes the pieces small
     rows = [line for line in capsys.readouterr().out.splitlines() if "largest difference" in line]
-    assert len(rows) == 5
+    assert len(rows) == 6
     worst = {line.split("  ")[0].strip(): float(re.search(r"largest difference (\S+)", line).group(1)) for line in rows}
     by = lambda key: next(v for k, v in worst.items() if k.startswith(key))  # noqa: E731
-    assert by("their gap") == 0.0 and by("the volume success check") == 0.0
+    assert by("their gap") == 0.0 and by("the volume success check") == 0.0 and by("volume gap and table") == 0.0
     assert by("capsules placed") < 1e-12 and by("Jacobian") < 1e-12 and by("detour IK") < 1e-9

@@ -137,6 +137,17 @@ def time_aoti(policy, kinds: list[str], calls: int) -> None:
         print(f"  {kind:8s} load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
 
 
+def reversed_switches(labels: torch.Tensor, within: int = 3) -> tuple[int, int]:
+    """Class switches undone within ``within`` decisions (a flicker) in ``labels (E, S)`` (the class
+    at every control step of every episode): their count and the episodes they are in."""
+    count, episodes = 0, 0
+    for row in labels.tolist():
+        at = [s for s in range(1, len(row)) if row[s] != row[s - 1]]
+        n = sum(b - a <= within for a, b in zip(at, at[1:]))
+        count, episodes = count + n, episodes + (n > 0)
+    return count, episodes
+
+
 def continuity(run: str, episodes: int) -> None:
     from omegaconf import OmegaConf
 
@@ -157,9 +168,11 @@ def continuity(run: str, episodes: int) -> None:
         for s in range(res.q.shape[1]):
             mismatched += policy.reference(res.envs[e, s], s * res.dt, res.q[e, s], res.qd[e, s]).label \
                 != int(res.labels[e, s])
+    back, where = reversed_switches(res.labels)
     print(f"moving test of {run}: {res.q.shape[0]} episodes, {int(res.switches.sum())} class switches in "
-          f"{int((res.switches > 0).sum())} episodes, {int(res.moves.sum())} moves; the policy's class differs from "
-          f"the test's at {mismatched} of {res.labels.numel()} instants")
+          f"{int((res.switches > 0).sum())} episodes ({back} undone within 3 decisions, in {where} episodes), "
+          f"{int(res.moves.sum())} moves; the policy's class differs from the test's at {mismatched} of "
+          f"{res.labels.numel()} instants")
     # at 1 kHz through the episodes with a switch (the environment and joints of the test's instant)
     chosen = torch.nonzero(res.switches > 0).flatten()[:episodes].tolist()
     per = int(round(res.dt * 1000))

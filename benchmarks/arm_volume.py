@@ -30,8 +30,13 @@ import torch
 
 from protorch.robots import capsule_segments
 from protorch.tasks import ArmReachTask
-from protorch.tasks.arm import collision
-from protorch.tasks.arm.collision import above_table, capsule_ends, capsules_gap, joints_clearance
+from protorch.tasks.arm.collision import (
+    CLEARANCE_CHUNK,
+    above_table,
+    capsule_ends,
+    capsules_gap,
+    joints_clearance,
+)
 from protorch.tasks.arm.demos import detour_paths, follow_path
 from protorch.tasks.arm.geometry import segment_cylinder_distance
 
@@ -109,12 +114,12 @@ def main(argv=None) -> None:
     row(f"detour IK, {paths} paths x 100 steps", lambda: follow_path(task, detours)[0],
         lambda: follow_path(task, detours, compiled=True)[0], max(1, a.repeats // 5))
     many = 200 if a.quick else 2000
-    if a.quick:  # pieces of 64 trajectories, so that the small check too is taken in pieces
-        collision.CLEARANCE_CHUNK = 64 * steps
+    chunk = 64 * steps if a.quick else CLEARANCE_CHUNK  # --quick: pieces of 64, so that the small check is cut too
     q_many = task.start_config() + 0.3 * torch.randn(many, steps, kin.num_joints, generator=gen, dtype=torch.float64)
     env_many = task.sample_envs(many, gen)
-    row(f"volume gap and table, {many} x {steps} (one call / pieces)", lambda: collision._clearance(task, q_many, env_many),
-        lambda: joints_clearance(task, q_many, env_many), a.repeats)
+    row(f"volume gap and table, {many} x {steps} (one call / pieces)",
+        lambda: joints_clearance(task, q_many, env_many, chunk=None),
+        lambda: joints_clearance(task, q_many, env_many, chunk=chunk), a.repeats)
 
 
 if __name__ == "__main__":

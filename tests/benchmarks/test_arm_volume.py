@@ -13,14 +13,8 @@ from tests.benchmarks import benchmark_module
 
 @pytest.mark.slow
 def test_the_volume_pieces_agree_with_what_they_replace(capsys):
-    from protorch.tasks.arm import collision
-
-    chunk = collision.CLEARANCE_CHUNK
-    try:
-        with benchmark_module("arm_volume.py", "_arm_volume") as bench:
-            bench.main(["--quick", "--repeats", "1"])
-    finally:
-        collision.CLEARANCE_CHUNK = chunk  # --quick makes the pieces small
+    with benchmark_module("arm_volume.py", "_arm_volume") as bench:
+        bench.main(["--quick", "--repeats", "1"])
     rows = [line for line in capsys.readouterr().out.splitlines() if "largest difference" in line]
     assert len(rows) == 6
     worst = {line.split("  ")[0].strip(): float(re.search(r"largest difference (\S+)", line).group(1)) for line in rows}

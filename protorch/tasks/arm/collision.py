@@ -189,19 +189,20 @@ def above_table(task, frames: Tensor) -> Tensor:
 CLEARANCE_CHUNK = 1 << 16
 
 
-def joints_clearance(task, traj: Tensor, env: Tensor) -> tuple[Tensor, Tensor]:
+def joints_clearance(task, traj: Tensor, env: Tensor, chunk: int | None = CLEARANCE_CHUNK) -> tuple[Tensor, Tensor]:
     """Under the volumes, from joints ``traj (..., T, J)`` and ``env (..., 4)``: the arm-can gap
     (:func:`frames_gap`) and whether the arm stays above the table (:func:`above_table`), both
     ``(...)``, the capsules placed by the compiled kinematics (``task.capsule_plan``).
 
-    Many trajectories (the detour priors' thousands) are taken a piece of about
-    :data:`CLEARANCE_CHUNK` configurations at a time, a multiple of 32 trajectories: each piece's
-    temporaries stay in the cache and the peak memory is bounded (3x faster on 2,000 x 100 steps),
-    and every tensor of a piece but the last fills torch's vectorised loops exactly, so the
-    numbers are those of one call (``tests/tasks/arm/test_collision.py``)."""
+    Many trajectories (the detour priors' thousands) are taken a piece of about ``chunk``
+    configurations at a time (``None``: all in one call), a multiple of 32 trajectories: each
+    piece's temporaries stay in the cache and the peak memory is bounded (1.6x faster on 2,000 x
+    100 steps, ``benchmarks/arm_volume.py``), and every tensor of a piece but the last fills
+    torch's vectorised loops exactly, so the numbers are those of one call
+    (``tests/tasks/arm/test_collision.py``)."""
     lead = torch.broadcast_shapes(traj.shape[:-2], env.shape[:-1])
     n, steps = lead.numel(), traj.shape[-2]
-    per = max(32, CLEARANCE_CHUNK // max(steps, 1) // 32 * 32)  # trajectories per piece
+    per = n if chunk is None else max(32, chunk // max(steps, 1) // 32 * 32)  # trajectories per piece
     if n <= per:
         return _clearance(task, traj, env)
     flat = traj.expand(*lead, *traj.shape[-2:]).reshape(n, *traj.shape[-2:])  # (n, T, J)

@@ -9,7 +9,6 @@ import torch
 
 from protorch.robots import capsule_segments
 from protorch.tasks import ArmReachTask
-from protorch.tasks.arm import collision
 from protorch.tasks.arm.collision import capsules_clear, capsules_gap, end_volume_near, joints_clearance
 from protorch.tasks.arm.geometry import point_cylinder_distance, segment_cylinder_distance, segment_cylinder_within
 
@@ -55,7 +54,7 @@ def test_the_pruned_volume_gap_equals_the_search_on_every_capsule_bit_for_bit(dt
 
 
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
-def test_many_trajectories_are_checked_in_pieces_with_the_numbers_of_one_call(dtype, monkeypatch):
+def test_many_trajectories_are_checked_in_pieces_with_the_numbers_of_one_call(dtype):
     """joints_clearance takes many trajectories a piece at a time (a multiple of 32 trajectories,
     the last piece shorter): the gaps and the table verdicts equal one call on all of them to the
     bit, for one batch dimension and for broadcast ones."""
@@ -63,15 +62,14 @@ def test_many_trajectories_are_checked_in_pieces_with_the_numbers_of_one_call(dt
     task = ArmReachTask(collision="volume")
     q = (task.start_config() + 0.4 * torch.randn(200, 20, 7, generator=gen, dtype=torch.float64)).to(dtype)
     env = task.sample_envs(200, gen, dtype=dtype)  # (200, 4)
-    whole = collision._clearance(task, q, env)
-    monkeypatch.setattr(collision, "CLEARANCE_CHUNK", 64 * 20)  # pieces of 64, 64, 64 and 8 trajectories
-    got = joints_clearance(task, q, env)
+    whole = joints_clearance(task, q, env, chunk=None)
+    got = joints_clearance(task, q, env, chunk=64 * 20)  # pieces of 64, 64, 64 and 8 trajectories
     assert float(whole[0].amin()) < task.margin < float(whole[0].amax())  # some touch the can, some clear it
     assert torch.equal(got[0], whole[0]) and torch.equal(got[1], whole[1])
     q4, env4 = q.view(5, 40, 20, 7), env.view(5, 40, 4)[:, :1]  # (5, 40, T, J), one can per row
-    got4 = joints_clearance(task, q4, env4)
+    got4 = joints_clearance(task, q4, env4, chunk=64 * 20)
     assert got4[0].shape == (5, 40)
-    assert torch.equal(got4[0], collision._clearance(task, q4, env4)[0])
+    assert torch.equal(got4[0], joints_clearance(task, q4, env4, chunk=None)[0])
 
 
 @pytest.mark.parametrize("margin", [-0.02, 0.0, 0.01, 0.05])

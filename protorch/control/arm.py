@@ -156,6 +156,7 @@ def run_arm_episodes(
     place_clearance: float = 0.05,
     switch_margin: float = 0.02,
     check: bool = True,
+    switch_clearance: float = 0.01,
     generator: torch.Generator | None = None,
     reuse_answers: bool = True,
     record: bool = True,
@@ -185,6 +186,9 @@ def run_arm_episodes(
             now, touches the can (the task's collision model and ``margin``) while another
             class's is clear (:func:`~protorch.control.arm_choice.rest_blocked`); ``False``: the
             summed objectives alone choose.
+        switch_clearance: the check's hysteresis (m): a class other than the tracked one counts as
+            clear only with ``margin + switch_clearance`` to spare
+            (:func:`~protorch.control.arm_choice.checked_choice`).
         reuse_answers: the map is asked every control step, but an environment that did not
             change since the last step gets its last answer again (the map is a pure function
             of it) instead of a new GP solve; ``False`` solves every step (same result, slower).
@@ -200,6 +204,7 @@ def run_arm_episodes(
     check_velocity_loop_stable(kp, timing.dt)
     place_clearance = check_number(place_clearance, "place_clearance", allow_zero=True)
     switch_margin = check_number(switch_margin, "switch_margin", allow_zero=True)
+    switch_clearance = check_number(switch_clearance, "switch_clearance", allow_zero=True)
     moves = [int(m) for m in moves]
     if not moves or min(moves) < 0:
         raise ValueError(f"moves must be a non-empty list of ints >= 0, got {moves}")
@@ -221,7 +226,8 @@ def run_arm_episodes(
         max_acceleration = task.robot.max_acceleration
     choice = ArmClassChoice(task, env_map, promp, envs, schedule, timing.total, place_clearance=place_clearance,
                             switch_margin=switch_margin, generator=generator, reuse_answers=reuse_answers,
-                            check=bool(check), follow=arm_follow(task, kp, max_acceleration, timing, **kw))
+                            check=bool(check), follow=arm_follow(task, kp, max_acceleration, timing, **kw),
+                            switch_clearance=switch_clearance)
     arm = _KinematicArm(choice, task, timing, kp=kp, max_acceleration=max_acceleration)
     run = track(arm, promp, timing, envs.shape[0], task.start_config(**kw), record=record, markers=False)
     q = run.positions  # (E, T+1, J)

@@ -113,18 +113,20 @@ def rest_plan(promp, means: Tensor, now: Tensor, z: float, rest: Tensor, qd: Ten
 
 
 def rest_blocked(task, promp, means: Tensor, env: Tensor, now: Tensor, z: float, rest: Tensor,
-                 qd: Tensor | None = None, follow: Follow | None = None) -> Tensor:
+                 qd: Tensor | None = None, follow: Follow | None = None, extra: Tensor | None = None) -> Tensor:
     """Whether each class's plan for the rest of the motion (:func:`rest_plan`) touches the can,
     checked by the task's own :meth:`~protorch.tasks.ArmReachTask.can_gap` (its collision
     model) against ``margin``: ``means (K, E, N)``, ``env (E, 4)`` -> ``(K, E)`` bool (True:
-    blocked)."""
+    blocked). ``extra (K, E)``: metres added to ``margin`` per class and system (a class the arm
+    does not track must clear by more: :func:`checked_choice`'s ``switch_clearance``)."""
     k, n_env = means.shape[:2]
     plan = rest_plan(promp, means, now, z, rest, qd, follow)  # (K, E, P, J)
     env = env.expand(k, n_env, env.shape[-1])  # (K, E, 4)
+    margin = task.margin if extra is None else task.margin + extra.to(plan)  # a number | (K, E)
     if getattr(task, "capsule_plan", None) is not None:  # the volumes: the same verdict as can_gap, cheaper
         a, b = capsule_ends(task.kinematics, plan, task.capsule_plan)  # (K, E, P, C, 3)
-        return ~capsules_clear(a, b, task.capsule_radii.to(a), env, task.can_radius, task.can_height, task.margin)
-    return task.can_gap(plan, env) <= task.margin
+        return ~capsules_clear(a, b, task.capsule_radii.to(a), env, task.can_radius, task.can_height, margin)
+    return task.can_gap(plan, env) <= margin
 
 
 def rest_clearance(task, promp, means: Tensor, env: Tensor, now: Tensor, z: float, rest: Tensor,
@@ -158,7 +160,7 @@ def hysteresis_choice(scores: Tensor, current: Tensor | None, switch_margin: flo
 
 def checked_choice(task, promp, means: Tensor, env: Tensor, now: Tensor, z: float, rest: Tensor, scores: Tensor,
                    current: Tensor | None, switch_margin: float, qd: Tensor | None = None,
-                   follow: Follow | None = None) -> Tensor:
+                   follow: Follow | None = None, switch_clearance: float = 0.0) -> Tensor:
     """:func:`hysteresis_choice` with the plan check of :func:`rest_blocked`, checking only what
     can change the choice: each system's choice by the scores first, every class only where that
     class's plan is blocked (a clear choice stands whatever the other classes' plans, so this is
@@ -166,26 +168,48 @@ def checked_choice(task, promp, means: Tensor, env: Tensor, now: Tensor, z: floa
     plan keeps the largest gap to the can (:func:`rest_clearance`). ``means (K, E, N)``, ``env
     (E, 4)``, ``now`` ``(E, J)`` (the arm) or ``(K, E, J)`` (per class), ``qd`` (the arm's
     velocities, as ``now``) and ``follow``: :func:`rest_plan`'s way over; ``scores (K, E)`` ->
-    ``(E,)``."""
+    ``(E,)``.
+
+    ``switch_clearance`` (metres) is the check's own hysteresis: a class other than the
+    ``current`` one counts as clear only where its plan keeps ``margin + switch_clearance`` from
+    the can, so a plan whose gap hovers at the margin (the can moving across the path) does not
+    flip the choice back and forth between decisions. It never keeps a blocked plan: where no
+    class passes that test, a class clear of ``margin`` alone is still taken (by the scores).
+    Where every class is blocked, another class's gap must exceed the current one's by more than
+    ``switch_clearance`` (the arm within the margin has near-equal gaps for every class, and
+    the largest would flip with each step). ``current=None`` (the first decision) checks every
+    class against ``margin`` alone."""
     c = hysteresis_choice(scores, current, switch_margin)  # (E,)
     e = torch.arange(means.shape[1], device=means.device)
     per_class = now.dim() == 3
+    other = None  # (K, E) 1.0 where a class is not the tracked one
+    if current is not None and switch_clearance > 0:
+        cur = current.to(means.device)
+        other = (torch.arange(means.shape[0], device=means.device)[:, None] != cur).to(means.dtype)
 
     def part(x, i):
         return None if x is None else (x[:, i] if per_class else x[i])
 
     bad = rest_blocked(task, promp, means[c, e][None], env, now[c, e] if per_class else now, z, rest,
-                       None if qd is None else (qd[c, e] if per_class else qd), follow)[0]  # (E,)
+                       None if qd is None else (qd[c, e] if per_class else qd), follow,
+                       None if other is None else switch_clearance * other[c, e][None])[0]  # (E,)
     if bool(bad.any()):
         i = torch.nonzero(bad).flatten()  # (n,) the systems whose choice is blocked
-        blocked = rest_blocked(task, promp, means[:, i], env[i], part(now, i), z, rest, part(qd, i), follow)  # (K, n)
+        blocked = rest_blocked(task, promp, means[:, i], env[i], part(now, i), z, rest, part(qd, i), follow,
+                               None if other is None else switch_clearance * other[:, i])  # (K, n)
         c = c.clone()
         c[i] = hysteresis_choice(scores[:, i], None if current is None else current[i], switch_margin, blocked)
         stuck = blocked.all(0)  # (n,) every class blocked: the largest clearance
         if bool(stuck.any()):
             s = i[stuck]
-            c[s] = rest_clearance(task, promp, means[:, s], env[s], part(now, s), z, rest, part(qd, s),
-                                  follow).argmax(0)
+            gap = rest_clearance(task, promp, means[:, s], env[s], part(now, s), z, rest, part(qd, s), follow)  # (K, n')
+            if other is None:
+                c[s] = gap.argmax(0)
+            else:  # blocked only by the switch's extra clearance: a class clear of the margin is taken
+                loose = gap > task.margin  # (K, n') before a blocked one (by the scores); else another
+                pick = hysteresis_choice(scores[:, s], current[s], switch_margin, ~loose)  # (n',) class
+                c[s] = torch.where(loose.any(0), pick, (gap - switch_clearance * other[:, s]).argmax(0))  # only
+                # where its gap is larger by more than switch_clearance (near-equal gaps would flicker)
     return c
 
 
@@ -239,11 +263,12 @@ class ArmClassChoice:
 
     def __init__(self, task, env_map, promp, envs: Tensor, schedule: list[list[int]], total: int, *,
                  place_clearance: float, switch_margin: float, generator, reuse_answers: bool,
-                 check: bool = False, follow: Follow | None = None) -> None:
+                 check: bool = False, follow: Follow | None = None, switch_clearance: float = 0.0) -> None:
         kw = dict(dtype=envs.dtype, device=envs.device)
         self.task, self.env_map, self.promp, self.envs = task, env_map, promp, envs  # envs (E, T+1, 4)
         self.generator, self.reuse, self.check, self.follow = generator, reuse_answers, bool(check), follow
         self.place_clearance, self.switch_margin = place_clearance, switch_margin
+        self.switch_clearance = float(switch_clearance)
         self.cand = torch.unique(env_map.labels)  # (K,) the classes
         # phases the objectives of the rest of the motion are evaluated on
         self.grid = promp.phase[task.cost_indices(promp.num_steps)].to(**kw)  # (P,)
@@ -280,7 +305,7 @@ class ArmClassChoice:
         if self.check and k > 1:
             self.current = checked_choice(task, self.promp, self.means, env_t, q, z, rest, scores, self.current,
                                           self.switch_margin, None if qd is None else qd.to(self.means),
-                                          self.follow)  # (E,)
+                                          self.follow, self.switch_clearance)  # (E,)
         else:
             self.current = hysteresis_choice(scores, self.current, self.switch_margin)  # (E,)
         self.labels[:, t] = self.cand[self.current]

@@ -105,17 +105,19 @@ class Policy(EnvToProMP):
     def __init__(self, promp, env_map, task_name: str = "", *, task=None, duration: float = 3.0,
                  switch_margin: float = 0.0, decision_dt: float = 0.02, blend: float = DEFAULT_BLEND,
                  warm_up: bool = True, experiment: str = "", check: bool = False, kp: float = 10.0,
-                 max_acceleration=None) -> None:
+                 max_acceleration=None, switch_clearance: float = 0.0) -> None:
         super().__init__(promp, env_map, task_name)
         for name, v in (("duration", duration), ("decision_dt", decision_dt), ("blend", blend)):
             if not (isinstance(v, (int, float)) and (math.isfinite(v) or name == "blend") and v > 0):
                 raise ValueError(f"{name} must be a finite number > 0 (blend: or inf), got {v!r}")
         if not (isinstance(switch_margin, (int, float)) and math.isfinite(switch_margin) and switch_margin >= 0):
             raise ValueError(f"switch_margin must be a finite number >= 0, got {switch_margin!r}")
+        if not (isinstance(switch_clearance, (int, float)) and math.isfinite(switch_clearance) and switch_clearance >= 0):
+            raise ValueError(f"switch_clearance must be a finite number >= 0, got {switch_clearance!r}")
         self.task, self.experiment = task, experiment
         self.duration, self.switch_margin = float(duration), float(switch_margin)
         self.decision_dt, self.blend = float(decision_dt), float(blend)
-        self.check = bool(check)
+        self.check, self.switch_clearance = bool(check), float(switch_clearance)
         self.means = ClassMeans(env_map)
         self.labels = self.means.labels  # (K,)
         kw = dict(dtype=torch.float64, device=promp.basis.device)
@@ -269,7 +271,7 @@ class Policy(EnvToProMP):
             rest = self._grid[bisect.bisect_right(self._grid_list, z):]  # (P',) the phases after z
             v = None if q is None else (torch.zeros_like(q) if qd is None else qd)[None]  # (1, D) the arm's velocity
             c = int(checked_choice(self.task, self._P, every[:, None], env[None], now, z, rest, scores, cur,
-                                   self.switch_margin, v, self._follow)[0])
+                                   self.switch_margin, v, self._follow, self.switch_clearance)[0])
         else:
             c = int(hysteresis_choice(scores, cur, self.switch_margin)[0])
         m.current = c
@@ -388,4 +390,4 @@ class Policy(EnvToProMP):
     def extra_repr(self) -> str:
         return (f"{super().extra_repr()}, experiment={self.experiment!r}, classes={self.labels.tolist()}, "
                 f"duration={self.duration:g}, switch_margin={self.switch_margin:g}, decision_dt={self.decision_dt:g}, "
-                f"check={self.check}")
+                f"check={self.check}, switch_clearance={self.switch_clearance:g}")

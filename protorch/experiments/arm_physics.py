@@ -178,7 +178,8 @@ def physics_section(exp, model, out_dir: Path, plot: bool) -> dict:
                                 timing.total, place_clearance=float(dyn["place_clearance"]),
                                 switch_margin=float(dyn["switch_margin"]), generator=None, reuse_answers=True,
                                 check=bool(dyn["check"]),
-                                follow=arm_follow(task, float(dyn["kp"]), common["max_acceleration"], timing))
+                                follow=arm_follow(task, float(dyn["kp"]), common["max_acceleration"], timing),
+                                switch_clearance=float(dyn.get("switch_clearance", 0.0)))
         dynamic = run_physics_episodes(scene, ctrl, choice, promp, timing, kin.envs.cpu(), **common)
         kin_dyn = kin.success.cpu().numpy()
         sw = count_switches(torch.from_numpy(dynamic.labels))

@@ -87,7 +87,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
                            "recordings"})
     loop_keys = frozenset({"labels", "each_label"})
     dynamic_keys = frozenset({"seed", "episodes", "duration", "hold", "dt", "kp", "moves", "move_window",
-                              "place_clearance", "switch_margin", "check"})
+                              "place_clearance", "switch_margin", "check", "switch_clearance"})
     gp_defaults = {"alpha": 30.0, "var_floor": 1e-3, "nearest_k": 30}
     num_envs = 2024
     baseline_names = _BASELINES

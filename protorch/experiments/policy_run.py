@@ -62,7 +62,7 @@ def _moving_test_defaults(name: str) -> dict:
     else:
         return {}
     return {k: p.default for k, p in inspect.signature(fn).parameters.items()
-            if k in ("duration", "dt", "switch_margin", "check", "kp", "max_acceleration")
+            if k in ("duration", "dt", "switch_margin", "check", "kp", "max_acceleration", "switch_clearance")
             and p.default is not inspect.Parameter.empty}
 
 
@@ -76,7 +76,8 @@ def load_policy(run: str | Path, *, device=None, dtype=None, backend: str | None
     ``device``, ``dtype`` (float64 by default), ``backend``: of the map (as
     :func:`protorch.data.checkpoint.load`; the policy's per-call path is float64 whatever the map's
     dtype). ``options`` override :class:`~protorch.control.policy.Policy`'s settings
-    (``duration``, ``switch_margin``, ``decision_dt``, ``blend``, ``check``, ``kp``, ``max_acceleration``)."""
+    (``duration``, ``switch_margin``, ``decision_dt``, ``blend``, ``check``, ``kp``, ``max_acceleration``,
+    ``switch_clearance``)."""
     dtype = torch.float64 if dtype is None else dtype
 
     p = Path(run)
@@ -111,8 +112,11 @@ def load_policy(run: str | Path, *, device=None, dtype=None, backend: str | None
     dyn = {**_moving_test_defaults(cfg["name"]), **dict(getattr(exp, "dyn_cfg", {}) or {})}
     settings = {"duration": float(dyn.get("duration", 1.0)), "switch_margin": float(dyn.get("switch_margin", 0.0)),
                 "decision_dt": float(dyn.get("dt", 0.01)), "check": bool(dyn.get("check", False)), **options}
-    if cfg["name"] == "arm_reach":  # the velocity command the check rolls out
-        settings = {"kp": float(dyn.get("kp", 10.0)), "max_acceleration": dyn.get("max_acceleration"), **settings}
+    if cfg["name"] == "arm_reach":  # the velocity command the check rolls out, and the check's hysteresis
+        written = (cfg.get("settings") or {}).get("dynamic") or {}  # a run from before the setting had none
+        settings = {"kp": float(dyn.get("kp", 10.0)), "max_acceleration": dyn.get("max_acceleration"),
+                    "switch_clearance": float(dyn.get("switch_clearance", 0.0)) if "switch_clearance" in written
+                    else 0.0, **settings}
     with torch.no_grad():
         return Policy(model.promp, model.env_map, model.task_name, task=task, experiment=cfg["name"],
                       warm_up=warm_up, **settings)

@@ -272,6 +272,8 @@ class ArmDynamic:
     switch_margin: float = setting(0.02, "cost margin before the arm switches class", ge=0)
     check: bool = setting(True, "pass over a class whose plan for the rest of the motion touches the can "
                           "(false: the summed objectives alone choose)")
+    switch_clearance: float = setting(0.01, "the check's hysteresis (m): another class than the tracked one counts "
+                                      "as clear only with this much more than the margin (0: none)", ge=0)
 
 
 @dataclass

@@ -104,3 +104,50 @@ def test_where_every_class_is_blocked_the_largest_clearance_is_chosen():
     assert bool(stuck.any()) and bool((blocked[0] & ~blocked[1]).any())
     assert torch.equal(c[stuck], gaps[:, stuck].argmax(0))
     assert bool((c[blocked[0] & ~blocked[1]] == 1).all()) and bool((c[~blocked[0]] == 0).all())
+
+
+def test_the_checks_hysteresis_takes_another_class_only_clear_by_the_extra_clearance():
+    """checked_choice's ``switch_clearance``: a class other than the tracked one counts as clear
+    only with ``margin + switch_clearance`` to spare (no flicker when its gap hovers at the
+    margin), the tracked class keeps ``margin``; a blocked tracked class is still left for a class
+    clear of the margin alone; where every class is blocked another class is taken only with a gap
+    larger by ``switch_clearance``; 0 (or no tracked class yet) is the check without it."""
+    from protorch import ProMP
+    from protorch.control.arm_choice import checked_choice, rest_clearance
+    from protorch.tasks.arm.reach import ArmReachTask
+
+    task = ArmReachTask(cost_steps=6, collision="volume")
+    promp = ProMP(task.num_dof, 10, 50)
+    start = task.start_config(dtype=torch.float64)
+    g = torch.Generator().manual_seed(3)
+    n = 400
+    means = (start[:, None] + 0.3 * torch.randn(2, n, task.num_dof, 10, generator=g, dtype=torch.float64)).flatten(2)
+    ee = task.kinematics.ee_position(promp.trajectory(means[0], phase=torch.tensor([0.5], dtype=torch.float64)))
+    env = torch.cat([ee[:, 0, :2] + 0.08 * torch.randn(n, 2, generator=g, dtype=torch.float64),
+                     task.sample_envs(n, g)[:, 2:]], -1)  # the can near class 0's mean at z = 0.5
+    rest = torch.linspace(0.3, 1.0, 8, dtype=torch.float64)
+    now = start.expand(n, -1)
+    gaps = rest_clearance(task, promp, means, env, now, 0.2, rest)  # (K, E)
+    scores = torch.stack([torch.zeros(n), torch.ones(n)]).to(torch.float64)  # class 0 scored far better
+    current = torch.ones(n, dtype=torch.long)  # the arm tracks class 1
+    delta, m = 0.01, task.margin
+    plain = checked_choice(task, promp, means, env, now, 0.2, rest, scores, current, 0.0)
+    held = checked_choice(task, promp, means, env, now, 0.2, rest, scores, current, 0.0, switch_clearance=delta)
+    assert torch.equal(plain, checked_choice(task, promp, means, env, now, 0.2, rest, scores, current, 0.0,
+                                             switch_clearance=0.0))
+    assert torch.equal(plain, checked_choice(task, promp, means, env, now, 0.2, rest, scores, None, 0.0,
+                                             switch_clearance=delta))
+    hover = (gaps[0] > m) & (gaps[0] <= m + delta)  # class 0 clear, but by less than the extra
+    far = gaps[0] > m + delta
+    assert int((hover & (gaps[1] > m)).sum()) >= 3 and int((hover & (gaps[1] <= m)).sum()) >= 1
+    assert bool((plain[gaps[0] > m] == 0).all())  # without it: class 0 taken back as soon as it is clear
+    assert bool((held[hover & (gaps[1] > m)] == 1).all())  # with it: the tracked class is kept
+    assert bool((held[hover & (gaps[1] <= m)] == 0).all())  # but never a blocked one
+    assert bool((held[far] == 0).all())
+    # every class blocked: without it the largest gap; with it class 0 only where larger by delta
+    stuck = (gaps <= m).all(0)
+    assert int(stuck.sum()) >= 3
+    assert torch.equal(plain[stuck], gaps[:, stuck].argmax(0))
+    assert torch.equal(held[stuck], (gaps[0, stuck] > gaps[1, stuck] + delta).long().neg() + 1)
+    assert bool((held[stuck] != plain[stuck]).any())
+    assert torch.equal(held[~hover & ~stuck], plain[~hover & ~stuck])

@@ -41,7 +41,8 @@ def policy():
     promp = ProMP(7, 10, 50)
     ds = demonstration_dataset(promp, dl + dr, torch.cat([el, er]), labels=torch.cat([ll, lr]), var_floor=1e-3)
     env_map = make_env_map("torch", 30.0, nearest_k=4).fit(ds.env, ds.mean, ds.var, ds.label)
-    return Policy(promp, env_map, task.name, task=task, duration=1.5, switch_margin=0.02, decision_dt=0.02)
+    return Policy(promp, env_map, task.name, task=task, duration=1.5, switch_margin=0.02, decision_dt=0.02,
+                  switch_clearance=0.01)
 
 
 def walks(m: int) -> torch.Tensor:
@@ -61,11 +62,11 @@ def test_the_policy_reproduces_the_moving_tests_class_switches(policy, check, mo
     task = policy.task
     monkeypatch.setattr(policy, "check", check)
     m = int(round(policy.duration / 0.02))
-    runs = [run_arm_episodes(policy, task, walk=walks(m), duration=policy.duration, hold=0.3, dt=0.02,
-                             switch_margin=policy.switch_margin, check=check),
+    same = dict(duration=policy.duration, hold=0.3, dt=0.02, switch_margin=policy.switch_margin, check=check,
+                switch_clearance=policy.switch_clearance)
+    runs = [run_arm_episodes(policy, task, walk=walks(m), **same),
             run_arm_episodes(policy, task, task.sample_envs(6, torch.Generator().manual_seed(1)),
-                             duration=policy.duration, hold=0.3, dt=0.02, switch_margin=policy.switch_margin,
-                             generator=torch.Generator().manual_seed(2), check=check)]
+                             generator=torch.Generator().manual_seed(2), **same)]
     switches = 0
     for res in runs:
         switches += int(res.switches.sum())
@@ -80,8 +81,9 @@ def test_the_policy_reproduces_the_moving_tests_class_switches(policy, check, mo
 def test_the_checked_choice_never_tracks_a_blocked_plan_while_another_is_clear(policy):
     """At every decision of the moving test with ``check``, the tracked class's plan for the rest
     of the motion from the arm's joints and velocities clears the can, unless every class's plan
-    touches it (then the tracked one keeps the largest gap); and the check changes decisions on
-    these episodes (against ``check=False``)."""
+    touches it (then the tracked one keeps the largest gap, another class's larger only by more
+    than ``switch_clearance``); and the check changes decisions on these episodes (against
+    ``check=False``)."""
     from protorch.control.arm import arm_follow
     from protorch.control.arm_choice import rest_blocked, rest_clearance
     from protorch.control.episodes import check_timing
@@ -90,7 +92,7 @@ def test_the_checked_choice_never_tracks_a_blocked_plan_while_another_is_clear(p
     envs = task.sample_envs(30, torch.Generator().manual_seed(1))
     runs = {c: run_arm_episodes(policy, task, envs, duration=policy.duration, hold=0.3, dt=0.02,
                                 switch_margin=policy.switch_margin, generator=torch.Generator().manual_seed(2),
-                                check=c) for c in (False, True)}
+                                check=c, switch_clearance=policy.switch_clearance) for c in (False, True)}
     res = runs[True]
     assert bool((runs[False].labels != res.labels).any())
     grid = policy.promp.phase[task.cost_indices(policy.promp.num_steps)].to(F64)
@@ -110,7 +112,11 @@ def test_the_checked_choice_never_tracks_a_blocked_plan_while_another_is_clear(p
         assert not bool((on_blocked & ~blocked.all(0)).any()), i
         stuck = blocked.all(0)
         if bool(stuck.any()):
-            assert torch.equal(chosen[stuck], rest_clearance(*args)[:, stuck].argmax(0)), i
+            gap = rest_clearance(*args)[:, stuck]  # (K, n)
+            if i:  # the class tracked until now keeps it unless another's gap is larger by switch_clearance
+                prev = (res.labels[:, i - 1][None] == cand[:, None]).to(torch.long).argmax(0)[stuck]  # (n,)
+                gap = gap - policy.switch_clearance * (torch.arange(len(cand))[:, None] != prev)
+            assert torch.equal(chosen[stuck], gap.argmax(0)), i
         passed_over += int((blocked.any(0) & ~blocked.all(0)).sum())
     assert passed_over >= 1
 

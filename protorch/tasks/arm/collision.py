@@ -146,9 +146,10 @@ def capsules_gap(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, he
 
 
 def capsules_clear(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, height: float,
-                   margin: float) -> Tensor:
+                   margin: float | Tensor) -> Tensor:
     """Whether :func:`capsules_gap` ``> margin``: ``(...)`` bool, the same verdict at a fraction
     of the cost (a gap within the search's tolerance, about 1e-9 m, of ``margin`` aside).
+    ``margin``: one number, or a tensor broadcastable to ``(...)`` (one margin per batch entry).
 
     Bounds of each capsule's gap in closed form: from below, its segment's distance ``d`` to the
     can's axis segment minus the can's radius (the cylinder lies within that distance of its
@@ -164,14 +165,16 @@ def capsules_clear(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, 
     upper = point_cylinder_distance(a + u[..., None] * (b - a), axis, radius, 0.0, height) - r  # >= the exact gap
     # bounds in closed form hold to round-off: within a few ulps of margin they decide nothing
     slack = 64 * torch.finfo(a.dtype).eps
-    hit = (upper <= margin - slack).flatten(-2).any(-1)  # (...) a capsule surely within margin
-    unsure = (lower <= margin + slack) & (upper > margin - slack) & ~hit[..., None, None]  # (..., T, C)
+    m = margin[..., None, None] if isinstance(margin, Tensor) else margin  # (..., 1, 1) | a number
+    hit = (upper <= m - slack).flatten(-2).any(-1)  # (...) a capsule surely within margin
+    unsure = (lower <= m + slack) & (upper > m - slack) & ~hit[..., None, None]  # (..., T, C)
     clear = ~hit
     if bool(unsure.any()):
         idx = torch.nonzero(unsure, as_tuple=True)
         a_i, b_i, ax_i = a.expand(*shape, 3)[idx], b.expand(*shape, 3)[idx], axis.expand(*shape, 2)[idx]
+        m_i = m.expand(shape)[idx] if isinstance(m, Tensor) else m  # (n,) | a number
         within = torch.zeros(shape, dtype=torch.bool, device=a.device)
-        within[idx] = segment_cylinder_within(a_i, b_i, ax_i, radius, 0.0, height, r.expand(shape)[idx], margin)
+        within[idx] = segment_cylinder_within(a_i, b_i, ax_i, radius, 0.0, height, r.expand(shape)[idx], m_i)
         clear = clear & ~within.flatten(-2).any(-1)
     return clear
 

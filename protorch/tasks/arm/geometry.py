@@ -130,8 +130,9 @@ def _golden_step(f, lo, x1, f1, x2, f2, hi):
 
 
 def segment_cylinder_within(a: Tensor, b: Tensor, axis_xy: Tensor, radius: float, z0: float, z1: float,
-                            r: Tensor, margin: float, iters: int = 40, every: int = 3) -> Tensor:
-    """Whether ``segment_cylinder_distance(a, b, ...) - r <= margin``: ``(...)`` bool, the same
+                            r: Tensor, margin: float | Tensor, iters: int = 40, every: int = 3) -> Tensor:
+    """Whether ``segment_cylinder_distance(a, b, ...) - r <= margin``: ``(...)`` bool (``margin``
+    one number or one per entry), the same
     verdict from the same golden-section steps, each entry stopped once it is decided: within as
     soon as a point evaluated is (the search's result is the smallest value it evaluated), clear
     as soon as a lower bound of the distance over the bracket exceeds ``margin + r`` (by 1e-12:

@@ -90,6 +90,24 @@ def test_capsules_clear_is_the_gap_above_the_margin_verdict_for_verdict(margin):
         assert 0 < int((gap > margin).sum()) < 60 or scale == 0.6
 
 
+def test_capsules_clear_takes_one_margin_per_entry():
+    """A tensor margin (one per batch entry, what the plan check's hysteresis passes) gives each
+    entry the verdict of its own margin, the gaps met exactly included."""
+    gen = torch.Generator().manual_seed(12)
+    task = ArmReachTask(collision="volume")
+    q = task.start_config() + 0.15 * torch.randn(3, 40, 12, 7, generator=gen, dtype=torch.float64)
+    env = task.sample_envs(40, gen)  # (40, 4)
+    a, b, r = capsule_segments(task.kinematics.frames(q), task.kinematics.frame_names,
+                               task.robot.capsule_list())  # (3, 40, 12, C, 3)
+    gap = capsules_gap(a, b, r, env, task.can_radius, task.can_height)  # (3, 40)
+    margin = torch.stack([torch.full((40,), 0.01, dtype=torch.float64), gap[1],  # exactly met: not clear
+                          0.03 * torch.rand(40, generator=gen, dtype=torch.float64)])  # (3, 40)
+    got = capsules_clear(a, b, r, env, task.can_radius, task.can_height, margin)
+    assert torch.equal(got, gap > margin)
+    assert not bool(got[1].any())
+    assert torch.equal(got[0], capsules_clear(a[0], b[0], r, env, task.can_radius, task.can_height, 0.01))
+
+
 @pytest.mark.parametrize("margin", [0.0, 0.01, 0.05])
 def test_the_stopped_search_gives_the_full_searchs_verdict(margin):
     """segment_cylinder_within stops each segment once a point within the margin is found or

@@ -176,9 +176,10 @@ def checked_choice(task, promp, means: Tensor, env: Tensor, now: Tensor, z: floa
     flip the choice back and forth between decisions. It never keeps a blocked plan: where no
     class passes that test, a class clear of ``margin`` alone is still taken (by the scores).
     Where every class is blocked, another class's gap must exceed the current one's by more than
-    ``switch_clearance`` (the arm within the margin has near-equal gaps for every class, and
-    the largest would flip with each step). ``current=None`` (the first decision) checks every
-    class against ``margin`` alone."""
+    half of ``switch_clearance`` (the arm within the margin has near-equal gaps for every class,
+    and the largest would flip with each step; the whole of it kept the arm on a plan heading
+    into a sliding can in one of docs/control_loop.md's slides). ``current=None`` (the first
+    decision) checks every class against ``margin`` alone."""
     c = hysteresis_choice(scores, current, switch_margin)  # (E,)
     e = torch.arange(means.shape[1], device=means.device)
     per_class = now.dim() == 3
@@ -208,8 +209,8 @@ def checked_choice(task, promp, means: Tensor, env: Tensor, now: Tensor, z: floa
             else:  # blocked only by the switch's extra clearance: a class clear of the margin is taken
                 loose = gap > task.margin  # (K, n') before a blocked one (by the scores); else another
                 pick = hysteresis_choice(scores[:, s], current[s], switch_margin, ~loose)  # (n',) class
-                c[s] = torch.where(loose.any(0), pick, (gap - switch_clearance * other[:, s]).argmax(0))  # only
-                # where its gap is larger by more than switch_clearance (near-equal gaps would flicker)
+                c[s] = torch.where(loose.any(0), pick, (gap - 0.5 * switch_clearance * other[:, s]).argmax(0))  # only
+                # where its gap is larger by more than half of switch_clearance (near-equal gaps would flicker)
     return c
 
 

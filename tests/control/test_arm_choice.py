@@ -111,7 +111,7 @@ def test_the_checks_hysteresis_takes_another_class_only_clear_by_the_extra_clear
     only with ``margin + switch_clearance`` to spare (no flicker when its gap hovers at the
     margin), the tracked class keeps ``margin``; a blocked tracked class is still left for a class
     clear of the margin alone; where every class is blocked another class is taken only with a gap
-    larger by ``switch_clearance``; 0 (or no tracked class yet) is the check without it."""
+    larger by half of ``switch_clearance``; 0 (or no tracked class yet) is the check without it."""
     from protorch import ProMP
     from protorch.control.arm_choice import checked_choice, rest_clearance
     from protorch.tasks.arm.reach import ArmReachTask
@@ -148,6 +148,6 @@ def test_the_checks_hysteresis_takes_another_class_only_clear_by_the_extra_clear
     stuck = (gaps <= m).all(0)
     assert int(stuck.sum()) >= 3
     assert torch.equal(plain[stuck], gaps[:, stuck].argmax(0))
-    assert torch.equal(held[stuck], (gaps[0, stuck] > gaps[1, stuck] + delta).long().neg() + 1)
+    assert torch.equal(held[stuck], (gaps[0, stuck] > gaps[1, stuck] + delta / 2).long().neg() + 1)
     assert bool((held[stuck] != plain[stuck]).any())
     assert torch.equal(held[~hover & ~stuck], plain[~hover & ~stuck])

@@ -82,7 +82,7 @@ def test_the_checked_choice_never_tracks_a_blocked_plan_while_another_is_clear(p
     """At every decision of the moving test with ``check``, the tracked class's plan for the rest
     of the motion from the arm's joints and velocities clears the can, unless every class's plan
     touches it (then the tracked one keeps the largest gap, another class's larger only by more
-    than ``switch_clearance``); and the check changes decisions on these episodes (against
+    than half of ``switch_clearance``); and the check changes decisions on these episodes (against
     ``check=False``)."""
     from protorch.control.arm import arm_follow
     from protorch.control.arm_choice import rest_blocked, rest_clearance
@@ -115,7 +115,7 @@ def test_the_checked_choice_never_tracks_a_blocked_plan_while_another_is_clear(p
             gap = rest_clearance(*args)[:, stuck]  # (K, n)
             if i:  # the class tracked until now keeps it unless another's gap is larger by switch_clearance
                 prev = (res.labels[:, i - 1][None] == cand[:, None]).to(torch.long).argmax(0)[stuck]  # (n,)
-                gap = gap - policy.switch_clearance * (torch.arange(len(cand))[:, None] != prev)
+                gap = gap - 0.5 * policy.switch_clearance * (torch.arange(len(cand))[:, None] != prev)
             assert torch.equal(chosen[stuck], gap.argmax(0)), i
         passed_over += int((blocked.any(0) & ~blocked.all(0)).sum())
     assert passed_over >= 1

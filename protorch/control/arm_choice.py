@@ -206,11 +206,11 @@ def checked_choice(task, promp, means: Tensor, env: Tensor, now: Tensor, z: floa
             gap = rest_clearance(task, promp, means[:, s], env[s], part(now, s), z, rest, part(qd, s), follow)  # (K, n')
             if other is None:
                 c[s] = gap.argmax(0)
-            else:  # blocked only by the switch's extra clearance: a class clear of the margin is taken
-                loose = gap > task.margin  # (K, n') before a blocked one (by the scores); else another
-                pick = hysteresis_choice(scores[:, s], current[s], switch_margin, ~loose)  # (n',) class
-                c[s] = torch.where(loose.any(0), pick, (gap - 0.5 * switch_clearance * other[:, s]).argmax(0))  # only
-                # where its gap is larger by more than half of switch_clearance (near-equal gaps would flicker)
+            else:  # a class blocked only by the extra clearance, clear of the margin, goes first (by
+                loose = gap > task.margin  # (K, n') the scores); where none is, another class than the
+                pick = hysteresis_choice(scores[:, s], current[s], switch_margin, ~loose)  # (n',) tracked
+                widest = (gap - 0.5 * switch_clearance * other[:, s]).argmax(0)  # one only if wider by delta/2
+                c[s] = torch.where(loose.any(0), pick, widest)
     return c
 
 

@@ -113,10 +113,8 @@ def load_policy(run: str | Path, *, device=None, dtype=None, backend: str | None
     settings = {"duration": float(dyn.get("duration", 1.0)), "switch_margin": float(dyn.get("switch_margin", 0.0)),
                 "decision_dt": float(dyn.get("dt", 0.01)), "check": bool(dyn.get("check", False)), **options}
     if cfg["name"] == "arm_reach":  # the velocity command the check rolls out, and the check's hysteresis
-        written = (cfg.get("settings") or {}).get("dynamic") or {}  # a run from before the setting had none
         settings = {"kp": float(dyn.get("kp", 10.0)), "max_acceleration": dyn.get("max_acceleration"),
-                    "switch_clearance": float(dyn.get("switch_clearance", 0.0)) if "switch_clearance" in written
-                    else 0.0, **settings}
+                    "switch_clearance": float(dyn.get("switch_clearance", 0.0)), **settings}
     with torch.no_grad():
         return Policy(model.promp, model.env_map, model.task_name, task=task, experiment=cfg["name"],
                       warm_up=warm_up, **settings)

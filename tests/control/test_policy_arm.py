@@ -178,13 +178,14 @@ def test_load_rebuilds_a_runs_task_and_settings_from_its_folder(tmp_path):
            "gp": {"backend": "torch", "alpha": 30.0, "var_floor": 1e-3, "nearest_k": 30},
            "task": {"_target_": "protorch.tasks.ArmReachTask", "priors": 50, "demo_envs": 4, "cost_steps": 10},
            "settings": {"loop": {"num_envs": 10, "batch_size": 10}, "test": {"num_envs": 5},
-                        "dynamic": {"episodes": 2, "duration": 2.5, "switch_margin": 0.03},
+                        "dynamic": {"episodes": 2, "duration": 2.5, "switch_margin": 0.03, "switch_clearance": 0.015},
                         "physics": {"run": "never"}, "baselines": [], "progress": False}}
     run_experiment(cfg, tmp_path)
     assert (tmp_path / "config.yaml").is_file()
     pol = protorch.load(tmp_path)
     assert isinstance(pol.task, ArmReachTask) and pol.task.cost_steps == 10
-    assert (pol.duration, pol.switch_margin, pol.decision_dt) == (2.5, 0.03, 0.02)
+    assert (pol.duration, pol.switch_margin, pol.decision_dt, pol.switch_clearance) == (2.5, 0.03, 0.02, 0.015)
+    assert pol.check  # the run's moving-test settings, its check's hysteresis included
     assert pol.labels.tolist() == [LEFT, RIGHT]
     envs = pol.task.sample_envs(3, torch.Generator().manual_seed(0))
     assert pol.mean_trajectory(envs).shape == (3, 100, 7)  # the class chosen, no labels= needed

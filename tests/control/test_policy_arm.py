@@ -121,6 +121,27 @@ def test_the_checked_choice_never_tracks_a_blocked_plan_while_another_is_clear(p
     assert passed_over >= 1
 
 
+def test_the_policy_reproduces_the_checks_hysteresis_on_the_volumes(policy):
+    """With the link volumes the check's hysteresis (``switch_clearance``) changes the moving
+    test's classes on these episodes and cuts its switches; the policy, given each instant's
+    environment, joints and velocities, still picks the test's class at every instant."""
+    task = ArmReachTask(cost_steps=6, collision="volume")
+    volume = Policy(policy._P, policy.env_map, "arm_reach", task=task, duration=policy.duration,
+                    switch_margin=0.02, decision_dt=0.02, check=True, switch_clearance=0.01)
+    envs = task.sample_envs(12, torch.Generator().manual_seed(1))
+    runs = {sc: run_arm_episodes(volume, task, envs, duration=volume.duration, hold=0.3, dt=0.02,
+                                 switch_margin=0.02, generator=torch.Generator().manual_seed(2), check=True,
+                                 switch_clearance=sc) for sc in (0.0, 0.01)}
+    res = runs[0.01]
+    assert bool((runs[0.0].labels != res.labels).any())
+    assert int(res.switches.sum()) < int(runs[0.0].switches.sum())
+    for e in range(res.q.shape[0]):
+        volume.reset()
+        got = [volume.reference(res.envs[e, i], i * res.dt, res.q[e, i], res.qd[e, i]).label
+               for i in range(res.q.shape[1])]
+        assert got == res.labels[e].tolist(), e
+
+
 @pytest.mark.parametrize("check", [False, True])
 def test_the_exported_arm_program_runs_without_protorch_and_equals_reference(policy, tmp_path, check, monkeypatch):
     monkeypatch.setattr(policy, "check", check)

@@ -110,10 +110,9 @@ class Policy(EnvToProMP):
         for name, v in (("duration", duration), ("decision_dt", decision_dt), ("blend", blend)):
             if not (isinstance(v, (int, float)) and (math.isfinite(v) or name == "blend") and v > 0):
                 raise ValueError(f"{name} must be a finite number > 0 (blend: or inf), got {v!r}")
-        if not (isinstance(switch_margin, (int, float)) and math.isfinite(switch_margin) and switch_margin >= 0):
-            raise ValueError(f"switch_margin must be a finite number >= 0, got {switch_margin!r}")
-        if not (isinstance(switch_clearance, (int, float)) and math.isfinite(switch_clearance) and switch_clearance >= 0):
-            raise ValueError(f"switch_clearance must be a finite number >= 0, got {switch_clearance!r}")
+        for name, v in (("switch_margin", switch_margin), ("switch_clearance", switch_clearance)):
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
         self.task, self.experiment = task, experiment
         self.duration, self.switch_margin = float(duration), float(switch_margin)
         self.decision_dt, self.blend = float(decision_dt), float(blend)

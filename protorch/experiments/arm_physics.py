@@ -179,7 +179,7 @@ def physics_section(exp, model, out_dir: Path, plot: bool) -> dict:
                                 switch_margin=float(dyn["switch_margin"]), generator=None, reuse_answers=True,
                                 check=bool(dyn["check"]),
                                 follow=arm_follow(task, float(dyn["kp"]), common["max_acceleration"], timing),
-                                switch_clearance=float(dyn.get("switch_clearance", 0.0)))
+                                switch_clearance=float(dyn["switch_clearance"]))
         dynamic = run_physics_episodes(scene, ctrl, choice, promp, timing, kin.envs.cpu(), **common)
         kin_dyn = kin.success.cpu().numpy()
         sw = count_switches(torch.from_numpy(dynamic.labels))

@@ -15,7 +15,11 @@ the largest difference of the results:
 5. the detour priors' IK of 200 paths x 100 steps: ``follow_path`` with the chain's Jacobian
    against the compiled one;
 6. the volume gap and table check of as many trajectories as the detour priors check (2,000 x 100
-   steps, float64): in one call against ``joints_clearance``'s pieces (bit-equal: 0).
+   steps, float64): in one call against ``joints_clearance``'s pieces (bit-equal: 0);
+7. the volume objective (``end_volume_near``) on one of the loop's cost pieces (700 trajectories x
+   25 cost steps, float32), the compiled chain's ``cos``/``sin`` rows taken from the transposed
+   joints as they come (strided: every product with a row gathers) against contiguous rows and
+   no copies where every point moves (:class:`StridedRows`, the code before; bit-equal: 0).
 
 ``--quick``: small sizes (a check that the script runs, not a measurement).
 """
@@ -35,8 +39,10 @@ from protorch.tasks.arm.collision import (
     above_table,
     capsule_ends,
     capsules_gap,
+    end_volume_near,
     joints_clearance,
 )
+from protorch.robots import ArmKinematics
 from protorch.tasks.arm.demos import detour_paths, follow_path
 from protorch.tasks.arm.geometry import segment_cylinder_distance
 
@@ -61,6 +67,42 @@ def diff(a, b) -> float:
     if a.dtype == torch.bool:
         return float((a != b).sum())
     return float((a.double() - b.double()).abs().max())
+
+
+class StridedRows(ArmKinematics):
+    """The compiled chain as it was before its ``cos``/``sin`` rows were made contiguous (row 7): the
+    rows of the transposed joints ``(J, P)`` as they come (each a stride-``J`` view), and the carried
+    points copied back into their rows at every joint."""
+
+    def ee_position(self, q):
+        qt = self.check_joints(q, finite=False).reshape(-1, self.num_joints).T  # (J, P), strided rows
+        c, s = torch.cos(qt), torch.sin(qt)
+        x, y, z = (torch.full_like(c[0], v) for v in self._tail)
+        for j in range(self.num_joints - 1, -1, -1):
+            x, y = c[j] * x - s[j] * y, s[j] * x + c[j] * y
+            x, y, z = self._affine(j, x, y, z)
+        return torch.stack([x, y, z], -1).reshape(*q.shape[:-1], 3)
+
+    def ee_frame_rows(self, q):
+        qt = self.check_joints(q, finite=False).reshape(-1, self.num_joints).T
+        c, s = torch.cos(qt), torch.sin(qt)
+        tail = torch.tensor(self._maps[-1], dtype=q.dtype, device=q.device)
+        x, y, z = tail.T[:, :, None].expand(4, 3, qt.shape[1]).unbind(1)  # (4, P)
+        origin = torch.tensor([[0.0], [0.0], [0.0], [1.0]], dtype=q.dtype, device=q.device)
+        for j in range(self.num_joints - 1, -1, -1):
+            x, y = c[j] * x - s[j] * y, s[j] * x + c[j] * y
+            x, y, z = self._affine(j, x, y, z, translate=origin)
+        return x, y, z
+
+    def _carry_rows(self, q, pts, after, functional=False):
+        qt = q.reshape(-1, self.num_joints).T
+        c, s = torch.cos(qt), torch.sin(qt)
+        x, y, z = (pts[:, i, None].expand(-1, qt.shape[1]).clone() for i in range(3))  # (M, P)
+        for k, lo in reversed(list(enumerate(after))):
+            if lo < pts.shape[0]:
+                xs, ys = c[k] * x[lo:] - s[k] * y[lo:], s[k] * x[lo:] + c[k] * y[lo:]
+                x[lo:], y[lo:], z[lo:] = self._affine(k, xs, ys, z[lo:])
+        return x, y, z
 
 
 def row(name: str, old, new, repeats: int) -> None:
@@ -120,6 +162,14 @@ def main(argv=None) -> None:
     row(f"volume gap and table, {many} x {steps} (one call / pieces)",
         lambda: joints_clearance(task, q_many, env_many, chunk=None),
         lambda: joints_clearance(task, q_many, env_many, chunk=chunk), a.repeats)
+    pieces = 20 if a.quick else 700  # one of the loop's cost pieces (loop/phases.py: cost_chunks)
+    q_obj = (task.start_config() + 0.3 * torch.randn(pieces, 25, kin.num_joints, generator=gen, dtype=torch.float64)
+             ).float()  # (pieces, 25, J): the objectives' 25 cost steps, float32 as the loop samples
+    env_obj = task.sample_envs(pieces, gen).float()
+    strided = StridedRows(kin.urdf_text, end_link=kin.end_link)
+    row(f"volume objective, {pieces} x 25 float32 (strided / rows)",
+        lambda: end_volume_near(strided, q_obj, env_obj, task.end_capsules, task.can_height),
+        lambda: end_volume_near(kin, q_obj, env_obj, task.end_capsules, task.can_height), 10 * a.repeats)
 
 
 if __name__ == "__main__":

@@ -16,8 +16,7 @@ joint axes it folds every revolute joint into a rotation about ``z`` between two
 maps, then carries the end point backwards through the chain with elementwise tensor operations
 (``x' = c x - s y``, ``y' = s x + c y`` per joint, then the fixed map, whose entries within
 ``1e-7`` of 0 or +-1, the float32 parse of ``pi / 2`` rotations, are snapped so they cost
-nothing). It agrees with the full ``pytorch_kinematics`` FK to round-off (``tests/test_kinematics.py``)
-and is about 100 times faster on a CPU (``benchmarks/arm.py``).
+nothing). It agrees with the full FK to round-off and is about 100 times faster on a CPU.
 """
 
 from __future__ import annotations
@@ -208,7 +207,7 @@ class ArmKinematics(nn.Module):
         Any floating dtype (float32 for sampling), any device. The hot path of the cost
         evaluation: the shape is checked, the values are not (NaN in gives NaN out)."""
         q = self.check_joints(q, finite=False)
-        qt = q.reshape(-1, self.num_joints).T  # (J, P)
+        qt = q.reshape(-1, self.num_joints).T.contiguous()  # (J, P), each row contiguous (see _carry_rows)
         c, s = torch.cos(qt), torch.sin(qt)  # (J, P)
         x, y, z = (torch.full_like(c[0], v) for v in self._tail)
         for j in range(self.num_joints - 1, -1, -1):
@@ -217,10 +216,8 @@ class ArmKinematics(nn.Module):
         return torch.stack([x, y, z], -1).reshape(*q.shape[:-1], 3)
 
     def ee_frame(self, q: Tensor) -> Tensor:
-        """The end link's pose by the compiled path: ``(..., J) -> (..., 4, 4)``; its origin is
-        :meth:`ee_position`, its axes are carried through the same folded chain (without the
-        translations). About four times :meth:`ee_position`'s cost; equal to the last of
-        :meth:`frames` to round-off."""
+        """The end link's pose by the compiled path: ``(..., J) -> (..., 4, 4)``, equal to the last of
+        :meth:`frames` to round-off (its axes carried as :meth:`ee_position` carries its origin)."""
         q = self.check_joints(q, finite=False)
         x, y, z = self.ee_frame_rows(q)  # (4, P) each
         out = torch.zeros(*q.shape[:-1], 4, 4, dtype=q.dtype, device=q.device)
@@ -233,7 +230,7 @@ class ArmKinematics(nn.Module):
         ``x, y, z (4, P)``, whose columns are the end link's x, y and z axes and its origin (no
         transposes or copies: what a caller placing points on the end link wants)."""
         q = self.check_joints(q, finite=False)
-        qt = q.reshape(-1, self.num_joints).T  # (J, P)
+        qt = q.reshape(-1, self.num_joints).T.contiguous()  # (J, P), each row contiguous (see _carry_rows)
         c, s = torch.cos(qt), torch.sin(qt)  # (J, P)
         tail = torch.tensor(self._maps[-1], dtype=q.dtype, device=q.device)  # (3, 4) end link in the last joint's frame
         vec = tail.T[:, :, None].expand(4, 3, qt.shape[1])  # (4, 3, P): the three axes, then the origin
@@ -303,21 +300,24 @@ class ArmKinematics(nn.Module):
         """Points ``pts (M, 3)``, each in the frame after its last joint's rotation and ordered by
         that joint (``after[k]``: the first point after joint ``k``), at ``q (..., J)``: their rows
         ``x, y, z (M, P)``. ``functional``: no tensor written in place (:meth:`carry_points`)."""
-        qt = q.reshape(-1, self.num_joints).T  # (J, P)
+        qt = q.reshape(-1, self.num_joints).T.contiguous()  # (J, P): a strided row of c, s costs 3x per product
         c, s = torch.cos(qt), torch.sin(qt)  # (J, P)
         x, y, z = (pts[:, i, None].expand(-1, qt.shape[1]) for i in range(3))  # (M, P)
-        if not functional:
-            x, y, z = x.clone(), y.clone(), z.clone()
-        for k, lo in reversed(list(enumerate(after))):  # lo: the first point after joint k
+        owned = False  # x, y, z are tensors of our own (written into); the expanded points are not
+        for k, lo in reversed(list(enumerate(after))):  # lo: the first point after joint k (never grows)
             if lo >= pts.shape[0]:
                 continue
             xs, ys = c[k] * x[lo:] - s[k] * y[lo:], s[k] * x[lo:] + c[k] * y[lo:]  # (M - lo, P)
             xs, ys, zs = self._affine(k, xs, ys, z[lo:])
-            if functional:
+            if lo == 0:  # every point moves: the new rows replace the old (no copy)
+                x, y, z = xs, ys, zs
+            elif functional:
                 x, y, z = (torch.cat([v[:lo], w]) for v, w in ((x, xs), (y, ys), (z, zs)))
             else:
+                if not owned:
+                    x, y, z, owned = x.clone(), y.clone(), z.clone(), True
                 x[lo:], y[lo:], z[lo:] = xs, ys, zs
-        return x, y, z
+        return x.contiguous(), y.contiguous(), z.contiguous()  # (a row no joint moved would be a view of pts)
 
     def jacobian_pose(self, q: Tensor) -> tuple[Tensor, Tensor]:
         """The end link's geometric Jacobian and pose by the compiled chain: ``q (B, J) -> (B, 6, J),

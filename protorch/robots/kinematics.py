@@ -207,8 +207,7 @@ class ArmKinematics(nn.Module):
         Any floating dtype (float32 for sampling), any device. The hot path of the cost
         evaluation: the shape is checked, the values are not (NaN in gives NaN out)."""
         q = self.check_joints(q, finite=False)
-        qt = q.reshape(-1, self.num_joints).T.contiguous()  # (J, P), each row contiguous (see _carry_rows)
-        c, s = torch.cos(qt), torch.sin(qt)  # (J, P)
+        c, s = self._trig(q)  # (J, P)
         x, y, z = (torch.full_like(c[0], v) for v in self._tail)
         for j in range(self.num_joints - 1, -1, -1):
             x, y = c[j] * x - s[j] * y, s[j] * x + c[j] * y  # rotation about the folded z axis
@@ -230,10 +229,9 @@ class ArmKinematics(nn.Module):
         ``x, y, z (4, P)``, whose columns are the end link's x, y and z axes and its origin (no
         transposes or copies: what a caller placing points on the end link wants)."""
         q = self.check_joints(q, finite=False)
-        qt = q.reshape(-1, self.num_joints).T.contiguous()  # (J, P), each row contiguous (see _carry_rows)
-        c, s = torch.cos(qt), torch.sin(qt)  # (J, P)
+        c, s = self._trig(q)  # (J, P)
         tail = torch.tensor(self._maps[-1], dtype=q.dtype, device=q.device)  # (3, 4) end link in the last joint's frame
-        vec = tail.T[:, :, None].expand(4, 3, qt.shape[1])  # (4, 3, P): the three axes, then the origin
+        vec = tail.T[:, :, None].expand(4, 3, c.shape[1])  # (4, 3, P): the three axes, then the origin
         x, y, z = vec[:, 0], vec[:, 1], vec[:, 2]  # (4, P)
         origin = torch.tensor([[0.0], [0.0], [0.0], [1.0]], dtype=q.dtype, device=q.device)  # translate the origin only
         for j in range(self.num_joints - 1, -1, -1):
@@ -291,20 +289,24 @@ class ArmKinematics(nn.Module):
 
     @staticmethod
     def _stack_rows(q: Tensor, x: Tensor, y: Tensor, z: Tensor) -> Tensor:
-        """Component rows ``x, y, z (M, P)`` over the flattened batch of ``q (..., J)`` as points
-        ``(..., M, 3)``."""
+        """Component rows ``x, y, z (M, P)`` over ``q (..., J)``'s flattened batch as points ``(..., M, 3)``."""
         return torch.stack([x, y, z], -1).transpose(0, 1).reshape(*q.shape[:-1], x.shape[0], 3)
+
+    def _trig(self, q: Tensor) -> tuple[Tensor, Tensor]:
+        """``cos``, ``sin`` of ``q (..., J)`` as rows ``(J, P)``, each contiguous (a strided row costs ~3x per product)."""
+        qt = q.reshape(-1, self.num_joints).T.contiguous()  # (J, P)
+        return torch.cos(qt), torch.sin(qt)
 
     def _carry_rows(self, q: Tensor, pts: Tensor, after: Sequence[int], functional: bool = False
                     ) -> tuple[Tensor, Tensor, Tensor]:
         """Points ``pts (M, 3)``, each in the frame after its last joint's rotation and ordered by
         that joint (``after[k]``: the first point after joint ``k``), at ``q (..., J)``: their rows
         ``x, y, z (M, P)``. ``functional``: no tensor written in place (:meth:`carry_points`)."""
-        qt = q.reshape(-1, self.num_joints).T.contiguous()  # (J, P): a strided row of c, s costs 3x per product
-        c, s = torch.cos(qt), torch.sin(qt)  # (J, P)
-        x, y, z = (pts[:, i, None].expand(-1, qt.shape[1]) for i in range(3))  # (M, P)
-        owned = False  # x, y, z are tensors of our own (written into); the expanded points are not
-        for k, lo in reversed(list(enumerate(after))):  # lo: the first point after joint k (never grows)
+        c, s = self._trig(q)  # (J, P)
+        x, y, z = (pts[:, i, None].expand(-1, c.shape[1]) for i in range(3))  # (M, P)
+        if not functional and any(0 < lo < pts.shape[0] for lo in after):  # rows written into below
+            x, y, z = x.clone(), y.clone(), z.clone()
+        for k, lo in reversed(list(enumerate(after))):  # lo: the first point after joint k
             if lo >= pts.shape[0]:
                 continue
             xs, ys = c[k] * x[lo:] - s[k] * y[lo:], s[k] * x[lo:] + c[k] * y[lo:]  # (M - lo, P)
@@ -314,8 +316,6 @@ class ArmKinematics(nn.Module):
             elif functional:
                 x, y, z = (torch.cat([v[:lo], w]) for v, w in ((x, xs), (y, ys), (z, zs)))
             else:
-                if not owned:
-                    x, y, z, owned = x.clone(), y.clone(), z.clone(), True
                 x[lo:], y[lo:], z[lo:] = xs, ys, zs
         return x.contiguous(), y.contiguous(), z.contiguous()  # (a row no joint moved would be a view of pts)
 

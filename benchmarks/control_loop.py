@@ -83,8 +83,9 @@ def print_times(kind: str, ts: list[float], cpu: list[float]) -> None:
               f"p99 {_percentile(ms, 0.99):.3f} ms, max {max(ms):.3f} ms, first {ms[0]:.3f} ms")
 
 
-def time_calls(policy, envs: torch.Tensor) -> tuple[list[float], list[float], int]:
-    """Wall-clock and CPU seconds (this thread's: what a call costs when its core is free) of each call."""
+def time_calls(policy, envs: torch.Tensor, kinds: list[str] | None = None) -> tuple[list[float], list[float], int]:
+    """Wall-clock and CPU seconds (this thread's: what a call costs when its core is free) of each
+    call; ``kinds`` receives each call's kind (:func:`print_kinds`)."""
     period = int(round((policy.duration + 1.0) * 1000))
     ts, cpu, q = [], [], None
     misses0 = policy.means.misses
@@ -92,12 +93,26 @@ def time_calls(policy, envs: torch.Tensor) -> tuple[list[float], list[float], in
         if i % period == 0:
             policy.reset()
             q = None
+        slot, misses = policy._m.slot, policy.means.misses
         c0, t0 = time.thread_time(), time.perf_counter()
         r = policy.reference(envs[i], (i % period) * 1e-3, q)
         ts.append(time.perf_counter() - t0)
         cpu.append(time.thread_time() - c0)
+        if kinds is not None:
+            solved = "solve" if policy.means.misses > misses else ""
+            kinds.append(("decision" + (" + " + solved if solved else "")) if policy._m.slot != slot else solved or "light")
         q = r.q
     return ts, cpu, policy.means.misses - misses0
+
+
+def print_kinds(ts: list[float], kinds: list[str]) -> None:
+    """Wall-clock median / p90 / max and the calls over 1 ms by kind of call: light (no new neighbour
+    set, no decision), solve (a new neighbour set solved), decision (the class chosen), both."""
+    for k in ("light", "solve", "decision", "decision + solve"):
+        xs = [t for t, c in zip(ts, kinds) if c == k]
+        if xs:
+            print(f"    {k:17s} {len(xs):6d} calls: median {_percentile(xs, 0.5) * 1e3:.3f}, p90 "
+                  f"{_percentile(xs, 0.9) * 1e3:.3f}, max {max(xs) * 1e3:.3f} ms; {sum(x > 1e-3 for x in xs)} over 1 ms")
 
 
 def time_aoti(policy, kinds: list[str], calls: int) -> None:
@@ -221,11 +236,18 @@ def main() -> None:
             envs = environments(policy, args.calls, kind)
             policy.reset()
             swaps0 = getattr(policy.means, "updates", 0)
-            ts, cpu, misses = time_calls(policy, envs)
+            memo = getattr(policy, "_memo", None)
+            passed0, checked0 = (memo.passed, memo.checked) if memo is not None else (0, 0)
+            kinds: list[str] = []
+            ts, cpu, misses = time_calls(policy, envs, kinds)
             print_times(kind, ts, cpu)
             swaps = getattr(policy.means, "updates", 0) - swaps0
             print(f"  {kind:8s} new neighbour sets solved at {misses / len(ts):.1%} of the calls ({swaps / len(ts):.1%} "
                   f"by a swap update); load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+            if memo is not None:
+                passed, checked = memo.passed - passed0, memo.checked - checked0
+                print(f"  {kind:8s} plans passed by the bounds carried from earlier checks: {passed} of {passed + checked}")
+            print_kinds(ts, kinds)
     if args.aoti:
         time_aoti(protorch.load(args.run, backend=args.backends.split(",")[0]), args.kinds.split(","), args.calls)
     if args.continuity:

@@ -17,6 +17,7 @@ from torch import Tensor
 
 from ..tasks.arm.collision import capsule_ends, capsules_clear, capsules_gap
 from .episodes import basis_derivative_at
+from .plan_memo import ClearanceMemo
 
 __all__ = ["ArmClassChoice", "Follow", "hysteresis_choice", "rest_scores", "rest_plan", "rest_blocked", "rest_clearance",
            "checked_choice", "draw_moves", "apply_moves", "velocity_command_acceleration"]
@@ -98,34 +99,79 @@ def rest_plan(promp, means: Tensor, now: Tensor, z: float, rest: Tensor, qd: Ten
     moving = (phase < 1.0).to(means) / follow.duration  # (H,) no marker velocity in the hold
     vels = wk @ (basis_derivative_at(promp, phase).to(means).T * moving)  # (K E, J, H)
     vmax, amax = follow.vmax.to(x), follow.amax.to(x)
-    path = [x]
-    for i in range(steps):  # the semi-implicit Euler step of track()
-        v = v + velocity_command_acceleration(x, v, marks[..., i], vels[..., i], kp=follow.kp, vmax=vmax, amax=amax,
-                                              dt=follow.dt) * follow.dt
-        x = x + v * follow.dt
-        if i % 2 == 0 or i == steps - 1:
-            path.append(x)
-    plan = torch.stack(path, 1).reshape(k, n_env, len(path), j)  # (K, E, S, J)
+    if x.shape[0] <= FLOAT_ROWS and x.device.type == "cpu":  # a policy's decision: a few systems
+        plan = _rollout_floats(x, v, marks, vels, follow, vmax, amax).reshape(k, n_env, -1, j)  # (K, E, S, J)
+    else:
+        path = [x]
+        for i in range(steps):  # the semi-implicit Euler step of track()
+            v = v + velocity_command_acceleration(x, v, marks[..., i], vels[..., i], kp=follow.kp, vmax=vmax,
+                                                  amax=amax, dt=follow.dt) * follow.dt
+            x = x + v * follow.dt
+            if i % 2 == 0 or i == steps - 1:
+                path.append(x)
+        plan = torch.stack(path, 1).reshape(k, n_env, len(path), j)  # (K, E, S, J)
     later = rest[rest > min(z + steps * follow.dt / follow.duration, 1.0)]  # (P'',) the phases after the rollout
     if later.numel():
         plan = torch.cat([plan, promp.trajectory(means, phase=later)], -2)  # (K, E, S + P'', J)
     return plan
 
 
+FLOAT_ROWS = 4  # rest_plan rolls out at most this many systems on Python floats (a policy's decision)
+
+
+def _rollout_floats(x: Tensor, v: Tensor, marks: Tensor, vels: Tensor, follow: Follow, vmax: Tensor,
+                    amax: Tensor) -> Tensor:
+    """:func:`rest_plan`'s rollout for a few systems on Python floats: ``x, v (R, J)``, ``marks,
+    vels (R, J, H)`` -> the kept positions ``(R, S, J)``. The same IEEE operations in the same order
+    as the tensor loop (:func:`velocity_command_acceleration`, then the Euler step), so the same
+    numbers to the bit for finite input; a few hundred operations on 7 numbers cost several
+    times less as floats than as tensor operations."""
+    kp, dt, steps = follow.kp, follow.dt, follow.horizon
+    hv, ha = vmax.tolist(), amax.tolist()  # (J,)
+    lv, la = [-h for h in hv], [-h for h in ha]
+    out = []
+    for xr, vr, mr, wr in zip(x.tolist(), v.tolist(), marks.transpose(1, 2).tolist(), vels.transpose(1, 2).tolist()):
+        path = [xr]
+        for i in range(steps):
+            c = [w + kp * (m - p) for w, m, p in zip(wr[i], mr[i], xr)]  # the commanded velocity, then clamped
+            c = [(h if a > h else (lo if a < lo else a)) for a, h, lo in zip(c, hv, lv)]
+            g = [(a - b) / dt for a, b in zip(c, vr)]  # the acceleration, clamped below
+            vr = [b + (h if a > h else (lo if a < lo else a)) * dt for a, b, h, lo in zip(g, vr, ha, la)]
+            xr = [p + b * dt for p, b in zip(xr, vr)]
+            if i % 2 == 0 or i == steps - 1:
+                path.append(xr)
+        out.append(path)
+    return torch.tensor(out, dtype=x.dtype)  # (R, S, J)
+
+
 def rest_blocked(task, promp, means: Tensor, env: Tensor, now: Tensor, z: float, rest: Tensor,
-                 qd: Tensor | None = None, follow: Follow | None = None, extra: Tensor | None = None) -> Tensor:
+                 qd: Tensor | None = None, follow: Follow | None = None, extra: Tensor | None = None,
+                 memo: ClearanceMemo | None = None) -> Tensor:
     """Whether each class's plan for the rest of the motion (:func:`rest_plan`) touches the can,
     checked by the task's own :meth:`~protorch.tasks.ArmReachTask.can_gap` (its collision
     model) against ``margin``: ``means (K, E, N)``, ``env (E, 4)`` -> ``(K, E)`` bool (True:
     blocked). ``extra (K, E)``: metres added to ``margin`` per class and system (a class the arm
-    does not track must clear by more: :func:`checked_choice`'s ``switch_clearance``)."""
+    does not track must clear by more: :func:`checked_choice`'s ``switch_clearance``). ``memo``
+    (volumes only): plans that bounds carried from earlier checks show clear are passed without
+    placing their capsules (the same verdict), and a full check's bounds are kept
+    (:class:`~protorch.control.plan_memo.ClearanceMemo`)."""
     k, n_env = means.shape[:2]
     plan = rest_plan(promp, means, now, z, rest, qd, follow)  # (K, E, P, J)
     env = env.expand(k, n_env, env.shape[-1])  # (K, E, 4)
     margin = task.margin if extra is None else task.margin + extra.to(plan)  # a number | (K, E)
     if getattr(task, "capsule_plan", None) is not None:  # the volumes: the same verdict as can_gap, cheaper
+        flat = (plan.flatten(0, 1), env.flatten(0, 1), margin.flatten() if isinstance(margin, Tensor) else margin)
+        if memo is not None and memo.surely_clear(*flat):
+            memo.passed += 1
+            return torch.zeros(k, n_env, dtype=torch.bool, device=plan.device)
         a, b = capsule_ends(task.kinematics, plan, task.capsule_plan)  # (K, E, P, C, 3)
-        return ~capsules_clear(a, b, task.capsule_radii.to(a), env, task.can_radius, task.can_height, margin)
+        clear = capsules_clear(a, b, task.capsule_radii.to(a), env, task.can_radius, task.can_height, margin,
+                               with_lower=memo is not None)
+        if memo is not None:
+            clear, lower = clear  # (K, E), (K, E, P)
+            memo.checked += 1
+            memo.add(flat[0], flat[1], lower.flatten(0, 1))
+        return ~clear
     return task.can_gap(plan, env) <= margin
 
 
@@ -160,7 +206,8 @@ def hysteresis_choice(scores: Tensor, current: Tensor | None, switch_margin: flo
 
 def checked_choice(task, promp, means: Tensor, env: Tensor, now: Tensor, z: float, rest: Tensor, scores: Tensor,
                    current: Tensor | None, switch_margin: float, qd: Tensor | None = None,
-                   follow: Follow | None = None, switch_clearance: float = 0.0) -> Tensor:
+                   follow: Follow | None = None, switch_clearance: float = 0.0,
+                   memo: ClearanceMemo | None = None) -> Tensor:
     """:func:`hysteresis_choice` with the plan check of :func:`rest_blocked`, checking only what
     can change the choice: each system's choice by the scores first, every class only where that
     class's plan is blocked (a clear choice stands whatever the other classes' plans, so this is
@@ -179,7 +226,8 @@ def checked_choice(task, promp, means: Tensor, env: Tensor, now: Tensor, z: floa
     half of ``switch_clearance`` (the arm within the margin has near-equal gaps for every class,
     and the largest would flip with each step; the whole of it kept the arm on a plan heading
     into a sliding can in one of docs/control_loop.md's slides). ``current=None`` (the first
-    decision) checks every class against ``margin`` alone."""
+    decision) checks every class against ``margin`` alone. ``memo``: :func:`rest_blocked`'s (the
+    same choice, fewer capsules placed)."""
     c = hysteresis_choice(scores, current, switch_margin)  # (E,)
     e = torch.arange(means.shape[1], device=means.device)
     per_class = now.dim() == 3
@@ -193,11 +241,11 @@ def checked_choice(task, promp, means: Tensor, env: Tensor, now: Tensor, z: floa
 
     bad = rest_blocked(task, promp, means[c, e][None], env, now[c, e] if per_class else now, z, rest,
                        None if qd is None else (qd[c, e] if per_class else qd), follow,
-                       None if other is None else switch_clearance * other[c, e][None])[0]  # (E,)
+                       None if other is None else switch_clearance * other[c, e][None], memo)[0]  # (E,)
     if bool(bad.any()):
         i = torch.nonzero(bad).flatten()  # (n,) the systems whose choice is blocked
         blocked = rest_blocked(task, promp, means[:, i], env[i], part(now, i), z, rest, part(qd, i), follow,
-                               None if other is None else switch_clearance * other[:, i])  # (K, n)
+                               None if other is None else switch_clearance * other[:, i], memo)  # (K, n)
         c = c.clone()
         c[i] = hysteresis_choice(scores[:, i], None if current is None else current[i], switch_margin, blocked)
         stuck = blocked.all(0)  # (n,) every class blocked: the largest clearance

@@ -18,7 +18,9 @@ measured now. What it computes, per call:
    ``switch_margin``. The arm's score: :func:`~protorch.control.arm_choice.rest_scores`, the
    objectives of the rest of the motion from the end effector of ``q`` (one pass of
    :class:`~protorch.control.policy_means.EndEffector`; ``q=None``: each class's own mean at
-   ``t``); with ``check`` the plan check from ``q, qd`` (:func:`~protorch.control.arm_choice.checked_choice`).
+   ``t``); with ``check`` the plan check from ``q, qd`` (:func:`~protorch.control.arm_choice.checked_choice`;
+   a plan that bounds carried from the last full checks show clear is passed without placing the
+   arm's capsules, :class:`~protorch.control.plan_memo.ClearanceMemo`: the same verdict).
    A user's own task: the summed objectives of each class's whole mean trajectory
    (:func:`~protorch.gp.model.label_aware_mean`). A map with one class has no choice to make.
 3. **The reference**: the chosen class's mean at the phase ``z = min(t / duration, 1)`` and its
@@ -49,6 +51,7 @@ from torch import Tensor
 from ..gp.model import EnvToProMP, label_aware_mean
 from ..tasks.arm.reach import ArmReachTask
 from .arm_choice import Follow, checked_choice, hysteresis_choice, rest_scores
+from .plan_memo import ClearanceMemo, point_reach
 from .policy_export import write_program
 from .policy_means import ClassMeans, EndEffector, basis3
 
@@ -139,6 +142,8 @@ class Policy(EnvToProMP):
                 self._follow = Follow(float(kp), kin.max_velocity.to(**kw), torch.as_tensor(amax, **kw).expand(self._d),
                                       self.decision_dt, self.duration)
         self._label_list = self.labels.tolist()
+        plan = getattr(task, "capsule_plan", None) if arm else None  # the plan check's bounds carried between decisions
+        self._memo = ClearanceMemo(point_reach(task.kinematics, plan)) if plan is not None else None
         # the other classes' neighbour sets are kept fresh between decisions (a decision then
         # rarely has a new set to solve): every refresh_dt seconds, on calls that solved nothing
         self._refresh_dt = self.decision_dt / 4
@@ -160,6 +165,8 @@ class Policy(EnvToProMP):
     def reset(self) -> None:
         """Start a new motion: no class chosen, no offset, no time."""
         self._m = _Motion()
+        if self._memo is not None:
+            self._memo.reset()
         if self.means.mode == "nearest":
             self.means.reset()
 
@@ -270,7 +277,7 @@ class Policy(EnvToProMP):
             rest = self._grid[bisect.bisect_right(self._grid_list, z):]  # (P',) the phases after z
             v = None if q is None else (torch.zeros_like(q) if qd is None else qd)[None]  # (1, D) the arm's velocity
             c = int(checked_choice(self.task, self._P, every[:, None], env[None], now, z, rest, scores, cur,
-                                   self.switch_margin, v, self._follow, self.switch_clearance)[0])
+                                   self.switch_margin, v, self._follow, self.switch_clearance, self._memo)[0])
         else:
             c = int(hysteresis_choice(scores, cur, self.switch_margin)[0])
         m.current = c

@@ -18,3 +18,20 @@ def test_switches_undone_within_three_decisions_are_counted_per_episode():
     with benchmark_module("control_loop.py", "_control_loop") as bench:
         assert bench.reversed_switches(labels) == (4, 2)
         assert bench.reversed_switches(labels, within=4) == (5, 3)
+
+
+def test_each_timed_call_is_sorted_by_what_it_did():
+    """time_calls' kinds: one decision per ``decision_dt`` slot of the motion, the calls that
+    solved a new neighbour set among the rest, every call once."""
+    from tests.control.test_policy import toy_policy
+
+    policy = toy_policy(nearest_k=8)
+    with benchmark_module("control_loop.py", "_control_loop") as bench:
+        envs = bench.environments(policy, 300, "moving")  # 0.3 s of a 2 s motion at 1 kHz
+        kinds: list[str] = []
+        ts, cpu, misses = bench.time_calls(policy, envs, kinds)
+    assert len(kinds) == len(ts) == len(cpu) == 300
+    assert sum(k.startswith("decision") for k in kinds) == 15  # t = 0 .. 0.299 s, a decision every 20 ms
+    solved = sum(k.endswith("solve") for k in kinds)
+    assert 0 < solved <= misses
+    assert set(kinds) <= {"light", "solve", "decision", "decision + solve"}

@@ -5,6 +5,8 @@ over is the path the moving test's velocity command drives."""
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from protorch.control.arm_choice import hysteresis_choice
@@ -151,3 +153,85 @@ def test_the_checks_hysteresis_takes_another_class_only_clear_by_the_extra_clear
     assert torch.equal(held[stuck], (gaps[0, stuck] > gaps[1, stuck] + delta / 2).long().neg() + 1)
     assert bool((held[stuck] != plain[stuck]).any())
     assert torch.equal(held[~hover & ~stuck], plain[~hover & ~stuck])
+
+
+def test_the_rollout_of_a_few_systems_on_floats_is_the_tensor_loop_to_the_bit(monkeypatch):
+    """rest_plan rolls out a policy's few systems on Python floats (FLOAT_ROWS): the same numbers
+    to the bit as the tensor loop, with the velocity and the acceleration limits both active."""
+    from protorch import ProMP
+    from protorch.control import arm_choice
+    from protorch.control.arm import arm_follow
+    from protorch.control.arm_choice import rest_plan
+    from protorch.control.episodes import Timing
+    from protorch.tasks.arm.reach import ArmReachTask
+
+    task = ArmReachTask(cost_steps=6)
+    promp = ProMP(task.num_dof, 10, 50)
+    g = torch.Generator().manual_seed(1)
+    timing = Timing(dt=0.02, duration=1.0, moving=50, held=20)
+    follow = arm_follow(task, 10.0, task.robot.max_acceleration, timing)
+    w = 2.0 * torch.randn(2, 1, task.num_dof * 10, generator=g, dtype=torch.float64)  # (K, E, N) far from the arm
+    q = torch.randn(1, task.num_dof, generator=g, dtype=torch.float64)
+    qd = 3.0 * torch.randn(1, task.num_dof, generator=g, dtype=torch.float64)  # beyond the velocity limits
+    rest = torch.linspace(0.1, 1.0, 10, dtype=torch.float64)
+    for z in (0.0, 0.3, 0.9):
+        fast = rest_plan(promp, w, q, z, rest, qd, follow)  # (K, E, P, J) on floats
+        monkeypatch.setattr(arm_choice, "FLOAT_ROWS", 0)
+        slow = rest_plan(promp, w, q, z, rest, qd, follow)  # the tensor loop
+        monkeypatch.setattr(arm_choice, "FLOAT_ROWS", 4)
+        assert torch.equal(fast, slow)
+    free = follow._replace(vmax=torch.full_like(follow.vmax, math.inf), amax=torch.full_like(follow.amax, math.inf))
+    assert not torch.allclose(rest_plan(promp, w, q, 0.0, rest, qd, free), rest_plan(promp, w, q, 0.0, rest, qd, follow))
+
+
+def test_a_capsule_point_moves_by_at_most_the_reach_weighted_joint_change():
+    """point_reach bounds how far a joint change moves any point of the arm's capsules:
+    ``|p(q) - p(q')| <= sum_j reach_j |q_j - q'_j|`` for random configurations near and far."""
+    from protorch.control.plan_memo import point_reach
+    from protorch.tasks.arm.reach import ArmReachTask
+
+    task = ArmReachTask(collision="volume")
+    kin, plan = task.kinematics, task.capsule_plan
+    reach = point_reach(kin, plan)  # (J,)
+    g = torch.Generator().manual_seed(3)
+    lo, hi = kin.lower.to(torch.float64), kin.upper.to(torch.float64)
+    q0 = lo + (hi - lo) * torch.rand(400, task.num_dof, generator=g, dtype=torch.float64)
+    for scale in (1e-3, 0.1, 1.0):
+        q1 = q0 + scale * torch.randn(q0.shape, generator=g, dtype=torch.float64)
+        moved = (kin.carry_points(q1, plan) - kin.carry_points(q0, plan)).norm(dim=-1).amax(-1)  # (B,)
+        bound = (q1 - q0).abs() @ reach  # (B,)
+        assert bool((moved <= bound + 1e-12).all())
+        assert float((moved / bound).max()) > 0.5  # and not loose everywhere
+
+
+def test_the_clearance_memo_passes_only_plans_the_full_check_finds_clear():
+    """ClearanceMemo: bounds kept from a full check, carried to nearby plans and a moved can,
+    pass a plan only where every configuration's exact capsule gap exceeds the margin, and pass
+    some (the plans a little away from the can)."""
+    from protorch.control.plan_memo import ClearanceMemo, point_reach
+    from protorch.tasks.arm.collision import capsule_ends, capsules_clear, capsules_gap
+    from protorch.tasks.arm.reach import ArmReachTask
+
+    task = ArmReachTask(collision="volume")
+    kin, plan = task.kinematics, task.capsule_plan
+    r = task.capsule_radii
+    g = torch.Generator().manual_seed(4)
+    start = task.start_config(dtype=torch.float64)
+    memo = ClearanceMemo(point_reach(kin, plan))
+    env = torch.tensor([[0.55, 0.0, 0.7, 0.0]], dtype=torch.float64)  # (1, 4)
+    q = start + 0.2 * torch.randn(1, 20, task.num_dof, generator=g, dtype=torch.float64)  # (1, P, J)
+    a, b = capsule_ends(kin, q, plan)
+    _, lower = capsules_clear(a, b, r, env, task.can_radius, task.can_height, task.margin, with_lower=True)
+    gap = capsules_gap(a[:, :, None], b[:, :, None], r, env[:, None], task.can_radius, task.can_height)  # (1, P)
+    assert bool((lower <= gap + 1e-12).all())  # lower bounds of each configuration's gap
+    memo.add(q, env, lower)
+    passed = 0
+    for i in range(200):
+        step = (i % 20 + 1) * 2e-3
+        q1 = q + step * torch.randn(q.shape, generator=g, dtype=torch.float64)
+        env1 = env + torch.tensor([[step, -step, 0.0, 0.0]], dtype=torch.float64)
+        if memo.surely_clear(q1, env1, task.margin):
+            a1, b1 = capsule_ends(kin, q1, plan)
+            assert float(capsules_gap(a1, b1, r, env1, task.can_radius, task.can_height).min()) > task.margin
+            passed += 1
+    assert 0 < passed < 200

@@ -140,6 +140,7 @@ def test_the_policy_reproduces_the_checks_hysteresis_on_the_volumes(policy):
         got = [volume.reference(res.envs[e, i], i * res.dt, res.q[e, i], res.qd[e, i]).label
                for i in range(res.q.shape[1])]
         assert got == res.labels[e].tolist(), e
+    assert volume._memo.passed >= 1 and volume._memo.checked >= 1  # plans passed by the carried bounds, and not
 
 
 @pytest.mark.parametrize("check", [False, True])

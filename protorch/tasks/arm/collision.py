@@ -146,7 +146,7 @@ def capsules_gap(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, he
 
 
 def capsules_clear(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, height: float,
-                   margin: float | Tensor) -> Tensor:
+                   margin: float | Tensor, *, with_lower: bool = False) -> Tensor | tuple[Tensor, Tensor]:
     """Whether :func:`capsules_gap` ``> margin``: ``(...)`` bool, the same verdict at a fraction
     of the cost (a gap within the search's tolerance, about 1e-9 m, of ``margin`` aside).
     ``margin``: one number, or a tensor broadcastable to ``(...)`` (one margin per batch entry).
@@ -157,7 +157,9 @@ def capsules_clear(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, 
     point is level with the can's side both are the same number (the exact gap). The
     golden-section search (:func:`~protorch.tasks.arm.geometry.segment_cylinder_within`, each
     capsule stopped once decided) runs only on capsules whose bounds straddle ``margin`` (the
-    segment nearest the can's rim or top) in batch entries no bound has decided."""
+    segment nearest the can's rim or top) in batch entries no bound has decided. ``with_lower``:
+    also the smallest of the capsules' lower bounds at each step ``(..., T)`` (what
+    :class:`~protorch.control.plan_memo.ClearanceMemo` keeps)."""
     axis = env[..., None, None, 0:2]  # (..., 1, 1, 2)
     shape = torch.broadcast_shapes(a.shape[:-1], axis.shape[:-1])  # (..., T, C)
     d, u = segment_axis_closest(a, b, axis, 0.0, height)  # (..., T, C)
@@ -176,7 +178,7 @@ def capsules_clear(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, 
         within = torch.zeros(shape, dtype=torch.bool, device=a.device)
         within[idx] = segment_cylinder_within(a_i, b_i, ax_i, radius, 0.0, height, r.expand(shape)[idx], m_i)
         clear = clear & ~within.flatten(-2).any(-1)
-    return clear
+    return (clear, lower.amin(-1)) if with_lower else clear  # (...), (..., T)
 
 
 def above_table(task, frames: Tensor) -> Tensor:

@@ -27,7 +27,8 @@ between consecutive calls, against the same with the offset off (``blend=inf``: 
     python benchmarks/control_loop.py RUN_DIR [--calls 10000] [--backends torch,gpytorch,sparse] [--check on,off]
         [--continuity 10]
 
-``--check on,off`` times the class choice with and without its plan check (the run's
+``--pieces``: the walk once more with the decisions' pieces (every class's mean, the scores, the
+plan check and its plan, capsule placement and bounds) each timed. ``--check on,off`` times the class choice with and without its plan check (the run's
 ``dynamic.check``, on by default: :func:`protorch.control.arm_choice.rest_blocked`) side by side.
 
 ``--aoti``: also the program ``policy.export(path, aoti=True)`` writes (AOTInductor, compiled on
@@ -113,6 +114,47 @@ def print_kinds(ts: list[float], kinds: list[str]) -> None:
         if xs:
             print(f"    {k:17s} {len(xs):6d} calls: median {_percentile(xs, 0.5) * 1e3:.3f}, p90 "
                   f"{_percentile(xs, 0.9) * 1e3:.3f}, max {max(xs) * 1e3:.3f} ms; {sum(x > 1e-3 for x in xs)} over 1 ms")
+
+
+def time_pieces(policy, envs: torch.Tensor) -> None:
+    """The pieces of the class decisions of :func:`time_calls`'s walk: each wrapped in a timer
+    (the walk runs once more), their mean wall time per call and how many calls; the plan
+    check's pieces only where the carried bounds (``ClearanceMemo``) did not pass the plan."""
+    import protorch.control.arm_choice as ac
+    import protorch.control.policy as pm
+    from protorch.control.policy_means import ClassMeans
+
+    spent: dict[str, list[float]] = {}
+
+    def timed(owner, name: str, label: str):
+        f = getattr(owner, name)
+
+        def run(*a, **k):
+            t0 = time.perf_counter()
+            out = f(*a, **k)
+            spent.setdefault(label, []).append(time.perf_counter() - t0)
+            return out
+        return f, run
+
+    pieces = [(ClassMeans, "__call__", "every class's mean (new sets solved)"), (pm.Policy, "_scores", "the scores"),
+              (pm, "checked_choice", "the plan check (all of it)"), (ac, "rest_plan", "  the plan (rollout, mean after)"),
+              (ac, "capsule_ends", "  the capsules placed"), (ac, "capsules_clear", "  the capsules bounded")]
+    saved = []
+    for owner, name, label in pieces:
+        f, run = timed(owner, name, label)
+        saved.append((owner, name, f))
+        setattr(owner, name, run)
+    try:
+        policy.reset()
+        time_calls(policy, envs)
+    finally:
+        for owner, name, f in saved:
+            setattr(owner, name, f)
+    print("    the decisions' pieces (wall, mean per call):")
+    for _, _, label in pieces:
+        xs = spent.get(label, [])
+        if xs:
+            print(f"      {label:38s} {len(xs):5d} calls, {sum(xs) / len(xs) * 1e3:.3f} ms")
 
 
 def time_aoti(policy, kinds: list[str], calls: int) -> None:
@@ -220,6 +262,8 @@ def main() -> None:
                     help="the class choice's plan check: run (the run's dynamic.check), or on,off (both, side by side)")
     ap.add_argument("--aoti", action="store_true",
                     help="also the AOTInductor-compiled exported program (the first backend's map)")
+    ap.add_argument("--pieces", action="store_true",
+                    help="also the decisions' pieces timed (the walk once more, each piece wrapped in a timer)")
     ap.add_argument("--continuity", type=int, default=0, metavar="EPISODES",
                     help="also the continuity over this many switching episodes of the moving test")
     args = ap.parse_args()
@@ -248,6 +292,8 @@ def main() -> None:
                 passed, checked = memo.passed - passed0, memo.checked - checked0
                 print(f"  {kind:8s} plans passed by the bounds carried from earlier checks: {passed} of {passed + checked}")
             print_kinds(ts, kinds)
+            if args.pieces:
+                time_pieces(policy, envs)
     if args.aoti:
         time_aoti(protorch.load(args.run, backend=args.backends.split(",")[0]), args.kinds.split(","), args.calls)
     if args.continuity:

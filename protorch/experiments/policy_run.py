@@ -20,7 +20,7 @@ from .point_particle import PointParticleExperiment
 from .run_folder import CONFIG_FILE
 from .self_improve import GenericExperiment
 
-__all__ = ["POLICY_EXPERIMENTS", "rebuild_experiment", "load_policy"]
+__all__ = ["POLICY_EXPERIMENTS", "rebuild_experiment", "load_policy", "policy_settings"]
 
 # the experiments whose runs are a policy: a trained map of a self-improvement experiment
 POLICY_EXPERIMENTS = ("arm_reach", "point_particle", "self_improve")
@@ -66,6 +66,21 @@ def _moving_test_defaults(name: str) -> dict:
             and p.default is not inspect.Parameter.empty}
 
 
+def policy_settings(name: str, dynamic: dict | None, **options) -> dict:
+    """:class:`~protorch.control.policy.Policy`'s settings for a run of experiment ``name`` from
+    its moving test's settings ``dynamic`` (the run's ``settings.dynamic``; the test's own
+    defaults where it leaves one out): the motion's duration, the decision interval, the switch
+    margin, the plan check and, for the arm, the velocity command it rolls out and the check's
+    hysteresis. ``options`` override them."""
+    dyn = {**_moving_test_defaults(name), **dict(dynamic or {})}
+    settings = {"duration": float(dyn.get("duration", 1.0)), "switch_margin": float(dyn.get("switch_margin", 0.0)),
+                "decision_dt": float(dyn.get("dt", 0.01)), "check": bool(dyn.get("check", False)), **options}
+    if name == "arm_reach":  # the velocity command the check rolls out, and the check's hysteresis
+        settings = {"kp": float(dyn.get("kp", 10.0)), "max_acceleration": dyn.get("max_acceleration"),
+                    "switch_clearance": float(dyn.get("switch_clearance", 0.0)), **settings}
+    return settings
+
+
 def load_policy(run: str | Path, *, device=None, dtype=None, backend: str | None = None, warm_up: bool = True,
                 **options):
     """A run folder as a :class:`~protorch.control.policy.Policy` (``protorch.load``): the map
@@ -109,12 +124,7 @@ def load_policy(run: str | Path, *, device=None, dtype=None, backend: str | None
                          f"{getattr(task, 'name', '?')!r}")
     if hasattr(task, "to"):
         task.to(model.promp.basis.device)
-    dyn = {**_moving_test_defaults(cfg["name"]), **dict(getattr(exp, "dyn_cfg", {}) or {})}
-    settings = {"duration": float(dyn.get("duration", 1.0)), "switch_margin": float(dyn.get("switch_margin", 0.0)),
-                "decision_dt": float(dyn.get("dt", 0.01)), "check": bool(dyn.get("check", False)), **options}
-    if cfg["name"] == "arm_reach":  # the velocity command the check rolls out, and the check's hysteresis
-        settings = {"kp": float(dyn.get("kp", 10.0)), "max_acceleration": dyn.get("max_acceleration"),
-                    "switch_clearance": float(dyn.get("switch_clearance", 0.0)), **settings}
+    settings = policy_settings(cfg["name"], getattr(exp, "dyn_cfg", None), **options)
     with torch.no_grad():
         return Policy(model.promp, model.env_map, model.task_name, task=task, experiment=cfg["name"],
                       warm_up=warm_up, **settings)

@@ -6,8 +6,9 @@ the environment is whatever the person has dragged it to when the step runs. The
 theirs: the particle's PD (``Kp 1000, Kd 30, dt 0.01``) tracks the marker, the mean of the map's
 answer at the current phase, with its phase velocity as feed-forward; the arm tracks the chosen
 class's mean joint trajectory (``v_cmd = m' + kp (m - q)`` clamped to the joint velocity limits,
-reached within the acceleration limits) and keeps its class unless another one's objectives of the
-rest of the motion, from where the end effector is now, are lower by more than ``switch_margin``.
+reached within the acceleration limits), the class chosen as the moving test and a trained run's
+policy choose it (:meth:`protorch.control.policy.Policy.choose`: the objectives of the rest of the
+motion from where the arm is, the switch margin, the plan check with its own hysteresis).
 """
 
 from __future__ import annotations
@@ -17,8 +18,10 @@ import math
 import torch
 from torch import Tensor
 
-from ..control.arm import rest_scores
+from ..control.arm_choice import velocity_command_acceleration
 from ..control.particle import promp_state_at
+from ..control.policy import Policy
+from ..tasks.arm.collision import above_table, joints_clearance
 from ..tasks.arm.reach import SIDES
 
 __all__ = ["ArmPlayer", "ParticlePlayer", "make_player"]
@@ -99,17 +102,28 @@ class ParticlePlayer(_Player):
 
 
 class ArmPlayer(_Player):
-    """The tracking arm of :mod:`protorch.control.arm`, stepped against a live environment."""
+    """The tracking arm of :mod:`protorch.control.arm`, stepped against a live environment: the
+    class chosen at every step by the run's policy (:meth:`protorch.control.policy.Policy.choose`:
+    the moving test's choice, its plan check and both hysteresis, one implementation), tracked by
+    the moving test's velocity command; the gap to the can and the table under the task's
+    collision model. The settings are the run's moving test's (``settings.dynamic`` of its
+    ``config.yaml``, the test's defaults for a run without one); ``options`` override them
+    (:func:`~protorch.experiments.policy_run.policy_settings`)."""
 
-    def __init__(self, run, *, duration: float = 3.0, hold: float = 1.0, dt: float = 0.02, kp: float = 10.0,
-                 switch_margin: float = 0.02) -> None:
-        super().__init__(run, duration=duration, hold=hold, dt=dt)
-        task, promp = run.task, run.model.promp
-        self.kp, self.switch_margin = float(kp), float(switch_margin)
+    def __init__(self, run, **options) -> None:
+        from ..experiments.policy_run import policy_settings  # the experiments import the control modules
+
+        dyn = dict((run.config.get("settings") or {}).get("dynamic") or {})
+        hold = float(options.pop("hold", dyn.get("hold", 1.0)))
+        settings = policy_settings("arm_reach", dyn, **options)
+        super().__init__(run, duration=settings["duration"], hold=hold, dt=settings["decision_dt"])
+        model, task = run.model, run.task
+        self.policy = Policy(model.promp, model.env_map, model.task_name, task=task, warm_up=False, **settings)
+        self.kp, self.switch_margin = settings["kp"], settings["switch_margin"]
         self.vmax = task.kinematics.max_velocity.to(**self.kw)  # (J,)
-        self.amax = torch.as_tensor(task.robot.max_acceleration, **self.kw)  # (J,)
-        self.cand = torch.unique(run.model.env_map.labels)  # (K,)
-        self.grid = promp.phase[task.cost_indices(promp.num_steps)].to(**self.kw)  # (P,)
+        amax = settings["max_acceleration"]
+        self.amax = torch.as_tensor(task.robot.max_acceleration if amax is None else amax, **self.kw).expand_as(self.vmax)
+        self.cand = self.policy.labels  # (K,)
         self.q = None
 
     def reset(self, env=None) -> None:
@@ -119,18 +133,22 @@ class ArmPlayer(_Player):
         self.current, self.switches, self.min_distance = None, 0, float("inf")
         self.t, self.done, self.success, self.collided, self.valid = 0, False, None, False, True
         self.started = True
+        self.policy.reset()
         self.ee = [self.run.task.kinematics.ee_position(self.q)]
 
     @property
     def label(self) -> str | None:
         return None if self.current is None else SIDES.get(int(self.cand[self.current]), str(self.current))
 
-    def _scores(self, means: Tensor, e: Tensor, ee_now: Tensor) -> Tensor:
-        """Summed objectives of the rest of the motion for every class (the online test's
-        :func:`~protorch.control.arm.rest_scores`): ``means (K, N) -> (K,)``."""
-        rest = self.grid[self.grid > self.phase]  # (P',)
-        return rest_scores(self.run.task, self.run.model.promp, means[:, None], e.reshape(1, 4),
-                           ee_now.reshape(1, 3), rest)[:, 0]  # (K,)
+    def _clearance(self, e: Tensor) -> tuple[float, bool]:
+        """The arm's gap to the can of ``e (4,)`` and whether it is above the table, now."""
+        task, traj = self.run.task, self.q[None, None]  # (1, 1, J)
+        if task.capsule_plan is not None:
+            gap, table = joints_clearance(task, traj, e[None])
+        else:
+            frames = task.kinematics.frames(traj)
+            gap, table = task.frames_gap(frames, e[None]), above_table(task, frames)
+        return float(gap[0]), bool(table[0])
 
     def step(self, env) -> Tensor:
         """One control step in ``env (4,)``; returns the joint angles ``(J,)``."""
@@ -139,30 +157,25 @@ class ArmPlayer(_Player):
         if self.done:
             return self.q
         e, task = self._env(env), self.run.task
-        promp, k = self.run.model.promp, self.cand.numel()
         with torch.no_grad():
-            means = self.run.model.env_map.predict_mean(e[None].expand(k, 4), self.cand).to(**self.kw)  # (K, N)
-            scores = self._scores(means, e, task.kinematics.ee_position(self.q))  # (K,)
-            if self.current is not None:  # hysteresis: every other class pays the margin
-                scores = scores + self.switch_margin * (torch.arange(k, device=scores.device) != self.current)
-            best = int(scores.argmin())
+            best, w = self.policy.choose(e, self.t * self.dt, self.q, qd=self.qd)  # (1, N) the class's mean
             self.switches += int(self.current is not None and best != self.current)
             self.current = best
-            m, dm_dz = promp_state_at(promp, means[best], self.phase)  # (J,), (J,)
+            m, dm_dz = promp_state_at(self.run.model.promp, w[0].to(**self.kw), self.phase)  # (J,), (J,)
             m_vel = dm_dz / self.duration if self.t < self.moving else torch.zeros_like(m)
-            v_cmd = torch.maximum(torch.minimum(m_vel + self.kp * (m - self.q), self.vmax), -self.vmax)
-            acc = torch.maximum(torch.minimum((v_cmd - self.qd) / self.dt, self.amax), -self.amax)
+            acc = velocity_command_acceleration(self.q[None], self.qd[None], m[None], m_vel[None], kp=self.kp,
+                                                vmax=self.vmax, amax=self.amax, dt=self.dt)[0]  # (J,)
             self.qd = self.qd + acc * self.dt
             self.q = self.q + self.qd * self.dt
-            links = task.kinematics.link_positions(self.q)  # (F, 3)
-            dist = float(task.skeleton_distance(links[None, None], e[None])[0])
-        self.min_distance = min(self.min_distance, dist)
-        self.collided |= dist <= task.can_radius + task.margin
-        self.valid &= bool(task.kinematics.within_limits(self.q)) and bool((links[1:, 2] >= 0).all())
-        self.ee.append(links[-1])
+            gap, table = self._clearance(e)
+            ee = task.kinematics.ee_position(self.q)  # (3,)
+        self.min_distance = min(self.min_distance, gap)
+        self.collided |= gap <= task.margin
+        self.valid &= bool(task.kinematics.within_limits(self.q)) and table
+        self.ee.append(ee)
         self.t += 1
         if self.t >= self.total:
-            goal = float((links[-1] - task.goal_point(e)).norm())
+            goal = float((ee - task.goal_point(e)).norm())
             self.done = True
             self.success = (not self.collided) and self.valid and goal <= task.goal_tol
         return self.q

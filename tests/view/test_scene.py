@@ -122,3 +122,31 @@ def test_an_arm_run_is_rebuilt_with_its_robot_and_the_teach_page_takes_one(tmp_p
     args = parse_args(["--teach", "arm_reach", "--robot", str(tmp_path / "robot.yaml"), "--out", str(tmp_path / "d")])
     session, _ = teach_session(args)
     assert session.teach.task.num_dof == 6
+
+
+def test_the_live_arm_is_the_moving_tests_arm(arm_run_dir):
+    """ArmPlayer chooses and moves as the moving test does (one implementation: the run's policy's
+    choice with its plan check and hysteresis, the test's velocity command): the same class at
+    every step and the same joints, the can sliding across the arm's path."""
+    from protorch.control.arm import run_arm_episodes
+
+    run = open_run(arm_run_dir)
+    p = ArmPlayer(run, duration=1.0, hold=0.2)
+    assert p.policy.check and p.policy.switch_clearance == 0.01  # the moving test's defaults (no config.yaml)
+    m = p.moving
+    y = torch.linspace(0.08, -0.08, m + 1, dtype=torch.float64)
+    walk = torch.stack([torch.full_like(y, 0.56), y, torch.full_like(y, 0.70), torch.full_like(y, 0.02)], -1)  # (M + 1, 4)
+    res = run_arm_episodes(run.model, run.task, walk=walk[None], duration=1.0, hold=0.2, dt=p.dt)
+    p.reset()
+    labels, qs = [], [p.q]
+    while not p.done:
+        p.step(walk[min(p.t, m)])
+        labels.append(int(p.cand[p.current]))
+        qs.append(p.q)
+    assert labels == res.labels[0, :p.total].tolist()
+    torch.testing.assert_close(torch.stack(qs), res.q[0], rtol=0, atol=1e-9)
+    seen = walk[torch.arange(p.total).clamp(max=m)]  # (total, 4) the environment at each step
+    gaps = run.task.can_gap(res.q[0, 1:p.total + 1, None], seen)  # (total,) each new pose against that step's can
+    assert p.min_distance == pytest.approx(float(gaps.min()), abs=1e-9)  # the task's collision model (volumes)
+    assert p.collided == bool(gaps.min() <= run.task.margin)
+    assert len(set(labels)) == 2  # the sliding can makes the arm change sides

@@ -10,9 +10,8 @@ from pathlib import Path
 import torch
 from omegaconf import OmegaConf
 
-from ..control.arm import run_arm_episodes
-from ..control.particle import run_episodes
 from ..control.policy import Policy
+from ..control.policy_settings import policy_settings
 from ..data.checkpoint import checkpoint_path, load
 from . import SettingsError, check_config
 from .arm_reach import ArmReachExperiment
@@ -20,7 +19,7 @@ from .point_particle import PointParticleExperiment
 from .run_folder import CONFIG_FILE
 from .self_improve import GenericExperiment
 
-__all__ = ["POLICY_EXPERIMENTS", "rebuild_experiment", "load_policy", "policy_settings"]
+__all__ = ["POLICY_EXPERIMENTS", "rebuild_experiment", "load_policy"]
 
 # the experiments whose runs are a policy: a trained map of a self-improvement experiment
 POLICY_EXPERIMENTS = ("arm_reach", "point_particle", "self_improve")
@@ -51,34 +50,6 @@ def rebuild_experiment(cfg: dict, where: str = "run"):
         if init is not None:
             accepted |= set(inspect.signature(init).parameters) - {"self", "settings", "args"}
     return cls(**{k: v for k, v in kwargs.items() if k in accepted})
-
-
-def _moving_test_defaults(name: str) -> dict:
-    """The moving test's own defaults (what the run used where its config left them out)."""
-    if name == "arm_reach":
-            fn = run_arm_episodes
-    elif name == "point_particle":
-        fn = run_episodes
-    else:
-        return {}
-    return {k: p.default for k, p in inspect.signature(fn).parameters.items()
-            if k in ("duration", "dt", "switch_margin", "check", "kp", "max_acceleration", "switch_clearance")
-            and p.default is not inspect.Parameter.empty}
-
-
-def policy_settings(name: str, dynamic: dict | None, **options) -> dict:
-    """:class:`~protorch.control.policy.Policy`'s settings for a run of experiment ``name`` from
-    its moving test's settings ``dynamic`` (the run's ``settings.dynamic``; the test's own
-    defaults where it leaves one out): the motion's duration, the decision interval, the switch
-    margin, the plan check and, for the arm, the velocity command it rolls out and the check's
-    hysteresis. ``options`` override them."""
-    dyn = {**_moving_test_defaults(name), **dict(dynamic or {})}
-    settings = {"duration": float(dyn.get("duration", 1.0)), "switch_margin": float(dyn.get("switch_margin", 0.0)),
-                "decision_dt": float(dyn.get("dt", 0.01)), "check": bool(dyn.get("check", False)), **options}
-    if name == "arm_reach":  # the velocity command the check rolls out, and the check's hysteresis
-        settings = {"kp": float(dyn.get("kp", 10.0)), "max_acceleration": dyn.get("max_acceleration"),
-                    "switch_clearance": float(dyn.get("switch_clearance", 0.0)), **settings}
-    return settings
 
 
 def load_policy(run: str | Path, *, device=None, dtype=None, backend: str | None = None, warm_up: bool = True,

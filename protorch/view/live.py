@@ -21,6 +21,7 @@ from torch import Tensor
 from ..control.arm_choice import velocity_command_acceleration
 from ..control.particle import promp_state_at
 from ..control.policy import Policy
+from ..control.policy_settings import policy_settings
 from ..tasks.arm.collision import above_table, joints_clearance
 from ..tasks.arm.reach import SIDES
 
@@ -108,11 +109,9 @@ class ArmPlayer(_Player):
     the moving test's velocity command; the gap to the can and the table under the task's
     collision model. The settings are the run's moving test's (``settings.dynamic`` of its
     ``config.yaml``, the test's defaults for a run without one); ``options`` override them
-    (:func:`~protorch.experiments.policy_run.policy_settings`)."""
+    (:func:`~protorch.control.policy_settings.policy_settings`)."""
 
     def __init__(self, run, **options) -> None:
-        from ..experiments.policy_run import policy_settings  # the experiments import the control modules
-
         dyn = dict((run.config.get("settings") or {}).get("dynamic") or {})
         hold = float(options.pop("hold", dyn.get("hold", 1.0)))
         settings = policy_settings("arm_reach", dyn, **options)

@@ -273,7 +273,9 @@ def test_approx_variance(backend):
     gp = make_env_map(backend, ALPHA, **opts).fit(E, MU, VAR)
     Q = make_data(20, 1, seed=32)[0]
     mu, var = gp.predict(Q)
-    mu_a, var_a = gp.predict(Q, approx_var=True)
+    with torch.random.fork_rng():  # LOVE's Lanczos start is random (the global RNG): seeded, the test is
+        torch.manual_seed(0)  # the same whatever ran before (its error over 40 seeds: 0.070 to 0.099)
+        mu_a, var_a = gp.predict(Q, approx_var=True)
     _close(mu_a, mu, 0.0)  # the mean stays exact
     if backend == "gpytorch":
         # LOVE projects A^-1 onto a Krylov space: k^T A^-1 k is underestimated, var over-

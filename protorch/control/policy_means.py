@@ -175,8 +175,9 @@ class ClassMeans:
         if not bool((s > 0).all()):
             return None
         g[:, j] -= 1.0  # h = g - e_j
-        inv = torch.addcmul(G, u[:, :, None], gj[:, None, :], value=-1.0)  # (N, k, k) slot j removed
-        inv.addcmul_((g / s[:, None])[:, :, None], g[:, None, :])  # the new environment added in slot j
+        # slot j removed (- u gj^T) and the new environment added in it (+ g g^T / s): both rank-1
+        # terms in one batched product, one pass over the 70 (k, k) inverses instead of two
+        inv = torch.baddbmm(G, torch.stack([u, g / s[:, None]], -1), torch.stack([-gj, g], 1))  # (N, k, k)
         rows = list(old.rows)
         rows[j] = new
         Es = old.Es.clone()

@@ -35,3 +35,19 @@ def test_each_timed_call_is_sorted_by_what_it_did():
     solved = sum(k.endswith("solve") for k in kinds)
     assert 0 < solved <= misses
     assert set(kinds) <= {"light", "solve", "decision", "decision + solve"}
+
+
+def test_the_pieces_are_timed_and_the_timers_removed(capsys):
+    """time_pieces wraps the decision's pieces in timers for one walk and puts them back."""
+    import protorch.control.arm_choice as ac
+    from protorch.control.policy import Policy
+    from protorch.control.policy_means import ClassMeans
+    from tests.control.test_policy import toy_policy
+
+    before = (ClassMeans.__call__, Policy._scores, ac.rest_plan)
+    policy = toy_policy(nearest_k=8)
+    with benchmark_module("control_loop.py", "_control_loop") as bench:
+        bench.time_pieces(policy, bench.environments(policy, 100, "moving"))
+    out = capsys.readouterr().out
+    assert "the scores" in out and " 5 calls" in out  # a decision every 20 ms of the 0.1 s walk
+    assert (ClassMeans.__call__, Policy._scores, ac.rest_plan) == before

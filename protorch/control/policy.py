@@ -127,8 +127,7 @@ class Policy(EnvToProMP):
         self._d, self._kb = promp.num_dof, promp.num_basis
         self._device = promp.basis.device
         arm = task is not None and callable(getattr(task, "ee_path", None)) and callable(getattr(task, "path_costs", None))
-        self._follow = None
-        self._arm = arm
+        self._follow, self._arm = None, arm
         if arm:
             self._grid = self._P.phase[task.cost_indices(promp.num_steps)].to(**kw)  # (P,) the objectives' phases
             self._grid_list = self._grid.tolist()
@@ -238,10 +237,10 @@ class Policy(EnvToProMP):
                phi: Tensor | None = None, qd: Tensor | None = None) -> tuple[int, Tensor]:
         """The class row (into :attr:`labels`) tracked at ``t`` and its mean weights ``(1, N)``:
         a decision (every class asked, scored, hysteresis) at the first call and whenever ``t``
-        enters a new ``decision_dt`` slot; between decisions only the current class is asked (and
-        every ``decision_dt / 4``, on a call that solved no set of its own, another class's
-        neighbour set brought up to date).
-        ``point``: ``env.tolist()``; ``phi (3, K)``: :meth:`basis_at` ``t``."""
+        enters a new ``decision_dt`` slot; between decisions only the current class is asked (a
+        call that solved no set of its own also readies a set for its next swap, or every
+        ``decision_dt / 4`` brings another class's set up to date). ``point``: ``env.tolist()``;
+        ``phi (3, K)``: :meth:`basis_at` ``t``."""
         z = min(t / self.duration, 1.0)
         means = self.means
         if point is None:
@@ -257,15 +256,17 @@ class Policy(EnvToProMP):
         if m.current is not None and slot <= m.slot:
             solved = means.misses
             w = means.mean(m.current, env, point)
-            if means.mode == "nearest" and t - m.fresh >= self._refresh_dt and means.misses == solved:
-                # on a call that solved nothing for its own class (a refresh that solves a set
-                # would otherwise double the call's time): the other classes, one per call
+            # a call that solved nothing does one thing more: the tracked set's inverses for its next
+            # swap (ClassMeans.prepare), or another class's (its inverses, then its set brought up to date)
+            if means.mode != "nearest" or means.misses != solved or means.prepare(m.current):
+                return m.current, w
+            if t - m.fresh >= self._refresh_dt:
                 others = [c for c in range(len(self._label_list)) if c != m.current]
                 c = others[m.turn % len(others)]
-                means.neighbour_set(c, env, point)
-                m.turn += 1
-                if m.turn % len(others) == 0:
-                    m.fresh = t
+                if not means.prepare(c):
+                    means.neighbour_set(c, env, point)
+                    m.turn += 1
+                    m.fresh = t if m.turn % len(others) == 0 else m.fresh
             return m.current, w
         every = means(env)  # (K, N)
         phi = self.basis_at(t) if phi is None else phi

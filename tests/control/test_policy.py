@@ -86,6 +86,13 @@ def test_class_means_along_a_walk_equal_the_maps_prediction():
         torch.testing.assert_close(fast, want if i % 3 == 0 else want[i % 2:i % 2 + 1], rtol=0, atol=1e-12)
     assert means.updates > 20 and means.misses > means.updates  # both kinds of solve ran
     assert means.full_searches < 0.5 * 400  # the candidates served most searches
+    # a set's inverses readied ahead of its next swap (ClassMeans.prepare, on a call with time to
+    # spare) give the same means to the bit as the swap making them itself
+    ready, lazy, prepared = ClassMeans(env_map), ClassMeans(env_map), 0
+    for e in walk:
+        torch.testing.assert_close(ready(e), lazy(e), rtol=0, atol=0)
+        prepared += ready.prepare(0) + ready.prepare(1)
+    assert prepared == ready.misses - ready.updates and prepared >= 2 and ready.updates == lazy.updates > 20  # every factorised set
 
 
 def test_the_fast_end_effector_equals_the_kinematics():

@@ -162,14 +162,12 @@ def rest_blocked(task, promp, means: Tensor, env: Tensor, now: Tensor, z: float,
     if getattr(task, "capsule_plan", None) is not None:  # the volumes: the same verdict as can_gap, cheaper
         flat = (plan.flatten(0, 1), env.flatten(0, 1), margin.flatten() if isinstance(margin, Tensor) else margin)
         if memo is not None and memo.surely_clear(*flat):
-            memo.passed += 1
             return torch.zeros(k, n_env, dtype=torch.bool, device=plan.device)
         a, b = capsule_ends(task.kinematics, plan, task.capsule_plan)  # (K, E, P, C, 3)
         clear = capsules_clear(a, b, task.capsule_radii.to(a), env, task.can_radius, task.can_height, margin,
                                with_lower=memo is not None)
         if memo is not None:
             clear, lower = clear  # (K, E), (K, E, P)
-            memo.checked += 1
             memo.add(flat[0], flat[1], lower.flatten(0, 1))
         return ~clear
     return task.can_gap(plan, env) <= margin

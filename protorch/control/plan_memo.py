@@ -77,11 +77,14 @@ class ClearanceMemo:
         can = (env[:, None, 0:2] - self.axis).norm(dim=-1)  # (R, M) how far the can's axis moved
         bound = (self.lower - moved - can[:, None, :]).amax(-1)  # (R, P) a lower bound of each gap now
         m = margin[:, None] if isinstance(margin, Tensor) else margin
-        return bool((bound > m + SLACK).all())
+        clear = bool((bound > m + SLACK).all())
+        self.passed += clear
+        return clear
 
     def add(self, plan: Tensor, env: Tensor, lower: Tensor) -> None:
         """Keep the configurations ``plan (R, P, J)`` of a full check at ``env (R, 4)`` with their
         smallest capsule gap's lower bound ``lower (R, P)``."""
+        self.checked += 1
         q = plan.reshape(-1, plan.shape[-1])  # (R P, J)
         axis = env[:, None, 0:2].expand(*plan.shape[:2], 2).reshape(-1, 2)  # (R P, 2)
         low = lower.reshape(-1)  # (R P,)

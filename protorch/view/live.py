@@ -22,7 +22,7 @@ from ..control.arm_choice import velocity_command_acceleration
 from ..control.particle import promp_state_at
 from ..control.policy import Policy
 from ..control.policy_settings import policy_settings
-from ..tasks.arm.collision import above_table, joints_clearance
+from ..tasks.arm.collision import above_table
 from ..tasks.arm.reach import SIDES
 
 __all__ = ["ArmPlayer", "ParticlePlayer", "make_player"]
@@ -118,7 +118,7 @@ class ArmPlayer(_Player):
         super().__init__(run, duration=settings["duration"], hold=hold, dt=settings["decision_dt"])
         model, task = run.model, run.task
         self.policy = Policy(model.promp, model.env_map, model.task_name, task=task, warm_up=False, **settings)
-        self.kp, self.switch_margin = settings["kp"], settings["switch_margin"]
+        self.kp = settings["kp"]
         self.vmax = task.kinematics.max_velocity.to(**self.kw)  # (J,)
         amax = settings["max_acceleration"]
         self.amax = torch.as_tensor(task.robot.max_acceleration if amax is None else amax, **self.kw).expand_as(self.vmax)
@@ -140,14 +140,11 @@ class ArmPlayer(_Player):
         return None if self.current is None else SIDES.get(int(self.cand[self.current]), str(self.current))
 
     def _clearance(self, e: Tensor) -> tuple[float, bool]:
-        """The arm's gap to the can of ``e (4,)`` and whether it is above the table, now."""
-        task, traj = self.run.task, self.q[None, None]  # (1, 1, J)
-        if task.capsule_plan is not None:
-            gap, table = joints_clearance(task, traj, e[None])
-        else:
-            frames = task.kinematics.frames(traj)
-            gap, table = task.frames_gap(frames, e[None]), above_table(task, frames)
-        return float(gap[0]), bool(table[0])
+        """The arm's gap to the can of ``e (4,)`` and whether it is above the table, now (from the
+        chain's frames, as the moving test checks them, under the task's collision model)."""
+        task = self.run.task
+        frames = task.kinematics.frames(self.q[None, None])  # (1, 1, F, 4, 4)
+        return float(task.frames_gap(frames, e[None])[0]), bool(above_table(task, frames)[0])
 
     def step(self, env) -> Tensor:
         """One control step in ``env (4,)``; returns the joint angles ``(J,)``."""

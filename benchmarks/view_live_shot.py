@@ -7,7 +7,7 @@ can at ``(can_x, --from-y)``; play starts; at ``--move-at`` seconds of the motio
 to ``--to-y`` (``Viewer.set_env``, what a drag of its handle calls); at ``--shot-at`` the play is
 paused and the page is captured. Prints when the can moved, the side tracked and the switches.
 
-    python benchmarks/view_live_shot.py RUN_DIR [--out live.png] [--from-y 0.02] [--to-y 0.08]
+    python benchmarks/view_live_shot.py RUN_DIR [--out live.png] [--from-y 0.02] [--to-y 0.12]
         [--move-at 0.8] [--shot-at 1.6]
 """
 
@@ -30,7 +30,7 @@ def main() -> None:
     ap.add_argument("run")
     ap.add_argument("--out", default="view_arm_reach_live.png")
     ap.add_argument("--from-y", type=float, default=0.02)
-    ap.add_argument("--to-y", type=float, default=0.08)
+    ap.add_argument("--to-y", type=float, default=0.12)
     ap.add_argument("--move-at", type=float, default=0.8)
     ap.add_argument("--shot-at", type=float, default=1.6)
     args = ap.parse_args()

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -49,8 +49,10 @@ __all__ = [
 KINDS = {"point_particle": "particle", "arm_reach": "arm"}
 MAKE_RUN = "python -m protorch experiment=point_particle hydra.run.dir=runs/pp  (or experiment=arm_reach)"
 _PARTICLE_KEYS = ("objectives", "fixed_start", "infinite_wall")
-_ARM_KEYS = ("cost_steps", "margin", "goal_tol", "start_tol", "can_radius", "can_height", "clearance", "can_box",
-             "goal_box", "table")
+# every setting ArmReachTask takes (its collision model and can objective among them: a volume run
+# rebuilt without them would be checked and scored with the skeleton); the run's other task.* keys
+# (demos, priors, ...) only shaped the training
+_ARM_KEYS = tuple(f.name for f in fields(ArmReachTask) if f.init and f.name not in ("robot", "name"))
 
 
 @dataclass(frozen=True)
@@ -143,6 +145,11 @@ def read_config(run_dir: Path) -> dict:
     return cfg
 
 
+def _tuples(v):
+    """A config value with its lists as (nested) tuples, as the task's settings are written."""
+    return tuple(map(_tuples, v)) if isinstance(v, (list, tuple)) else v
+
+
 def build_task(task_name: str, task_cfg: dict | None = None, robot=None):
     """The task of a run from its ``task.*`` settings (the keys the task class takes; the rest,
     e.g. ``demo_envs``, only shaped the training) and, for the arm, its ``robot.*`` settings
@@ -152,9 +159,7 @@ def build_task(task_name: str, task_cfg: dict | None = None, robot=None):
         kw = {k: (tuple(cfg[k]) if isinstance(cfg[k], list) else cfg[k]) for k in _PARTICLE_KEYS if k in cfg}
         return PointParticleTask(**kw)
     if task_name == "arm_reach":
-        boxes = ("can_box", "goal_box", "table")
-        return ArmReachTask(robot=robot, **{k: (tuple(map(tuple, cfg[k])) if k in boxes else cfg[k])
-                                            for k in _ARM_KEYS if k in cfg})
+        return ArmReachTask(robot=robot, **{k: _tuples(cfg[k]) for k in _ARM_KEYS if k in cfg})
     raise ValueError(f"the viewer shows point_particle and arm_reach runs, this one solved {task_name!r}")
 
 

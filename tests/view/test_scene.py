@@ -118,6 +118,9 @@ def test_an_arm_run_is_rebuilt_with_its_robot_and_the_teach_page_takes_one(tmp_p
     assert task.num_dof == 6 and task.robot.name == "my_arm" and task.goal_tol == 0.03
     assert task.goal_box == ((0.6, 0.7), (-0.2, 0.2))
     assert build_task("arm_reach", {}).robot.name == "Panda"  # a run from before the robot setting
+    volume = build_task("arm_reach", {"collision": "volume", "deviation": "time", "demos": "synthetic", "priors": 20})
+    assert (volume.collision, volume.can_objective, volume.deviation) == ("volume", "volume", "time")  # the run's models
+    assert volume.capsule_plan is not None and volume.margin == 0.01  # checked as the run was, not by the skeleton
     (tmp_path / "robot.yaml").write_text(f"urdf: {robot['urdf']}\nend_link: tool0\nhome: {user_arm_home()}\n")
     args = parse_args(["--teach", "arm_reach", "--robot", str(tmp_path / "robot.yaml"), "--out", str(tmp_path / "d")])
     session, _ = teach_session(args)

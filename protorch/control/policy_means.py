@@ -17,22 +17,45 @@ __all__ = ["ClassMeans", "EndEffector", "basis3"]
 
 MAX_UPDATES = 64  # swaps applied to one factorised set before the next new set is factorised afresh
 SPARE = 60  # known environments beyond the k nearest kept as the candidates of the next searches
-MAX_SWAPS = 2  # a new set differing from the current one by more environments is factorised afresh
+MAX_SWAPS = 4  # a new set differing from its source by more environments is factorised afresh
+MAX_RANK = 8  # rank of the pending terms a swap adds to (two per swap) before it writes the inverse itself
 MARGIN = 1e-9  # metres (environment units) of slack in the test that the neighbours cannot have changed
 
 
 class _Set:
     """One class's neighbour set and its solve, in slot order (a swap replaces one slot):
     ``rows (k,)`` into the class's data, ``Es (k, d)``, ``coef = A^-1 (MU_S - mu0) (k, N)``,
-    ``mu0 (N,)``; for updates ``inv (N, k, k)`` (``A^-1``, or ``None``: made from ``chol`` when
-    first needed), ``K (k, k)`` the kernel matrix, ``depth`` the swaps since the last factorisation."""
+    ``mu0 (N,)``; for updates the inverse ``A^-1 = inv + U V`` with ``inv (N, k, k)`` (``None``:
+    made from ``chol`` when first needed; shared with the set it was updated from) and the pending
+    rank-``r`` terms ``U (N, k, r)``, ``V (N, r, k)`` (``None``: none), ``K (k, k)`` the kernel
+    matrix, ``depth`` the swaps since the last factorisation."""
 
-    __slots__ = ("rows", "Es", "coef", "mu0", "inv", "chol", "K", "MUs", "VARs", "depth")
+    __slots__ = ("rows", "Es", "coef", "mu0", "inv", "U", "V", "chol", "K", "MUs", "VARs", "depth")
 
-    def __init__(self, rows, Es, coef, mu0, inv=None, chol=None, K=None, MUs=None, VARs=None, depth=0) -> None:
+    def __init__(self, rows, Es, coef, mu0, inv=None, chol=None, K=None, MUs=None, VARs=None, depth=0,
+                 U=None, V=None) -> None:
         self.rows, self.Es, self.coef, self.mu0 = rows, Es, coef, mu0
-        self.inv, self.chol, self.K, self.depth = inv, chol, K, depth
+        self.inv, self.U, self.V, self.chol, self.K, self.depth = inv, U, V, chol, K, depth
         self.MUs, self.VARs = MUs, VARs  # (k, N) the set's data, in slot order
+
+    @property
+    def factored(self) -> bool:
+        """Whether the set holds its inverse or its factor (a swap can start from it)."""
+        return self.inv is not None or self.chol is not None
+
+    def times(self, x: Tensor) -> Tensor:
+        """``A^-1 x`` for every weight: ``x (k,)`` (one vector for all) or ``(N, k)`` (one per
+        weight) -> ``(N, k)``; one pass over ``inv``, the pending terms by two small products."""
+        if x.dim() == 1:
+            out = torch.matmul(self.inv, x)  # (N, k) one matrix-vector product over all weights' rows
+            return out if self.U is None else out + torch.bmm(self.U, torch.matmul(self.V, x)[..., None])[..., 0]
+        out = torch.linalg.vecdot(self.inv, x[:, None, :])  # (N, k) A^-1 is symmetric: row-wise dot products
+        return out if self.U is None else out + torch.bmm(self.U, torch.bmm(self.V, x[..., None]))[..., 0]
+
+    def column(self, j: int) -> Tensor:
+        """Column ``j`` of every weight's ``A^-1``: ``(N, k)``."""
+        col = self.inv[:, :, j]
+        return col if self.U is None else col + torch.bmm(self.U, self.V[:, :, j:j + 1])[..., 0]
 
 
 class ClassMeans:
@@ -46,12 +69,17 @@ class ClassMeans:
     ``k+1``-th distance); otherwise one distance pass and a ``topk`` find the set, as the map does
     (ties by insertion order), over the ``k + SPARE`` nearest of the last full pass while they
     certainly hold the set (:meth:`_search`). The solve ``A^-1 (MU_S - mu0)`` of a set is cached
-    (``cache_size`` sets); a new set that differs from the current one by one environment (or
-    :data:`MAX_SWAPS`, one after the other) is solved by a rank-2 update of the current set's
-    inverse (``A^-1`` with one row and column replaced: one rank-1
-    downdate, one rank-1 update, per weight) and one step of iterative refinement against ``A``
-    itself, otherwise (or after :data:`MAX_UPDATES` chained swaps) factorised afresh with the
-    map's own :func:`~protorch.gp.kernels.posdef_cholesky`, float64 throughout."""
+    (``cache_size`` sets); a new set that differs by one environment (or up to
+    :data:`MAX_SWAPS`, one after the other) from the class's :attr:`base`, its newest set holding
+    an inverse (a set taken back from the cache holds none once :data:`factor_cache` newer ones
+    were made), is solved by a rank-2 update of that inverse (``A^-1`` with one row and column
+    replaced: one rank-1 downdate, one rank-1 update, per weight) and one step of iterative
+    refinement against ``A`` itself, otherwise (or after :data:`MAX_UPDATES` chained swaps)
+    factorised afresh with the map's own :func:`~protorch.gp.kernels.posdef_cholesky`, float64
+    throughout. The updates are kept as low-rank terms beside the inverse they started from
+    (:class:`_Set`): a swap reads the ``(N, k, k)`` inverses (half a MB for 70 weights and 30
+    neighbours, read from beyond the core's cache) three times and writes none; a call with time to
+    spare writes them (:meth:`prepare`), or a swap once they reach rank :data:`MAX_RANK`."""
 
     def __init__(self, env_map, *, cache_size: int = 2048, factor_cache: int = 8) -> None:
         self.map = env_map
@@ -75,6 +103,7 @@ class ClassMeans:
             self.k = [min(k_near, r.numel()) for r in self.rows]
             self.cache: OrderedDict = OrderedDict()  # (class, sorted rows) -> _Set
             self.factored: OrderedDict = OrderedDict()  # the sets holding a factor (id -> _Set), newest last
+            self.base: list[_Set | None] = [None] * len(self.rows)  # per class, its newest set holding a factor
             self.reset()
         elif getattr(env_map, "backend", "") == "torch" and groups is not None:
             self.mode = "exact"
@@ -90,7 +119,8 @@ class ClassMeans:
                 start += m
 
     def reset(self) -> None:
-        """Forget each class's current set (the cache of solves stays)."""
+        """Forget each class's current set (the cache of solves and each class's :attr:`base`, the
+        set the next swap updates, stay)."""
         if self.mode == "nearest":
             n = len(self.E)
             self.current: list[_Set | None] = [None] * n
@@ -157,25 +187,30 @@ class ClassMeans:
 
     def _swap(self, c: int, old: _Set, out: int, new: int, solve: bool = True) -> _Set | None:
         """``old`` with the environment ``out`` replaced by ``new`` (rows of class ``c``): the
-        inverse by a rank-1 downdate and a rank-1 update per weight, the coefficients (``solve``)
-        by one product and one step of iterative refinement; ``None`` if the update is unusable."""
+        inverse by a rank-1 downdate and a rank-1 update per weight, kept as two more pending
+        terms (:class:`_Set`: ``old.inv`` is only read; :meth:`prepare` or a swap past
+        :data:`MAX_RANK` writes them into a new inverse), the coefficients (``solve``) by one
+        product and one step of iterative refinement; ``None`` if the update is unusable."""
         self._invert(old)
-        G = old.inv  # (N, k, k)
         j = old.rows.index(out)
         e = self.E[c][new]  # (d,)
         b = rbf(e[None], old.Es, self.alpha)[0]  # (k,) the new environment's kernel with the set
         b[j] = 0.0
-        gj = G[:, :, j]  # (N, k)
+        gj = old.column(j)  # (N, k)
         u = gj / gj[:, j:j + 1]  # (N, k)
-        g = torch.matmul(G, b)  # (N, k)
-        g -= u * g[:, j:j + 1]  # (G - u gj^T) b: the set without slot j, times b
+        g = old.times(b)  # (N, k)
+        g -= u * g[:, j:j + 1]  # (A^-1 - u gj^T) b: the set without slot j, times b
         s = 1.0 + self.VAR[c][new] - g @ b  # (N,) the Schur complement (k(e, e) = 1)
         if not bool((s > 0).all()):
             return None
         g[:, j] -= 1.0  # h = g - e_j
-        # slot j removed (- u gj^T) and the new environment added in it (+ g g^T / s): both rank-1
-        # terms in one batched product, one pass over the 70 (k, k) inverses instead of two
-        inv = torch.baddbmm(G, torch.stack([u, g / s[:, None]], -1), torch.stack([-gj, g], 1))  # (N, k, k)
+        # slot j removed (- u gj^T) and the new environment added in it (+ g g^T / s): two rank-1 terms
+        U, V = torch.stack([u, g / s[:, None]], -1), torch.stack([-gj, g], 1)  # (N, k, 2), (N, 2, k)
+        if old.U is not None:
+            U, V = torch.cat([old.U, U], -1), torch.cat([old.V, V], 1)  # (N, k, r + 2), (N, r + 2, k)
+        inv = old.inv
+        if U.shape[-1] > MAX_RANK:  # one pass over the (N, k, k) inverses writes them all
+            inv, U, V = torch.baddbmm(inv, U, V), None, None
         rows = list(old.rows)
         rows[j] = new
         Es = old.Es.clone()
@@ -185,16 +220,16 @@ class ClassMeans:
         K[j], K[:, j] = b, b
         MUs, VARs = old.MUs.clone(), old.VARs.clone()  # (k, N)
         MUs[j], VARs[j] = self.MU[c][new], self.VAR[c][new]
+        out_set = _Set(rows, Es, None, None, inv=inv, K=K, MUs=MUs, VARs=VARs, depth=old.depth + 1, U=U, V=V)
         if not solve:
-            return _Set(rows, Es, None, None, inv=inv, K=K, MUs=MUs, VARs=VARs, depth=old.depth + 1)
-        mu0 = MUs.mean(0)  # (N,)
+            return out_set
+        out_set.mu0 = mu0 = MUs.mean(0)  # (N,)
         y = MUs - mu0  # (k, N)
-        # the 70 products inv[n] @ v[n] as one row-wise dot product (vecdot: a contiguous (N, k)
-        # right-hand side, half the time of bmm's 70 separate (k, k) x (k, 1) products here)
-        coef = torch.linalg.vecdot(inv, y.T.contiguous()[:, None, :]).T  # (k, N)
+        coef = out_set.times(y.T.contiguous()).T  # (k, N)
         resid = torch.addmm(y - VARs * coef, K, coef, alpha=-1.0)  # (k, N) y - A coef
-        coef = coef + torch.linalg.vecdot(inv, resid.T.contiguous()[:, None, :]).T  # one step of iterative refinement
-        return _Set(rows, Es, coef.contiguous(), mu0, inv=inv, K=K, MUs=MUs, VARs=VARs, depth=old.depth + 1)
+        coef = coef + out_set.times(resid.T.contiguous()).T  # one step of iterative refinement
+        out_set.coef = coef.contiguous()
+        return out_set
 
     @staticmethod
     def _invert(s: _Set) -> None:
@@ -204,22 +239,33 @@ class ClassMeans:
             s.chol = None
 
     def prepare(self, c: int) -> bool:
-        """Make class ``c``'s current set ready for the next swap update (its inverses from a fresh
-        factor: about a third of a swap call, otherwise paid by the call that swaps); for a call
-        with time to spare. The same numbers as when the swap does it. Whether there was work."""
-        s = self.current[c] if self.mode == "nearest" else None
-        if s is None or s.inv is not None or s.chol is None:
+        """Make class ``c``'s set ready for the next swap update: its inverses from a fresh factor
+        (about a third of a swap call, otherwise paid by the call that swaps), or its pending
+        terms written into them once they are past half of :data:`MAX_RANK` (the next swaps then
+        start from rank 0); for a call with time to spare. The same means to round-off as when the swaps do it. Whether there was work."""
+        s = self.base[c] if self.mode == "nearest" else None
+        if s is None:
             return False
-        self._invert(s)
-        return True
+        if s.inv is None and s.chol is not None:
+            self._invert(s)
+            return True
+        if s.U is not None and 2 * s.U.shape[-1] > MAX_RANK:  # (written from rank MAX_RANK / 2 + 2 on)
+            s.inv, s.U, s.V = torch.baddbmm(s.inv, s.U, s.V), None, None  # a new tensor: sets sharing inv keep theirs
+            return True
+        return False
 
     def _keep_factor(self, s: _Set) -> None:
-        """Hold ``s``'s factor among the :attr:`factor_cache` newest (the others' are dropped)."""
+        """Hold ``s``'s factor among the :attr:`factor_cache` newest (the others' are dropped,
+        never a class's :attr:`base`)."""
         self.factored[id(s)] = s
         self.factored.move_to_end(id(s))
-        while len(self.factored) > self.factor_cache:
-            _, old = self.factored.popitem(last=False)
-            old.inv = old.chol = old.K = old.MUs = old.VARs = None
+        keep = {id(x) for x in self.base if x is not None}
+        for key in list(self.factored):
+            if len(self.factored) <= self.factor_cache + len(keep):
+                break
+            if key not in keep:
+                old = self.factored.pop(key)
+                old.inv = old.U = old.V = old.chol = old.K = old.MUs = old.VARs = None
 
     def neighbour_set(self, c: int, env: Tensor, point: list[float] | None = None) -> _Set:
         """Class ``c``'s neighbour set at ``env (d,)`` and its solve (class docstring)."""
@@ -236,10 +282,11 @@ class ClassMeans:
             self.cache.move_to_end(key)
         else:
             self.misses += 1
-            if cur is not None and cur.depth < MAX_UPDATES and (cur.inv is not None or cur.chol is not None):
-                gone, came = sorted(set(cur.rows).difference(rows)), sorted(set(rows).difference(cur.rows))
+            src = self.base[c]  # the class's newest set holding its inverse or factor
+            if src is not None and src.depth < MAX_UPDATES and src.factored:
+                gone, came = sorted(set(src.rows).difference(rows)), sorted(set(rows).difference(src.rows))
                 if len(gone) <= MAX_SWAPS:
-                    hit = cur
+                    hit = src
                     for i, (out, new) in enumerate(zip(gone, came)):  # one swap after the other
                         hit = None if hit is None else self._swap(c, hit, out, new, solve=i == len(gone) - 1)
                     self.updates += hit is not None
@@ -248,8 +295,9 @@ class ClassMeans:
             self.cache[key] = hit
             if len(self.cache) > self.cache_size:
                 self.cache.popitem(last=False)
-            if hit.inv is not None or hit.chol is not None:
-                self._keep_factor(hit)
+        if hit.factored:
+            self.base[c] = hit
+            self._keep_factor(hit)
         self.current[c] = hit
         return hit
 

@@ -18,6 +18,7 @@ import torch
 from protorch import ProMP
 from protorch.control.episodes import promp_state_at
 from protorch.control.policy import ClassMeans, Policy
+from protorch.control.policy_means import MAX_RANK
 from protorch.gp import make_env_map
 from protorch.gp.model import label_aware_mean
 
@@ -86,13 +87,17 @@ def test_class_means_along_a_walk_equal_the_maps_prediction():
         torch.testing.assert_close(fast, want if i % 3 == 0 else want[i % 2:i % 2 + 1], rtol=0, atol=1e-12)
     assert means.updates > 20 and means.misses > means.updates  # both kinds of solve ran
     assert means.full_searches < 0.5 * 400  # the candidates served most searches
-    # a set's inverses readied ahead of its next swap (ClassMeans.prepare, on a call with time to
-    # spare) give the same means to the bit as the swap making them itself
+    # a set's inverses readied ahead of its next swap, or its pending swap terms written into them
+    # (ClassMeans.prepare, on a call with time to spare), give the map's means as the swaps doing it
+    # themselves (pending terms up to MAX_RANK, then written) do
     ready, lazy, prepared = ClassMeans(env_map), ClassMeans(env_map), 0
     for e in walk:
-        torch.testing.assert_close(ready(e), lazy(e), rtol=0, atol=0)
+        want = env_map.predict_mean(e.expand(2, -1), torch.tensor([0, 1]))  # (2, N)
+        torch.testing.assert_close(ready(e), want, rtol=0, atol=1e-12)
+        torch.testing.assert_close(lazy(e), want, rtol=0, atol=1e-12)
         prepared += ready.prepare(0) + ready.prepare(1)
-    assert prepared == ready.misses - ready.updates and prepared >= 2 and ready.updates == lazy.updates > 20  # every factorised set
+    assert prepared > ready.misses - ready.updates >= 2 and ready.updates == lazy.updates > 20  # every factorised set, and more
+    assert all(s.U is None or 2 * s.U.shape[-1] <= MAX_RANK for s in ready.base)  # spare calls wrote the larger ones
 
 
 def test_the_fast_end_effector_equals_the_kinematics():

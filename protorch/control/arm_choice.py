@@ -16,6 +16,7 @@ import torch
 from torch import Tensor
 
 from ..tasks.arm.collision import capsule_ends, capsules_clear, capsules_gap
+from ..threads import one_thread
 from .episodes import basis_derivative_at
 from .plan_memo import ClearanceMemo
 
@@ -64,6 +65,7 @@ class Follow(NamedTuple):
     amax: Tensor
     dt: float
     duration: float
+    tables: dict | None = None  # rest_plan's basis values per phase, kept for the next plans (a policy's)
 
     @property
     def horizon(self) -> int:
@@ -92,12 +94,10 @@ def rest_plan(promp, means: Tensor, now: Tensor, z: float, rest: Tensor, qd: Ten
         return torch.cat([bridge, traj], -2)  # (K, E, 9 + P', J)
     x, v = now.reshape(-1, j), qd.to(means).expand(k, n_env, j).reshape(-1, j)  # (K E, J)
     steps = follow.horizon
-    zs = [min(z + i * follow.dt / follow.duration, 1.0) for i in range(steps)]  # the phases of the steps
-    phase = torch.tensor(zs, dtype=means.dtype, device=means.device)  # (H,)
+    basis, dbasis, later, phi_later = _plan_tables(promp, z, rest, follow, means)
     wk = means.reshape(-1, j, promp.num_basis)  # (K E, J, Kb)
-    marks = wk @ promp.basis_at(phase).to(means).T  # (K E, J, H) the mean at each step (promp_state_at's)
-    moving = (phase < 1.0).to(means) / follow.duration  # (H,) no marker velocity in the hold
-    vels = wk @ (basis_derivative_at(promp, phase).to(means).T * moving)  # (K E, J, H)
+    marks = wk @ basis  # (K E, J, H) the mean at each step (promp_state_at's)
+    vels = wk @ dbasis  # (K E, J, H)
     vmax, amax = follow.vmax.to(x), follow.amax.to(x)
     if x.shape[0] <= FLOAT_ROWS and x.device.type == "cpu":  # a policy's decision: a few systems
         plan = _rollout_floats(x, v, marks, vels, follow, vmax, amax).reshape(k, n_env, -1, j)  # (K, E, S, J)
@@ -110,10 +110,33 @@ def rest_plan(promp, means: Tensor, now: Tensor, z: float, rest: Tensor, qd: Ten
             if i % 2 == 0 or i == steps - 1:
                 path.append(x)
         plan = torch.stack(path, 1).reshape(k, n_env, len(path), j)  # (K, E, S, J)
-    later = rest[rest > min(z + steps * follow.dt / follow.duration, 1.0)]  # (P'',) the phases after the rollout
-    if later.numel():
-        plan = torch.cat([plan, promp.trajectory(means, phase=later)], -2)  # (K, E, S + P'', J)
+    if later.numel():  # promp.trajectory(means, phase=later), its basis from the tables
+        with one_thread():
+            after = torch.einsum("tk,...dk->...td", phi_later, means.to(phi_later.dtype).unflatten(-1, (j, promp.num_basis)))
+        plan = torch.cat([plan, after], -2)  # (K, E, S + P'', J)
     return plan
+
+
+def _plan_tables(promp, z: float, rest: Tensor, follow: Follow, like: Tensor) -> tuple:
+    """:func:`rest_plan`'s basis values from ``z`` on: at the rollout's steps ``(Kb, H)`` and their
+    time derivative ``(Kb, H)`` (none in the hold), the phases of ``rest`` after the rollout
+    ``(P'',)`` and the basis there ``(P'', Kb)``; kept in ``follow.tables`` when it has one (a
+    policy decides at the same phases motion after motion; the same numbers either way)."""
+    key = (z, rest.shape[0], like.dtype, like.device)
+    hit = None if follow.tables is None else follow.tables.get(key)
+    if hit is None:
+        steps = follow.horizon
+        zs = [min(z + i * follow.dt / follow.duration, 1.0) for i in range(steps)]  # the phases of the steps
+        phase = torch.tensor(zs, dtype=like.dtype, device=like.device)  # (H,)
+        moving = (phase < 1.0).to(like) / follow.duration  # (H,) no marker velocity in the hold
+        dbasis = basis_derivative_at(promp, phase).to(like).T * moving  # (Kb, H)
+        later = rest[rest > min(z + steps * follow.dt / follow.duration, 1.0)]  # (P'',) the phases after the rollout
+        hit = (promp.basis_at(phase).to(like).T, dbasis, later, promp.basis_at(later) if later.numel() else None)
+        if follow.tables is not None:
+            if len(follow.tables) >= 1024:
+                follow.tables.clear()
+            follow.tables[key] = hit
+    return hit
 
 
 FLOAT_ROWS = 4  # rest_plan rolls out at most this many systems on Python floats (a policy's decision)

@@ -139,7 +139,7 @@ class Policy(EnvToProMP):
                 else max_acceleration
             if amax is not None and kin is not None:  # the moving test's velocity command, for the check's rollout
                 self._follow = Follow(float(kp), kin.max_velocity.to(**kw), torch.as_tensor(amax, **kw).expand(self._d),
-                                      self.decision_dt, self.duration)
+                                      self.decision_dt, self.duration, {})
         self._label_list = self.labels.tolist()
         plan = getattr(task, "capsule_plan", None) if arm else None  # the plan check's bounds carried between decisions
         self._memo = ClearanceMemo(point_reach(task.kinematics, plan)) if plan is not None else None
@@ -149,13 +149,12 @@ class Policy(EnvToProMP):
         # the basis and its derivatives at every whole millisecond of the motion (a 1 kHz loop's
         # calls), scaled to time derivatives: (T_ms + 1, 3, K)
         ms = torch.arange(int(math.floor(self.duration * 1000)) + 1, **kw) * 1e-3
-        self._phi_ms = basis3(self._P, ms / self.duration) * \
-            torch.tensor([1.0, 1.0 / self.duration, 1.0 / self.duration ** 2], **kw)[:, None]
+        self._scale = torch.tensor([1.0, 1.0 / self.duration, 1.0 / self.duration ** 2], **kw)[:, None]  # (3, 1)
+        self._phi_ms = basis3(self._P, ms / self.duration) * self._scale
         self._phi_end = basis3(self._P, 1.0)  # (3, K)
         self._phi_end[1:] = 0.0  # held: no velocity, no acceleration
         self._decays: dict = {}
         self._at_jump = self._decay(0.0) if math.isfinite(self.blend) else None  # (3, 2)
-        self._scale = torch.tensor([1.0, 1.0 / self.duration, 1.0 / self.duration ** 2], **kw)[:, None]  # (3, 1)
         self.reset()
         if warm_up and (task is not None or self.labels.numel() == 1):
             self._warm_up()
@@ -239,8 +238,8 @@ class Policy(EnvToProMP):
         a decision (every class asked, scored, hysteresis) at the first call and whenever ``t``
         enters a new ``decision_dt`` slot; between decisions only the current class is asked (a
         call that solved no set of its own also readies a set for its next swap, or every
-        ``decision_dt / 4`` brings another class's set up to date). ``point``: ``env.tolist()``;
-        ``phi (3, K)``: :meth:`basis_at` ``t``."""
+        ``decision_dt / 4`` and right before a decision brings another class's set up to date).
+        ``point``: ``env.tolist()``; ``phi (3, K)``: :meth:`basis_at` ``t``."""
         z = min(t / self.duration, 1.0)
         means = self.means
         if point is None:
@@ -256,14 +255,15 @@ class Policy(EnvToProMP):
         if m.current is not None and slot <= m.slot:
             solved = means.misses
             w = means.mean(m.current, env, point)
-            # a call that solved nothing does one thing more: the tracked set's inverses for its next
-            # swap (ClassMeans.prepare), or another class's (its inverses, then its set brought up to date)
-            if means.mode != "nearest" or means.misses != solved or means.prepare(m.current):
+            # a call that solved nothing does one thing more: the tracked set's inverses (ClassMeans.prepare),
+            # or another class's (then its set brought up to date; first on the call before a decision)
+            before = (m.slot + 1) * self.decision_dt - t <= 1.5 * (t - m.t)  # by the loop's last interval
+            if means.mode != "nearest" or means.misses != solved or (not before and means.prepare(m.current)):
                 return m.current, w
-            if t - m.fresh >= self._refresh_dt:
+            if before or t - m.fresh >= self._refresh_dt:
                 others = [c for c in range(len(self._label_list)) if c != m.current]
                 c = others[m.turn % len(others)]
-                if not means.prepare(c):
+                if before or not means.prepare(c):
                     means.neighbour_set(c, env, point)
                     m.turn += 1
                     m.fresh = t if m.turn % len(others) == 0 else m.fresh

@@ -17,7 +17,7 @@ __all__ = ["ClassMeans", "EndEffector", "basis3"]
 
 MAX_UPDATES = 64  # swaps applied to one factorised set before the next new set is factorised afresh
 SPARE = 60  # known environments beyond the k nearest kept as the candidates of the next searches
-MAX_SWAPS = 4  # a new set differing from its source by more environments is factorised afresh
+MAX_SWAPS = 2  # a new set differing from its source by more environments is factorised afresh (three swaps cost more)
 MAX_RANK = 8  # rank of the pending terms a swap adds to (two per swap) before it writes the inverse itself
 MARGIN = 1e-9  # metres (environment units) of slack in the test that the neighbours cannot have changed
 

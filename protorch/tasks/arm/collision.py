@@ -37,8 +37,8 @@ from torch import Tensor
 
 from ...robots import PointPlan, capsule_index, capsule_segments
 from ...threads import one_thread
-from .geometry import (point_cylinder_distance, segment_axis_closest, segment_axis_distance, segment_cylinder_distance,
-                       segment_cylinder_within)
+from .geometry import (broadcast_shape, point_cylinder_distance, segment_axis_closest, segment_axis_distance,
+                       segment_cylinder_distance, segment_cylinder_within)
 
 __all__ = ["COLLISIONS", "CAN_OBJECTIVES", "check_collision", "check_volumes", "frames_gap", "capsules_gap",
            "capsules_clear",
@@ -161,7 +161,7 @@ def capsules_clear(a: Tensor, b: Tensor, r: Tensor, env: Tensor, radius: float, 
     also the smallest of the capsules' lower bounds at each step ``(..., T)`` (what
     :class:`~protorch.control.plan_memo.ClearanceMemo` keeps)."""
     axis = env[..., None, None, 0:2]  # (..., 1, 1, 2)
-    shape = torch.broadcast_shapes(a.shape[:-1], axis.shape[:-1])  # (..., T, C)
+    shape = broadcast_shape(a.shape[:-1], axis.shape[:-1])  # (..., T, C)
     d, u = segment_axis_closest(a, b, axis, 0.0, height)  # (..., T, C)
     lower = d - radius - r  # (..., T, C) <= the exact gap
     upper = point_cylinder_distance(a + u[..., None] * (b - a), axis, radius, 0.0, height) - r  # >= the exact gap
@@ -205,7 +205,7 @@ def joints_clearance(task, traj: Tensor, env: Tensor, chunk: int | None = CLEARA
     100 steps, ``benchmarks/arm_volume.py``), and every tensor of a piece but the last fills
     torch's vectorised loops exactly, so the numbers are those of one call
     (``tests/tasks/arm/test_collision.py``)."""
-    lead = torch.broadcast_shapes(traj.shape[:-2], env.shape[:-1])
+    lead = broadcast_shape(traj.shape[:-2], env.shape[:-1])
     n, steps = lead.numel(), traj.shape[-2]
     per = n if chunk is None else max(32, chunk // max(steps, 1) // 32 * 32)  # trajectories per piece
     if n <= per:

@@ -55,7 +55,7 @@ from .collision import (CAN_OBJECTIVES, above_table, capsule_plan, check_collisi
                         end_volume_near, frames_gap, joints_clearance)
 from .demos import follow_path, ik_demonstrations, straight_paths
 from .deviation import DEVIATIONS, deviation
-from .geometry import LEFT, RIGHT, SIDES, down_rotation, segment_axis_distance
+from .geometry import LEFT, RIGHT, SIDES, broadcast_shape, down_rotation, segment_axis_distance
 from .workspace import check_workspace, prior_grid_nodes, sample_envs as sample_region, valid_envs as valid_in_region
 from ..base import Task
 
@@ -244,8 +244,8 @@ class ArmReachTask(Task):
         if not dtype.is_floating_point:
             dtype = torch.get_default_dtype()
         try:
-            batch = torch.broadcast_shapes(traj.shape[:-2], env.shape[:-1])
-        except RuntimeError:
+            batch = broadcast_shape(traj.shape[:-2], env.shape[:-1])
+        except ValueError:
             raise ValueError(f"leading dimensions of traj {tuple(traj.shape)} (..., T, J) and env "
                              f"{tuple(env.shape)} (..., 4) do not broadcast") from None
         return traj.to(dtype).expand(*batch, *traj.shape[-2:]), env.to(dtype).expand(*batch, 4)

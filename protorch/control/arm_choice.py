@@ -112,7 +112,8 @@ def rest_plan(promp, means: Tensor, now: Tensor, z: float, rest: Tensor, qd: Ten
         plan = torch.stack(path, 1).reshape(k, n_env, len(path), j)  # (K, E, S, J)
     if later.numel():  # promp.trajectory(means, phase=later), its basis from the tables
         with one_thread():
-            after = torch.einsum("tk,...dk->...td", phi_later, means.to(phi_later.dtype).unflatten(-1, (j, promp.num_basis)))
+            w = means.to(phi_later.dtype).unflatten(-1, (j, promp.num_basis))  # (K, E, J, Kb)
+            after = torch.einsum("tk,...dk->...td", phi_later, w)
         plan = torch.cat([plan, after], -2)  # (K, E, S + P'', J)
     return plan
 

@@ -10,7 +10,7 @@ measured now. What it computes, per call:
    call, a new set solved by rank-2 updates of the last set's inverse or the map's own
    :func:`~protorch.gp.kernels.posdef_cholesky`, and cached). Between decisions only the tracked
    class's mean is computed (one kernel vector, one product); the other classes' sets are brought
-   up to date every ``decision_dt / 4`` so that a decision rarely solves. Without ``nearest_k``
+   up to date every ``decision_dt / 4`` and before a decision, which then rarely solves. Without ``nearest_k``
    (torch backend) the map's own cached solve is used; other maps through ``predict_mean``.
 2. **The class choice with hysteresis of the moving test** (:mod:`protorch.control.arm_choice`,
    the same functions): every ``decision_dt`` seconds (the run's ``settings.dynamic.dt``) each

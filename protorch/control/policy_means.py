@@ -242,7 +242,8 @@ class ClassMeans:
         """Make class ``c``'s set ready for the next swap update: its inverses from a fresh factor
         (about a third of a swap call, otherwise paid by the call that swaps), or its pending
         terms written into them once they are past half of :data:`MAX_RANK` (the next swaps then
-        start from rank 0); for a call with time to spare. The same means to round-off as when the swaps do it. Whether there was work."""
+        start from rank 0); for a call with time to spare. The same means to round-off as when
+        the swaps do it. Whether there was work."""
         s = self.base[c] if self.mode == "nearest" else None
         if s is None:
             return False

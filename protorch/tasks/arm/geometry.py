@@ -8,8 +8,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["LEFT", "RIGHT", "SIDES", "broadcast_shape", "down_rotation", "point_segment_distance", "segment_axis_distance",
-           "segment_axis_closest",
+__all__ = ["LEFT", "RIGHT", "SIDES", "broadcast_shape", "down_rotation", "point_segment_distance",
+           "segment_axis_distance", "segment_axis_closest",
            "point_cylinder_distance", "segment_cylinder_distance", "segment_cylinder_within"]
 
 _GOLDEN = (5 ** 0.5 - 1) / 2  # 0.618...

@@ -53,7 +53,7 @@ from ..tasks.arm.reach import ArmReachTask
 from .arm_choice import Follow, checked_choice, hysteresis_choice, rest_scores
 from .plan_memo import ClearanceMemo, point_reach
 from .policy_export import write_program
-from .policy_means import ClassMeans, EndEffector, basis3
+from .policy_means import ClassMeans, EndEffector, basis3, decay_matrix
 
 __all__ = ["Policy", "Reference", "ClassMeans", "DEFAULT_BLEND"]
 
@@ -348,15 +348,14 @@ class Policy(EnvToProMP):
         if hit is None:
             if len(self._decays) >= 64:
                 self._decays.clear()
-            hit = self._decays[key] = self._decay_matrix(s, rows)
+            hit = self._decays[key] = decay_matrix(self.blend, s, rows, self._device)
         return hit
 
-    def _decay_matrix(self, s: float, rows: int) -> Tensor:
-        w = self.blend
-        e = math.exp(-w * s)
-        m = [[(1 + w * s) * e, s * e], [-w * w * s * e, (1 - w * s) * e],
-             [(-w * w + w ** 3 * s) * e, (-2 * w + w * w * s) * e]]
-        return torch.tensor(m[:rows], dtype=torch.float64, device=self._device)
+    @property
+    def follow(self) -> Follow | None:
+        """The moving test's velocity command the plan check rolls out (gain, the joints' velocity
+        and acceleration limits, the control step; ``None`` for a task without them)."""
+        return self._follow
 
     # ----------------------------------------------------------------- out of Python
     def export(self, path, *, aoti: bool = False) -> "Path":

@@ -13,7 +13,7 @@ from torch import Tensor
 
 from ..gp.kernels import posdef_cholesky, rbf, sq_dist
 
-__all__ = ["ClassMeans", "EndEffector", "basis3"]
+__all__ = ["ClassMeans", "EndEffector", "basis3", "decay_matrix"]
 
 MAX_UPDATES = 64  # swaps applied to one factorised set before the next new set is factorised afresh
 SPARE = 60  # known environments beyond the k nearest kept as the candidates of the next searches
@@ -340,6 +340,16 @@ def basis3(promp, z) -> Tensor:
     g1 = g * (a - (g * a).sum(-1, keepdim=True))
     g2 = g1 * (a - (g * a).sum(-1, keepdim=True)) - g * (g1 * a).sum(-1, keepdim=True)
     return torch.stack([g, g1, g2], -2)  # (..., 3, K)
+
+
+def decay_matrix(blend: float, s: float, rows: int = 3, device=None) -> Tensor:
+    """The critically damped decay at rate ``blend`` (1/s) of :class:`~protorch.control.policy.Policy`'s
+    continuity offset as a matrix ``(rows, 2)``: ``(d0, v0)`` -> position, velocity (and
+    acceleration) ``s`` seconds later, ``d(s) = (d0 + (v0 + w d0) s) exp(-w s)``."""
+    w, e = blend, math.exp(-blend * s)
+    m = [[(1 + w * s) * e, s * e], [-w * w * s * e, (1 - w * s) * e],
+         [(-w * w + w ** 3 * s) * e, (-2 * w + w * w * s) * e]]
+    return torch.tensor(m[:rows], dtype=torch.float64, device=device)
 
 
 class EndEffector:

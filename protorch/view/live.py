@@ -118,10 +118,8 @@ class ArmPlayer(_Player):
         super().__init__(run, duration=settings["duration"], hold=hold, dt=settings["decision_dt"])
         model, task = run.model, run.task
         self.policy = Policy(model.promp, model.env_map, model.task_name, task=task, warm_up=False, **settings)
-        self.kp = settings["kp"]
-        self.vmax = task.kinematics.max_velocity.to(**self.kw)  # (J,)
-        amax = settings["max_acceleration"]
-        self.amax = torch.as_tensor(task.robot.max_acceleration if amax is None else amax, **self.kw).expand_as(self.vmax)
+        follow = self.policy.follow  # the moving test's velocity command (max_acceleration None: the robot's)
+        self.kp, self.vmax, self.amax = follow.kp, follow.vmax.to(**self.kw), follow.amax.to(**self.kw)  # (J,) each
         self.cand = self.policy.labels  # (K,)
         self.q = None
 

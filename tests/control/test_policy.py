@@ -98,6 +98,12 @@ def test_class_means_along_a_walk_equal_the_maps_prediction():
         prepared += ready.prepare(0) + ready.prepare(1)
     assert prepared > ready.misses - ready.updates >= 2 and ready.updates == lazy.updates > 20  # every factorised set, and more
     assert all(s.U is None or 2 * s.U.shape[-1] <= MAX_RANK for s in ready.base)  # spare calls wrote the larger ones
+    # a set taken back from the cache holds no inverse once newer sets pushed it out of the factor
+    # cache (one set here): the next change still swaps, from the class's newest set holding one
+    small = ClassMeans(env_map, factor_cache=1)
+    for e in walk:
+        torch.testing.assert_close(small(e), env_map.predict_mean(e.expand(2, -1), torch.tensor([0, 1])), rtol=0, atol=1e-12)
+    assert small.misses == lazy.misses and small.misses - small.updates <= 4  # (76 of 123 factorised before)
 
 
 def test_the_fast_end_effector_equals_the_kinematics():

@@ -234,8 +234,8 @@ class ClassMeans:
     @staticmethod
     def _invert(s: _Set) -> None:
         """``s``'s inverses ``(N, k, k)`` from its Cholesky factor (what a swap update starts from)."""
-        if s.inv is None:
-            s.inv = torch.cholesky_inverse(s.chol)  # (N, k, k)
+        if s.inv is None:  # LAPACK's inverse is column-major; A^-1 is symmetric (exactly, on the CPU), so its
+            s.inv = torch.cholesky_inverse(s.chol).mT  # transpose is it in row-major order: products 5x faster
             s.chol = None
 
     def prepare(self, c: int) -> bool:

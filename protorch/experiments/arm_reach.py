@@ -131,7 +131,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
         check_region(task_cfg.get("region", "rectangles"), "task.region")
         self.nearest_k = self.map_options.get("nearest_k")
         task_cfg.pop("_target_", None)
-        self.task = ArmReachTask(robot=self.robot, **_boxes(task_cfg)).to(self.device)
+        self.task = ArmReachTask(robot=self.robot, **task_cfg).to(self.device)
         if self.prior_clear == "auto":
             self.prior_clear = self.task.collision == "volume"
         self.prior_detours = check_detours(detours, self.task.collision)
@@ -340,12 +340,6 @@ def run(
         return exp.run(out_dir, baselines=baselines, resume=resume, progress=progress, plot=plot)
 
 
-def _boxes(task_cfg: dict) -> dict:
-    """``can_box``, ``goal_box``, ``table`` as the task takes them (pairs of pairs)."""
-    return {k: (tuple(tuple(p) for p in v) if k in ("can_box", "goal_box", "table") else v)
-            for k, v in task_cfg.items()}
-
-
 def check_robot(robot, task_cfg: dict, physics_runs: bool):
     """The robot setting checked before any work (each a ``ValueError`` of one line naming the
     setting): the description (:func:`~protorch.robots.load_robot`: the URDF parses, the end
@@ -357,7 +351,7 @@ def check_robot(robot, task_cfg: dict, physics_runs: bool):
         check_inertials(robot)
     keys = ArmReachExperiment.task_keys - {"_target_", "demos", "recordings", "demo_envs", "demos_per_env", "priors",
                                             "prior_clear", "prior_detours", "prior_grid", "plan_margin"}
-    task = ArmReachTask(robot=robot, **_boxes({k: v for k, v in task_cfg.items() if k in keys}))
+    task = ArmReachTask(robot=robot, **{k: v for k, v in task_cfg.items() if k in keys})
     check_reach(task, check_region(task_cfg.get("prior_grid", "rectangles"), "task.prior_grid"))
     if physics_runs:
         if not robot.capsule_list():

@@ -145,11 +145,6 @@ def read_config(run_dir: Path) -> dict:
     return cfg
 
 
-def _tuples(v):
-    """A config value with its lists as (nested) tuples, as the task's settings are written."""
-    return tuple(map(_tuples, v)) if isinstance(v, (list, tuple)) else v
-
-
 def build_task(task_name: str, task_cfg: dict | None = None, robot=None):
     """The task of a run from its ``task.*`` settings (the keys the task class takes; the rest,
     e.g. ``demo_envs``, only shaped the training) and, for the arm, its ``robot.*`` settings
@@ -159,7 +154,7 @@ def build_task(task_name: str, task_cfg: dict | None = None, robot=None):
         kw = {k: (tuple(cfg[k]) if isinstance(cfg[k], list) else cfg[k]) for k in _PARTICLE_KEYS if k in cfg}
         return PointParticleTask(**kw)
     if task_name == "arm_reach":
-        return ArmReachTask(robot=robot, **{k: _tuples(cfg[k]) for k in _ARM_KEYS if k in cfg})
+        return ArmReachTask(robot=robot, **{k: cfg[k] for k in _ARM_KEYS if k in cfg})  # (it normalises its boxes)
     raise ValueError(f"the viewer shows point_particle and arm_reach runs, this one solved {task_name!r}")
 
 

@@ -16,7 +16,6 @@ import torch
 from torch import Tensor
 
 from ..tasks.arm.collision import capsule_ends, capsules_clear, capsules_gap
-from ..threads import one_thread
 from .episodes import basis_derivative_at
 from .plan_memo import ClearanceMemo
 
@@ -110,11 +109,8 @@ def rest_plan(promp, means: Tensor, now: Tensor, z: float, rest: Tensor, qd: Ten
             if i % 2 == 0 or i == steps - 1:
                 path.append(x)
         plan = torch.stack(path, 1).reshape(k, n_env, len(path), j)  # (K, E, S, J)
-    if later.numel():  # promp.trajectory(means, phase=later), its basis from the tables
-        with one_thread():
-            w = means.to(phi_later.dtype).unflatten(-1, (j, promp.num_basis))  # (K, E, J, Kb)
-            after = torch.einsum("tk,...dk->...td", phi_later, w)
-        plan = torch.cat([plan, after], -2)  # (K, E, S + P'', J)
+    if later.numel():  # the mean at the phases after the rollout, their basis from the tables
+        plan = torch.cat([plan, promp.trajectory(means, basis=phi_later)], -2)  # (K, E, S + P'', J)
     return plan
 
 
@@ -184,9 +180,10 @@ def rest_blocked(task, promp, means: Tensor, env: Tensor, now: Tensor, z: float,
     env = env.expand(k, n_env, env.shape[-1])  # (K, E, 4)
     margin = task.margin if extra is None else task.margin + extra.to(plan)  # a number | (K, E)
     if getattr(task, "capsule_plan", None) is not None:  # the volumes: the same verdict as can_gap, cheaper
-        flat = (plan.flatten(0, 1), env.flatten(0, 1), margin.flatten() if isinstance(margin, Tensor) else margin)
-        if memo is not None and memo.surely_clear(*flat):
-            return torch.zeros(k, n_env, dtype=torch.bool, device=plan.device)
+        if memo is not None:
+            flat = (plan.flatten(0, 1), env.flatten(0, 1), margin.flatten() if isinstance(margin, Tensor) else margin)
+            if memo.surely_clear(*flat):
+                return torch.zeros(k, n_env, dtype=torch.bool, device=plan.device)
         a, b = capsule_ends(task.kinematics, plan, task.capsule_plan)  # (K, E, P, C, 3)
         clear = capsules_clear(a, b, task.capsule_radii.to(a), env, task.can_radius, task.can_height, margin,
                                with_lower=memo is not None)

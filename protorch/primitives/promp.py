@@ -207,12 +207,13 @@ class ProMP(nn.Module):
         phase = torch.as_tensor(phase, dtype=self.basis.dtype, device=self.basis.device).reshape(-1)
         return gaussian_basis(phase, self.centers, self.width)
 
-    def trajectory(self, w: Tensor, phase: Tensor | None = None) -> Tensor:
-        """Weights ``(..., N)`` -> trajectories ``(..., T, D)`` (or ``(..., P, D)`` at ``phase``).
-        The product runs on one torch thread: the same bits at any thread count."""
+    def trajectory(self, w: Tensor, phase: Tensor | None = None, *, basis: Tensor | None = None) -> Tensor:
+        """Weights ``(..., N)`` -> trajectories ``(..., T, D)`` (or ``(..., P, D)`` at ``phase``;
+        ``basis``: :meth:`basis_at` ``phase`` where the caller keeps it). The product runs on one
+        torch thread: the same bits at any thread count."""
         if w.shape[-1] != self.num_weights:
             raise ValueError(f"w must end in {self.num_weights} weights, got shape {tuple(w.shape)}")
-        phi = self.basis if phase is None else self.basis_at(phase)  # (T, K)
+        phi = basis if basis is not None else self.basis if phase is None else self.basis_at(phase)  # (T, K)
         w = w.to(phi.dtype).unflatten(-1, (self.num_dof, self.num_basis))  # (..., D, K)
         with one_thread():  # MKL's product (under the app's MKL_CBWR) gives other bits on 2 threads
             return torch.einsum("tk,...dk->...td", phi, w)  # (..., T, D)

@@ -52,6 +52,11 @@ class _Set:
         out = torch.linalg.vecdot(self.inv, x[:, None, :])  # (N, k) A^-1 is symmetric: row-wise dot products
         return out if self.U is None else out + torch.bmm(self.U, torch.bmm(self.V, x[..., None]))[..., 0]
 
+    def write(self) -> None:
+        """Write the pending terms into a new inverse (one pass over it; sets sharing the old
+        ``inv`` keep theirs)."""
+        self.inv, self.U, self.V = torch.baddbmm(self.inv, self.U, self.V), None, None
+
     def column(self, j: int) -> Tensor:
         """Column ``j`` of every weight's ``A^-1``: ``(N, k)``."""
         col = self.inv[:, :, j]
@@ -208,9 +213,6 @@ class ClassMeans:
         U, V = torch.stack([u, g / s[:, None]], -1), torch.stack([-gj, g], 1)  # (N, k, 2), (N, 2, k)
         if old.U is not None:
             U, V = torch.cat([old.U, U], -1), torch.cat([old.V, V], 1)  # (N, k, r + 2), (N, r + 2, k)
-        inv = old.inv
-        if U.shape[-1] > MAX_RANK:  # one pass over the (N, k, k) inverses writes them all
-            inv, U, V = torch.baddbmm(inv, U, V), None, None
         rows = list(old.rows)
         rows[j] = new
         Es = old.Es.clone()
@@ -220,7 +222,9 @@ class ClassMeans:
         K[j], K[:, j] = b, b
         MUs, VARs = old.MUs.clone(), old.VARs.clone()  # (k, N)
         MUs[j], VARs[j] = self.MU[c][new], self.VAR[c][new]
-        out_set = _Set(rows, Es, None, None, inv=inv, K=K, MUs=MUs, VARs=VARs, depth=old.depth + 1, U=U, V=V)
+        out_set = _Set(rows, Es, None, None, inv=old.inv, K=K, MUs=MUs, VARs=VARs, depth=old.depth + 1, U=U, V=V)
+        if U.shape[-1] > MAX_RANK:  # one pass over the (N, k, k) inverses writes them all
+            out_set.write()
         if not solve:
             return out_set
         out_set.mu0 = mu0 = MUs.mean(0)  # (N,)
@@ -251,7 +255,7 @@ class ClassMeans:
             self._invert(s)
             return True
         if s.U is not None and 2 * s.U.shape[-1] > MAX_RANK:  # (written from rank MAX_RANK / 2 + 2 on)
-            s.inv, s.U, s.V = torch.baddbmm(s.inv, s.U, s.V), None, None  # a new tensor: sets sharing inv keep theirs
+            s.write()
             return True
         return False
 

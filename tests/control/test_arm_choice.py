@@ -174,12 +174,16 @@ def test_the_rollout_of_a_few_systems_on_floats_is_the_tensor_loop_to_the_bit(mo
     q = torch.randn(1, task.num_dof, generator=g, dtype=torch.float64)
     qd = 3.0 * torch.randn(1, task.num_dof, generator=g, dtype=torch.float64)  # beyond the velocity limits
     rest = torch.linspace(0.1, 1.0, 10, dtype=torch.float64)
+    kept = follow._replace(tables={})  # a policy's: the basis values kept per phase
     for z in (0.0, 0.3, 0.9):
         fast = rest_plan(promp, w, q, z, rest, qd, follow)  # (K, E, P, J) on floats
         monkeypatch.setattr(arm_choice, "FLOAT_ROWS", 0)
         slow = rest_plan(promp, w, q, z, rest, qd, follow)  # the tensor loop
         monkeypatch.setattr(arm_choice, "FLOAT_ROWS", 4)
         assert torch.equal(fast, slow)
+        for _ in range(2):  # the tables made, then read back: the same plan to the bit
+            assert torch.equal(rest_plan(promp, w, q, z, rest, qd, kept), fast)
+    assert len(kept.tables) == 3
     free = follow._replace(vmax=torch.full_like(follow.vmax, math.inf), amax=torch.full_like(follow.amax, math.inf))
     assert not torch.allclose(rest_plan(promp, w, q, 0.0, rest, qd, free), rest_plan(promp, w, q, 0.0, rest, qd, follow))
 

@@ -37,15 +37,22 @@ target. The arm starts at rest at the task's start configuration.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import torch
 from torch import Tensor
 
 from ..checks import check_number, check_tensor
 from ..tasks.arm.collision import above_table
-from .arm_choice import ArmClassChoice, Follow, draw_moves, rest_scores, velocity_command_acceleration
+from .arm_choice import (
+    ArmClassChoice,
+    Follow,
+    draw_moves,
+    rest_scores,
+    velocity_command_acceleration,
+)
 from .episodes import (
     Timing,
     check_timing,
@@ -55,7 +62,7 @@ from .episodes import (
     track,
 )
 
-__all__ = ["ArmEpisodeResult", "run_arm_episodes", "count_switches", "rest_scores", "arm_follow"]
+__all__ = ["ArmEpisodeResult", "arm_follow", "count_switches", "rest_scores", "run_arm_episodes"]
 
 def count_switches(labels: Tensor) -> Tensor:
     """Changes of the tracked class per episode: ``labels (E, T+1) -> (E,)`` long."""
@@ -211,7 +218,7 @@ def run_arm_episodes(
     lo_w, hi_w = (float(v) for v in move_window)
     if not 0 <= lo_w <= hi_w <= 1:
         raise ValueError(f"move_window must be (lo, hi) with 0 <= lo <= hi <= 1, got {move_window}")
-    kw = dict(dtype=promp.basis.dtype, device=promp.basis.device)
+    kw = {"dtype": promp.basis.dtype, "device": promp.basis.device}
     walk = episode_walk(env0, walk, timing, 4)
     if walk is not None:
         envs = hold_last(task.check_envs(walk, "walk").to(**kw), timing.held)  # (E, T+1, 4)
@@ -248,13 +255,17 @@ def run_arm_episodes(
                             promp=promp, task=task)
 
 
-def arm_follow(task, kp: float, max_acceleration, timing: Timing, dtype=torch.float64, device=None) -> Follow:
+def arm_follow(task, kp: float, max_acceleration, timing: Timing, dtype=torch.float64, device=None,
+               tables: dict | None = None) -> Follow:
     """The moving tests' velocity command for the plan check's rollout
     (:class:`~protorch.control.arm_choice.Follow`): gain ``kp``, the robot's velocity limits,
-    ``max_acceleration`` (per joint or one number), the control step and the motion's duration."""
-    kw = dict(dtype=dtype, device=device)
+    ``max_acceleration`` (per joint or one number; ``None``: the robot's), the control step and the
+    motion's duration (``timing``); ``tables``: the rollout's basis values kept between plans (a
+    policy's, :attr:`Follow.tables`)."""
+    kw = {"dtype": dtype, "device": device}
+    amax = task.robot.max_acceleration if max_acceleration is None else max_acceleration
     return Follow(float(kp), task.kinematics.max_velocity.to(**kw),
-                  torch.as_tensor(max_acceleration, **kw).expand(task.num_dof), timing.dt, timing.duration)
+                  torch.as_tensor(amax, **kw).expand(task.num_dof), timing.dt, timing.duration, tables)
 
 
 class _KinematicArm:
@@ -263,7 +274,7 @@ class _KinematicArm:
     command within the joint velocity and acceleration limits."""
 
     def __init__(self, choice: ArmClassChoice, task, timing: Timing, *, kp: float, max_acceleration) -> None:
-        kw = dict(dtype=choice.envs.dtype, device=choice.envs.device)
+        kw = {"dtype": choice.envs.dtype, "device": choice.envs.device}
         self.choice, self.dt, self.kp = choice, timing.dt, kp
         self.vmax = task.kinematics.max_velocity.to(**kw)  # (J,)
         self.amax = torch.as_tensor(max_acceleration, **kw).expand(task.num_dof)  # (J,)

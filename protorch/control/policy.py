@@ -50,12 +50,14 @@ from torch import Tensor
 
 from ..gp.model import EnvToProMP, label_aware_mean
 from ..tasks.arm.reach import ArmReachTask
+from .arm import arm_follow
 from .arm_choice import Follow, checked_choice, hysteresis_choice, rest_scores
+from .episodes import check_timing
 from .plan_memo import ClearanceMemo, point_reach
 from .policy_export import write_program
 from .policy_means import ClassMeans, EndEffector, basis3, decay_matrix
 
-__all__ = ["Policy", "Reference", "ClassMeans", "DEFAULT_BLEND"]
+__all__ = ["DEFAULT_BLEND", "ClassMeans", "Policy", "Reference"]
 
 DEFAULT_BLEND = 10.0  # 1/s, the offset's decay rate (the moving test's velocity-command gain)
 
@@ -73,7 +75,7 @@ class _Motion:
     """The state of one motion (:meth:`Policy.reset` starts a new one), kept apart from the
     module's attributes so that writing it at every call is cheap."""
 
-    __slots__ = ("current", "slot", "w", "t", "off", "fresh", "turn")
+    __slots__ = ("current", "fresh", "off", "slot", "t", "turn", "w")
 
     def __init__(self) -> None:
         self.current: int | None = None  # row of Policy.labels
@@ -122,7 +124,7 @@ class Policy(EnvToProMP):
         self.check, self.switch_clearance = bool(check), float(switch_clearance)
         self.means = ClassMeans(env_map)
         self.labels = self.means.labels  # (K,)
-        kw = dict(dtype=torch.float64, device=promp.basis.device)
+        kw = {"dtype": torch.float64, "device": promp.basis.device}
         self._P = promp.to(torch.float64) if promp.basis.dtype != torch.float64 else promp
         self._d, self._kb = promp.num_dof, promp.num_basis
         self._device = promp.basis.device
@@ -135,11 +137,10 @@ class Policy(EnvToProMP):
             kin = getattr(task, "kinematics", None)
             fold = isinstance(task, ArmReachTask) and type(task).ee_path is ArmReachTask.ee_path
             self._ee = EndEffector(kin, device=self._device) if fold else task.ee_path  # (P, J) -> (P, 3)
-            amax = getattr(getattr(task, "robot", None), "max_acceleration", None) if max_acceleration is None \
-                else max_acceleration
-            if amax is not None and kin is not None:  # the moving test's velocity command, for the check's rollout
-                self._follow = Follow(float(kp), kin.max_velocity.to(**kw), torch.as_tensor(amax, **kw).expand(self._d),
-                                      self.decision_dt, self.duration, {})
+            robot_amax = getattr(getattr(task, "robot", None), "max_acceleration", None)
+            if kin is not None and (max_acceleration is not None or robot_amax is not None):  # the moving test's
+                timing = check_timing(self.decision_dt, self.duration, 0.0)  # velocity command, for the check's rollout
+                self._follow = arm_follow(task, kp, max_acceleration, timing, tables={}, **kw)
         self._label_list = self.labels.tolist()
         plan = getattr(task, "capsule_plan", None) if arm else None  # the plan check's bounds carried between decisions
         self._memo = ClearanceMemo(point_reach(task.kinematics, plan)) if plan is not None else None
@@ -148,7 +149,7 @@ class Policy(EnvToProMP):
         self._refresh_dt = self.decision_dt / 4
         # the basis and its derivatives at every whole millisecond of the motion (a 1 kHz loop's
         # calls), scaled to time derivatives: (T_ms + 1, 3, K)
-        ms = torch.arange(int(math.floor(self.duration * 1000)) + 1, **kw) * 1e-3
+        ms = torch.arange(math.floor(self.duration * 1000) + 1, **kw) * 1e-3
         self._scale = torch.tensor([1.0, 1.0 / self.duration, 1.0 / self.duration ** 2], **kw)[:, None]  # (3, 1)
         self._phi_ms = basis3(self._P, ms / self.duration) * self._scale
         self._phi_end = basis3(self._P, 1.0)  # (3, K)
@@ -250,7 +251,7 @@ class Policy(EnvToProMP):
         if self.task is None:
             raise ValueError(f"this map has the classes {self.labels.tolist()}: choosing one needs the run's task "
                              "(protorch.load(run_dir) of a run folder with its config.yaml)")
-        slot = int(math.floor(t / self.decision_dt + 1e-9))
+        slot = math.floor(t / self.decision_dt + 1e-9)
         m = self._m
         if m.current is not None and slot <= m.slot:
             solved = means.misses
@@ -358,7 +359,7 @@ class Policy(EnvToProMP):
         return self._follow
 
     # ----------------------------------------------------------------- out of Python
-    def export(self, path, *, aoti: bool = False) -> "Path":
+    def export(self, path, *, aoti: bool = False) -> Path:
         """Write the per-call computation as a ``torch.export`` program (``.pt2``) that runs
         without protorch: ``torch.export.load(path).module()(env, t)`` with ``env`` a float64
         ``(env_dim,)`` tensor and ``t`` a float64 0-d tensor returns ``(q, qd, qdd (D,), label

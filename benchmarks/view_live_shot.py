@@ -6,9 +6,11 @@ The run is served by :class:`protorch.view.server.Viewer` on a free port; the pa
 can at ``(can_x, --from-y)``; play starts; at ``--move-at`` seconds of the motion the can is moved
 to ``--to-y`` (``Viewer.set_env``, what a drag of its handle calls); at ``--shot-at`` the play is
 paused and the page is captured. Prints when the can moved, the side tracked and the switches.
+``--still``: no play, the page as it opens with the can at ``(can_x, --from-y)`` (docs/view.md's
+``docs/img/view_arm_reach.png``); prints the side chosen there.
 
     python benchmarks/view_live_shot.py RUN_DIR [--out live.png] [--from-y 0.02] [--to-y 0.12]
-        [--move-at 0.8] [--shot-at 1.6]
+        [--move-at 0.8] [--shot-at 1.6] [--still]
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ def main() -> None:
     ap.add_argument("--to-y", type=float, default=0.12)
     ap.add_argument("--move-at", type=float, default=0.8)
     ap.add_argument("--shot-at", type=float, default=1.6)
+    ap.add_argument("--still", action="store_true", help="no play: the page as it opens (the static view)")
     args = ap.parse_args()
     from playwright.sync_api import sync_playwright
 
@@ -55,6 +58,12 @@ def main() -> None:
         page.get_by_text("mean trajectory:").wait_for(timeout=60_000)
         page.add_style_tag(content="[class*=Notification]{display:none !important}")  # the software-WebGL notice
         page.wait_for_timeout(2000)
+        if args.still:
+            page.wait_for_timeout(1000)
+            page.screenshot(path=args.out)
+            browser.close()
+            print(f"can at y {args.from_y}: the view's side {viewer.state.label}; wrote {args.out}")
+            return
         player = viewer.player
         viewer.toggle_play()
         while player.t * player.dt < args.move_at and not player.done:

@@ -15,7 +15,9 @@ Printed: median, p99 and max (ms), the first call included (it is the first call
 of the wall-clock time and of the calling thread's CPU time (``time.thread_time``: on a shared
 machine the wall clock also counts the time the thread waited for a core), the share of calls
 that solved a new neighbour set (and of those by a swap update of the last set's inverses), and
-the load average. Load and warm-up time is printed apart.
+the load average. Load and warm-up time is printed apart. Also the collections of Python's garbage
+collector that ran within the timed calls, per generation (a full one, generation 2, walks every
+object torch's import left and takes ~0.1 s: ``Policy`` collects once after its warm-up).
 
 Continuity (``--continuity N``): the run's moving test re-simulated (its own environments and moves,
 :func:`protorch.control.arm.run_arm_episodes`); the policy's class at every instant of every
@@ -41,6 +43,7 @@ neighbour set kept), so its cost hardly depends on the call. Its largest differe
 from __future__ import annotations
 
 import argparse
+import gc
 import math
 import os
 import time
@@ -76,6 +79,30 @@ def environments(policy, calls: int, kind: str, seed: int = 0) -> torch.Tensor:
     return out
 
 
+class Collections:
+    """The garbage collector's collections while :attr:`on`: ``(generation, seconds)`` each."""
+
+    def __init__(self) -> None:
+        self.on, self.seen, self._t0 = False, [], 0.0
+        gc.callbacks.append(self)
+
+    def __call__(self, phase: str, info: dict) -> None:
+        if phase == "start":
+            self._t0 = time.perf_counter()
+        elif self.on:
+            self.seen.append((info["generation"], time.perf_counter() - self._t0))
+
+    def summary(self) -> str:
+        parts = []
+        for g in range(3):
+            ds = [d * 1e3 for gen, d in self.seen if gen == g]
+            parts.append(f"generation {g}: {len(ds)}" + (f" (longest {max(ds):.2f} ms)" if ds else ""))
+        return "; ".join(parts)
+
+
+COLLECTIONS = Collections()
+
+
 def print_times(kind: str, ts: list[float], cpu: list[float]) -> None:
     """Median, p99, max and first of the calls' wall-clock and CPU seconds, in ms."""
     for what, xs in (("wall", ts), ("cpu", cpu)):
@@ -95,10 +122,12 @@ def time_calls(policy, envs: torch.Tensor, kinds: list[str] | None = None) -> tu
             policy.reset()
             q = None
         slot, misses = policy._m.slot, policy.means.misses
+        COLLECTIONS.on = True
         c0, t0 = time.thread_time(), time.perf_counter()
         r = policy.reference(envs[i], (i % period) * 1e-3, q)
         ts.append(time.perf_counter() - t0)
         cpu.append(time.thread_time() - c0)
+        COLLECTIONS.on = False
         if kinds is not None:
             solved = "solve" if policy.means.misses > misses else ""
             kinds.append(("decision" + (" + " + solved if solved else "")) if policy._m.slot != slot else solved or "light")
@@ -288,8 +317,10 @@ def main() -> None:
             memo = getattr(policy, "_memo", None)
             passed0, checked0 = (memo.passed, memo.checked) if memo is not None else (0, 0)
             kinds: list[str] = []
+            COLLECTIONS.seen.clear()
             ts, cpu, misses = time_calls(policy, envs, kinds)
             print_times(kind, ts, cpu)
+            print(f"  {kind:8s} garbage collections within the calls: {COLLECTIONS.summary()}")
             swaps = getattr(policy.means, "updates", 0) - swaps0
             print(f"  {kind:8s} new neighbour sets solved at {misses / len(ts):.1%} of the calls ({swaps / len(ts):.1%} "
                   f"by a swap update); load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")

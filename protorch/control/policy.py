@@ -41,6 +41,7 @@ backwards within a motion (a smaller ``t`` than the last is taken as the last).
 from __future__ import annotations
 
 import bisect
+import gc
 import math
 from pathlib import Path
 from typing import NamedTuple
@@ -104,7 +105,8 @@ class Policy(EnvToProMP):
             offset, the reference is the chosen mean itself and jumps with it).
         kp, max_acceleration: the moving test's velocity command (gain 1/s; limit, ``None``: the
             robot's) that the plan check rolls out from the measured joints (the run's settings).
-        warm_up: call :meth:`reference` a few times now so that the first real call is not slower.
+        warm_up: call :meth:`reference` a few times now so that the first real call is not slower, then
+            collect Python's garbage: a full collection (~0.1 s over what torch's import leaves) now, not in a call.
     """
 
     def __init__(self, promp, env_map, task_name: str = "", *, task=None, duration: float = 3.0,
@@ -186,6 +188,7 @@ class Policy(EnvToProMP):
         for i in range(41):  # a walk from one to the next: neighbour sets swapped, decisions made
             self.reference(envs[0] + (envs[1] - envs[0]) * (i / 40), i * 1e-3)
         self.reset()
+        gc.collect()  # the full collection now, not in the loop's first seconds (its counts start afresh)
 
     # ----------------------------------------------------------------- checks
     def _joints(self, x, name: str, like: Tensor) -> Tensor | None:
@@ -294,12 +297,11 @@ class Policy(EnvToProMP):
             env: ``(env_dim,)`` the environment measured now (float64 is used).
             t: seconds since the motion started (:meth:`reset`), ``>= 0``; past ``duration`` the
                 last point of the mean is held (velocity and acceleration 0).
-            q: ``(D,)`` the measured joints (the arm's class choice scores the rest of the motion
-                from their end effector, as the moving test); ``None``: the arm is taken to be on
-                each class's mean.
-            qd: ``(D,)`` the measured joint velocities (or ``None``: 0; the plan check rolls the
-                arm out from ``q, qd``). The first call of a motion with ``q`` starts the
-                reference at ``q, qd`` (the gap decays as the continuity offset does).
+            q: ``(D,)`` the measured joints (the arm's class choice scores the rest of the motion from
+                their end effector, as the moving test); ``None``: the arm taken to be on each class's mean.
+            qd: ``(D,)`` the measured joint velocities (``None``: 0; the plan check rolls the arm out from
+                ``q, qd``). A motion's first call with ``q`` starts the reference at ``q, qd`` (the gap
+                decays as the continuity offset does).
         Returns:
             :class:`Reference` ``(q, qd, qdd (D,), label)``.
         """
@@ -361,15 +363,14 @@ class Policy(EnvToProMP):
     # ----------------------------------------------------------------- out of Python
     def export(self, path, *, aoti: bool = False) -> Path:
         """Write the per-call computation as a ``torch.export`` program (``.pt2``) that runs
-        without protorch: ``torch.export.load(path).module()(env, t)`` with ``env`` a float64
-        ``(env_dim,)`` tensor and ``t`` a float64 0-d tensor returns ``(q, qd, qdd (D,), label
-        (0-d int64))``, what :meth:`reference` returns right after :meth:`reset` with ``q=None``:
-        the class is chosen afresh at every call (the hysteresis, which needs the last class, and
-        the continuity offset, which needs the last call, stay with the caller). Inside: the map's
-        data (with ``nearest_k``: each call finds the neighbours and solves, as the map does,
-        without the jitter retry of a factor that fails), the ProMP's basis and, for the arm, the
-        objectives of the rest of the motion for every phase slot of the objectives' grid. Inputs
-        are not checked by the program. Written atomically.
+        without protorch: ``torch.export.load(path).module()(env, t)`` (``env`` a float64
+        ``(env_dim,)`` tensor, ``t`` a float64 0-d tensor) returns ``(q, qd, qdd (D,), label (0-d
+        int64))``, what :meth:`reference` returns right after :meth:`reset` with ``q=None``: the
+        class chosen afresh at every call (the hysteresis and the continuity offset, which need the
+        last call, stay with the caller). Inside: the map's data (with ``nearest_k`` each call finds
+        the neighbours and solves, without the jitter retry of a failing factor), the ProMP's basis
+        and, for the arm, the objectives of the rest of the motion for every slot of the
+        objectives' grid. Inputs are not checked by the program. Written atomically.
 
         ``aoti=True``: the program compiled ahead of time by AOTInductor into a package (minutes
         for an arm map) that ``torch._inductor.aoti_load_package(path)`` runs from Python, and
@@ -382,10 +383,9 @@ class Policy(EnvToProMP):
     # ----------------------------------------------------------------- whole trajectories
     def mean_trajectory(self, env: Tensor, labels=None) -> Tensor:
         """``(B, d)`` -> mean trajectories ``(B, T, D)``; with several classes and ``labels=None``
-        each environment's class is chosen by the label-aware inference (the held-out test's:
-        the lowest summed objectives of the whole mean trajectory, the class :meth:`reference` starts a
-        motion with; the held-out test also checks each class's mean first: ``label_aware_mean(...,
-        check=True)``)."""
+        each environment's class chosen by the label-aware inference (the held-out test's: the lowest
+        summed objectives of the whole mean trajectory, the class :meth:`reference` starts a motion
+        with; the held-out test also checks each class's mean first: ``label_aware_mean(..., check=True)``)."""
         if labels is None and self.labels.numel() > 1:
             if self.task is None:
                 raise ValueError(f"the data has several labels {self.labels.tolist()}: pass labels=, or load the "

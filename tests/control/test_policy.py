@@ -5,11 +5,13 @@ runs without protorch and equals policy.reference."""
 
 from __future__ import annotations
 
+import gc
 import math
 import shutil
 import subprocess
 import sys
 import textwrap
+import weakref
 from pathlib import Path
 
 import pytest
@@ -104,6 +106,27 @@ def test_class_means_along_a_walk_equal_the_maps_prediction():
     for e in walk:
         torch.testing.assert_close(small(e), env_map.predict_mean(e.expand(2, -1), torch.tensor([0, 1])), rtol=0, atol=1e-12)
     assert small.misses == lazy.misses and small.misses - small.updates <= 4  # (76 of 123 factorised before)
+
+
+class _Node:
+    pass
+
+
+def test_loading_collects_the_garbage_so_that_a_call_does_not():
+    """A reference cycle that became garbage in the collector's oldest generation before the
+    policy was built is freed by the build (its warm-up ends with a full collection, ~0.1 s over
+    torch's objects), not later by whichever call of the loop the collector's counts pick, and the
+    counts start afresh."""
+    gc.collect()
+    holder = [_Node()]
+    holder[0].me = holder[0]  # a cycle: only the cyclic collector frees it
+    gone = weakref.ref(holder[0])
+    gc.collect()  # the cycle, still reachable, moves to the oldest generation
+    holder.clear()  # now garbage there
+    assert gone() is not None
+    toy_policy(8)
+    assert gone() is None
+    assert gc.get_count()[1:] == (0, 0)
 
 
 def test_the_fast_end_effector_equals_the_kinematics():

@@ -27,11 +27,15 @@ then the first ``N`` episodes with a class switch replayed at 1 kHz through ``po
 between consecutive calls, against the same with the offset off (``blend=inf``: the chosen mean).
 
     python benchmarks/control_loop.py RUN_DIR [--calls 10000] [--backends torch,gpytorch,sparse] [--check on,off]
-        [--continuity 10]
+        [--continuity 10] [--soak 200000]
 
 ``--pieces``: the walk once more with the decisions' pieces (every class's mean, the scores, the
 plan check and its plan, capsule placement and bounds) each timed. ``--check on,off`` times the class choice with and without its plan check (the run's
 ``dynamic.check``, on by default: :func:`protorch.control.arm_choice.rest_blocked`) side by side.
+
+``--soak CALLS``: a long loop on the first backend's policy (moving environments, a new walk every
+20,000 calls): the process's resident memory and the number of objects the garbage collector
+tracks every 20,000 calls, which stay flat when every cache the policy keeps is bounded.
 
 ``--aoti``: also the program ``policy.export(path, aoti=True)`` writes (AOTInductor, compiled on
 this machine; the compile time is printed), loaded with ``torch._inductor.aoti_load_package`` and
@@ -80,11 +84,19 @@ def environments(policy, calls: int, kind: str, seed: int = 0) -> torch.Tensor:
 
 
 class Collections:
-    """The garbage collector's collections while :attr:`on`: ``(generation, seconds)`` each."""
+    """The garbage collector's collections while :attr:`on`: ``(generation, seconds)`` each (once
+    :meth:`start` has put it among the collector's callbacks; :func:`main` does)."""
 
     def __init__(self) -> None:
         self.on, self.seen, self._t0 = False, [], 0.0
-        gc.callbacks.append(self)
+
+    def start(self) -> None:
+        if self not in gc.callbacks:
+            gc.callbacks.append(self)
+
+    def stop(self) -> None:
+        if self in gc.callbacks:
+            gc.callbacks.remove(self)
 
     def __call__(self, phase: str, info: dict) -> None:
         if phase == "start":
@@ -239,6 +251,25 @@ def reversed_switches(labels: torch.Tensor, within: int = 3) -> tuple[int, int]:
     return count, episodes
 
 
+def soak(policy, calls: int, chunk: int = 20_000) -> None:
+    """:func:`time_calls`'s loop for ``calls`` calls, in walks of ``chunk``; prints the resident
+    memory (``/proc/self/statm``, Linux) and the garbage collector's tracked objects after each."""
+    page = os.sysconf("SC_PAGE_SIZE") / 2 ** 20
+    rss = lambda: int(open("/proc/self/statm").read().split()[1]) * page  # noqa: E731 (MB)
+    print(f"soak: {calls} calls; before: {rss():.0f} MB resident, {len(gc.get_objects())} objects tracked")
+    policy.reset()
+    period, q, done = int(round((policy.duration + 1.0) * 1000)), None, 0
+    while done < calls:
+        envs = environments(policy, min(chunk, calls - done), "moving", seed=1 + done // chunk)
+        for env in envs:
+            if done % period == 0:
+                policy.reset()
+                q = None
+            q = policy.reference(env, (done % period) * 1e-3, q).q
+            done += 1
+        print(f"  after {done} calls: {rss():.0f} MB resident, {len(gc.get_objects())} objects tracked")
+
+
 def continuity(run: str, episodes: int) -> None:
     from omegaconf import OmegaConf
 
@@ -298,10 +329,13 @@ def main() -> None:
                     help="also the AOTInductor-compiled exported program (the first backend's map)")
     ap.add_argument("--pieces", action="store_true",
                     help="also the decisions' pieces timed (the walk once more, each piece wrapped in a timer)")
+    ap.add_argument("--soak", type=int, default=0, metavar="CALLS",
+                    help="also a long loop of this many calls: resident memory and tracked objects every 20,000")
     ap.add_argument("--continuity", type=int, default=0, metavar="EPISODES",
                     help="also the continuity over this many switching episodes of the moving test")
     args = ap.parse_args()
     torch.set_num_threads(1)
+    COLLECTIONS.start()
     print(f"torch {torch.__version__}, 1 thread, run {args.run}")
     checks = [None] if args.check == "run" else [{"on": True, "off": False}[c] for c in args.check.split(",")]
     for backend, check in [(b, c) for b in args.backends.split(",") for c in checks]:
@@ -332,6 +366,8 @@ def main() -> None:
                 time_pieces(policy, envs)
     if args.aoti:
         time_aoti(protorch.load(args.run, backend=args.backends.split(",")[0]), args.kinds.split(","), args.calls)
+    if args.soak:
+        soak(protorch.load(args.run, backend=args.backends.split(",")[0]), args.soak)
     if args.continuity:
         continuity(args.run, args.continuity)
 

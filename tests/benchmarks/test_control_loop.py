@@ -51,3 +51,38 @@ def test_the_pieces_are_timed_and_the_timers_removed(capsys):
     out = capsys.readouterr().out
     assert "the scores" in out and " 5 calls" in out  # a decision every 20 ms of the 0.1 s walk
     assert (ClassMeans.__call__, Policy._scores, ac.rest_plan) == before
+
+
+def test_collections_are_counted_only_within_the_timed_calls():
+    """The garbage collector's collections are recorded while a call is timed, per generation."""
+    import gc
+
+    with benchmark_module("control_loop.py", "_control_loop") as bench:
+        rec = bench.Collections()
+        rec.start()
+        try:
+            gc.collect()  # not timed: not counted
+            rec.on = True
+            gc.collect()
+            gc.collect(0)
+            rec.on = False
+            gc.collect()
+            assert [g for g, _ in rec.seen] == [2, 0]
+            assert rec.summary().startswith("generation 0: 1 (longest ")
+            assert "generation 1: 0;" in rec.summary() and "generation 2: 1 (longest " in rec.summary()
+        finally:
+            rec.stop()
+        assert rec not in gc.callbacks
+
+
+def test_the_soak_reports_after_each_walk(capsys):
+    """soak: a line before, then one after each walk of ``chunk`` calls, the last one short."""
+    from tests.control.test_policy import toy_policy
+
+    policy = toy_policy(nearest_k=8)
+    with benchmark_module("control_loop.py", "_control_loop") as bench:
+        bench.soak(policy, 250, chunk=100)
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("soak: 250 calls; before: ")
+    assert [line.split(":")[0].strip() for line in lines[1:]] == [f"after {n} calls" for n in (100, 200, 250)]
+    assert all("MB resident" in line and "objects tracked" in line for line in lines)

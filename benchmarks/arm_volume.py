@@ -19,7 +19,9 @@ the largest difference of the results:
 7. the volume objective (``end_volume_near``) on one of the loop's cost pieces (700 trajectories x
    25 cost steps, float32), the compiled chain's ``cos``/``sin`` rows taken from the transposed
    joints as they come (strided: every product with a row gathers) against contiguous rows and
-   no copies where every point moves (:class:`StridedRows`, the code before; bit-equal: 0).
+   no copies where every point moves (:class:`StridedRows`, the code before; bit-equal: 0);
+8. the same objective with the joints' ``cos``/``sin`` rows computed for each frame's capsules
+   (:class:`TrigPerFrame`, the code before) against once, passed to both (bit-equal: 0).
 
 ``--quick``: small sizes (a check that the script runs, not a measurement).
 """
@@ -83,7 +85,7 @@ class StridedRows(ArmKinematics):
             x, y, z = self._affine(j, x, y, z)
         return torch.stack([x, y, z], -1).reshape(*q.shape[:-1], 3)
 
-    def ee_frame_rows(self, q):
+    def ee_frame_rows(self, q, trig=None):  # trig ignored: the rows are taken strided here
         qt = self.check_joints(q, finite=False).reshape(-1, self.num_joints).T
         c, s = torch.cos(qt), torch.sin(qt)
         tail = torch.tensor(self._maps[-1], dtype=q.dtype, device=q.device)
@@ -94,7 +96,7 @@ class StridedRows(ArmKinematics):
             x, y, z = self._affine(j, x, y, z, translate=origin)
         return x, y, z
 
-    def _carry_rows(self, q, pts, after, functional=False):
+    def _carry_rows(self, q, pts, after, functional=False, trig=None):
         qt = q.reshape(-1, self.num_joints).T
         c, s = torch.cos(qt), torch.sin(qt)
         x, y, z = (pts[:, i, None].expand(-1, qt.shape[1]).clone() for i in range(3))  # (M, P)
@@ -103,6 +105,17 @@ class StridedRows(ArmKinematics):
                 xs, ys = c[k] * x[lo:] - s[k] * y[lo:], s[k] * x[lo:] + c[k] * y[lo:]
                 x[lo:], y[lo:], z[lo:] = self._affine(k, xs, ys, z[lo:])
         return x, y, z
+
+
+class TrigPerFrame(ArmKinematics):
+    """The compiled chain as :func:`end_volume_near` used it before (row 8): the ``cos``/``sin`` rows
+    of the joints computed afresh for each frame's capsules instead of once and passed on."""
+
+    def ee_frame_rows(self, q, trig=None):
+        return super().ee_frame_rows(q)
+
+    def carry_points_rows(self, q, plan, *, functional=False, trig=None):
+        return super().carry_points_rows(q, plan, functional=functional)
 
 
 def row(name: str, old, new, repeats: int) -> None:
@@ -169,6 +182,10 @@ def main(argv=None) -> None:
     strided = StridedRows(kin.urdf_text, end_link=kin.end_link)
     row(f"volume objective, {pieces} x 25 float32 (strided / rows)",
         lambda: end_volume_near(strided, q_obj, env_obj, task.end_capsules, task.can_height),
+        lambda: end_volume_near(kin, q_obj, env_obj, task.end_capsules, task.can_height), 10 * a.repeats)
+    per_frame = TrigPerFrame(kin.urdf_text, end_link=kin.end_link)
+    row(f"volume objective, {pieces} x 25 float32 (trig per frame / once)",
+        lambda: end_volume_near(per_frame, q_obj, env_obj, task.end_capsules, task.can_height),
         lambda: end_volume_near(kin, q_obj, env_obj, task.end_capsules, task.can_height), 10 * a.repeats)
 
 

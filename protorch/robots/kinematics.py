@@ -34,7 +34,7 @@ from ..checks import check_tensor
 from .ik import inverse_kinematics
 from .urdf import default_chain, parse_urdf, read_urdf, urdf_links
 
-__all__ = ["ArmKinematics", "PointPlan", "urdf_links", "parse_urdf"]
+__all__ = ["ArmKinematics", "PointPlan", "parse_urdf", "urdf_links"]
 
 _SNAP = 1e-7
 
@@ -207,7 +207,7 @@ class ArmKinematics(nn.Module):
         Any floating dtype (float32 for sampling), any device. The hot path of the cost
         evaluation: the shape is checked, the values are not (NaN in gives NaN out)."""
         q = self.check_joints(q, finite=False)
-        c, s = self._trig(q)  # (J, P)
+        c, s = self.trig_rows(q)  # (J, P)
         x, y, z = (torch.full_like(c[0], v) for v in self._tail)
         for j in range(self.num_joints - 1, -1, -1):
             x, y = c[j] * x - s[j] * y, s[j] * x + c[j] * y  # rotation about the folded z axis
@@ -224,12 +224,12 @@ class ArmKinematics(nn.Module):
         out[..., 3, 3] = 1.0
         return out
 
-    def ee_frame_rows(self, q: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    def ee_frame_rows(self, q: Tensor, trig: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor, Tensor]:
         """:meth:`ee_frame`'s top three rows, component-major over the flattened batch ``P``:
-        ``x, y, z (4, P)``, whose columns are the end link's x, y and z axes and its origin (no
-        transposes or copies: what a caller placing points on the end link wants)."""
+        ``x, y, z (4, P)``, whose columns are the end link's x, y and z axes and its origin (no copies:
+        what a caller placing points on the end link wants). ``trig``: :meth:`trig_rows` of ``q``, if known."""
         q = self.check_joints(q, finite=False)
-        c, s = self._trig(q)  # (J, P)
+        c, s = self.trig_rows(q) if trig is None else trig  # (J, P)
         tail = torch.tensor(self._maps[-1], dtype=q.dtype, device=q.device)  # (3, 4) end link in the last joint's frame
         vec = tail.T[:, :, None].expand(4, 3, c.shape[1])  # (4, 3, P): the three axes, then the origin
         x, y, z = vec[:, 0], vec[:, 1], vec[:, 2]  # (4, P)
@@ -248,7 +248,7 @@ class ArmKinematics(nn.Module):
         pts = torch.tensor(self._origins, dtype=q.dtype, device=q.device)  # (F, 3): each origin after its joint's rotation
         return self._stack_rows(q, *self._carry_rows(q, pts, self._after_joint))
 
-    def point_plan(self, frames: Sequence[str], points: Tensor) -> "PointPlan":
+    def point_plan(self, frames: Sequence[str], points: Tensor) -> PointPlan:
         """What :meth:`carry_points` needs to place ``points (M, 3)``, each fixed in its frame
         ``frames[m]`` (any order): each point in the frame after the last joint before its frame
         (float64), the points ordered by that joint, and per joint the first point after it."""
@@ -266,7 +266,7 @@ class ArmKinematics(nn.Module):
         back = None if order == list(range(len(frames))) else torch.tensor(order).argsort()
         return PointPlan(start, after, back)
 
-    def carry_points(self, q: Tensor, plan: "PointPlan", *, functional: bool = False) -> Tensor:
+    def carry_points(self, q: Tensor, plan: PointPlan, *, functional: bool = False) -> Tensor:
         """The points of ``plan`` (:meth:`point_plan`) at joints ``q (..., J)``: ``(..., M, 3)`` in
         the root frame, in the plan's order of points, by the compiled path: every point carried
         back through the joints before its frame only, all points at once (ordered by frame, the
@@ -277,11 +277,11 @@ class ArmKinematics(nn.Module):
         q = self.check_joints(q, finite=False)
         return self._stack_rows(q, *self.carry_points_rows(q, plan, functional=functional))
 
-    def carry_points_rows(self, q: Tensor, plan: "PointPlan", *, functional: bool = False
-                          ) -> tuple[Tensor, Tensor, Tensor]:
-        """:meth:`carry_points` component-major over the flattened batch ``P``: ``x, y, z (M, P)``."""
+    def carry_points_rows(self, q: Tensor, plan: PointPlan, *, functional: bool = False,
+                          trig: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor, Tensor]:
+        """:meth:`carry_points` component-major over the flattened batch: ``x, y, z (M, P)`` (``trig``: ee_frame_rows')."""
         q = self.check_joints(q, finite=False)
-        x, y, z = self._carry_rows(q, plan.start.to(q), plan.after, functional)
+        x, y, z = self._carry_rows(q, plan.start.to(q), plan.after, functional, trig)
         if plan.back is None:
             return x, y, z
         back = plan.back.to(q.device)
@@ -292,17 +292,17 @@ class ArmKinematics(nn.Module):
         """Component rows ``x, y, z (M, P)`` over ``q (..., J)``'s flattened batch as points ``(..., M, 3)``."""
         return torch.stack([x, y, z], -1).transpose(0, 1).reshape(*q.shape[:-1], x.shape[0], 3)
 
-    def _trig(self, q: Tensor) -> tuple[Tensor, Tensor]:
+    def trig_rows(self, q: Tensor) -> tuple[Tensor, Tensor]:
         """``cos``, ``sin`` of ``q (..., J)`` as rows ``(J, P)``, each contiguous (a strided row costs ~3x per product)."""
         qt = q.reshape(-1, self.num_joints).T.contiguous()  # (J, P)
         return torch.cos(qt), torch.sin(qt)
 
-    def _carry_rows(self, q: Tensor, pts: Tensor, after: Sequence[int], functional: bool = False
-                    ) -> tuple[Tensor, Tensor, Tensor]:
+    def _carry_rows(self, q: Tensor, pts: Tensor, after: Sequence[int], functional: bool = False,
+                    trig: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor, Tensor]:
         """Points ``pts (M, 3)``, each in the frame after its last joint's rotation and ordered by
         that joint (``after[k]``: the first point after joint ``k``), at ``q (..., J)``: their rows
         ``x, y, z (M, P)``. ``functional``: no tensor written in place (:meth:`carry_points`)."""
-        c, s = self._trig(q)  # (J, P)
+        c, s = self.trig_rows(q) if trig is None else trig  # (J, P)
         x, y, z = (pts[:, i, None].expand(-1, c.shape[1]) for i in range(3))  # (M, P)
         if not functional and any(0 < lo < pts.shape[0] for lo in after):  # rows written into below
             x, y, z = x.clone(), y.clone(), z.clone()

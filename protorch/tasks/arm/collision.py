@@ -265,18 +265,19 @@ def end_volume_near(kinematics, traj: Tensor, env: Tensor, capsules: dict, can_h
     cx, cy = (env[..., None, i].expand(lead).reshape(-1) for i in (0, 1))  # (P,) the can's axis at each pose
     path = torch.empty(*full.shape[:-1], 3, dtype=full.dtype, device=full.device)  # (..., T, 3)
     path[..., 1::2, :] = kinematics.ee_position(full[..., 1::2, :])
+    trig = kinematics.trig_rows(traj)  # (J, P) cos, sin: once for every frame's capsules
     near = None
     for frame, caps in capsules.items():
         r = caps[-1].to(traj)[:, None]  # (C, 1)
         if frame is None:  # the ends in the end link's frame, all placed by one matrix product per row
-            rows = kinematics.ee_frame_rows(traj)  # x, y, z (4, P): the end link's axes and origin
+            rows = kinematics.ee_frame_rows(traj, trig)  # x, y, z (4, P): the end link's axes and origin
             path[..., ::2, :] = torch.stack([row[3] for row in rows], -1).reshape(*lead, 3)  # ee_position's, to the bit
             ends = torch.cat([caps[0], caps[1]]).to(traj)  # (2C, 3)
             ends = torch.cat([ends, torch.ones_like(ends[:, :1])], 1)  # (2C, 4) homogeneous
             with one_thread():  # MKL splits the P columns between threads: other last bits on two than on one
                 x, y, z = (ends @ row for row in rows)  # (2C, P)
         else:
-            x, y, z = kinematics.carry_points_rows(traj, caps[0])  # (2C, P)
+            x, y, z = kinematics.carry_points_rows(traj, caps[0], trig=trig)  # (2C, P)
         c = r.shape[0]
         d = _axis_proxy(x[:c], y[:c], z[:c], x[c:], y[c:], z[c:], cx, cy, can_height).sub_(r).amin(0)  # (P,)
         near = d if near is None else torch.minimum(near, d)

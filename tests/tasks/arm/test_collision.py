@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from protorch.robots import capsule_segments
+from protorch.robots import ArmKinematics, capsule_segments
 from protorch.tasks import ArmReachTask
 from protorch.tasks.arm.collision import capsules_clear, capsules_gap, end_volume_near, joints_clearance
 from protorch.tasks.arm.geometry import point_cylinder_distance, segment_cylinder_distance, segment_cylinder_within
@@ -145,6 +145,33 @@ def test_point_and_segment_cylinder_distances_over_the_top_beside_and_through_th
     beside = torch.tensor([[0.3, 0.1, 0.0], [0.7, 0.1, 0.2]], dtype=torch.float64)  # a slanted pass beside
     assert float(segment_cylinder_distance(beside[0], beside[1], axis, 0.0375, 0.0, 0.23)) == pytest.approx(
         0.1 - 0.0375, abs=1e-8)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_the_volume_objective_takes_the_joints_cos_and_sin_once(gen, dtype):
+    """end_volume_near computes the joints' cos/sin rows once and hands them to each frame's
+    capsules: the same numbers to the bit as each frame computing its own (the code before), and
+    the rows handed over are used (wrong rows give other numbers)."""
+    class PerFrame(ArmKinematics):  # ignores the rows handed over: each call computes its own
+        def ee_frame_rows(self, q, trig=None):
+            return super().ee_frame_rows(q)
+
+        def carry_points_rows(self, q, plan, *, functional=False, trig=None):
+            return super().carry_points_rows(q, plan, functional=functional)
+
+    task = ArmReachTask(can_objective="volume")
+    kin = task.kinematics
+    assert len(task.end_capsules) >= 2  # frames: the end link's and another (the sharing matters)
+    per_frame = PerFrame(kin.urdf_text, end_link=kin.end_link)
+    traj = (task.start_config() + 0.4 * torch.randn(30, 25, 7, generator=gen, dtype=torch.float64)).to(dtype)
+    env = task.sample_envs(30, gen).to(dtype)
+    near, path = end_volume_near(kin, traj, env, task.end_capsules, task.can_height)
+    near0, path0 = end_volume_near(per_frame, traj, env, task.end_capsules, task.can_height)
+    assert torch.equal(near, near0) and torch.equal(path, path0)
+    plan = next(caps for frame, caps in task.end_capsules.items() if frame is not None)[0]
+    c, s = kin.trig_rows(traj[:, ::2])
+    x = kin.carry_points_rows(traj[:, ::2], plan, trig=(s, c))[0]
+    assert not torch.equal(x, kin.carry_points_rows(traj[:, ::2], plan)[0])
 
 
 def test_skeleton_gap_and_the_stricter_volume_model():

@@ -35,7 +35,8 @@ plan check and its plan, capsule placement and bounds) each timed. ``--check on,
 
 ``--soak CALLS``: a long loop on the first backend's policy (moving environments, a new walk every
 20,000 calls): the process's resident memory and the number of objects the garbage collector
-tracks every 20,000 calls, which stay flat when every cache the policy keeps is bounded.
+tracks every 20,000 calls, which stay flat when every cache the policy keeps is bounded, and each
+walk's p99.
 
 ``--aoti``: also the program ``policy.export(path, aoti=True)`` writes (AOTInductor, compiled on
 this machine; the compile time is printed), loaded with ``torch._inductor.aoti_load_package`` and
@@ -51,6 +52,7 @@ import gc
 import math
 import os
 import time
+from pathlib import Path
 
 import torch
 
@@ -252,22 +254,20 @@ def reversed_switches(labels: torch.Tensor, within: int = 3) -> tuple[int, int]:
 
 
 def soak(policy, calls: int, chunk: int = 20_000) -> None:
-    """:func:`time_calls`'s loop for ``calls`` calls, in walks of ``chunk``; prints the resident
-    memory (``/proc/self/statm``, Linux) and the garbage collector's tracked objects after each."""
+    """``calls`` calls of :func:`time_calls`, a new walk every ``chunk`` (each starts a new
+    motion); prints the resident memory (``/proc/self/statm``, Linux), the garbage collector's
+    tracked objects and the walk's p99 after each."""
     page = os.sysconf("SC_PAGE_SIZE") / 2 ** 20
-    rss = lambda: int(open("/proc/self/statm").read().split()[1]) * page  # noqa: E731 (MB)
+    rss = lambda: int(Path("/proc/self/statm").read_text().split()[1]) * page  # noqa: E731 (MB)
     print(f"soak: {calls} calls; before: {rss():.0f} MB resident, {len(gc.get_objects())} objects tracked")
-    policy.reset()
-    period, q, done = int(round((policy.duration + 1.0) * 1000)), None, 0
+    done = 0
     while done < calls:
         envs = environments(policy, min(chunk, calls - done), "moving", seed=1 + done // chunk)
-        for env in envs:
-            if done % period == 0:
-                policy.reset()
-                q = None
-            q = policy.reference(env, (done % period) * 1e-3, q).q
-            done += 1
-        print(f"  after {done} calls: {rss():.0f} MB resident, {len(gc.get_objects())} objects tracked")
+        policy.reset()
+        ts = time_calls(policy, envs)[0]
+        done += len(ts)
+        print(f"  after {done} calls: {rss():.0f} MB resident, {len(gc.get_objects())} objects tracked, "
+              f"p99 of the walk {_percentile(ts, 0.99) * 1e3:.3f} ms")
 
 
 def continuity(run: str, episodes: int) -> None:

@@ -11,11 +11,20 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["ALIGN_WINDOW", "Cleaning", "align", "clean", "group_envs", "group_tolerance", "speed"]
+__all__ = ["ALIGN_WINDOW", "Cleaning", "TooShort", "align", "clean", "group_envs", "group_tolerance", "speed"]
 
 ALIGN_WINDOW = 0.25  # DTW's Sakoe-Chiba band, a fraction of the samples: no warp moves a sample further
 EQUAL = 1e-9  # relative: environments closer than this are equal (round-off of a mean over rows)
 GAP_RATIO = 3.0  # the derived tolerance needs a gap of this ratio between two merge distances
+
+
+class TooShort(ValueError):
+    """A recording whose motion after trimming is shorter than ``min_duration`` (the folder
+    reader excludes it; :attr:`reason` without the file name)."""
+
+    def __init__(self, path, reason: str) -> None:
+        super().__init__(f"{path}: {reason}")
+        self.reason = reason
 
 @dataclass(frozen=True)
 class Cleaning:
@@ -118,9 +127,9 @@ def clean(rec, cleaning: Cleaning) -> tuple[np.ndarray, dict]:
         else:
             start, end = t0, t0
         if end - start < cleaning.min_duration:
-            raise ValueError(f"{rec.path}: it moves for {end - start:.3g} s only (speed above {cleaning.trim:g} of its "
-                             f"peak), shorter than the minimum {cleaning.min_duration:g} s "
-                             "(task.recordings.min_duration)")
+            raise TooShort(rec.path, f"it moves for {end - start:.3g} s only (speed above {cleaning.trim:g} of its "
+                                     f"peak), shorter than the minimum {cleaning.min_duration:g} s "
+                                     "(task.recordings.min_duration)")
     tt = np.linspace(start, end, cleaning.samples)  # (S,) equally spaced in time
     demo = _interp(tt, rec.time, rec.values)  # (S, D)
     dt = np.diff(rec.time)

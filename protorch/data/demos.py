@@ -29,7 +29,8 @@ from .files import atomic_write_bytes
 from .formats import DemoFolder, DemoFormat
 from .recordings import is_recordings_folder, read_recordings
 
-__all__ = ["DemoFormat", "DemoFolder", "PARTICLE_FORMAT", "WORKSPACE", "ENV_NAMES", "MARKS_FILE", "check_demo_groups",
+__all__ = ["DemoFormat", "DemoFolder", "PARTICLE_FORMAT", "WORKSPACE", "ENV_NAMES", "MARKS_FILE", "LONE_RULE",
+           "accept_demo_folder", "check_demo_groups",
            "demo_files", "load_human_demos", "read_demo_folder", "read_demos", "read_marks", "write_demo"]
 
 _NAME = re.compile(r"^(traj|env)(\d+)\.out$")
@@ -191,22 +192,68 @@ def write_demo(folder: str | Path, k: int, traj, env) -> tuple[Path, Path]:
 
 
 def check_demo_groups(envs: Tensor, files: Sequence[tuple[Path, Path]], labels: Tensor | None = None,
-                      *, minimum: int = 2, label_names: dict | None = None) -> None:
+                      *, minimum: int = 2, label_names: dict | None = None, lone: str = "refuse",
+                      excluded: Sequence[dict] | None = None) -> dict:
     """Refuse an environment (with ``labels``: an environment and label) holding fewer than
-    ``minimum`` demonstrations (a weight variance needs 2), naming its files."""
+    ``minimum`` demonstrations (a weight variance needs 2), naming its files.
+
+    ``lone="pool"``: such an entry is kept and takes its weight variance from the rule of
+    :func:`protorch.loop.initial.demonstration_dataset` (the mean variance of the same label's
+    entries with ``minimum`` or more demonstrations); refused only where that label has no such
+    entry anywhere. ``excluded``: the folder's excluded recordings (``{file, reason}``), named in
+    the refusal. Returns ``{"rule", "lone": [{"files", "label", "side"}]}``."""
+    if lone not in ("refuse", "pool"):
+        raise ValueError(f"lone must be 'refuse' or 'pool', got {lone!r}")
     keyed = envs.to(torch.float64)
     if labels is not None:
         keyed = torch.cat([keyed, torch.as_tensor(labels).to(torch.float64).reshape(-1, 1)], 1)
     _, group, counts = torch.unique(keyed, dim=0, return_inverse=True, return_counts=True)
+    lab = torch.zeros(len(files), dtype=torch.long) if labels is None else torch.as_tensor(labels).reshape(-1)
+    name = lambda i: (label_names or {}).get(int(lab[i]), int(lab[i]))
+    pooled_from = {int(lab[i]) for i in range(len(files)) if int(counts[group[i]]) >= minimum}
+    gone = "" if not excluded else " (excluded: " + "; ".join(f"{e['file']}: {e['reason']}" for e in excluded) + ")"
+    report, seen = {"rule": LONE_RULE if lone == "pool" else "refused", "lone": []}, set()
     for i in range(len(files)):
-        if int(counts[group[i]]) < minimum:
-            members = [j for j in range(len(files)) if int(group[j]) == int(group[i])]
-            names = ", ".join(files[j][0].name for j in members)
-            side = "" if labels is None else f" passing {(label_names or {}).get(int(labels[i]), int(labels[i]))}"
+        if int(counts[group[i]]) >= minimum or int(group[i]) in seen:
+            continue
+        seen.add(int(group[i]))
+        members = [j for j in range(len(files)) if int(group[j]) == int(group[i])]
+        names = ", ".join(files[j][0].name for j in members)
+        side = "" if labels is None else f" passing {name(i)}"
+        if lone == "pool" and int(lab[i]) in pooled_from:
+            report["lone"].append({"files": [files[j][0].name for j in members], "label": int(lab[i]),
+                                   "side": str(name(i))})
+            continue
+        if lone == "pool":
             raise ValueError(
-                f"{files[i][1]}: this environment has {len(members)} demonstration(s){side} ({names}); each needs "
-                f">= {minimum} for a weight variance: teach more with python -m protorch.view --teach (it continues "
-                f"the folder's last environment) or remove the pair")
+                f"{files[i][1]}: this environment has {len(members)} demonstration(s){side} ({names}) and no "
+                f"environment has >= {minimum} demonstrations{side} to pool a weight variance from{gone}: teach "
+                f"more with python -m protorch.view --teach")
+        raise ValueError(
+            f"{files[i][1]}: this environment has {len(members)} demonstration(s){side} ({names}); each needs "
+            f">= {minimum} for a weight variance: teach more with python -m protorch.view --teach (it continues "
+            f"the folder's last environment) or remove the pair{gone}")
+    return report
+
+
+LONE_RULE = ("an environment's lone demonstration of a side takes the mean weight variance of the same side's "
+             "environments with >= 2 demonstrations")
+
+
+def accept_demo_folder(folder: DemoFolder, labels: Tensor | None, *, label_names: dict | None = None) -> None:
+    """The checks a folder passes before training (:func:`check_demo_groups` with lone sides
+    pooled, the excluded recordings named in a refusal); the result goes into
+    ``folder.report["sides"]`` and the report's summary lines (excluded recordings, findings)
+    are printed, one ``[protorch] recordings:`` line each."""
+    report = folder.report or {}
+    sides = check_demo_groups(folder.envs, folder.files, labels, label_names=label_names, lone="pool",
+                              excluded=report.get("excluded"))
+    if folder.report:
+        folder.report["sides"] = sides
+        if sides["lone"]:
+            folder.report["summary"].append(f"{len(sides['lone'])} lone side(s) ({sides['rule']})")
+    for line in report.get("summary", []):
+        print(f"[protorch] recordings: {line}", flush=True)
 
 
 def read_marks(folder: str | Path) -> dict[int, list[str]]:

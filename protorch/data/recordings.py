@@ -44,7 +44,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .cleaning import Cleaning, align, clean, group_envs, group_tolerance
+from .cleaning import Cleaning, TooShort, align, clean, group_envs, group_tolerance
+from .quality import exclusion, flags
 from .files import atomic_write_bytes
 from .formats import DemoFolder
 
@@ -52,6 +53,7 @@ __all__ = ["TIME", "Cleaning", "Recording", "align", "clean", "group_envs", "gro
            "read_recording", "read_recordings", "recording_files", "write_recording"]
 
 TIME = "time"
+IMPORT_SUFFIX = ".import.json"  # the importer's report beside a recording: STEM.import.json
 
 
 @dataclass
@@ -65,6 +67,7 @@ class Recording:
     env: np.ndarray
     env_rows: np.ndarray | None = None
     ignored: list[str] = field(default_factory=list)
+    imported: dict | None = None  # the importer's report (``STEM.import.json`` beside the file)
 
 
 # ----------------------------------------------------------------------------- files
@@ -182,7 +185,34 @@ def read_recording(path: str | Path, fmt, *, min_duration: float = 0.0) -> Recor
     else:
         env_rows, env = None, _sidecar_env(path, fmt)
     ignored = [n for n in names if n != TIME and n not in fmt.columns and n not in fmt.env_names]
-    return Recording(path, t.copy(), values, env, env_rows, ignored)
+    return Recording(path, t.copy(), values, env, env_rows, ignored, _import_report(path))
+
+
+def _import_report(path: Path) -> dict | None:
+    side = path.with_name(path.stem + IMPORT_SUFFIX)
+    if not side.is_file():
+        return None
+    try:
+        return dict(json.loads(side.read_text()))
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{side}: not an import report ({exc})") from None
+
+
+def summary_lines(reports: Sequence[dict], excluded: Sequence[dict]) -> list[str]:
+    """One line per excluded recording and per recording with a finding (:mod:`protorch.data.quality`)."""
+    out = [f"excluded {e['file']}: {e['reason']}" for e in excluded]
+    for r in reports:
+        if "env_moved" in r:
+            out.append(f"{r['file']}: the environment moved {r['env_moved']['drift'] * 1e3:.1f} mm during it "
+                       f"(scatter {r['env_moved']['scatter'] * 1e3:.1f} mm)")
+        if "env_stream_ends_s" in r:
+            out.append(f"{r['file']}: the environment stream ends at {r['env_stream_ends_s']:.2f} s of "
+                       f"{r['seconds']:.2f} s (held since)")
+        for j in r.get("jumps", []):
+            out.append(f"{r['file']}: {j['joint']} jumps by {j['step']:.3g} rad at {j['time_s']:.3f} s")
+        for g in r.get("gaps", []):
+            out.append(f"{r['file']}: no sample for {g['seconds']:.3g} s at {g['time_s']:.3f} s")
+    return out
 
 
 def _sidecar_env(path: Path, fmt) -> np.ndarray:
@@ -215,8 +245,26 @@ def read_recordings(folder: str | Path, fmt, cleaning: Cleaning | None = None, *
     files = recording_files(folder)
     if not files:
         raise ValueError(f"{folder} holds no *.csv recordings")
-    recs = [read_recording(p, fmt, min_duration=cleaning.min_duration) for p in files]  # all checked first
-    cleaned = [clean(r, cleaning) for r in recs]
+    recs = [read_recording(p, fmt) for p in files]  # all checked first
+    excluded, kept, cleaned = [], [], []
+    for r in recs:
+        why = exclusion(r.time, r.values, cleaning.min_duration)
+        if why is None:
+            try:
+                cleaned.append(clean(r, cleaning))
+                kept.append(r)
+                continue
+            except TooShort as exc:
+                why = exc.reason
+        excluded.append({"file": r.path.name, "reason": why})
+    if not kept:
+        raise ValueError(f"{folder}: no recording remains to train on (excluded: "
+                         + "; ".join(f"{e['file']}: {e['reason']}" for e in excluded) + ")")
+    recs, files = kept, [r.path for r in kept]
+    for r, c in zip(recs, cleaned):
+        c[1].update(flags(r.time, r.values, r.env_rows, fmt.columns))
+        if r.imported is not None:
+            c[1]["import"] = r.imported
     envs = np.stack([r.env for r in recs])  # (n, E)
     group, _, grouping = group_envs(envs, cleaning.group_tol)
     group_env = np.stack([envs[group == g].mean(0) for g in group])  # (n, E)
@@ -246,7 +294,7 @@ def read_recordings(folder: str | Path, fmt, cleaning: Cleaning | None = None, *
     spread = [float(np.linalg.norm(envs[group == g] - envs[group == g].mean(0), axis=1).max()) for g in range(groups)]
     report = {"format": "recordings", "cleaning": {f.name: getattr(cleaning, f.name) for f in fields(cleaning)},
               "grouping": {**grouping, "groups": groups, "largest_spread": max(spread) if spread else 0.0},
-              "recordings": reports,
+              "recordings": reports, "excluded": excluded, "summary": summary_lines(reports, excluded),
               "trimmed_s": {"mean": float(np.mean([r["trimmed_start_s"] + r["trimmed_end_s"] for r in reports])),
                             "max": float(np.max([r["trimmed_start_s"] + r["trimmed_end_s"] for r in reports]))}}
     if cleaning.align:

@@ -45,7 +45,7 @@ from ..checks import check_int
 from ..control.arm import run_arm_episodes
 from ..control.switches import geometric_switch_summary
 from ..data.checkpoint import load
-from ..data.demos import check_demo_groups, read_marks
+from ..data.demos import accept_demo_folder, read_marks
 from ..data.recordings import Cleaning
 from ..gp.model import label_aware_mean
 from ..loop import LoopResult, demonstration_dataset
@@ -146,7 +146,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
         or the folder ``task.demos`` (:func:`~protorch.tasks.arm.demos.read_arm_demos`)."""
         if self.source != "synthetic":
             folder, self.demo_labels = read_arm_demos(self.task, self.source, self.cleaning)
-            check_demo_groups(folder.envs, folder.files, self.demo_labels, label_names=SIDES)
+            accept_demo_folder(folder, self.demo_labels, label_names=SIDES)
             self.demos, self.demo_envs, self.demo_marked = folder.demos, folder.envs, len(read_marks(self.source))
             self.recordings = folder
             return
@@ -177,7 +177,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
         labels = self.labels if labels is None else labels
         ds = demonstration_dataset(self.promp, self.demos, self.demo_envs, task_name=self.task.name,
                                    var_floor=self.var_floor, dtype=self.promp.basis.dtype,
-                                   labels=self.demo_labels if labels else None)
+                                   labels=self.demo_labels if labels else None, lone="pool")
         if self.prior_envs.shape[0]:
             vbar = ds.var.mean(0).expand_as(self.prior_mean)  # (P, N) the average demonstrated variance
             ds.append(self.prior_envs, self.prior_mean, vbar, label=self.prior_labels if labels else 0,

@@ -24,7 +24,7 @@ def group_by_env(envs: Tensor) -> list[Tensor]:
 
 def demonstration_dataset(
     promp, demos: Sequence[Tensor], demo_envs: Tensor, *, task_name: str = "", var_floor: float = 0.0,
-    dtype: torch.dtype = torch.float64, labels: Tensor | None = None,
+    dtype: torch.dtype = torch.float64, labels: Tensor | None = None, lone: str = "refuse",
 ) -> TrajectoryDataset:
     """One entry per demonstrated environment (and label): the maximum-likelihood diagonal weight
     Gaussian of its demonstrations (``origin="demonstration"``, ``converged=True``).
@@ -39,6 +39,9 @@ def demonstration_dataset(
         labels: ``(n,)`` integer class of each demonstration (e.g. the side it passes an
             obstacle on); demonstrations of one environment with different labels form
             separate entries, never averaged. ``None``: every entry has label 0.
+        lone: an environment (and label) with 1 demonstration: ``"refuse"`` (an error), or
+            ``"pool"``: its variance is the mean variance of the same label's entries with >= 2
+            demonstrations (an error where that label has none).
     """
     demo_envs = torch.as_tensor(demo_envs)
     if demo_envs.ndim != 2 or demo_envs.shape[0] != len(demos):
@@ -52,16 +55,29 @@ def demonstration_dataset(
     demo_envs = demo_envs.cpu()
     ds = TrajectoryDataset(promp, demo_envs.shape[1], task_name=task_name, dtype=dtype)
     keyed = demo_envs if labels is None else torch.cat([demo_envs.to(dtype), lab[:, None].to(dtype)], 1)
-    for idx in group_by_env(keyed):
-        if idx.numel() < 2:
+    if lone not in ("refuse", "pool"):
+        raise ValueError(f"lone must be 'refuse' or 'pool', got {lone!r}")
+    groups = group_by_env(keyed)
+    var = {}
+    for g, idx in enumerate(groups):
+        if idx.numel() >= 2:
+            wg = w[idx]  # (n_g, N)
+            var[g] = (wg - wg.mean(0)).pow(2).mean(0).clamp_min(var_floor)  # (N,)
+        elif lone == "refuse":
             raise ValueError(
                 f"environment {demo_envs[idx[0]].tolist()} (label {int(lab[idx[0]])}) has 1 demonstration; "
                 "a weight variance needs >= 2"
             )
-        wg = w[idx]  # (n_g, N)
-        var = (wg - wg.mean(0)).pow(2).mean(0).clamp_min(var_floor)  # (N,)
-        ds.append(demo_envs[idx[0]].to(dtype), wg.mean(0), var, label=int(lab[idx[0]]), origin="demonstration",
-                  converged=True)
+    measured = dict(var)
+    for g, idx in enumerate(groups):
+        if g not in var:  # a lone demonstration: the mean variance of its label's other entries
+            same = [v for h, v in measured.items() if int(lab[groups[h][0]]) == int(lab[idx[0]])]
+            if not same:
+                raise ValueError(f"environment {demo_envs[idx[0]].tolist()} (label {int(lab[idx[0]])}) has 1 "
+                                 "demonstration and no environment has >= 2 of that label to pool a variance from")
+            var[g] = torch.stack(same).mean(0)  # (N,)
+        ds.append(demo_envs[idx[0]].to(dtype), w[idx].mean(0), var[g], label=int(lab[idx[0]]),
+                  origin="demonstration", converged=True)
     return ds
 
 

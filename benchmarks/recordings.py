@@ -52,6 +52,24 @@ def synthetic_demos(task, seed: int = 0, envs: int = 20, per_env: int = 3):
     return task.demonstrations(e, per_env, gen)
 
 
+def mixed_demos(task, seed: int = 0, envs: int = 20, per_env: int = 3):
+    """The same environments as :func:`synthetic_demos`, with the sides people give: every other
+    environment demonstrated once on the left and ``per_env - 1`` times on the right, the others
+    all on one side (alternating left, right): ``(demos [(T_i, 7)], envs (n, 4), labels (n,))``,
+    the labels measured on the trajectories."""
+    from protorch.tasks.arm.geometry import LEFT, RIGHT
+
+    gen = torch.Generator().manual_seed(seed + DEMO_SEED_OFFSET)
+    e = task.sample_envs(envs, gen, region="rectangles")  # (M, 4) as synthetic_demos draws them
+    sides = []
+    for k in range(envs):
+        if k % 2 == 0:
+            sides += [LEFT] + [RIGHT] * (per_env - 1)
+        else:
+            sides += [LEFT if k % 4 == 1 else RIGHT] * per_env
+    return task.demonstrations(e.repeat_interleave(per_env, 0), 1, gen, sides=torch.tensor(sides))
+
+
 def record(demo: np.ndarray, env: np.ndarray, rate: float, rng: np.random.Generator, lower, upper, *,
            encoder: float = 2e-4, mocap: float = 3e-3, mocap_row: float = 5e-4, duration=(3.0, 6.0),
            idle=(0.3, 1.5), speed: float = 0.6, pause: tuple[float, float] | None = None):
@@ -94,11 +112,12 @@ def record(demo: np.ndarray, env: np.ndarray, rate: float, rng: np.random.Genera
 
 
 def make_recordings(out: Path, seed: int = 0, *, encoder: float = 2e-4, mocap: float = 3e-3, bags: bool = False,
-                    count: int | None = None) -> list[dict]:
-    """Write ``out/csv`` (and with ``bags`` ``out/bags``): the 60 recordings. Returns what each is."""
+                    count: int | None = None, mixed: bool = False) -> list[dict]:
+    """Write ``out/csv`` (and with ``bags`` ``out/bags``): the 60 recordings (``mixed``: of
+    :func:`mixed_demos`). Returns what each is."""
     task = ArmReachTask()
     fmt = arm_demo_format(task)
-    demos, envs, _ = synthetic_demos(task, seed)
+    demos, envs, labels = (mixed_demos if mixed else synthetic_demos)(task, seed)
     lower, upper = task.kinematics.lower.cpu().numpy(), task.kinematics.upper.cpu().numpy()
     cols = env_columns(POSES, fmt.env_names)
     rng = np.random.default_rng(seed)
@@ -113,7 +132,8 @@ def make_recordings(out: Path, seed: int = 0, *, encoder: float = 2e-4, mocap: f
         if bags:
             write_bag(out / "bags" / (f"demo{i:02d}.bag" if kind == "ros1" else f"demo{i:02d}"), ns, q,
                       list(fmt.columns), poses, kind, rng)
-        info.append({"file": f"demo{i:02d}.csv", "rate": rate, "rows": int(ns.size), "bag": kind})
+        info.append({"file": f"demo{i:02d}.csv", "rate": rate, "rows": int(ns.size), "bag": kind,
+                     "label": int(labels[i])})
     return info
 
 
@@ -174,11 +194,15 @@ def main() -> None:
     ap.add_argument("--encoder", type=float, default=2e-4, help="encoder noise, rad")
     ap.add_argument("--mocap", type=float, default=3e-3, help="per-recording motion-capture offset, m per axis")
     ap.add_argument("--bags", action="store_true", help="also write the bags and import them")
+    ap.add_argument("--mixed", action="store_true",
+                    help="every other environment demonstrated once on the left and twice on the right")
     args = ap.parse_args()
     start = time.perf_counter()
-    info = make_recordings(args.out, args.seed, encoder=args.encoder, mocap=args.mocap, bags=args.bags)
+    info = make_recordings(args.out, args.seed, encoder=args.encoder, mocap=args.mocap, bags=args.bags,
+                           mixed=args.mixed)
     print(f"wrote {len(info)} recordings to {args.out / 'csv'} in {time.perf_counter() - start:.1f} s "
-          f"(rows {min(i['rows'] for i in info)}-{max(i['rows'] for i in info)})")
+          f"(rows {min(i['rows'] for i in info)}-{max(i['rows'] for i in info)}; measured sides: "
+          f"{sum(i['label'] == 0 for i in info)} left, {sum(i['label'] != 0 for i in info)} right)")
     if args.bags:
         bags = sorted((args.out / "bags").iterdir())
         start = time.perf_counter()

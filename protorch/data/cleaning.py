@@ -11,7 +11,8 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["ALIGN_WINDOW", "Cleaning", "TooShort", "align", "clean", "group_envs", "group_tolerance", "speed"]
+__all__ = ["ALIGN_WINDOW", "Cleaning", "TooShort", "align", "clean", "group_envs", "group_tolerance", "speed",
+           "split_idle"]
 
 ALIGN_WINDOW = 0.25  # DTW's Sakoe-Chiba band, a fraction of the samples: no warp moves a sample further
 EQUAL = 1e-9  # relative: environments closer than this are equal (round-off of a mean over rows)
@@ -245,3 +246,32 @@ def align(demos: Sequence[np.ndarray]) -> tuple[list[np.ndarray], list[dict]]:
         reports[k]["rms_to_medoid_before"] = float(np.sqrt(((series[k] - series[ref]) ** 2).sum(1).mean()))
         reports[k]["rms_to_medoid_after"] = float(np.sqrt(((out[k] - ref_aligned) ** 2).sum(1).mean()))
     return out, reports
+
+
+def split_idle(time: np.ndarray, values: np.ndarray, idle: float, *, trim: float = 0.05,
+               window: float = 0.05) -> list[tuple[int, int]]:
+    """A session of several demonstrations, ``time (T,)``, ``values (T, D)``, split at idle
+    periods: where the joint-space speed (:func:`speed`) stays at or below ``trim`` times its peak
+    for at least ``idle`` seconds between two motions, cut at the middle of that period. Returns
+    ``[(first row, end row)]`` (end exclusive), one per segment, in time order; ``[(0, T)]``
+    without such a period."""
+    if not idle > 0:
+        raise ValueError(f"--idle must be a number of seconds > 0, got {idle!r}")
+    grid, sp = speed(time, values, window)
+    moving = sp > trim * sp.max()  # (G,)
+    if not moving.any():
+        return [(0, int(time.size))]
+    first, last = np.flatnonzero(moving)[[0, -1]]
+    cuts, i = [], int(first)
+    while i < last:
+        if moving[i]:
+            i += 1
+            continue
+        j = i
+        while not moving[j]:
+            j += 1
+        if grid[j] - grid[i] >= idle:
+            cuts.append(0.5 * (grid[i] + grid[j]))
+        i = j
+    rows = [0] + [int(np.searchsorted(time, c)) for c in cuts] + [int(time.size)]
+    return list(zip(rows[:-1], rows[1:]))

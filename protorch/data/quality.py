@@ -36,14 +36,15 @@ JUMP_MIN = 0.05  # rad: smaller steps are never jumps
 _MAX_LISTED = 10  # jumps and gaps listed per recording
 
 
-def exclusion(time: np.ndarray, values: np.ndarray, min_duration: float) -> str | None:
-    """Why a recording ``time (T,)``, ``values (T, D)`` is excluded before cleaning, or ``None``."""
+def exclusion(time: np.ndarray, values: np.ndarray, min_duration: float, names) -> str | None:
+    """Why a recording ``time (T,)``, ``values (T, D)`` (joints ``names``) is excluded before
+    cleaning, or ``None``."""
     seconds = float(time[-1] - time[0])
     if seconds < min_duration:
-        return f"it lasts {seconds:.3g} s, shorter than the minimum {min_duration:g} s (task.recordings.min_duration)"
+        return f"the recording lasts {seconds:.3g} s, shorter than the minimum {min_duration:g} s (task.recordings.min_duration)"
     span = np.ptp(values, axis=0)  # (D,)
     if float(span.max()) < MIN_MOTION:
-        return (f"motionless: its joints span at most {float(span.max()):.3g} rad (joint {int(span.argmax())}), "
+        return (f"motionless: its joints span at most {float(span.max()):.3g} rad ({names[int(span.argmax())]}), "
                 f"less than {MIN_MOTION:g} rad")
     return None
 

@@ -248,7 +248,7 @@ def read_recordings(folder: str | Path, fmt, cleaning: Cleaning | None = None, *
     recs = [read_recording(p, fmt) for p in files]  # all checked first
     excluded, kept, cleaned = [], [], []
     for r in recs:
-        why = exclusion(r.time, r.values, cleaning.min_duration)
+        why = exclusion(r.time, r.values, cleaning.min_duration, fmt.columns)
         if why is None:
             try:
                 cleaned.append(clean(r, cleaning))

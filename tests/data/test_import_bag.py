@@ -57,13 +57,14 @@ def test_missing_topic_or_joint_writes_nothing(tmp_path, arm, capsys):
     out = tmp_path / "out"
     with pytest.raises(ValueError, match=r"good: no topic '/nope' \(the bag has \['/can_pose', '/joint_states', "):
         import_bags([good], "/joint_states", parse_env("can=/can_pose,goal=/nope"), out, fmt)
-    with pytest.raises(ValueError, match=r"nojoint: topic '/joint_states' message 0 has no joint 'panda_joint3'"):
+    with pytest.raises(ValueError, match=r"nojoint: topic '/joint_states' message 0 lacks the robot's joint\(s\) \['panda_joint3'\]"):
         import_bags([good, three], "/joint_states", parse_env(ENV), out, fmt)
     assert not out.exists()  # the good bag was read, but nothing is written while another is refused
-    with pytest.raises(ValueError, match=r"--env fills no column 'goal_x'"):
+    with pytest.raises(ValueError, match=r"nothing fills the environment column 'goal_x' .* give --env goal=/topic, "
+                       r"--env goal=tf:FRAME or --const goal_x=VALUE"):
         import_bags([good], "/joint_states", parse_env("can=/can_pose"), out, fmt)
     assert main([str(good), "--joints", "/js", "--env", ENV, "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: ") and "no topic '/js'" in err and "\n" not in err and not out.exists()
     assert main([str(good), "--joints", "/joint_states", "--env", ENV, "--out", str(out)]) == 0
-    assert [p.name for p in out.iterdir()] == ["good.csv"]
+    assert sorted(p.name for p in out.iterdir()) == ["good.csv", "good.import.json"]

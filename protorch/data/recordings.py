@@ -256,7 +256,7 @@ def read_recordings(folder: str | Path, fmt, cleaning: Cleaning | None = None, *
                 continue
             except TooShort as exc:
                 why = exc.reason
-        excluded.append({"file": r.path.name, "reason": why})
+        excluded.append({"file": r.path.name, "reason": why, **flags(r.time, r.values, r.env_rows, fmt.columns)})
     if not kept:
         raise ValueError(f"{folder}: no recording remains to train on (excluded: "
                          + "; ".join(f"{e['file']}: {e['reason']}" for e in excluded) + ")")

@@ -204,3 +204,40 @@ def test_an_environment_with_one_demonstration_is_named_by_its_files(tmp_path):
     with pytest.raises(ValueError, match=r"env2\.out: this environment has 1 demonstration\(s\) \(traj2\.out\)"):
         check_demo_groups(out.envs, out.files)
     check_demo_groups(out.envs[:2], out.files[:2])  # two of one environment are enough
+
+
+def test_lone_sides_take_their_sides_pooled_variance(tmp_path):
+    """Three environments: A two left + one right, B two right, C one left + two right. The lone
+    entries (A right, C left) are kept, their weight variance the mean of their side's measured
+    ones (A right: B right's and C right's; C left: A left's); the others as measured. Refused
+    only where a side has no environment with 2 demonstrations."""
+    from protorch import ProMP
+    from protorch.loop.initial import demonstration_dataset
+
+    gen = torch.Generator().manual_seed(0)
+    envs = torch.tensor([[0.0, 0.0]] * 3 + [[1.0, 0.0]] * 2 + [[2.0, 0.0]] * 3, dtype=torch.float64)
+    labels = torch.tensor([0, 0, 1, 1, 1, 0, 1, 1])
+    demos = [torch.randn(30, 2, generator=gen, dtype=torch.float64).cumsum(0) for _ in range(8)]
+    files = [(Path(f"t{i}"), Path(f"e{i}")) for i in range(8)]
+    with pytest.raises(ValueError, match=r"e2: this environment has 1 demonstration\(s\) passing right \(t2\)"):
+        check_demo_groups(envs, files, labels, label_names={0: "left", 1: "right"})
+    rep = check_demo_groups(envs, files, labels, label_names={0: "left", 1: "right"}, lone="pool")
+    assert rep["lone"] == [{"files": ["t2"], "label": 1, "side": "right"}, {"files": ["t5"], "label": 0, "side": "left"}]
+    promp = ProMP(2, num_basis=5, num_steps=30)
+    ds = demonstration_dataset(promp, demos, envs, labels=labels, lone="pool")
+    w = promp.weights(demos).to(torch.float64)
+    var = lambda idx: (w[idx] - w[idx].mean(0)).pow(2).mean(0)
+    assert ds.env.shape[0] == 5 and ds.label.tolist() == [0, 1, 1, 0, 1]  # A left, A right, B, C left, C right
+    for k, want in enumerate([var([0, 1]), (var([3, 4]) + var([6, 7])) / 2, var([3, 4]), var([0, 1]), var([6, 7])]):
+        assert torch.allclose(ds.var[k], want, rtol=1e-9, atol=0)
+    assert torch.allclose(ds.mean[1], w[2]) and torch.allclose(ds.mean[3], w[5])
+    with pytest.raises(ValueError, match=r"has 1 demonstration; a weight variance needs >= 2"):
+        demonstration_dataset(promp, demos, envs, labels=labels)
+    keep = [0, 1, 2, 3, 4]  # A (2 left, 1 right), B (2 right): right pools from B
+    ds = demonstration_dataset(promp, [demos[i] for i in keep], envs[keep], labels=labels[keep], lone="pool")
+    assert torch.allclose(ds.var[1], var([3, 4]), rtol=1e-9, atol=0)
+    only = [2, 3, 4, 5]  # no environment with 2 left demonstrations: C's lone left cannot be pooled
+    with pytest.raises(ValueError, match=r"e5: this environment has 1 demonstration\(s\) passing left \(t5\) and no "
+                                         r"environment has >= 2 demonstrations passing left to pool"):
+        check_demo_groups(envs[only], [files[i] for i in only], labels[only], label_names={0: "left", 1: "right"},
+                          lone="pool")

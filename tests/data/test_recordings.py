@@ -122,7 +122,8 @@ def test_bad_files(tmp_path):
         read_recordings(tmp_path, FMT)
     (tmp_path / "nojoint.csv").unlink()
     write(tmp_path / "still.csv", np.concatenate([table[:, :1], np.zeros((50, 2)), table[:, 3:]], 1))
-    with pytest.raises(ValueError, match=r"still\.csv: it moves for 0 s only"):
+    with pytest.raises(ValueError, match=r"no recording remains to train on \(excluded: still\.csv: motionless: its "
+                                         r"joints span at most 0 rad \(j1\), less than 0\.02 rad\)"):
         read_recordings(tmp_path, FMT)
     (tmp_path / "still.csv").unlink()
     (tmp_path / "text.csv").write_text("time,j1,j2,can_x,can_y\n0,1,2,0,0\n0.1,x,2,0,0\n")
@@ -224,3 +225,52 @@ def test_point_particle_recordings(tmp_path):
     demos, envs = load_human_demos(tmp_path)
     assert len(demos) == 2 and demos[0].shape == (200, 2) and torch.equal(envs[0], envs[1])
     assert torch.allclose(demos[0], demos[1], atol=0.05)  # 0.7 % of the motion: 60 Hz samples interpolated
+
+
+def test_excluded_and_reported(tmp_path):
+    """Two good recordings; one that lasts 0.37 s, one motionless, one whose motion is 0.3 s after
+    trimming: the three are excluded (each listed with its reason) and the two cleaned as if
+    alone. The findings of a good one: the can pushed 2 cm half way (its rows scattering 0.5 mm),
+    an encoder wrap (2 pi) and 0.2 s without samples, each reported with its time."""
+    rng = np.random.default_rng(3)
+    t = np.linspace(0, 3, 301)
+    good = recording(t, 0.5, 2.0)
+    write(tmp_path / "a.csv", good)
+    write(tmp_path / "b.csv", recording(t, 0.6, 1.8))
+    alone, _ = read_recordings(tmp_path, FMT)
+    write(tmp_path / "c_short.csv", good[:38])
+    still = good.copy()
+    still[:, 1:3] = good[0, 1:3] + 1e-4 * rng.standard_normal((301, 2))
+    write(tmp_path / "d_still.csv", still)
+    write(tmp_path / "e_quick.csv", recording(t, 1.0, 0.3))
+    folder, _ = read_recordings(tmp_path, FMT)
+    assert [e["file"] for e in folder.report["excluded"]] == ["c_short.csv", "d_still.csv", "e_quick.csv"]
+    reasons = [e["reason"] for e in folder.report["excluded"]]
+    assert reasons[0] == "the recording lasts 0.37 s, shorter than the minimum 0.5 s (task.recordings.min_duration)"
+    assert reasons[1].startswith("motionless: its joints span at most 0.000") and reasons[2].startswith("it moves for 0.")
+    assert all(torch.equal(x, y) for x, y in zip(folder.demos, alone.demos)) and len(folder.demos) == 2
+    bad = good.copy()
+    bad[150:, 3] += 0.02  # the can pushed 2 cm along x half way
+    bad[:, 3:] += 5e-4 * rng.standard_normal((301, 2))
+    write(tmp_path / "a.csv", bad)
+    (tmp_path / "c_short.csv").unlink()
+    r = read_recordings(tmp_path, FMT)[0].report["recordings"]
+    assert r[0]["file"] == "a.csv" and r[0]["env_moved"]["drift"] == pytest.approx(0.02, abs=2e-3)
+    assert 3e-4 < r[0]["env_moved"]["scatter"] < 1e-3 and "env_moved" not in r[1]
+    bad[200:, 2] += 2 * np.pi  # an encoder wrap at 2 s
+    bad = np.delete(bad, range(251, 270), axis=0)  # 0.2 s without samples at 2.5 s
+    write(tmp_path / "a.csv", bad)
+    with pytest.raises(ValueError, match=r"a\.csv:202: j2 = 5\.78462 lies outside the joint limits"):
+        read_recordings(tmp_path, FMT)  # the wrap leaves the limits here
+    wide = DemoFormat(("j1", "j2"), ("can_x", "can_y"), ((-9.0, 9.0),) * 2, ((-1.0, 1.0),) * 2, "the limits", "the table")
+    (r,) = [e for e in read_recordings(tmp_path, wide)[0].report["excluded"] if e["file"] == "a.csv"]
+    assert r["reason"].startswith("it moves for 0.455 s only")  # the jump is the peak speed the trimming measures against
+    assert r["jumps"] == [{"time_s": 2.0, "joint": "j2", "step": pytest.approx(2 * np.pi, abs=0.01)}]
+    assert r["gaps"] == [{"time_s": 2.5, "seconds": pytest.approx(0.2)}]
+    held = good.copy()
+    held[:, 3:] += 5e-4 * rng.standard_normal((301, 2))
+    held[100:, 3:] = held[99, 3:]  # the stream ends at 0.99 s of 3 s, held since
+    write(tmp_path / "a.csv", held)
+    r = read_recordings(tmp_path, FMT)[0].report
+    assert r["recordings"][0]["env_stream_ends_s"] == pytest.approx(0.99) and "env_moved" not in r["recordings"][0]
+    assert "a.csv: the environment stream ends at 0.99 s of 3.00 s (held since)" in r["summary"]

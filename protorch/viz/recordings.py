@@ -11,16 +11,23 @@ from .common import atomic_save, new_figure
 
 __all__ = ["recordings_figure"]
 
+_NOTES = 8  # summary lines written under the panels
+
 
 def recordings_figure(path: str | Path, folder, joint_names: Sequence[str], *, groups: int = 2) -> Path:
     """One row per environment (the first ``groups``), three panels: the recordings as recorded
     over their own time (the kept part between the marks), trimmed and resampled over the phase,
-    and aligned over the phase; one colour per recording, the joint that moves most. ``folder``:
+    and aligned over the phase; one colour per recording, the joint that moves most; under the
+    panels the report's summary lines (recordings excluded and why, findings). ``folder``:
     a :class:`~protorch.data.demos.DemoFolder` read by
     :func:`~protorch.data.recordings.read_recordings` (its ``stages`` and ``report``)."""
     recs = folder.report["recordings"]
     group_ids = sorted({r["group"] for r in recs})[:groups]
-    fig = new_figure((12, 3.2 * len(group_ids)))
+    notes = folder.report.get("summary", [])
+    shown = notes[:_NOTES] + ([f"... and {len(notes) - _NOTES} more (metrics.json: demos.recordings)"]
+                              if len(notes) > _NOTES else [])
+    below = 0.14 * len(shown) + (0.2 if shown else 0.0)  # inches of text under the panels
+    fig = new_figure((12, 3.2 * len(group_ids) + below))
     axes = fig.subplots(len(group_ids), 3, squeeze=False)
     for row, g in enumerate(group_ids):
         members = [i for i, r in enumerate(recs) if r["group"] == g]
@@ -45,5 +52,7 @@ def recordings_figure(path: str | Path, folder, joint_names: Sequence[str], *, g
         axes[row, 0].set_xlabel("time (s)")
         axes[row, 1].set_xlabel("phase")
         axes[row, 2].set_xlabel("phase")
-    fig.tight_layout()
+    if shown:  # the excluded recordings and the findings (protorch.data.quality), under the panels
+        fig.text(0.01, 0.005, "\n".join(shown), fontsize=7, va="bottom", family="monospace")
+    fig.tight_layout(rect=(0, below / (3.2 * len(group_ids) + below), 1, 1))
     return atomic_save(path, ".png", lambda tmp: fig.savefig(tmp, dpi=110, format="png"))

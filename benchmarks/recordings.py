@@ -1,6 +1,6 @@
 """Recordings as a robot logs them, made from the arm's synthetic demonstrations (docs/recordings.md).
 
-    python benchmarks/recordings.py --out DIR [--seed 0] [--bags]
+    python benchmarks/recordings.py --out DIR [--seed 0] [--bags] [--mixed]
 
 The arm experiment's 20 x 3 synthetic demonstrations (``python -m protorch experiment=arm_reach``
 draws the same with ``seed``) become 60 recordings, ``DIR/csv/demoNN.csv``:
@@ -20,6 +20,9 @@ fourth one sqlite3) and ``DIR/bags/demo00.bag`` (ROS 1) in place of ``demo00``: 
 joints, ``/can_pose`` and ``/target_pose`` PoseStamped. Imported with ``python -m
 protorch.data.import_bag DIR/bags/* --joints /joint_states --env can=/can_pose,goal=/target_pose
 --out DIR/imported``, the files equal ``DIR/csv``'s byte for byte (printed).
+
+``--mixed``: the same 20 environments demonstrated as people do (:func:`mixed_demos`): every other
+one once on the left and twice on the right, the others three times on one side.
 """
 
 from __future__ import annotations

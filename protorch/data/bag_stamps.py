@@ -78,8 +78,8 @@ def resolve_stamps(streams: dict[str, Stream], mode: str, where: str, *, jitter:
             ns = pick(name)
             if name != reference and (int(ns.min()) > r1 or int(ns.max()) < r0):
                 gap = (int(ns.min()) - r0) / 1e9
-                reasons["all"] = (f"clock offset: {streams[name].kind}'s stamps start {gap:+.6g} s from "
-                                  f"{streams[reference].kind}'s and do not overlap them")
+                reasons["all"] = (f"clock offset: the stamps of {streams[name].kind} start {gap:+.6g} s from "
+                                  f"those of {streams[reference].kind} and do not overlap them")
                 used = dict.fromkeys(streams, "log")
                 break
     out, sorted_ = {}, {}

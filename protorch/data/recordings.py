@@ -11,7 +11,8 @@ without environment columns takes its environment from ``STEM.json`` beside it:
 
 :func:`read_recordings` reads a folder, checks every file before anything is computed (time that
 goes backwards or repeats, NaN rows, a joint outside its limits, a recording shorter than
-``min_duration``: one line naming the file and row) and cleans it, each part a setting of
+``min_duration``: one line naming the file and row; a recording too short or motionless is
+excluded, :mod:`protorch.data.quality`) and cleans it, each part a setting of
 :class:`Cleaning` that can be switched off:
 
 1. idle ends trimmed: where the recording's joint-space speed (smoothed over ``window`` s) first
@@ -233,7 +234,12 @@ def _sidecar_env(path: Path, fmt) -> np.ndarray:
 def read_recordings(folder: str | Path, fmt, cleaning: Cleaning | None = None, *,
                     labeller: Callable[[Tensor, Tensor], int] | None = None, dtype: torch.dtype = torch.float64):
     """Read, check and clean a recordings folder (:mod:`module docs <protorch.data.recordings>`):
-    ``(DemoFolder, labels (n,) or None)``. Every file is checked before anything is computed.
+    ``(DemoFolder, labels (n,) or None)``. Every file is checked before anything is computed; a
+    recording that does not move or is too short (:mod:`protorch.data.quality`) is excluded and
+    listed in ``report["excluded"]`` as ``{file, reason}``, the others cleaned as if it were not
+    there; a folder where none remains is refused naming every exclusion. The findings
+    (environment moved, stream ended, joint jumps, gaps) are in each recording's entry and, one
+    line each with the exclusions, in ``report["summary"]``.
 
     The folder's ``demos[i]`` ``(S, D)`` is recording ``i`` trimmed, resampled and aligned;
     ``envs[i]`` the mean environment of its group (the ProMP fit's); ``report`` holds the

@@ -74,11 +74,11 @@ def resolve_stamps(streams: dict[str, Stream], mode: str, where: str, *, jitter:
     pick = lambda n: streams[n].header if used[n] == "header" else streams[n].log
     if mode == "auto" and reference in streams:
         r0, r1 = int(pick(reference).min()), int(pick(reference).max())
-        for name in streams:
+        for name, stream in streams.items():
             ns = pick(name)
             if name != reference and (int(ns.min()) > r1 or int(ns.max()) < r0):
                 gap = (int(ns.min()) - r0) / 1e9
-                reasons["all"] = (f"clock offset: the stamps of {streams[name].kind} start {gap:+.6g} s from "
+                reasons["all"] = (f"clock offset: the stamps of {stream.kind} start {gap:+.6g} s from "
                                   f"those of {streams[reference].kind} and do not overlap them")
                 used = dict.fromkeys(streams, "log")
                 break

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
+from itertools import pairwise
 from typing import Sequence
 
 import numpy as np
@@ -274,4 +275,4 @@ def split_idle(time: np.ndarray, values: np.ndarray, idle: float, *, trim: float
             cuts.append(0.5 * (grid[i] + grid[j]))
         i = j
     rows = [0] + [int(np.searchsorted(time, c)) for c in cuts] + [int(time.size)]
-    return list(zip(rows[:-1], rows[1:]))
+    return list(pairwise(rows))

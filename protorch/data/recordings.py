@@ -46,9 +46,9 @@ import torch
 from torch import Tensor
 
 from .cleaning import Cleaning, TooShort, align, clean, group_envs, group_tolerance
-from .quality import exclusion, flags
 from .files import atomic_write_bytes
 from .formats import DemoFolder
+from .quality import exclusion, flags
 
 __all__ = ["TIME", "Cleaning", "Recording", "align", "clean", "group_envs", "group_tolerance", "is_recordings_folder",
            "read_recording", "read_recordings", "recording_files", "write_recording"]

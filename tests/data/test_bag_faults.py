@@ -35,7 +35,7 @@ class Bag:
     """A bag's messages before writing: ``add(topic, type, log_ns, msg)``, then ``write(path, kind)``."""
 
     def __init__(self, kind: str = "mcap") -> None:
-        from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
         self.kind, self.ros1 = kind, kind == "ros1"
         self.ts = get_typestore(Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE)
@@ -185,7 +185,7 @@ def test_poses_on_tf_two_levels(tmp_path):
     """world -> table on /tf_static (0.5, -0.2, 0; turned 90 degrees about z), table -> can on /tf
     (0.3 + 1 mm per message, 0, 0) in a ROS 1 bag: the can in world is (0.5, -0.2 + 0.3 + ...);
     ``--frame table`` gives the can in the table's frame."""
-    bag, ns, q, m_ns, can, goal = take("ros1")
+    bag, ns, q, m_ns, _, goal = take("ros1")
     bag.joints(ns + 300_000, ns, q)
     bag.poses("/target_pose", m_ns + 1_000_000, m_ns, goal)
     half = np.sqrt(0.5)
@@ -207,7 +207,7 @@ def test_poses_on_tf_two_levels(tmp_path):
 
 
 def test_constants_alone_or_beside_topics(tmp_path):
-    bag, ns, q, m_ns, can, goal = take()
+    bag, ns, q, m_ns, can, _ = take()
     bag.joints(ns + 300_000, ns, q)
     bag.poses("/can_pose", m_ns, m_ns, can)
     bag.write(tmp_path / "b")
@@ -228,7 +228,7 @@ def test_motionless_take_is_excluded(tmp_path):
     """Two takes that move and one that does not (joint range 1e-5 rad, as a real bag of an arm at
     rest): the folder trains on the two, the third listed with its reason."""
     for name, still in (("a", False), ("b", False), ("still", True)):
-        bag, ns, q, m_ns, can, goal = take(seconds=2.5)
+        bag, ns, q, *_ = take(seconds=2.5)
         if still:
             q = REST + 1e-5 * np.sin(np.arange(ns.size))[:, None]
         bag.joints(ns + 300_000, ns, q)

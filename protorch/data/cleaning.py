@@ -37,7 +37,8 @@ class Cleaning:
             (0 or ``False``: nothing trimmed).
         align: DTW alignment of the demonstrations of one environment (and label).
         samples: points of a resampled demonstration, equally spaced in time.
-        min_duration: seconds a recording (and its motion after trimming) lasts at least.
+        min_duration: seconds a recording (and its motion after trimming) lasts at least (a
+            shorter one is excluded by the folder reader).
         group_tol: environments closer than this (the environment's units, metres for the arm) are
             one environment of the ProMP fit; ``None`` (``auto``): derived from the data.
         window: seconds of the moving average applied before the speed is measured.

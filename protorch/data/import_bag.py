@@ -166,13 +166,15 @@ def _connections(reader, bag: Path, joints_topic: str, env_topics: dict[str, str
     have = sorted({c.topic for c in reader.connections})
     conns = {}
     tf_wanted = any(t.startswith(TF) for t in env_topics.values())
-    topics = [joints_topic] + [t for t in env_topics.values() if not t.startswith(TF)] + ([TF_TOPIC] if tf_wanted else [])
-    for topic in topics:
+    for topic in [joints_topic] + [t for t in env_topics.values() if not t.startswith(TF)]:
         found = [c for c in reader.connections if c.topic == topic]
         if not found:
             raise ValueError(f"{bag}: no topic {topic!r} (the bag has {have})")
         conns[topic] = found
-    conns[TF_STATIC] = [c for c in reader.connections if c.topic == TF_STATIC] if tf_wanted else []
+    for topic in (TF_TOPIC, TF_STATIC):
+        conns[topic] = [c for c in reader.connections if c.topic == topic] if tf_wanted else []
+    if tf_wanted and not conns[TF_TOPIC] + conns[TF_STATIC]:
+        raise ValueError(f"{bag}: no topic {TF_TOPIC!r} or {TF_STATIC!r} for the tf: poses (the bag has {have})")
     if not all(c.msgtype.endswith("/JointState") for c in conns[joints_topic]):
         raise ValueError(f"{bag}: topic {joints_topic!r} is {conns[joints_topic][0].msgtype}, not sensor_msgs/JointState")
     for name, topic in env_topics.items():
@@ -238,10 +240,10 @@ def read_bag(bag: str | Path, joints_topic: str, env_topics: dict[str, str], joi
             streams[name] = Stream(f"topic {topic!r}", np.asarray(header, dtype=np.int64),
                                    np.asarray(log, dtype=np.int64), np.asarray(xyz, dtype=np.float64))
         chains, static = {}, {}
-        if conns.get(TF_TOPIC):
+        if conns[TF_TOPIC] or conns[TF_STATIC]:
             read = lambda cs: tf_edges((log_ns, reader.deserialize(raw, c.msgtype))
-                                       for c, log_ns, raw in reader.messages(connections=cs))
-            dynamic, static = read(conns[TF_TOPIC]), read(conns[TF_STATIC]) if conns[TF_STATIC] else {}
+                                       for c, log_ns, raw in reader.messages(connections=cs)) if cs else {}
+            dynamic, static = read(conns[TF_TOPIC]), read(conns[TF_STATIC])
             for name, topic in env_topics.items():
                 if topic.startswith(TF):
                     chains[name] = chain(topic[len(TF):], dynamic, static, root, str(bag))

@@ -192,17 +192,19 @@ def test_poses_on_tf_two_levels(tmp_path):
     bag.tf("/tf_static", [T0 - 10**9], "/world", "table", [(0.5, -0.2, 0.0)], (0.0, 0.0, half, half))
     local = np.stack([0.3 + 1e-3 * np.arange(m_ns.size), np.zeros(m_ns.size), np.zeros(m_ns.size)], 1)
     bag.tf("/tf", m_ns, "table", "can", local)
+    bag.tf("/tf_static", [T0 - 10**9], "world", "target", [(0.7, -0.1, 0.0)])  # placed once: static only
     bag.write(tmp_path / "b.bag")
-    (csv,) = import_bags([tmp_path / "b.bag"], "/joint_states", parse_env("can=tf:can,goal=/target_pose"),
+    (csv,) = import_bags([tmp_path / "b.bag"], "/joint_states", parse_env("can=tf:can,goal=tf:target"),
                          tmp_path / "out", FMT)
     rec = read_recording(csv, FMT)
+    assert np.array_equal(rec.env_rows[:, 2:], np.tile([0.7, -0.1], (ns.size, 1)))
     np.testing.assert_allclose(rec.env_rows[:, 0], 0.5, atol=1e-12)
     np.testing.assert_allclose(rec.env_rows[:, 1], -0.2 + held(ns, m_ns, local[:, 0]), atol=1e-12)
     (csv,) = import_bags([tmp_path / "b.bag"], "/joint_states", parse_env("can=tf:can,goal=/target_pose"),
                          tmp_path / "local", FMT, root="table")
     np.testing.assert_allclose(read_recording(csv, FMT).env_rows[:, :2], held(ns, m_ns, local[:, :2]), atol=1e-12)
     with pytest.raises(ValueError, match=r"no transform on /tf or /tf_static has child_frame_id 'mug' "
-                                         r"\(the frames: \['can', 'table', 'world'\]\)"):
+                                         r"\(the frames: \['can', 'table', 'target', 'world'\]\)"):
         import_bags([tmp_path / "b.bag"], "/joint_states", parse_env("can=tf:mug,goal=/target_pose"), tmp_path / "x", FMT)
 
 

@@ -1,6 +1,6 @@
 """Recordings as a robot logs them, made from the arm's synthetic demonstrations (docs/recordings.md).
 
-    python benchmarks/recordings.py --out DIR [--seed 0] [--bags] [--mixed]
+    python benchmarks/recordings.py --out DIR [--seed 0] [--bags] [--mixed] [--still]
 
 The arm experiment's 20 x 3 synthetic demonstrations (``python -m protorch experiment=arm_reach``
 draws the same with ``seed``) become 60 recordings, ``DIR/csv/demoNN.csv``:
@@ -22,7 +22,9 @@ protorch.data.import_bag DIR/bags/* --joints /joint_states --env can=/can_pose,g
 --out DIR/imported``, the files equal ``DIR/csv``'s byte for byte (printed).
 
 ``--mixed``: the same 20 environments demonstrated as people do (:func:`mixed_demos`): every other
-one once on the left and twice on the right, the others three times on one side.
+one once on the left and twice on the right, the others three times on one side; the same
+demonstrations unrecorded in ``DIR/builtin`` (``trajK.out`` / ``envK.out``). ``--still``: also
+``DIR/csv_still``, the recordings and a motionless one (:func:`add_motionless`).
 """
 
 from __future__ import annotations
@@ -140,6 +142,25 @@ def make_recordings(out: Path, seed: int = 0, *, encoder: float = 2e-4, mocap: f
     return info
 
 
+def add_motionless(src: Path, dst: Path, seed: int = 0) -> Path:
+    """Copy the recordings folder ``src`` to ``dst`` and add ``demo60.csv``: the arm at rest for
+    33 s at 30 Hz (988 rows, joint range about 1e-5 rad as in a real bag of an arm that never
+    moved), in the environment of ``demo00.csv``. Returns the file added."""
+    import shutil
+
+    from protorch.data.recordings import read_recording
+
+    task = ArmReachTask()
+    fmt = arm_demo_format(task)
+    shutil.copytree(src, dst, dirs_exist_ok=True)
+    rest = task.start_config(torch.float64, "cpu").numpy()
+    t = np.arange(988) / 30.0
+    q = rest + 5e-6 * np.random.default_rng(seed + 54).standard_normal((t.size, rest.size))
+    env = read_recording(src / "demo00.csv", fmt).env
+    table = np.concatenate([t[:, None], q, np.broadcast_to(env, (t.size, env.size))], 1)
+    return write_recording(dst / "demo60.csv", ["time", *fmt.columns, *fmt.env_names], table)
+
+
 def write_bag(path: Path, joint_ns, q, joint_names, poses, kind: str, rng: np.random.Generator | None = None) -> Path:
     """Write one recording as a bag (``kind``: ``mcap`` / ``sqlite3``: ROS 2, ``ros1``): the
     JointState names shuffled (``rng``) and the finger joints added; PoseStamped per pose."""
@@ -199,10 +220,21 @@ def main() -> None:
     ap.add_argument("--bags", action="store_true", help="also write the bags and import them")
     ap.add_argument("--mixed", action="store_true",
                     help="every other environment demonstrated once on the left and twice on the right")
+    ap.add_argument("--still", action="store_true", help="also DIR/csv_still: the recordings and a motionless one")
     args = ap.parse_args()
     start = time.perf_counter()
     info = make_recordings(args.out, args.seed, encoder=args.encoder, mocap=args.mocap, bags=args.bags,
                            mixed=args.mixed)
+    if args.mixed:  # the same IK demonstrations, not recorded: the authors' format
+        from protorch.data.demos import write_demo
+
+        demos, envs, _ = mixed_demos(ArmReachTask(), args.seed)
+        for k, (d, e) in enumerate(zip(demos, envs)):
+            write_demo(args.out / "builtin", k, d, e)
+        print(f"wrote the same {len(demos)} demonstrations unrecorded to {args.out / 'builtin'}")
+    if args.still:
+        added = add_motionless(args.out / "csv", args.out / "csv_still", args.seed)
+        print(f"copied {args.out / 'csv'} to {args.out / 'csv_still'} and added {added.name} (motionless)")
     print(f"wrote {len(info)} recordings to {args.out / 'csv'} in {time.perf_counter() - start:.1f} s "
           f"(rows {min(i['rows'] for i in info)}-{max(i['rows'] for i in info)}; measured sides: "
           f"{sum(i['label'] == 0 for i in info)} left, {sum(i['label'] != 0 for i in info)} right)")

@@ -270,13 +270,12 @@ def _out_stem(bag: Path) -> str:
 def _env_report(poses, joint_ns, env_topics, consts) -> tuple[dict, list[str]]:
     """Where each environment column came from, each stream's first and last sample (seconds
     from the first joint sample), and a warning per stream that ends long before the joints."""
-    out, warn = {"sources": {**{n: t for n, t in env_topics.items()}, **{c: v for c, v in consts.items()}},
-                 "streams": {}}, []
+    out, warn = {"sources": {**env_topics, **consts}, "streams": {}}, []
     end = (joint_ns[-1] - joint_ns[0]) / 1e9
     for name, (ns, _) in poses.items():
         first, last = (ns[0] - joint_ns[0]) / 1e9, (ns[-1] - joint_ns[0]) / 1e9
         out["streams"][name] = {"first_s": float(first), "last_s": float(last)}
-        if end - last > STREAM_END_S and end - last > 0.1 * end:
+        if ns.size > 1 and end - last > STREAM_END_S and end - last > 0.1 * end:  # (static: one sample)
             warn.append(f"{name}'s stream ends at {last:.3f} s, {end - last:.3f} s before the joints' (held since)")
     return out, warn
 

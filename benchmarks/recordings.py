@@ -134,9 +134,9 @@ def make_recordings(out: Path, seed: int = 0, *, encoder: float = 2e-4, mocap: f
         header, table = recording_table(ns, q, poses, fmt.columns, fmt.env_names, cols)
         write_recording(out / "csv" / f"demo{i:02d}.csv", header, table)
         kind = "ros1" if i == 0 else ("sqlite3" if i % 4 == 1 else "mcap")
-        if bags:
+        if bags:  # the names' order drawn from its own generator: the same recordings with or without bags
             write_bag(out / "bags" / (f"demo{i:02d}.bag" if kind == "ros1" else f"demo{i:02d}"), ns, q,
-                      list(fmt.columns), poses, kind, rng)
+                      list(fmt.columns), poses, kind, np.random.default_rng([seed, i]))
         info.append({"file": f"demo{i:02d}.csv", "rate": rate, "rows": int(ns.size), "bag": kind,
                      "label": int(labels[i])})
     return info

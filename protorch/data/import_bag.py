@@ -133,7 +133,8 @@ def _header_ns(msg) -> int:
     header = getattr(msg, "header", None)
     if header is None:
         return 0
-    return int(header.stamp.sec) * 1_000_000_000 + int(getattr(header.stamp, "nanosec", getattr(header.stamp, "nsec", 0)))
+    stamp = header.stamp
+    return int(stamp.sec) * 1_000_000_000 + int(getattr(stamp, "nanosec", getattr(stamp, "nsec", 0)))
 
 
 def _position(msg) -> tuple[float, float, float]:
@@ -176,7 +177,8 @@ def _connections(reader, bag: Path, joints_topic: str, env_topics: dict[str, str
     if tf_wanted and not conns[TF_TOPIC] + conns[TF_STATIC]:
         raise ValueError(f"{bag}: no topic {TF_TOPIC!r} or {TF_STATIC!r} for the tf: poses (the bag has {have})")
     if not all(c.msgtype.endswith("/JointState") for c in conns[joints_topic]):
-        raise ValueError(f"{bag}: topic {joints_topic!r} is {conns[joints_topic][0].msgtype}, not sensor_msgs/JointState")
+        raise ValueError(f"{bag}: topic {joints_topic!r} is {conns[joints_topic][0].msgtype}, "
+                         "not sensor_msgs/JointState")
     for name, topic in env_topics.items():
         if topic.startswith(TF):
             continue

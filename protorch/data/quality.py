@@ -41,7 +41,8 @@ def exclusion(time: np.ndarray, values: np.ndarray, min_duration: float, names) 
     cleaning, or ``None``."""
     seconds = float(time[-1] - time[0])
     if seconds < min_duration:
-        return f"the recording lasts {seconds:.3g} s, shorter than the minimum {min_duration:g} s (task.recordings.min_duration)"
+        return (f"the recording lasts {seconds:.3g} s, shorter than the minimum {min_duration:g} s "
+                "(task.recordings.min_duration)")
     span = np.ptp(values, axis=0)  # (D,)
     if float(span.max()) < MIN_MOTION:
         return (f"motionless: its joints span at most {float(span.max()):.3g} rad ({names[int(span.argmax())]}), "
@@ -74,7 +75,8 @@ def flags(time: np.ndarray, values: np.ndarray, env_rows: np.ndarray | None, nam
     fast = (step > JUMP_MIN) & (step > JUMP_SPEED * dt[:, None])
     rows, cols = np.nonzero(fast)
     if rows.size:
-        out["jumps"] = [{"time_s": float(t[r + 1]), "joint": str(names[c]), "step": float(values[r + 1, c] - values[r, c])}
+        out["jumps"] = [{"time_s": float(t[r + 1]), "joint": str(names[c]),
+                         "step": float(values[r + 1, c] - values[r, c])}
                         for r, c in list(zip(rows.tolist(), cols.tolist()))[:_MAX_LISTED]]
     med = float(np.median(dt)) if dt.size else 0.0
     gap = np.flatnonzero((dt > 5 * med) & (dt > 0.05))

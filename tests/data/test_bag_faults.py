@@ -40,7 +40,8 @@ class Bag:
         self.kind, self.ros1 = kind, kind == "ros1"
         self.ts = get_typestore(Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE)
         if self.ros1:
-            self.ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage"))
+            tf = get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage")
+            self.ts.register(tf)
         self.T, self.msgs = self.ts.types, []
 
     def header(self, ns: int, frame: str = ""):
@@ -58,8 +59,9 @@ class Bag:
     def poses(self, topic, log_ns, stamp_ns, xyz):
         T = self.T
         for lg, st, p in zip(log_ns, stamp_ns, xyz):
+            quat = T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
             pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=p[0], y=p[1], z=p[2]),
-                                               orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+                                               orientation=quat)
             msg = T["geometry_msgs/msg/PoseStamped"](header=self.header(int(st), "world"), pose=pose)
             self.msgs.append((topic, T["geometry_msgs/msg/PoseStamped"], int(lg), msg))
 
@@ -71,7 +73,8 @@ class Bag:
                 rotation=T["geometry_msgs/msg/Quaternion"](x=quat[0], y=quat[1], z=quat[2], w=quat[3]))
             ts_ = T["geometry_msgs/msg/TransformStamped"](header=self.header(int(lg), parent), child_frame_id=child,
                                                           transform=tr)
-            self.msgs.append((topic, T["tf2_msgs/msg/TFMessage"], int(lg), T["tf2_msgs/msg/TFMessage"](transforms=[ts_])))
+            tf = T["tf2_msgs/msg/TFMessage"]
+            self.msgs.append((topic, tf, int(lg), tf(transforms=[ts_])))
 
     def write(self, path):
         if self.ros1:
@@ -141,7 +144,8 @@ def test_zero_header_stamps_read_receive_times(tmp_path):
     bag.poses("/target_pose", m_ns + 1_000_000, m_ns, goal)
     bag.write(tmp_path / "b")
     rec, rep = imported(tmp_path)
-    assert rep["used"] == {"topic '/joint_states'": "log", "topic '/can_pose'": "header", "topic '/target_pose'": "header"}
+    assert rep["used"] == {"topic '/joint_states'": "log", "topic '/can_pose'": "header",
+                           "topic '/target_pose'": "header"}
     assert rep["reason"] == {"topic '/joint_states'": f"{ns.size} of {ns.size} header stamps are zero"}
     np.testing.assert_array_equal(rec.time, (log - log[0]) / 1e9)
     np.testing.assert_array_equal(rec.env_rows[:, 0], held(log, m_ns, can[:, 0]))  # the can by its header stamps
@@ -205,7 +209,8 @@ def test_poses_on_tf_two_levels(tmp_path):
     np.testing.assert_allclose(read_recording(csv, FMT).env_rows[:, :2], held(ns, m_ns, local[:, :2]), atol=1e-12)
     with pytest.raises(ValueError, match=r"no transform on /tf or /tf_static has child_frame_id 'mug' "
                                          r"\(the frames: \['can', 'table', 'target', 'world'\]\)"):
-        import_bags([tmp_path / "b.bag"], "/joint_states", parse_env("can=tf:mug,goal=/target_pose"), tmp_path / "x", FMT)
+        import_bags([tmp_path / "b.bag"], "/joint_states", parse_env("can=tf:mug,goal=/target_pose"),
+                    tmp_path / "x", FMT)
 
 
 def test_constants_alone_or_beside_topics(tmp_path):
@@ -277,7 +282,8 @@ def test_bad_input_names_the_problem_and_writes_nothing(tmp_path, capsys):
     bag.poses("/can_pose", m_ns, m_ns, can)
     bag.poses("/target_pose", m_ns, m_ns, goal)
     bag.write(tmp_path / "b")
-    with pytest.raises(ValueError, match=r"topic '/five' \(can=\) is sensor_msgs/msg/JointState, not one of PoseStamped, "
+    with pytest.raises(ValueError, match=r"topic '/five' \(can=\) is sensor_msgs/msg/JointState, not one of "
+                                         r"PoseStamped, "
                                          r"Pose, PointStamped, Point, TransformStamped; for poses on /tf give can=tf:FRAME"):
         imported(tmp_path, env="can=/five,goal=/target_pose")
     with pytest.raises(ValueError, match=r"topic '/five' message 0 lacks the robot's joint\(s\) \['panda_joint3', "

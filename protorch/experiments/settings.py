@@ -13,11 +13,13 @@ import math
 import typing
 from dataclasses import dataclass
 
+from ..errors import ProtorchError
+
 __all__ = ["SettingsError", "setting", "validate", "describe", "OPTIMIZER_SCHEMAS", "SETTINGS_SCHEMAS", "TASK_SCHEMAS",
            "GP", "Loop", "Test", "ProMPSettings"]
 
 
-class SettingsError(ValueError):
+class SettingsError(ProtorchError, ValueError):
     """A setting of the wrong type or out of range; its message is one line."""
 
 

@@ -41,4 +41,4 @@ def test_a_bad_robot_raises_a_protorch_error(tmp_path):
     bad = tmp_path / "arm.urdf"
     bad.write_text("<robot name='x'><link")  # does not parse
     with pytest.raises(ProtorchError, match="arm.urdf"):
-        load_robot({"urdf": str(bad), "end_link": "tool0"})
+        load_robot({"urdf": str(bad), "end_link": "tool0", "home": [0.0] * 7})

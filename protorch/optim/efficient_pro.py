@@ -5,7 +5,7 @@ of a diagonal Gaussian, a per-weight relevance from correlations between the wei
 objectives, and the relevance-blended variance of Eq. 6, so a weight that no objective reads
 keeps its variance; and, weight by weight and however long it runs, its mean.
 
-What it changes, each measured in benchmarks/peers.py:
+What it changes, each measured in benchmarks/studies/peers.py:
 
 1. **One batch per iteration**, ``S`` samples from the full ``N(mean, diag(var))``, shared by
    the relevance, the evidence and the update (the paper asks ``relevance_samples`` probes plus

@@ -13,9 +13,11 @@ Problems (each optimiser starts from the same mean and stds and gets the same ro
   within 5 mm, the four via angles within 2 degrees (at the demonstrations' window phases);
 - ``arm``: 20 single arm problems (Sec. IV-C), environments whose label-aware GP start (the
   experiment's demonstrations and priors) fails ``ArmReachTask.success``; the optimisers read the
-  can objective of ``--arm-objective``: ``skeleton`` (default: the arm's skeleton, what the success
-  check reads) or ``ee`` (the paper's: the end effector alone, whose optimum can leave the success
-  region, docs/peers.md 3d); the problems are the same under both.
+  can objective of ``--arm-objective``: ``volume`` (default: the link capsules near the can, what
+  the arm's default success check reads), ``skeleton`` (the arm's line segments, what the success
+  check read before the volumes became the default) or ``ee`` (the paper's: the end effector
+  alone, whose optimum can leave the success region, docs/peers.md 3d); the success check is the
+  experiment's default (the volumes) and the problems are the same under all three.
 (Problem builders: benchmarks/studies/peers_tasks.py.)
 
 Weights that do not matter, by construction: every problem gets a third DoF (10 more weights)
@@ -103,7 +105,7 @@ TASKS = {  # (repeats, seed set) -> problems
     "beam_orientation": lambda r, seed=0: beam_problems(r, "orientation", seed),
     "arm": lambda r, seed=0: arm_problems(r, seed, can_objective=ARM_OPTIONS["can_objective"]),
 }
-ARM_OPTIONS = {"can_objective": "skeleton"}  # --arm-objective: the can objective the optimisers read
+ARM_OPTIONS = {"can_objective": "volume"}  # --arm-objective: the can objective the optimisers read
 DEFAULT_REPEATS = {"window": 5, "point_particle": 20, "beam_position": 5, "beam_orientation": 5, "arm": 20}
 
 
@@ -297,9 +299,9 @@ def parse_args(argv):
     ap.add_argument("--out", default=None, help="also write the table here (atomically), e.g. benchmarks/studies/results/peers.md;"
                     " the JSON summary goes beside it (.json) unless --json names another file")
     ap.add_argument("--json", default=None, help="write the JSON summary here (atomically)")
-    ap.add_argument("--arm-objective", default="skeleton", choices=CAN_OBJECTIVES,
-                    help="the arm's can objective: the skeleton's distance to the can (what its success check reads;"
-                    " the default) or the end effector's (ee, the paper's objective) or the hand's and forearm's capsules")
+    ap.add_argument("--arm-objective", default="volume", choices=CAN_OBJECTIVES,
+                    help="the arm's can objective: the link capsules' (volume, what the default success check reads;"
+                    " the default), the skeleton's or the end effector's (ee, the paper's objective)")
     ap.add_argument("--epro", action="append", default=[], metavar="KEY=VALUE",
                     help="an EPRO setting instead of its default (repeatable), e.g. --epro provisional_step=0.75")
     args = ap.parse_args(argv)

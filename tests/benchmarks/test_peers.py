@@ -94,8 +94,9 @@ def test_seed_sets_draw_new_problems(peers):
 @pytest.mark.slow
 def test_the_arm_objective_changes_the_costs_not_the_problems(peers):
     """--arm-objective: the same environments and starts, the can objective read by the optimisers
-    is the skeleton's (the default) or the paper's end effector's, the success check is the same."""
-    assert peers.parse_args([]).arm_objective == "skeleton"
+    is the volumes' (the default: what the success check reads), the skeleton's or the paper's end
+    effector's, the success check is the same."""
+    assert peers.parse_args([]).arm_objective == "volume"
     assert peers.parse_args(["--arm-objective", "ee"]).arm_objective == "ee"
     with pytest.raises(SystemExit):
         peers.parse_args(["--arm-objective", "hand"])

@@ -5,12 +5,13 @@ that are still there) and metrics keys the command's experiment still writes. No
 
 from __future__ import annotations
 
+import re
 import subprocess
 
 import pytest
 
 from protorch.experiments.summary import HEADLINES
-from tests.docs_tables import DOCS, ROOT, COMMIT, Table, check_command, recorded_keys, tables
+from tests.docs_tables import COMMIT, DOCS, ROOT, Table, check_command, recorded_keys, tables
 
 # pages whose tables are not yet annotated (each one's tables still to be given a comment)
 PENDING = {"benchmarks_main_job.md", "benchmarks_optim.md", "benchmarks_gp_sparse.md", "benchmarks_arm.md",
@@ -86,7 +87,6 @@ def test_the_checks_catch_what_went_stale(tmp_path):
 
 # ---- the pages themselves: size, the README's shape, links that resolve ----------------------
 
-import re  # noqa: E402
 
 MAX_PAGE_LINES = 400
 # pages other issues split (docs/physics.md: issue 52, docs/control_loop.md: issue 53)

@@ -23,9 +23,8 @@ from __future__ import annotations
 
 import argparse
 import math
-import time
-
 import sys
+import time
 from pathlib import Path
 
 import torch
@@ -36,6 +35,7 @@ from configs import arguments_of, experiment_settings  # noqa: E402
 from protorch.experiments.point_particle import prepare
 from protorch.gp.model import EnvToProMP
 from protorch.optim import CEM, CMAES, EPRO
+
 
 def counting(cls: type, counter: list) -> type:
     """``cls`` whose ``ask`` adds the samples asked for still-moving problems to ``counter[0]``."""

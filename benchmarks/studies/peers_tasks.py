@@ -4,11 +4,10 @@ per problem, each with ``NUISANCE`` extra weights that no objective reads (see p
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
-from typing import Callable
-
 import sys
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import torch
 

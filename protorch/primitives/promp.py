@@ -11,7 +11,7 @@ fitted distribution. Shapes are given in the comments: ``n`` demonstrations, ``S
 from __future__ import annotations
 
 import copy
-from typing import Sequence
+from typing import Any, Sequence
 
 import torch
 from torch import Tensor, nn
@@ -76,6 +76,14 @@ class ProMP(nn.Module):
         dtype, device: of the buffers (float64 by default).
     """
 
+    # the registered buffers (typed for the type checker; nn.Module.__getattr__ returns them)
+    phase: Tensor  # (T,)
+    centers: Tensor  # (K,)
+    basis: Tensor  # (T, K)
+    mean: Tensor  # (N,)
+    cov: Tensor  # (N, N)
+    fitted: Tensor  # () bool
+
     def __init__(
         self,
         num_dof: int,
@@ -99,7 +107,7 @@ class ProMP(nn.Module):
         self.width = float(width) if width is not None else 1.0 / (self.num_basis - 1)
         check_positive(self.width, "width")
         self.ridge = float(ridge)
-        kw = dict(dtype=dtype, device=device)
+        kw: dict[str, Any] = dict(dtype=dtype, device=device)
         n = self.num_weights
         self.register_buffer("phase", torch.linspace(0, 1, self.num_steps, **kw))  # (T,)
         self.register_buffer("centers", torch.linspace(0, 1, self.num_basis, **kw))  # (K,)

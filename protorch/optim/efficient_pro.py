@@ -179,6 +179,12 @@ class EPRO(BaseOptimizer):
     ``(B, O, N)`` the last ``f`` and ``g``.
     """
 
+    # the registered buffers (typed for the type checker)
+    start_mean: Tensor  # (B, N)
+    start_std: Tensor  # (B, N)
+    evidence: Tensor  # (B, tests, N)
+    read: Tensor  # (B, N) bool
+
     can_restart = False  # its state is not per problem (global iteration, pooled or external state)
 
     def __init__(

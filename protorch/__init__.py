@@ -2,7 +2,8 @@
 
 Core pieces: :class:`ProMP` (demonstrations -> Gaussian over basis weights), the functional PRO
 core (:func:`pearson_relevance`, :func:`pro_update`) and the optimisers :class:`PRO`,
-:class:`RWR` and :class:`RWPO` sharing one ask / tell contract; the environment -> ProMP map
+:class:`EPRO`, :class:`RWR`, :class:`RWPO`, :class:`CEM` and :class:`CMAES` sharing one ask /
+tell contract (:data:`OPTIMIZERS` by name); :class:`ProtorchError`, the base of protorch's errors; the environment -> ProMP map
 (:func:`make_env_map`, :class:`TrajectoryDataset`, :func:`load`); the self-improvement loop
 (:func:`self_improve`).
 """
@@ -15,7 +16,12 @@ from .data.files import CheckpointError
 from .gp import load_env_map, make_env_map
 from .gp.model import EnvToProMP
 from .loop import LoopResult, demonstration_dataset, self_improve
+from .errors import ProtorchError
 from .optim import (
+    CEM,
+    CMAES,
+    EPRO,
+    OPTIMIZERS,
     PRO,
     RWPO,
     RWR,
@@ -39,7 +45,8 @@ def load(run, *, device=None, dtype=None, backend: str | None = None, warm_up: b
 
 
 __all__ = [
-    "ProMP", "PRO", "RWR", "RWPO", "BaseOptimizer", "OptimizeResult",
+    "ProMP", "PRO", "EPRO", "RWR", "RWPO", "CEM", "CMAES", "OPTIMIZERS", "BaseOptimizer",
+    "OptimizeResult", "ProtorchError",
     "pearson_relevance", "pro_update", "stable_rewards", "TrajectoryDataset", "make_env_map",
     "load_env_map", "EnvToProMP", "Policy", "Reference", "CheckpointError", "load", "save_model", "self_improve", "LoopResult",
     "demonstration_dataset", "__version__",

@@ -34,8 +34,7 @@ def all_finite(x: Tensor) -> bool:
     """Whether every entry of the floating tensor ``x`` is finite (an empty one is).
 
     The smallest and the largest entry are finite exactly when every entry is (a NaN anywhere
-    makes both NaN): ``aminmax`` reads the tensor once without allocating a mask, about 20 times
-    faster than ``isfinite(x).all()`` on a million floats."""
+    makes both NaN): ``aminmax`` reads the tensor once without allocating a mask."""
     if x.numel() == 0:
         return True
     # aminmax would copy a non-contiguous tensor first: two strided passes are cheaper

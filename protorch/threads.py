@@ -4,10 +4,8 @@ Why it matters: torch's CPU kernels split work over an OpenMP pool of ``torch.ge
 threads (one per core by default), and the experiments' tensors are small (``(B, S, T, D)`` with
 ``S = 100``), so every op ends in a barrier where the threads wait for each other. When another
 program takes a core, the thread that lost it holds every barrier up until the scheduler gives
-it a slice back; measured on a 2-core machine with one competing process, the point-particle loop
-ran 5x slower at 2 threads than on the idle machine, and 1.1x at 1 thread (docs/contention.md).
-On an idle machine 2 threads are faster (0.8x the time of 1). ``"auto"`` takes the best of
-both: it measures how many cores other programs keep busy (``/proc/stat`` between two readings,
+it a slice back (docs/contention.md has the measurements); on an idle machine more threads
+help. ``"auto"`` takes the best of both: it measures how many cores other programs keep busy (``/proc/stat`` between two readings,
 minus this process's own CPU time) and uses the cores left, at least one; the loop re-chooses
 before every step (:class:`ThreadGovernor`), so a competitor that starts or stops mid-run is
 followed. Where ``/proc/stat`` cannot be read, ``"auto"`` is one thread.

@@ -64,12 +64,9 @@ MAX_STEPS = 1_000_000  # control steps per episode (moving + hold)
 # ----------------------------------------------------------------------------- ProMP at one phase
 def basis_derivative_at(promp, phase: Tensor | float) -> Tensor:
     """``d Phi / dz`` of a :class:`~protorch.primitives.promp.ProMP`'s normalised Gaussian basis at phases
-    ``(P,)``: ``(P, K)``. With ``b_k = exp(-(z - c_k)^2 / (2 w^2))``, ``g_k = b_k / sum_j b_j``
-    and ``a_k = -(z - c_k) / w^2``: ``g_k' = g_k (a_k - sum_j g_j a_j)``."""
-    g = promp.basis_at(phase)  # (P, K)
-    z = torch.as_tensor(phase, dtype=g.dtype, device=g.device).reshape(-1, 1)  # (P, 1)
-    a = -(z - promp.centers) / promp.width**2  # (P, K)
-    return g * (a - (g * a).sum(-1, keepdim=True))  # (P, K)
+    ``(P,)``: ``(P, K)``, ``promp.basis_at(phase, order=1)[:, 1]``
+    (:func:`~protorch.primitives.promp.gaussian_basis` has the formula)."""
+    return promp.basis_at(phase, order=1)[:, 1]  # (P, K)
 
 
 def promp_state_at(promp, w: Tensor, phase: float) -> tuple[Tensor, Tensor]:

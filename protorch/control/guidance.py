@@ -15,9 +15,8 @@ quaternion components (a device renders it as a torque towards ``mu``'s orientat
 **Phase.** ``F(t) = K(t) (mu(t) - x)``: the guidance replays the ProMP over the duration of the
 motion, ``z = t / duration`` (:meth:`HapticGuidance.phase_indices`), so a person who is early or
 late along the path feels that too. (A phase projected from the device's position onto the mean
-path lets the person set the pace, but it is ill-defined where the mean turns the beam while its
-position barely moves, at the start and the end: measured on this task it picked neighbouring
-orientations there and failed more trials than it fixed; it is not offered.)
+path is not offered: it is ill-defined where the mean turns the beam while its position barely
+moves, at the start and the end.)
 
 **A simulated assisted operator** (:meth:`HapticGuidance.assist`): the hand holds the device with
 its own stiffness ``K_h`` around the pose the person intends; the device settles where the two

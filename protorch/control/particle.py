@@ -8,7 +8,7 @@ the paper: "a PD controller tracks a marker moving along the mean"). :func:`run_
 simulates a batch of episodes in torch and reports which succeed: the path never enters the wall
 and ends within ``goal_tol`` (0.2) of the final goal.
 
-Choices (measured with ``Kp = 1000, Kd = 30, dt = 0.01``, the authors' gains and step):
+Choices (for ``Kp = 1000, Kd = 30, dt = 0.01``, the authors' gains and step):
 
 * **Re-timing.** The phase runs at a fixed rate, ``z(t) = min(t dt / duration, 1)``. When the
   environment changes, the marker jumps to the new mean trajectory *at the current phase*; it
@@ -23,12 +23,8 @@ Choices (measured with ``Kp = 1000, Kd = 30, dt = 0.01``, the authors' gains and
   ``|m''| / Kp``; the closed loop has ``omega = 31.6 rad/s``, damping ratio 0.47.
 * **Duration 2 s + 0.5 s hold** (defaults), as in the authors' script (200 moving steps, then 50
   steps at the end of the mean while the environment stays put). The synthetic demonstrations
-  have a minimum-jerk speed profile, so a path of ~12 units over 2 s peaks at ~11 units/s.
-  Measured on the means a map fitted to 30 x 3 synthetic demonstrations predicts for 100 random
-  static environments (particle started on the marker): tracking error median 0.010, max 0.062
-  (1 s: 0.039 / 0.13; 3 s: 0.004 / 0.041); after the hold the particle is within 1e-5 of the
-  mean's end (without it, 0.008). Tracking the per-environment demonstration means gives the same
-  success as the means themselves (29 of 30). During the hold the map is still queried
+  have a minimum-jerk speed profile, so a path of ~12 units over 2 s peaks at ~11 units/s; the
+  hold lets the particle settle on the mean's end. During the hold the map is still queried
   every step (on the frozen final environment) and the marker sits at ``z = 1``, velocity 0.
 * **Start.** The particle starts at rest at the environment's start (``start="env"``, the
   authors' choice: the particle is where it is; a mean that starts off the start costs a short

@@ -18,13 +18,15 @@ from pathlib import Path
 import safetensors.torch
 from torch import Tensor
 
+from ..errors import ProtorchError
+
 __all__ = ["CheckpointError", "atomic_write_bytes", "atomic_write_safetensors", "read_safetensors",
            "tensor_checksum", "metadata_digests", "remove_stale_tmp", "file_mode", "META_KEY"]
 
 META_KEY = "protorch"
 
 
-class CheckpointError(ValueError):
+class CheckpointError(ProtorchError, ValueError):
     """A file that is not a complete, uncorrupted protorch checkpoint of the expected kind."""
 
 

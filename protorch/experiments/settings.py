@@ -12,17 +12,21 @@ import dataclasses
 import math
 import typing
 from dataclasses import dataclass
+from typing import Any
+
+from ..errors import ProtorchError
 
 __all__ = ["SettingsError", "setting", "validate", "describe", "OPTIMIZER_SCHEMAS", "SETTINGS_SCHEMAS", "TASK_SCHEMAS",
            "GP", "Loop", "Test", "ProMPSettings"]
 
 
-class SettingsError(ValueError):
+class SettingsError(ProtorchError, ValueError):
     """A setting of the wrong type or out of range; its message is one line."""
 
 
-def setting(default=dataclasses.MISSING, help: str = "", *, ge=None, gt=None, le=None, choices=None):
-    """A schema field with its meaning and allowed range."""
+def setting(default=dataclasses.MISSING, help: str = "", *, ge=None, gt=None, le=None, choices=None) -> Any:
+    """A schema field with its meaning and allowed range (``Any``: a ``dataclasses.field`` that
+    stands for a value of the field's annotated type)."""
     meta = {"help": help, "ge": ge, "gt": gt, "le": le, "choices": choices}
     if isinstance(default, (list, dict)):
         return dataclasses.field(default_factory=lambda d=default: type(d)(d), metadata=meta)

@@ -63,6 +63,19 @@ def _solve_lower_t(L: Tensor, m: int, b: Tensor, block: int) -> Tensor:
 class _CholGroup(nn.Module):
     """Exact GPs (one per weight) of one label group, with factors extended in place."""
 
+    # the registered buffers (typed for the type checker; nn.Module.__getattr__ returns them)
+    L: Tensor  # (N, cap, cap)
+    E: Tensor  # (cap, d)
+    zy: Tensor  # (N, cap)
+    z1: Tensor  # (N, cap)
+    coef: Tensor  # (cap, N)
+    mu_sum: Tensor  # (N,)
+    var_sum: Tensor  # (N,)
+    jitter: Tensor  # (N,)
+    nys_S: Tensor | None  # (r, d)
+    nys_R: Tensor | None  # (r, r)
+    nys_H: Tensor | None  # (N, r, r)
+
     def __init__(self, alpha: float, d: int, n: int, *, capacity: int, block: int, growth: float,
                  var_rank: int, var_tol: float, var_dtype, dtype, device) -> None:
         super().__init__()

@@ -11,8 +11,8 @@ distance (:func:`~protorch.gp.kernels.sq_dist`), ties broken by insertion order.
   larger than it, as long as the merged tree holds at most ``max_tree`` points. With adds of a
   few points the trees' sizes fall geometrically (a binary counter): ``O(M / max_tree +
   log(max_tree / min_tree))`` trees, each point rebuilt ``O(log(max_tree / min_tree))`` times,
-  and no add builds a tree of more than ``max_tree`` points (13 ms of one core at 65,536 4-D
-  points; one tree over 100,000 takes 21 ms and grows with ``n``).
+  and no add builds a tree of more than ``max_tree`` points (one tree over all points would
+  grow with ``n``).
 * ``"brute"``: every distance in torch (chunked over the queries); no index to maintain, and the
   kind to use on a GPU.
 

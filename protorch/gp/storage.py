@@ -5,8 +5,7 @@ map's nearest-neighbour index.
 or copied once allocated: when the last one is full, ``append`` allocates a new block as large as
 all the others together (at least ``min_block`` rows), so ``M`` rows take ``O(log M)`` blocks,
 at most twice their memory in address space (untouched rows of a CPU block are not resident),
-and no add pays for copying the rows before it (a single array that doubles copies them all:
-81 ms at 100,000 rows of 144 float64 columns). Reads: :meth:`rows` (a contiguous range),
+and no add pays for copying the rows before it (a single array that doubles copies them all). Reads: :meth:`rows` (a contiguous range),
 :meth:`segments` (the same range as views, one per block) and :meth:`take` (a gather by row).
 """
 

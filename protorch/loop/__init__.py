@@ -181,7 +181,7 @@ def self_improve(
             shrink variances to ~1e-7; the GP then treats solutions as exact and, with a flat
             kernel, fits their small inconsistencies with wild functions (see the README).
         eval_dtype: dtype of the optimiser's search distribution, the trajectories and the costs
-            (float32 is about 3x faster on a CPU); default the ProMP's. The data set and the map
+            (float32 is faster on a CPU); default the ProMP's. The data set and the map
             keep their own dtype.
         run_dir: where the checkpoint and ``loop_metrics.csv`` go (``None``: no files); created if
             missing and checked to be writable before any work (``PermissionError`` otherwise).

@@ -51,6 +51,10 @@ class BaseOptimizer(nn.Module):
         dtype: dtype of the distribution (float64 default; float32 is fine for sampling).
     """
 
+    mean: Tensor  # (B, N) registered buffers, typed for the type checker
+    var: Tensor  # (B, N)
+    beta: Tensor  # (B,)
+    converged: Tensor  # (B,) bool
     can_draw_ahead = True  # every random number comes through _randn (see draw_ahead)
     # restart() gives a problem's row a new problem between iterations (the loop's refill); an
     # optimiser whose state reads the global iteration or pools iterations sets this to False

@@ -5,7 +5,7 @@ of a diagonal Gaussian, a per-weight relevance from correlations between the wei
 objectives, and the relevance-blended variance of Eq. 6, so a weight that no objective reads
 keeps its variance; and, weight by weight and however long it runs, its mean.
 
-What it changes, each measured in benchmarks/peers.py:
+What it changes, each measured in benchmarks/studies/peers.py:
 
 1. **One batch per iteration**, ``S`` samples from the full ``N(mean, diag(var))``, shared by
    the relevance, the evidence and the update (the paper asks ``relevance_samples`` probes plus
@@ -178,6 +178,12 @@ class EPRO(BaseOptimizer):
     statistic of each test (read once ``>= 0``), ``relevance`` / ``variance_relevance``
     ``(B, O, N)`` the last ``f`` and ``g``.
     """
+
+    # the registered buffers (typed for the type checker)
+    start_mean: Tensor  # (B, N)
+    start_std: Tensor  # (B, N)
+    evidence: Tensor  # (B, tests, N)
+    read: Tensor  # (B, N) bool
 
     can_restart = False  # its state is not per problem (global iteration, pooled or external state)
 

@@ -48,6 +48,8 @@ class RWPO(PRO):
         Other arguments: :class:`PRO` / :class:`BaseOptimizer`.
     """
 
+    features: Tensor  # the relevance basis (a registered buffer, typed for the type checker)
+
     can_restart = False  # its state is not per problem (global iteration, pooled or external state)
     can_draw_ahead = False  # the relevance learning draws from the generator itself
 

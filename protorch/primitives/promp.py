@@ -11,7 +11,7 @@ fitted distribution. Shapes are given in the comments: ``n`` demonstrations, ``S
 from __future__ import annotations
 
 import copy
-from typing import Sequence
+from typing import Any, Sequence
 
 import torch
 from torch import Tensor, nn
@@ -22,11 +22,28 @@ from ..threads import one_thread
 __all__ = ["ProMP", "gaussian_basis", "resample"]
 
 
-def gaussian_basis(phase: Tensor, centers: Tensor, width: float) -> Tensor:
-    """Normalised Gaussian basis ``(len(phase), K)``: rows sum to one."""
+def gaussian_basis(phase: Tensor, centers: Tensor, width: float, order: int = 0) -> Tensor:
+    """Normalised Gaussian basis ``(len(phase), K)``: rows sum to one. With ``order`` 1 or 2, the
+    basis and its first ``order`` phase derivatives, ``(len(phase), order + 1, K)``: with
+    ``b_k = exp(-(z - c_k)^2 / (2 w^2))``, ``g_k = b_k / sum_j b_j``, ``a_k = -(z - c_k) / w^2``
+    and ``s = sum_j g_j a_j``: ``g' = g (a - s)``, ``g'' = g' (a - s) - g sum_j g'_j a_j``.
+
+    >>> gaussian_basis(torch.tensor([0.0, 0.5]), torch.linspace(0, 1, 3), 0.3, order=2).shape
+    torch.Size([2, 3, 3])
+    """
+    if order not in (0, 1, 2):
+        raise ValueError(f"order must be 0, 1 or 2, got {order!r}")
     d = phase[:, None] - centers[None, :]  # (T, K)
     b = torch.exp(-0.5 * (d / width) ** 2)  # (T, K)
-    return b / b.sum(-1, keepdim=True)
+    g = b / b.sum(-1, keepdim=True)  # (T, K)
+    if order == 0:
+        return g
+    a = -d / width**2  # (T, K)
+    s = (g * a).sum(-1, keepdim=True)  # (T, 1)
+    out = [g, g * (a - s)]
+    if order == 2:
+        out.append(out[1] * (a - s) - g * (out[1] * a).sum(-1, keepdim=True))
+    return torch.stack(out, -2)  # (T, order + 1, K)
 
 
 def resample(y: Tensor, num_steps: int) -> Tensor:
@@ -59,6 +76,14 @@ class ProMP(nn.Module):
         dtype, device: of the buffers (float64 by default).
     """
 
+    # the registered buffers (typed for the type checker; nn.Module.__getattr__ returns them)
+    phase: Tensor  # (T,)
+    centers: Tensor  # (K,)
+    basis: Tensor  # (T, K)
+    mean: Tensor  # (N,)
+    cov: Tensor  # (N, N)
+    fitted: Tensor  # () bool
+
     def __init__(
         self,
         num_dof: int,
@@ -82,7 +107,7 @@ class ProMP(nn.Module):
         self.width = float(width) if width is not None else 1.0 / (self.num_basis - 1)
         check_positive(self.width, "width")
         self.ridge = float(ridge)
-        kw = dict(dtype=dtype, device=device)
+        kw: dict[str, Any] = dict(dtype=dtype, device=device)
         n = self.num_weights
         self.register_buffer("phase", torch.linspace(0, 1, self.num_steps, **kw))  # (T,)
         self.register_buffer("centers", torch.linspace(0, 1, self.num_basis, **kw))  # (K,)
@@ -202,10 +227,12 @@ class ProMP(nn.Module):
         return self
 
     # --------------------------------------------------------- generating
-    def basis_at(self, phase: Tensor) -> Tensor:
-        """Basis evaluated at arbitrary phases ``(P,)`` -> ``(P, K)``."""
+    def basis_at(self, phase: Tensor | float, order: int = 0) -> Tensor:
+        """Basis evaluated at arbitrary phases ``(P,)`` (or a float) -> ``(P, K)``; with ``order``
+        1 or 2 the basis and its first ``order`` phase derivatives ``d^i Phi / dz^i``,
+        ``(P, order + 1, K)`` (:func:`gaussian_basis`), in the ProMP's dtype."""
         phase = torch.as_tensor(phase, dtype=self.basis.dtype, device=self.basis.device).reshape(-1)
-        return gaussian_basis(phase, self.centers, self.width)
+        return gaussian_basis(phase, self.centers, self.width, order)
 
     def trajectory(self, w: Tensor, phase: Tensor | None = None, *, basis: Tensor | None = None) -> Tensor:
         """Weights ``(..., N)`` -> trajectories ``(..., T, D)`` (or ``(..., P, D)`` at ``phase``;

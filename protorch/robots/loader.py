@@ -41,6 +41,7 @@ import numbers
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+from ..errors import ProtorchError
 from .description import Capsule, Inertial, PointMass, Robot
 from .capsules import fit_capsules
 from .urdf import ROBOTS_DIR, collision_geometry, parse_urdf, rpy_matrix, shipped_yaml
@@ -71,7 +72,7 @@ SETTINGS = {
 }
 
 
-class RobotError(ValueError):
+class RobotError(ProtorchError, ValueError):
     """A robot setting refused; its message is one line naming the setting."""
 
 

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import importlib
 
+from ..errors import ProtorchError
+
 __all__ = ["PHYSICS_EXTRA", "INSTALL_HINT", "MIN_VERSION", "MujocoMissing", "load_mujoco", "mujoco_available"]
 
 PHYSICS_EXTRA = "physics"
@@ -16,7 +18,7 @@ INSTALL_HINT = 'pip install "protorch[physics]"'
 MIN_VERSION = (4, 0)  # mujoco.batch (many simulations stepped on a thread pool) is new in 4.0
 
 
-class MujocoMissing(ImportError):
+class MujocoMissing(ProtorchError, ImportError):
     """MuJoCo (>= 4.0) is not installed; the message is one line naming the extra."""
 
 

@@ -8,6 +8,8 @@ from typing import Protocol, runtime_checkable
 import torch
 from torch import Tensor
 
+from ..errors import ProtorchError
+
 __all__ = ["Task", "SelfImprovementTask", "check_task_protocol", "check_task_outputs", "TaskContractError",
            "PROTOCOL_MEMBERS"]
 
@@ -57,7 +59,7 @@ class SelfImprovementTask(Protocol):
         """``(list of (T_i, D) trajectories, (n, E) environment of each)``."""
 
 
-class TaskContractError(TypeError, ValueError):
+class TaskContractError(ProtorchError, TypeError, ValueError):
     """A task that does not follow :class:`SelfImprovementTask`: a member missing, or ``costs`` /
     ``success`` returning what the protocol does not allow. Its message is one line naming the
     member, what it returned and what it must return. (A ``TypeError`` and a ``ValueError``, so

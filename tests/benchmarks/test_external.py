@@ -1,4 +1,4 @@
-"""benchmarks/external at tiny budgets, on a stand-in for fancy_gym's episodes (fancy_gym lives in
+"""benchmarks/studies/external at tiny budgets, on a stand-in for fancy_gym's episodes (fancy_gym lives in
 its own venv: only the test at the end needs it, and skips without it)."""
 
 from __future__ import annotations
@@ -17,13 +17,13 @@ sys.path.insert(0, str(ROOT / "benchmarks" / "external"))
 
 @pytest.fixture(scope="module")
 def run():
-    with benchmark_module("external/run.py", "external_run", also=("tasks",)) as mod:
+    with benchmark_module("studies/external/run.py", "external_run", also=("tasks",)) as mod:
         yield mod
 
 
 @pytest.fixture(scope="module")
 def table():
-    with benchmark_module("external/table.py", "external_table") as mod:
+    with benchmark_module("studies/external/table.py", "external_table") as mod:
         yield mod
 
 
@@ -91,7 +91,7 @@ def test_table_reads_each_run_at_the_budget(table, tmp_path):
             _run("box_pushing", "EPRO", 2, 0, [-210, -190, -180], [False, False, False]),
             _run("box_pushing", "CMAES", 1, 0, [-200, -120, -60], [False, True, True])]
     path = tmp_path / "r.json"
-    path.write_text(json.dumps({"meta": {"commit": "abc", "command": "python benchmarks/external/run.py x"}, "runs": runs}))
+    path.write_text(json.dumps({"meta": {"commit": "abc", "command": "python benchmarks/studies/external/run.py x"}, "runs": runs}))
     loaded, _ = table.load([str(path)])
     rows = {line.split(" | ")[1]: line for line in table.summary(loaded, 200)[2:]}
     assert "| 1 / 2 |" in rows["EPRO"] and "-140.0" in rows["EPRO"]  # medians of -100 and -180
@@ -102,7 +102,7 @@ def test_table_reads_each_run_at_the_budget(table, tmp_path):
     doc.write_text("a\n<!-- t -->\nold\n<!-- /t -->\nb\n")
     table.main([str(path), "--at", "200", "--doc", str(doc), "--marker", "t"])
     text = doc.read_text()
-    assert text.startswith("a\n<!-- t -->\n<!-- measured: commit=abc command=\"python benchmarks/external/table.py ")
+    assert text.startswith("a\n<!-- t -->\n<!-- measured: commit=abc command=\"python benchmarks/studies/external/table.py ")
     assert "-->\n| task" in text and "old" not in text and text.endswith("<!-- /t -->\nb\n")
     assert "runs at commit(s) abc" in text
     cut = {**_run("box_pushing", "EPRO", 3, 0, [-100, -90], [False, False]), "partial": True}

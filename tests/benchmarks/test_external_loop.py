@@ -1,4 +1,4 @@
-"""benchmarks/external/loop.py's task (box pushing over goal poses) on a stand-in for fancy_gym's
+"""benchmarks/studies/external/loop.py's task (box pushing over goal poses) on a stand-in for fancy_gym's
 episodes: the identity ProMP, the shapes the loop hands the task, the cache and the episode count,
 and a tiny self-improvement loop through it (fancy_gym itself is never imported)."""
 
@@ -17,7 +17,7 @@ sys.path.insert(0, str(ROOT / "benchmarks" / "external"))
 
 @pytest.fixture(scope="module")
 def loop():
-    with benchmark_module("external/loop.py", "external_loop", also=("tasks",)) as mod:
+    with benchmark_module("studies/external/loop.py", "external_loop", also=("tasks",)) as mod:
         yield mod
 
 

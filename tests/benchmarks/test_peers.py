@@ -1,4 +1,4 @@
-"""benchmarks/peers.py at a tiny budget: its irrelevant weights really are irrelevant, PRO keeps
+"""benchmarks/studies/peers.py at a tiny budget: its irrelevant weights really are irrelevant, PRO keeps
 their std while the peers collapse it, and the table has a row per (task, optimiser)."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from . import benchmark_module
 
 @pytest.fixture(scope="module")
 def peers():
-    with benchmark_module("peers.py", "peers_bench") as mod:
+    with benchmark_module("studies/peers.py", "peers_bench") as mod:
         yield mod
 
 
@@ -37,7 +37,7 @@ def test_pro_keeps_the_std_the_peers_collapse(peers, one_thread):
     # at this budget (seeded, so exact): PRO 1.0, RWR 0.63, CEM 0.05, CMA-ES 0.07
     assert kept["PRO"] > 0.99 and kept["RWR"] < 0.8 and kept["CEM"] < 0.25 and kept["CMA-ES"] < 0.25, kept
     assert all(r[0]["first"] is not None and r[0]["rollouts"] <= budget for r in results.values())
-    text = peers.table({("window", k): v for k, v in results.items()}, 1, budget, "python benchmarks/peers.py")
+    text = peers.table({("window", k): v for k, v in results.items()}, 1, budget, "python benchmarks/studies/peers.py")
     rows = [line for line in text.splitlines() if line.startswith("| window")]
     assert [r.split(" | ")[1] for r in rows] == ["PRO", "RWR", "CEM", "CMA-ES"]
 
@@ -66,7 +66,7 @@ def test_new_tasks_at_a_tiny_budget(peers, one_thread, tmp_path):
     for row in body["tasks"]["window"].values():
         assert set(row) == keys | {"full_budget"} and set(row["full_budget"]) == keys
         assert row["problems"] == 2 and row["std_kept_min"] <= row["std_kept_p10"] <= row["irrelevant_std_kept"]
-    assert body["command"].startswith("python benchmarks/peers.py")
+    assert body["command"].startswith("python benchmarks/studies/peers.py")
     assert "| window | EPRO |" in out.read_text() and "full budget" in out.read_text()
 
 
@@ -94,8 +94,9 @@ def test_seed_sets_draw_new_problems(peers):
 @pytest.mark.slow
 def test_the_arm_objective_changes_the_costs_not_the_problems(peers):
     """--arm-objective: the same environments and starts, the can objective read by the optimisers
-    is the skeleton's (the default) or the paper's end effector's, the success check is the same."""
-    assert peers.parse_args([]).arm_objective == "skeleton"
+    is the volumes' (the default: what the success check reads), the skeleton's or the paper's end
+    effector's, the success check is the same."""
+    assert peers.parse_args([]).arm_objective == "volume"
     assert peers.parse_args(["--arm-objective", "ee"]).arm_objective == "ee"
     with pytest.raises(SystemExit):
         peers.parse_args(["--arm-objective", "hand"])

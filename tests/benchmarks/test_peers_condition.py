@@ -1,4 +1,4 @@
-"""benchmarks/peers_condition.py at a tiny budget: exact conditioning puts the mean on the moved
+"""benchmarks/studies/peers_condition.py at a tiny budget: exact conditioning puts the mean on the moved
 goal, the arm's goal configuration reaches it, and main() writes the counts per change."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ def cond():
     def load(mod):
         mod.peers = mod.load_peers()  # peers.py sets OMP_NUM_THREADS & co. for itself
 
-    with benchmark_module("peers_condition.py", "peers_condition_bench", load, also=("peers_bench",)) as mod:
+    with benchmark_module("studies/peers_condition.py", "peers_condition_bench", load, also=("peers_bench",)) as mod:
         yield mod
 
 

@@ -484,3 +484,24 @@ def test_condition_on_a_deterministic_prior_with_exact_observation_is_refused():
 def test_condition_needs_at_least_one_via_point():
     with pytest.raises(ValueError, match="at least one via point"):
         _fitted().condition([], torch.zeros(0, 1))
+
+
+def test_basis_at_gives_the_basis_and_its_phase_derivatives():
+    """``basis_at(z, order=2)``: the basis and its first two phase derivatives (central finite
+    differences), the same bits as the control code's derivative helpers; a bad order is refused."""
+    from protorch.control.episodes import basis_derivative_at
+    from protorch.control.policy_means import basis3
+
+    p = ProMP(2, 8, 50).double()
+    z = torch.linspace(0.05, 0.95, 19, dtype=F64)
+    b = p.basis_at(z, order=2)  # (P, 3, K)
+    assert b.shape == (19, 3, 8) and torch.equal(b[:, 0], p.basis_at(z))
+    h = 1e-5
+    fd1 = (p.basis_at(z + h) - p.basis_at(z - h)) / (2 * h)
+    fd2 = (p.basis_at(z + h) - 2 * p.basis_at(z) + p.basis_at(z - h)) / h**2
+    torch.testing.assert_close(b[:, 1], fd1, rtol=1e-6, atol=1e-7)
+    torch.testing.assert_close(b[:, 2], fd2, rtol=1e-3, atol=1e-3)
+    assert torch.equal(p.basis_at(z, order=1), b[:, :2])
+    assert torch.equal(basis_derivative_at(p, z), b[:, 1]) and torch.equal(basis3(p, z), b)
+    with pytest.raises(ValueError, match="order must be 0, 1 or 2"):
+        p.basis_at(z, order=3)

@@ -56,7 +56,7 @@ def variance_map(env_map_factory, env_map) -> object:
 
 @dataclass
 class GuideState:
-    """Per trial: phase index per class ``z (B, K)`` and belief ``(B, K)``."""
+    """Per trial: phase per class ``z (B, K)`` in grid steps (fractional) and belief ``(B, K)``."""
 
     z: Tensor
     belief: Tensor
@@ -96,7 +96,7 @@ class MixtureGuide:
         """Every trial at phase 0 with equal belief."""
         dt = self.promp.basis.dtype
         k = self.num_classes
-        return GuideState(z=torch.zeros(batch, k, dtype=torch.long), belief=torch.full((batch, k), 1.0 / k, dtype=dt))
+        return GuideState(z=torch.zeros(batch, k, dtype=dt), belief=torch.full((batch, k), 1.0 / k, dtype=dt))
 
     def infer(self, env: Tensor) -> tuple[Tensor, Tensor]:
         """``env (B, 4)`` -> mean ``(B, K, T, 7)`` (quaternion part unit) and std ``(B, K, T, 7)``."""
@@ -114,13 +114,17 @@ class MixtureGuide:
         return torch.stack(mus, 1), torch.stack(stds, 1)
 
     def _progress(self, mu: Tensor, pose: Tensor, z: Tensor) -> Tensor:
-        """Phase index ``(B, K)`` per class: the first phase whose mean has advanced as far along
-        the start-to-end axis as ``pose (B, 7)`` has (never before ``z``, the last one)."""
+        """Phase ``(B, K)`` per class, in grid steps (fractional): where the mean has advanced as
+        far along the start-to-end axis as ``pose (B, 7)`` has (linear between grid points;
+        never before ``z``, the last one)."""
         axis = self.axis.to(mu)
-        s_mu = ((mu[..., :3] - mu[:, :, :1, :3]) * axis).sum(-1).cummax(-1).values  # (B, K, T)
+        t = mu.shape[2]
+        s_mu = ((mu[..., :3] - mu[:, :, :1, :3]) * axis).sum(-1).cummax(-1).values.contiguous()  # (B, K, T)
         s_x = ((pose[:, None, :3] - mu[:, :, 0, :3]) * axis).sum(-1)  # (B, K)
-        idx = torch.searchsorted(s_mu.contiguous(), s_x[..., None].contiguous())[..., 0]  # (B, K)
-        return torch.maximum(idx.clamp(max=mu.shape[2] - 1), z)
+        hi = torch.searchsorted(s_mu, s_x[..., None].contiguous())[..., 0].clamp(1, t - 1)  # (B, K)
+        s0, s1 = s_mu.gather(-1, (hi - 1)[..., None])[..., 0], s_mu.gather(-1, hi[..., None])[..., 0]
+        frac = ((s_x - s0) / (s1 - s0).clamp_min(1e-12)).clamp(0, 1)
+        return torch.maximum(hi - 1 + frac, z)
 
     def _balance(self, mu_z: Tensor, k: Tensor, belief: Tensor, wish: Tensor) -> Tensor:
         """The device pose ``(B, 7)`` where the hand's spring and the mixture's pulls balance."""
@@ -139,9 +143,12 @@ class MixtureGuide:
         wish = wish.to(self.promp.basis.dtype)
         mu, std = self.infer(env)  # (B, K, T, 7)
 
-        def at(z):  # the means and stds at phases z (B, K): (B, K, 7) each
-            idx = z[..., None, None].expand(*z.shape, 1, 7)
-            return mu.gather(2, idx)[:, :, 0], std.gather(2, idx)[:, :, 0]
+        def at(z):  # the means and stds at phases z (B, K), linear between grid points: (B, K, 7) each
+            lo = z.floor().long().clamp(max=mu.shape[2] - 2)
+            f = (z - lo)[..., None]
+            idx = lo[..., None, None].expand(*z.shape, 1, 7)
+            pick = lambda a: (1 - f) * a.gather(2, idx)[:, :, 0] + f * a.gather(2, idx + 1)[:, :, 0]  # noqa: E731
+            return pick(mu), pick(std)
 
         # belief: how well each class explains the operator's commanded pose at its own phase
         mu_z, sd_z = at(self._progress(mu, wish, state.z))

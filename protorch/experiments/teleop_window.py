@@ -32,7 +32,7 @@ from ..gp import make_env_map
 from ..loop import demonstration_dataset, self_improve
 from ..optim import OPTIMIZERS
 from ..primitives.promp import ProMP
-from ..tasks.teleop_operators import load_operator, probe_operator
+from ..tasks.teleop_operators import careful_demonstrations, load_operator, probe_operator
 from ..tasks.teleop_trials import CONDITIONS, SCHEDULE_DEFAULTS, draw_schedules, run_trials
 from ..tasks.teleop_window import TeleopWindowTask
 from ..threads import torch_threads
@@ -145,7 +145,7 @@ def _run(out_dir, seed, beam, tele, op_cls, guide_cfg, opt_name, opt_kw, gp, dem
          plot) -> dict:
     t_start = time.perf_counter()
     gen = torch.Generator().manual_seed(int(seed) + _DEMO_SEED)
-    trajs, envs = beam.demonstrations(int(demos.get("envs", 6)), int(demos.get("per_env", 3)), gen)
+    trajs, envs = careful_demonstrations(beam, int(demos.get("envs", 6)), int(demos.get("per_env", 3)), gen)
     labels = beam.label(torch.stack(trajs), envs)
     promp = ProMP(7, int(promp_cfg.get("num_basis", 10)), int(promp_cfg.get("num_steps", 100)))
     test = beam.sample_envs(50, torch.Generator().manual_seed(_TEST_SEED))

@@ -38,6 +38,7 @@ from torch import Tensor
 from ..primitives.pose import align_quaternions, quaternion_slerp
 from ..primitives.quaternions import axis_angle_to_quaternion, quaternion_raw_multiply
 from .curves import catmull_rom, smooth_noise
+from .teleop_window import TeleopWindowTask
 
 __all__ = ["Operator", "ScreenOperator", "VariedOperator", "load_operator", "probe_operator", "plan_poses",
            "careful_demonstrations", "OPERATORS"]
@@ -120,8 +121,6 @@ class _Planner:
 
     def reset(self, start: Tensor, end: Tensor, wall: Tensor) -> None:
         if self._task is None:
-            from .teleop_window import TeleopWindowTask
-
             self._task = TeleopWindowTask()
         self._start, self._end = start.double(), end.double()
         self._T = self._uniform(*self.duration)

@@ -35,11 +35,37 @@ from ..checks import check_tensor
 from ..primitives.pose import (align_quaternions, normalize_poses, quaternion_distance,
                                quaternion_path_length, resample_poses)
 from ..primitives.quaternions import quaternion_raw_multiply
-from .beam_window import _jerk, _norm, _positive, _vec, quaternion_about
+from .beam_window import quaternion_about
 
 __all__ = ["TeleopWindowTask", "ENV_NAMES", "yaw_quaternion"]
 
 ENV_NAMES = ("x", "y", "z", "yaw")  # the wall's pose: window centre (m), rotation about vertical (rad)
+
+
+def _norm(x: Tensor) -> Tensor:
+    return torch.linalg.vector_norm(x, dim=-1)
+
+
+def _vec(values, name: str, size: int) -> tuple[float, ...]:
+    t = check_tensor(torch.as_tensor(values, dtype=torch.float64), name)
+    if t.shape != (size,):
+        raise ValueError(f"{name} must have {size} numbers, got shape {tuple(t.shape)}")
+    return tuple(float(v) for v in t)
+
+
+def _positive(value, name: str) -> float:
+    v = float(value)
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"{name} must be finite and > 0, got {value}")
+    return v
+
+
+def _jerk(x: Tensor, steps: int) -> Tensor:
+    """Mean norm of the third difference along ``T`` of ``x (..., T, D)``, per step of a ``steps``-step
+    grid over the same phase (the beam task's jerk term): ``(...)``."""
+    t = x.shape[-2]
+    d3 = x[..., 3:, :] - 3 * x[..., 2:-1, :] + 3 * x[..., 1:-2, :] - x[..., :-3, :]  # (..., T-3, D)
+    return _norm(d3).mean(-1) * ((t - 1) / (steps - 1)) ** 3
 
 
 def yaw_quaternion(yaw: Tensor) -> Tensor:
@@ -247,11 +273,3 @@ class TeleopWindowTask:
         """Whether ``pose (..., 7)`` is within the tolerances of ``target (7,)``: ``(...)`` bool."""
         return ((_norm(pose[..., :3] - target[:3]) <= self.position_tol)
                 & (quaternion_distance(pose[..., 3:], target[3:]) <= self.angle_tol))
-
-    def demonstrations(self, num_envs: int, per_env: int, generator: torch.Generator) -> tuple[list, Tensor]:
-        """``per_env`` careful demonstrations (:func:`~protorch.tasks.teleop_operators.plan_poses`
-        without errors, a little tremor) in each of ``num_envs`` random walls, the classes
-        alternating between walls: ``(list of (T, 7), envs (n, 4))``; :meth:`label` gives the classes."""
-        from .teleop_operators import careful_demonstrations
-
-        return careful_demonstrations(self, num_envs, per_env, generator)

@@ -14,6 +14,9 @@
 4. **Freedom**: the adaptive guide of maps built by the same loop with CEM and CMA-ES (the same
    demonstrations, walls and budget) on the same trials: their compliance beside PRO's.
 
+The loop optimiser's map and variance map are written to ``teleop_map.safetensors`` and
+``teleop_var_map.safetensors`` (:func:`protorch.gp.load_env_map`), for ``python -m protorch.view teleop RUN``.
+
 Metrics: ``teleop.<condition>.{success_rate, collision_rate, time, effort, freedom}``;
 ``freedom.<optimiser>.{freedom, freedom_window, success_rate}``; ``map.*``.
 """
@@ -38,7 +41,9 @@ from ..tasks.teleop_window import TeleopWindowTask
 from ..threads import torch_threads
 from .settings import SettingsError
 
-__all__ = ["run", "build_map", "TELEOP_DEFAULTS"]
+__all__ = ["run", "build_map", "TELEOP_DEFAULTS", "MAP_FILE", "VAR_MAP_FILE"]
+
+MAP_FILE, VAR_MAP_FILE = "teleop_map.safetensors", "teleop_var_map.safetensors"  # the loop optimiser's maps
 
 TELEOP_DEFAULTS = dict(operator="varied", operators=40, conditions=list(CONDITIONS), wall_seed=0, dt=0.02,
                        time_limit=10.0, wall={})
@@ -163,6 +168,10 @@ def _run(out_dir, seed, beam, tele, op_cls, guide_cfg, opt_name, opt_kw, gp, dem
         metrics["map"][name] = {"seconds": round(time.perf_counter() - t0, 3), "entries": int(env_map.E.shape[0]),
                                 "loop_success_rate": res.success_rate, **held,
                                 "mean_std": float(var_map.MU.exp().sqrt().mean())}
+    env_map, var_map = maps[opt_name]  # what the browser page guides with (protorch.view.teleop)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    env_map.save(out_dir / MAP_FILE)
+    var_map.save(out_dir / VAR_MAP_FILE)
     n = tele["operators"]
     walls = draw_schedules(beam, n, tele["wall_seed"], **dict(tele["wall"]))
     run_kw = dict(dt=float(tele["dt"]), time_limit=float(tele["time_limit"]))

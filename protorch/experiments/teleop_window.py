@@ -11,7 +11,8 @@
    from ``teleop.wall_seed``, in each condition: no guide, the guide fixed at the first wall pose,
    the adaptive guide (:class:`~protorch.control.teleop_guide.MixtureGuide`), the same operators
    and walls in every condition (:func:`~protorch.tasks.teleop_trials.run_trials`).
-4. **Freedom**: the adaptive guide of maps built by the same loop with CEM and CMA-ES (the same
+4. **Figure** ``teleop_trials.png``: the trials seen from above, one panel per condition.
+5. **Freedom**: the adaptive guide of maps built by the same loop with CEM and CMA-ES (the same
    demonstrations, walls and budget) on the same trials: their compliance beside PRO's.
 
 The loop optimiser's map and variance map are written to ``teleop_map.safetensors`` and
@@ -39,6 +40,7 @@ from ..tasks.teleop_operators import careful_demonstrations, load_operator, prob
 from ..tasks.teleop_trials import CONDITIONS, SCHEDULE_DEFAULTS, draw_schedules, run_trials
 from ..tasks.teleop_window import TeleopWindowTask
 from ..threads import torch_threads
+from ..viz.teleop import teleop_figure
 from .settings import SettingsError
 
 __all__ = ["run", "build_map", "TELEOP_DEFAULTS", "MAP_FILE", "VAR_MAP_FILE"]
@@ -187,7 +189,7 @@ def _run(out_dir, seed, beam, tele, op_cls, guide_cfg, opt_name, opt_kw, gp, dem
     guides = {name: MixtureGuide(promp, m, v, [0, 1], end[:3] - start[:3], **guide_cfg) for name, (m, v) in maps.items()}
     results = {}
     for cond in tele["conditions"]:
-        r = run_trials(beam, operators(), walls, cond, guides[opt_name], **run_kw)
+        r = run_trials(beam, operators(), walls, cond, guides[opt_name], record=plot, **run_kw)
         results[cond] = r
         metrics["teleop"][cond] = _condition_metrics(r)
     for name in maps:  # the freedom of each optimiser's adaptive guide on the same trials
@@ -196,6 +198,8 @@ def _run(out_dir, seed, beam, tele, op_cls, guide_cfg, opt_name, opt_kw, gp, dem
         metrics["freedom"][name] = {"freedom": float(r["freedom"].mean()),
                                     "success_rate": float(r["success"].double().mean()),
                                     "effort": float(r["effort"].mean())}
+    if plot:
+        teleop_figure(out_dir / "teleop_trials.png", beam, results)
     metrics["settings"] = {"optimizer": opt_name, "operator": str(tele["operator"]), "operators": n,
                            "wall_seed": tele["wall_seed"], "wall": {**SCHEDULE_DEFAULTS, **dict(tele["wall"])},
                            "dt": run_kw["dt"], "time_limit": run_kw["time_limit"]}

@@ -80,12 +80,13 @@ class MixtureGuide:
         self.cfg = {**GUIDE_DEFAULTS, **settings}
         self.promp, self.env_map, self.var_map = promp, env_map, var_map
         self.labels = [int(k) for k in labels]
-        axis = torch.as_tensor(axis, dtype=promp.basis.dtype)
+        axis = torch.as_tensor(axis, dtype=promp.basis.dtype).to(promp.basis.device)
         self.axis = axis / axis.norm()  # (3,) the direction of progress (start to end)
         self._last = None  # (env, infer(env)): the last inference
         dt = promp.basis.dtype
         c = self.cfg
-        per = lambda a, b: torch.tensor([a] * 3 + [b] * 4, dtype=dt)  # noqa: E731
+        dev = promp.basis.device
+        per = lambda a, b: torch.tensor([a] * 3 + [b] * 4, dtype=dt, device=dev)  # noqa: E731
         self.gain, self.k_max = per(c["position_gain"], c["rotation_gain"]), per(c["position_max"], c["rotation_max"])
         self.k_min, self.k_hand = per(c["position_min"], c["rotation_min"]), per(c["hand_position"], c["hand_rotation"])
 
@@ -97,12 +98,13 @@ class MixtureGuide:
         """Every trial at phase 0 with equal belief."""
         dt = self.promp.basis.dtype
         k = self.num_classes
-        return GuideState(z=torch.zeros(batch, k, dtype=dt), belief=torch.full((batch, k), 1.0 / k, dtype=dt))
+        kw = dict(dtype=dt, device=self.promp.basis.device)
+        return GuideState(z=torch.zeros(batch, k, **kw), belief=torch.full((batch, k), 1.0 / k, **kw))
 
     def infer(self, env: Tensor) -> tuple[Tensor, Tensor]:
         """``env (B, 4)`` -> mean ``(B, K, T, 7)`` (quaternion part unit) and std ``(B, K, T, 7)``;
         the last answer is kept and given again for the same walls (a wall stands still most of a trial)."""
-        env = env.to(self.promp.basis.dtype)
+        env = env.to(self.promp.basis)
         if self._last is not None and self._last[0].shape == env.shape and torch.equal(self._last[0], env):
             return self._last[1]
         phi2 = self.promp.basis**2  # (T, nb)
@@ -146,7 +148,8 @@ class MixtureGuide:
         """One control step: ``wish (B, 7)`` and the wall ``env (B, 4)`` the guide conditions on ->
         ``(device pose (B, 7), new state, position compliance (B,))``; the compliance
         ``K_h / (K_h + K)`` (mean over x, y, z; 1 = free, 0 = locked) is the freedom measure."""
-        wish = wish.to(self.promp.basis.dtype)
+        device = wish.device  # the answer goes back where the wish came from
+        wish, env = wish.to(self.promp.basis), env.to(self.promp.basis)
         mu, std = self.infer(env)  # (B, K, T, 7)
 
         def at(z):  # the means and stds at phases z (B, K), linear between grid points: (B, K, 7) each
@@ -172,4 +175,4 @@ class MixtureGuide:
             x = self._balance(mu_z, k, b, wish)
         bk = (b[..., None] * k).sum(1)  # (B, 7)
         compliance = (self.k_hand / (self.k_hand + bk))[:, :3].mean(-1)  # (B,)
-        return x, GuideState(z=z, belief=b), compliance
+        return x.to(device), GuideState(z=z, belief=b), compliance.to(device)

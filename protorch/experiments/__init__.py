@@ -22,7 +22,7 @@ from ..data.files import atomic_write_bytes
 from ..gp import BACKENDS
 from ..optim import OPTIMIZERS, BaseOptimizer
 from ..tasks import TASKS, TaskContractError, task_class
-from . import arm_reach, beam_window, fig3_toy, fig4_window, point_particle, self_improve
+from . import arm_reach, beam_window, fig3_toy, fig4_window, point_particle, self_improve, teleop_window
 from .arm_physics import check_physics, skip_reason
 from .arm_reach import check_robot
 from .common import metric_value, per_method_form, resolve_device, resolve_dtype, write_json
@@ -38,13 +38,14 @@ EXPERIMENTS: dict[str, Callable[..., dict]] = {
     "beam_window": beam_window.run,
     "arm_reach": arm_reach.run,
     "self_improve": self_improve.run,
+    "teleop_window": teleop_window.run,
 }
 # the task each fixed experiment runs (its conf/task group); self_improve takes any
 EXPERIMENT_TASKS = {"fig3_toy": "line_toy", "fig4_window": "window", "point_particle": "point_particle",
-                    "beam_window": "beam_window", "arm_reach": "arm_reach"}
+                    "beam_window": "beam_window", "arm_reach": "arm_reach", "teleop_window": "teleop_window"}
 # experiments taking the optimizer group as it is ({"name": ..., keys}); the others take the
 # per-method form {shared keys, "<name>": {...}} (common.per_method_form)
-GROUP_OPTIMIZER = {"point_particle", "arm_reach", "self_improve"}
+GROUP_OPTIMIZER = {"point_particle", "arm_reach", "self_improve", "teleop_window"}
 
 _DOTTED = re.compile(r"[A-Za-z_][\w-]*(\.[\w-]+)*")
 

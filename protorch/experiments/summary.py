@@ -53,6 +53,18 @@ HEADLINES: dict[str, list[Headline]] = {
                  (("unassisted", "teleop.unassisted_success_rate"),
                   ("guided by demos", "teleop.assisted_by_demos_promp_success_rate"))),
     ],
+    "teleop_window": [
+        Headline(label, f"teleop.adaptive.{key}", "adaptive guide",
+                 (("fixed guide", f"teleop.fixed.{key}"), ("no guide", f"teleop.none.{key}")))
+        for label, key in (("success rate", "success_rate"), ("collision rate", "collision_rate"),
+                           ("median trial time (s)", "time"), ("effort (m s)", "effort"),
+                           ("freedom (compliance)", "freedom"))
+    ] + [
+        Headline("adaptive guide's freedom, by the map's optimiser", "freedom.pro.freedom", "PRO",
+                 (("CEM", "freedom.cem.freedom"), ("CMA-ES", "freedom.cmaes.freedom"))),
+        Headline("adaptive guide's success, by the map's optimiser", "freedom.pro.success_rate", "PRO",
+                 (("CEM", "freedom.cem.success_rate"), ("CMA-ES", "freedom.cmaes.success_rate"))),
+    ],
     "point_particle": [
         Headline("held-out success", "test.success_rate", "{optimizer} loop",
                  (("demos only", "baselines.demos_only.test.success_rate"),

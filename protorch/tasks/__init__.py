@@ -12,18 +12,20 @@ from .base import (PROTOCOL_MEMBERS, SelfImprovementTask, Task, TaskContractErro
                    check_task_protocol)
 from .beam_window import BeamWindowTask, SimulatedOperator
 from .point_particle import PointParticleTask, signed_distance_to_wall, wall_collision
+from .teleop_window import TeleopWindowTask
 from .toy import LineToy
 from .window import WindowTask
 
 TASKS = {
     "line_toy": LineToy, "window": WindowTask, "point_particle": PointParticleTask, "beam_window": BeamWindowTask,
-    "arm_reach": ArmReachTask,
+    "arm_reach": ArmReachTask, "teleop_window": TeleopWindowTask,
 }
 
 __all__ = [
     "Task", "SelfImprovementTask", "check_task_protocol", "check_task_outputs", "TaskContractError", "PROTOCOL_MEMBERS",
     "task_class", "make_task", "LineToy", "WindowTask", "PointParticleTask", "load_human_demos",
     "signed_distance_to_wall", "wall_collision", "TASKS", "BeamWindowTask", "SimulatedOperator", "ArmReachTask",
+    "TeleopWindowTask",
 ]
 
 

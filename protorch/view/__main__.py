@@ -5,7 +5,10 @@ the newest such run under ``runs/`` is opened.
 ``python -m protorch.view --teach TASK [RUN_DIR] [--out FOLDER]``: the teach page, where
 demonstrations of ``point_particle`` or ``arm_reach`` are drawn by hand and written to
 ``FOLDER`` for ``python -m protorch experiment=TASK task.demos=FOLDER``; with ``RUN_DIR`` (a
-trained run of that task) the environments where its map fails are offered first."""
+trained run of that task) the environments where its map fails are offered first.
+
+``python -m protorch.view teleop RUN [--study N --conditions none,fixed,adaptive]``: drive the beam
+of an ``experiment=teleop_window`` run through its moving window (:mod:`protorch.view.teleop`)."""
 
 from __future__ import annotations
 
@@ -21,6 +24,7 @@ from .server import Viewer
 from .teach import TeachSession, failing_envs
 from .teach_server import Teacher
 from .teach_tasks import TEACH_TASKS, make_teach_task
+from .teleop_server import teleop_main
 
 __all__ = ["main", "parse_args", "teach_session"]
 
@@ -93,6 +97,9 @@ def _serve(make, what: str) -> int:
 
 
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["teleop"]:  # the teleoperation page (protorch.view.teleop_server)
+        return teleop_main(argv[1:])
     args = parse_args(argv)
     torch.set_num_threads(max(1, args.threads))
     if args.teach is not None:

@@ -43,6 +43,12 @@ TINY = {
         # pictures (made in a subprocess, and what it writes is not read here: tests/sim/test_render.py)
         "task.prior_detours=[0.18]", "settings.physics.render=false",
     ],
+    "teleop_window": [
+        "optimizer.max_iter=2", "optimizer.num_samples=12", "optimizer.relevance_samples=12", "settings.demos.envs=4",
+        "settings.demos.per_env=2", "settings.loop.num_envs=2", "settings.loop.batch_size=2",
+        "settings.promp.num_steps=50", "settings.teleop.operators=3", "settings.teleop.dt=0.05",
+        "settings.teleop.time_limit=6.0", "settings.freedom_optimizers=[]",
+    ],
     "self_improve": [
         "task._target_=examples.reach_around_a_disc.ReachAroundADisc", "settings.loop.num_envs=6",
         "settings.loop.batch_size=3", "optimizer.max_iter=4", "optimizer.num_samples=12", "optimizer.relevance_samples=12",

@@ -46,6 +46,7 @@ import math
 from pathlib import Path
 from typing import NamedTuple
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -57,19 +58,45 @@ from .episodes import check_timing
 from .plan_memo import ClearanceMemo, point_reach
 from .policy_export import write_program
 from .policy_means import ClassMeans, EndEffector, basis3, decay_matrix
+from ..policy.limits import JerkLimiter, robot_limits
+from ..policy.two_rate import Plan, Planner, Tracker
 
 __all__ = ["DEFAULT_BLEND", "ClassMeans", "Policy", "Reference"]
+
+
+def _array(x, shape: tuple, name: str):
+    """``x`` as a float64 NumPy array of its own of ``shape`` (``None`` stays ``None``); one
+    ``ValueError`` naming ``name`` for a wrong shape or a NaN or inf."""
+    if x is None:
+        return None
+    if isinstance(x, Tensor):
+        x = x.numpy(force=True)
+    a = np.array(x, dtype=np.float64)
+    if a.shape != shape:
+        raise ValueError(f"{name} must be {shape} values, got shape {a.shape}")
+    if not np.isfinite(a).all():
+        raise ValueError(f"{name} holds NaN or inf: {a.tolist()}")
+    return a
 
 DEFAULT_BLEND = 10.0  # 1/s, the offset's decay rate (the moving test's velocity-command gain)
 
 
-class Reference(NamedTuple):
-    """What :meth:`Policy.reference` returns (float64, the ProMP's device)."""
-
+class _Reference(NamedTuple):
     q: Tensor  # (D,) reference position
     qd: Tensor  # (D,) velocity
     qdd: Tensor  # (D,) acceleration
     label: int  # the class tracked (0 for a map with one class)
+
+
+class Reference(_Reference):
+    """What :meth:`Policy.reference` returns: the tuple ``(q, qd, qdd (D,), label)`` (float64; the
+    ProMP's device inline, the CPU with ``planner="thread"``) and the attribute ``plan_t``, the time
+    ``t`` of the inputs the plan in use was made from (inline: the call's own ``t``)."""
+
+    def __new__(cls, q, qd, qdd, label, plan_t: float = math.nan):
+        self = super().__new__(cls, q, qd, qdd, label)
+        self.plan_t = plan_t
+        return self
 
 
 class _Motion:
@@ -107,13 +134,25 @@ class Policy(EnvToProMP):
             robot's) that the plan check rolls out from the measured joints (the run's settings).
         warm_up: call :meth:`reference` a few times now so that the first real call is not slower, then
             collect Python's garbage: a full collection (~0.1 s over what torch's import leaves) now, not in a call.
+        planner: ``"inline"`` (every call makes its own class choice: the moving test's, exactly) or
+            ``"thread"`` (a planner thread beside the caller makes them every ``plan_period`` seconds,
+            ``decision_dt / 4`` by default, and :meth:`reference` tracks its newest plan:
+            :mod:`protorch.policy.two_rate`).
+        limits: keep the reference within the robot's velocity, acceleration and jerk limits at every
+            call (:class:`~protorch.policy.limits.JerkLimiter`); ``None``: on with ``planner="thread"``
+            where the task has a robot, off inline. ``max_velocity``, ``max_jerk`` (and
+            ``max_acceleration``): the limits, ``None``: the robot's (:func:`~protorch.policy.limits.robot_limits`).
     """
 
     def __init__(self, promp, env_map, task_name: str = "", *, task=None, duration: float = 3.0,
                  switch_margin: float = 0.0, decision_dt: float = 0.02, blend: float = DEFAULT_BLEND,
                  warm_up: bool = True, experiment: str = "", check: bool = False, kp: float = 10.0,
-                 max_acceleration=None, switch_clearance: float = 0.0) -> None:
+                 max_acceleration=None, switch_clearance: float = 0.0, planner: str = "inline",
+                 limits: bool | None = None, max_velocity=None, max_jerk=None,
+                 plan_period: float | None = None) -> None:
         super().__init__(promp, env_map, task_name)
+        if planner not in ("inline", "thread"):
+            raise ValueError(f"planner must be 'inline' or 'thread', got {planner!r}")
         for name, v in (("duration", duration), ("decision_dt", decision_dt), ("blend", blend)):
             if not (isinstance(v, (int, float)) and (math.isfinite(v) or name == "blend") and v > 0):
                 raise ValueError(f"{name} must be a finite number > 0 (blend: or inf), got {v!r}")
@@ -158,18 +197,59 @@ class Policy(EnvToProMP):
         self._phi_end[1:] = 0.0  # held: no velocity, no acceleration
         self._decays: dict = {}
         self._at_jump = self._decay(0.0) if math.isfinite(self.blend) else None  # (3, 2)
+        robot = getattr(task, "robot", None)
+        self.planner = planner
+        if limits is None:
+            limits = planner == "thread" and robot is not None
+        self._limiter = None
+        if limits:
+            lim = robot_limits(robot, self._d, max_velocity=max_velocity, max_acceleration=max_acceleration,
+                               max_jerk=max_jerk)
+            self._limiter = JerkLimiter(*lim)
+        self._planner = self._tracker = None
+        if planner == "thread" and task is None and self.labels.numel() > 1:
+            raise ValueError("planner='thread' on a map with several classes needs the run's task")
+        self._motion, self._lim_t = 0, 0.0
         self.reset()
         if warm_up and (task is not None or self.labels.numel() == 1):
-            self._warm_up()
+            self._warm_up()  # the inline path, which the planner runs
+        if planner == "thread":
+            self._tracker = Tracker(self._phi_ms.cpu().numpy(), self._P.centers.to(torch.float64).cpu().numpy(),
+                                    float(self._P.width), self.duration, self.blend, self._limiter,
+                                    order=3 if self._limiter is not None else 2)
+            period = self.decision_dt / 4 if plan_period is None else float(plan_period)
+            self._planner = Planner(self._plan, period)
+            self.reset()
 
     # ----------------------------------------------------------------- state
-    def reset(self) -> None:
-        """Start a new motion: no class chosen, no offset, no time."""
+    def reset(self, env=None, q=None, qd=None) -> None:
+        """Start a new motion: no class chosen, no offset, no time. With ``planner="thread"`` and
+        ``env`` given (``q``, ``qd`` optional, as :meth:`reference`'s), the motion's first plan is
+        made now, at ``t = 0``, so that the first call of the loop does not make it."""
+        if self._planner is None:
+            self._reset_choice()
+            if self._limiter is not None:
+                self._limiter.reset()
+            self._lim_t = 0.0
+            return
+        self._tracker.reset()
+        self._motion = self._planner.new_motion(self._reset_choice)
+        if env is not None:
+            env, _, q, qd = self._check_np(env, 0.0, q, qd)
+            with self._planner.lock:
+                self._planner.plan = self._plan(self._motion, env, 0.0, q, qd)
+
+    def _reset_choice(self) -> None:
         self._m = _Motion()
         if self._memo is not None:
             self._memo.reset()
         if self.means.mode == "nearest":
             self.means.reset()
+
+    def close(self) -> None:
+        """Stop the planner thread (``planner="thread"``; nothing otherwise)."""
+        if self._planner is not None:
+            self._planner.close()
 
     @property
     def current(self) -> int | None:
@@ -305,6 +385,8 @@ class Policy(EnvToProMP):
         Returns:
             :class:`Reference` ``(q, qd, qdd (D,), label)``.
         """
+        if self._planner is not None:
+            return self._track(env, t, q, qd)
         env, t, q, qd, point = self._check(env, t, q, qd)
         m = self._m
         t = max(t, m.t)
@@ -329,8 +411,52 @@ class Policy(EnvToProMP):
                     m.off = off
                     state = torch.addmm(state, self._at_jump, off)  # (3, D) the offset now and its acceleration
             m.w, m.t = w, t
-        state = state.clone()  # an ordinary tensor for the caller (inference tensors refuse in-place updates)
-        return Reference(state[0], state[1], state[2], self._label_list[c])
+        if self._limiter is not None:
+            dt = t - self._lim_t if self._limiter.last is not None else 0.0
+            self._lim_t = t
+            state = torch.from_numpy(self._limiter.step(state.cpu().numpy(), dt)).to(state.device)
+        else:
+            state = state.clone()  # an ordinary tensor for the caller (inference tensors refuse in-place updates)
+        return Reference(state[0], state[1], state[2], self._label_list[c], t)
+
+    # ----------------------------------------------------------------- two rates
+    def _check_np(self, env, t, q, qd) -> tuple:
+        """:meth:`_check` without torch operations: ``env (d,)``, ``t``, ``q, qd (D,)`` or ``None``
+        as float64 NumPy arrays of their own."""
+        env = _array(env, (self.env_dim,), "env")
+        t = float(t)
+        if not math.isfinite(t) or t < 0:
+            raise ValueError(f"t must be a finite time >= 0 (seconds since the motion started), got {t!r}")
+        return env, t, _array(q, (self._d,), "q"), _array(qd, (self._d,), "qd")
+
+    def _plan(self, motion: int, env, t: float, q, qd) -> Plan:
+        """The planner's step: the inline class choice at the inputs the tracker handed over."""
+        env_t = torch.from_numpy(env).to(self._device)
+        q_t = None if q is None else torch.from_numpy(q).to(self._device)
+        qd_t = None if qd is None else torch.from_numpy(qd).to(self._device)
+        with torch.inference_mode():
+            c, w = self.choose(env_t, t, q_t, env.tolist(), self.basis_at(t), qd_t)  # w (1, N)
+            self._m.t = t
+            W = w.view(self._d, self._kb).T.cpu().numpy().copy()  # (Kb, D)
+        return Plan(W, self._label_list[c], t, motion)
+
+    def _track(self, env, t, q, qd) -> Reference:
+        """:meth:`reference` with ``planner="thread"``: the inputs handed to the planner, the newest
+        plan tracked (made here only where the motion has none yet: its first call without
+        ``reset(env)``)."""
+        env, t, q, qd = self._check_np(env, t, q, qd)
+        tr, planner, motion = self._tracker, self._planner, self._motion
+        t = max(t, tr.t)
+        planner.inbox = (motion, env, t, q, qd)
+        plan = planner.plan
+        if plan is None or plan.motion != motion:
+            plan = tr.plan
+            if plan is None:
+                with planner.lock:
+                    plan = planner.plan = self._plan(motion, env, t, q, qd)
+        state = tr.step(t, plan, q, qd)  # (3, D)
+        return Reference(torch.from_numpy(state[0]), torch.from_numpy(state[1]), torch.from_numpy(state[2]),
+                         plan.label, plan.t)
 
     def basis_at(self, t: float) -> Tensor:
         """The basis and its time derivatives at ``t``: ``(3, K)`` (d/dt = d/dz / duration; from

@@ -63,7 +63,7 @@ class JerkLimiter:
     then sent, clipped to the velocity and acceleration limits)."""
 
     def __init__(self, max_velocity, max_acceleration, max_jerk) -> None:
-        from ruckig import InputParameter, Ruckig, Synchronization, Trajectory
+        from ruckig import InputParameter, Ruckig, Trajectory
 
         self.vmax = np.asarray(max_velocity, dtype=np.float64)  # (D,)
         self.amax = np.asarray(max_acceleration, dtype=np.float64)  # (D,)
@@ -73,7 +73,6 @@ class JerkLimiter:
             raise ValueError(f"the limits must have one value per joint: {self.vmax.shape}, {self.amax.shape}, "
                              f"{self.jmax.shape}")
         self._otg, self._inp, self._traj = Ruckig(d), InputParameter(d), Trajectory(d)
-        self._inp.synchronization = Synchronization.No  # each joint on its own: none slowed to the slowest
         self._inp.max_velocity = self.vmax.tolist()
         self._inp.max_acceleration = self.amax.tolist()
         self._inp.max_jerk = self.jmax.tolist()
@@ -86,11 +85,11 @@ class JerkLimiter:
         self._join: float | None = None  # the duration of the hand-over trajectory followed now
         self._elapsed = 0.0  # seconds into it
 
-    def step(self, want: np.ndarray, dt: float, future=None, changed: bool = False) -> np.ndarray:
+    def step(self, want: np.ndarray, dt: float, future, changed: bool = False) -> np.ndarray:
         """The state to send ``dt`` seconds after the last one (``want (3, D)``; a new array).
-        ``future(s)``: the wanted state ``s`` seconds after the last one, ``(3, D)`` (``None``:
-        ``want`` carried on at its acceleration), where a hand-over meets it; ``changed``: the
-        wanted motion is a new one (a hand-over under way is planned afresh)."""
+        ``future(s)``: the wanted state ``s`` seconds after the last one, ``(3, D)``, where a
+        hand-over meets it; ``changed``: the wanted motion is a new one (a hand-over under way
+        is planned afresh)."""
         last = self.last
         if last is None:
             out = want.copy()
@@ -125,22 +124,25 @@ class JerkLimiter:
                     and (np.abs(want[1] - last[1] - 0.5 * dt * (a0 + a1)) <= j * dt ** 2 / 2).all()
                     and (np.abs(want[0] - last[0] - dt * last[1] - dt * dt * (2 * a0 + a1) / 6) <= j * dt ** 3 / 6).all())
 
-    def _start(self, last: np.ndarray, want: np.ndarray, dt: float, future=None) -> np.ndarray:
-        """A hand-over trajectory from ``last`` to where the wanted motion will be when it is
-        reached (``future``, or ``want`` carried on at its acceleration), its state ``dt`` in."""
+    def _start(self, last: np.ndarray, want: np.ndarray, dt: float, future) -> np.ndarray:
+        """A hand-over trajectory from ``last`` to the wanted motion (``future``), meeting it at
+        the first time it can (every joint at once, Ruckig's time synchronisation), its state
+        ``dt`` in."""
         from ruckig import Result
 
         self.following += 1
         inp = self._inp
         inp.current_position, inp.current_velocity, inp.current_acceleration = last.tolist()
-        inp.minimum_duration = None
-        res, ahead = self._toward(want if future is None else future(dt), 0.0 if future is None else None), 0.0
-        for _ in range(4):  # meet the wanted state where it will be: ahead = the trajectory's duration
-            if res is None or self._traj.duration <= ahead + 1e-4:
+        ahead, res = dt, None
+        for _ in range(16):  # the first meeting time T at which the wanted state at T can be reached by T
+            inp.minimum_duration = None
+            res = self._toward(future(ahead))
+            if res is None or self._traj.duration <= ahead:
                 break
-            ahead = self._traj.duration
-            inp.minimum_duration = ahead
-            res = self._toward(want, ahead) if future is None else self._toward(future(ahead), None)
+            ahead = max(self._traj.duration, 1.2 * ahead)
+        if res is not None:
+            inp.minimum_duration = ahead  # meet it exactly then (every joint at once)
+            res = self._toward(future(ahead))
         if res not in (Result.Working, Result.Finished):
             self.failed += 1
             out = want.copy()
@@ -153,19 +155,16 @@ class JerkLimiter:
             return np.array(self._traj.at_time(self._traj.duration))
         return np.array(self._traj.at_time(dt))  # (3, D)
 
-    def _toward(self, want: np.ndarray, ahead: float):
-        """Ruckig's trajectory to ``want`` carried ``ahead`` seconds on at its acceleration (the
-        target's velocity and acceleration clipped to the limits; where it cannot be held, its
-        acceleration 0); the result, or ``None``."""
+    def _toward(self, target: np.ndarray):
+        """Ruckig's trajectory from the input's current state to ``target (3, D)`` (its velocity
+        and acceleration clipped to the limits; where its acceleration cannot be held at its
+        velocity, acceleration 0): the result, or ``None``."""
         inp = self._inp
-        if ahead is None:  # the wanted state given where it is met
-            ahead = 0.0
-        v = np.clip(want[1] + want[2] * ahead, -self.vmax, self.vmax)
-        inp.target_position = (want[0] + want[1] * ahead + 0.5 * want[2] * ahead ** 2).tolist()
-        inp.target_velocity = v.tolist()
-        inp.target_acceleration = np.clip(want[2], -self.amax, self.amax).tolist()
+        inp.target_position = target[0].tolist()
+        inp.target_velocity = np.clip(target[1], -self.vmax, self.vmax).tolist()
+        inp.target_acceleration = np.clip(target[2], -self.amax, self.amax).tolist()
         res = self._calculate()
-        if res is None:  # a target with an acceleration it cannot keep at the velocity limit: none
+        if res is None:
             inp.target_acceleration = [0.0] * len(self.amax)
             res = self._calculate()
         return res

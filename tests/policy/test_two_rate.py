@@ -76,7 +76,7 @@ def test_the_tracker_never_waits_for_a_slow_planner(monkeypatch):
         lag.append(i * 1e-3 - r.plan_t)
         time.sleep(1e-3)
     assert max(took) < 0.03  # never a whole plan's 60 ms (the shared machine's scheduling aside)
-    assert lag[0] == 0.0 and max(lag) > 0.05  # the plans age while the planner works
+    assert lag[0] == 0.0 and max(lag) > 0.03  # the plans age while the planner works
     assert pol._planner.plans >= 1  # and the thread does publish
     pol.close()
 
@@ -134,21 +134,25 @@ def limiter() -> JerkLimiter:
 
 def test_the_limiter_keeps_the_limits_and_gives_the_wanted_state_back():
     """A smooth wanted motion whose acceleration steps by up to 12 rad/s^2 (what the continuity
-    offset does at a switch: position and velocity continuous): between ticks the velocity,
-    acceleration and jerk stay within Franka's limits; the state sent is the wanted one again
-    within a few ms of each step, and exactly the wanted one where no step is near."""
+    offset does at a switch: position and velocity continuous; joint 2's 8 rad/s^2 beyond its 7.5):
+    between ticks the velocity, acceleration and jerk stay within Franka's limits; Ruckig's
+    hand-over meets the wanted motion (known ahead, as the tracker knows its plan's), after which
+    the wanted state is sent exactly again."""
     lim = limiter()
     k = np.arange(7)
     a1 = np.linspace(-12.0, 12.0, 7)  # rad/s^2 added from t = 0.1 s on, taken back from t = 0.2 s on
+
+    def wanted_at(t: float) -> np.ndarray:  # (3, D)
+        s1, s2 = max(t - 0.1, 0.0), max(t - 0.2, 0.0)
+        return np.stack([0.3 * np.sin(t + k) + 0.5 * a1 * (s1 ** 2 - s2 ** 2),
+                         0.3 * np.cos(t + k) + a1 * (s1 - s2),
+                         -0.3 * np.sin(t + k) + a1 * ((t >= 0.1) - float(t >= 0.2))])
+
     sent, wanted = [], []
     for i in range(600):
         t = i * 1e-3
-        s1, s2 = max(t - 0.1, 0.0), max(t - 0.2, 0.0)
-        want = np.stack([0.3 * np.sin(t + k) + 0.5 * a1 * (s1 ** 2 - s2 ** 2),
-                         0.3 * np.cos(t + k) + a1 * (s1 - s2),
-                         -0.3 * np.sin(t + k) + a1 * ((t >= 0.1) - float(t >= 0.2))])
-        wanted.append(want)
-        sent.append(lim.step(want, 1e-3))
+        wanted.append(wanted_at(t))
+        sent.append(lim.step(wanted[-1], 1e-3, lambda s, t0=t - 1e-3: wanted_at(t0 + s)))
     s, w = np.stack(sent), np.stack(wanted)  # (T, 3, D)
     assert (np.abs(s[:, 1]) <= lim.vmax * (1 + 1e-9)).all()
     assert (np.abs(s[:, 2]) <= lim.amax * (1 + 1e-9)).all()
@@ -156,5 +160,5 @@ def test_the_limiter_keeps_the_limits_and_gives_the_wanted_state_back():
     assert (jerk <= lim.jmax * (1 + 1e-6)).all()
     assert jerk.max() > 0.99 * lim.jmax.max()  # the steps did need the limiter
     np.testing.assert_array_equal(s[:100], w[:100])  # nothing to limit before the first step
-    assert np.abs(s[120:200] - w[120:200]).max() < 1e-9 and np.abs(s[220:] - w[220:]).max() < 1e-9
-    assert 0 < lim.following < 40 and lim.failed == 0
+    np.testing.assert_array_equal(s[300:], w[300:])  # the hand-over met the wanted motion: passed through again
+    assert 0 < lim.following <= 3 and lim.failed == 0

@@ -7,8 +7,8 @@ core (:func:`pearson_relevance`, :func:`pro_update`) and the optimisers :class:`
 (:func:`self_improve`).
 """
 
-from .control.policy import Policy, Reference
-from .experiments.policy_run import load_policy
+from .policy import Policy, Reference
+from .policy.load import load_policy
 from .data.checkpoint import save_model
 from .data.dataset import TrajectoryDataset
 from .data.files import CheckpointError
@@ -34,7 +34,8 @@ def load(run, *, device=None, dtype=None, backend: str | None = None, warm_up: b
     """A trained run as a :class:`Policy` (an :class:`EnvToProMP` that also gives references for a
     control loop): ``run`` is a run folder (its ``config.yaml`` rebuilds the task through the
     experiment's own builder), its ``checkpoint`` folder or the ``.safetensors`` file (the map
-    alone). See :func:`protorch.experiments.policy_run.load_policy`."""
+    alone); ``planner="thread"`` for a control loop (the class choice on a thread beside it).
+    Imports neither Hydra nor OmegaConf. See :func:`protorch.policy.load.load_policy`."""
     return load_policy(run, device=device, dtype=dtype, backend=backend, warm_up=warm_up, **options)
 
 

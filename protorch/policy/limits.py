@@ -77,6 +77,7 @@ class JerkLimiter:
         self._inp.max_acceleration = self.amax.tolist()
         self._inp.max_jerk = self.jmax.tolist()
         self.following = self.failed = 0
+        self._tests: dict = {}  # dt -> the step's tests (_within)
         self.reset()
 
     def reset(self) -> None:
@@ -116,13 +117,23 @@ class JerkLimiter:
     def _within(self, last: np.ndarray, want: np.ndarray, dt: float) -> bool:
         """Whether ``want`` follows ``last`` within the limits: velocity and acceleration within
         theirs, the acceleration's change within ``max_jerk dt``, and position and velocity where
-        a constant jerk over ``dt`` takes them (within what ``max_jerk`` moves them over ``dt``)."""
-        a0, a1 = last[2], want[2]
-        j = self.jmax
-        return bool((np.abs(a1 - a0) <= j * dt).all() and (np.abs(want[1]) <= self.vmax).all()
-                    and (np.abs(a1) <= self.amax).all()
-                    and (np.abs(want[1] - last[1] - 0.5 * dt * (a0 + a1)) <= j * dt ** 2 / 2).all()
-                    and (np.abs(want[0] - last[0] - dt * last[1] - dt * dt * (2 * a0 + a1) / 6) <= j * dt ** 3 / 6).all())
+        a constant jerk over ``dt`` takes them (within what ``max_jerk`` moves them over ``dt``).
+        All five are linear in ``(last, want)``: one product with a matrix kept per ``dt``."""
+        hit = self._tests.get(dt)
+        if hit is None:
+            if len(self._tests) >= 64:
+                self._tests.clear()
+            h = dt * dt
+            M = np.array([[0, 0, -1, 0, 0, 1],  # the change of acceleration
+                          [0, 0, 0, 0, 1, 0],  # the velocity
+                          [0, 0, 0, 0, 0, 1],  # the acceleration
+                          [0, -1, -dt / 2, 0, 1, -dt / 2],  # velocity off a constant jerk's
+                          [-1, -dt, -h / 3, 1, 0, -h / 6]], dtype=np.float64)  # position off it
+            j = self.jmax
+            bound = np.stack([j * dt, self.vmax, self.amax, j * h / 2, j * h * dt / 6])  # (5, D)
+            hit = self._tests[dt] = (M, bound)
+        M, bound = hit
+        return bool((np.abs(M @ np.concatenate([last, want])) <= bound).all())
 
     def _start(self, last: np.ndarray, want: np.ndarray, dt: float, future) -> np.ndarray:
         """A hand-over trajectory from ``last`` to the wanted motion (``future``), meeting it at

@@ -6,12 +6,12 @@ tick from the newest plan, never waiting for the planner.
   array, its label and the time ``t`` of the inputs it was made from.
 * :class:`Planner`: the thread. Every ``period`` seconds it takes the newest inputs the tracker
   handed over (one tuple assigned to an attribute: the tracker takes no lock) and, when they are
-  new, runs the policy's inline class choice on them (:meth:`~protorch.control.policy.Policy.choose`:
+  new, runs the policy's inline class choice on them (:meth:`~protorch.policy.policy.Policy.choose`:
   a decision when ``t`` entered a new ``decision_dt`` slot, the tracked class's mean otherwise)
   and publishes the plan (again one attribute).
 * :class:`Tracker`: the per-tick computation in NumPy on a precomputed table of the basis at every
   whole millisecond of the motion: the plan's mean at ``t`` plus the continuity offset (the
-  critically damped decay of :class:`~protorch.control.policy.Policy`, the jump added where the
+  critically damped decay of :class:`~protorch.policy.policy.Policy`, the jump added where the
   plan changed), then the robot's limits (:class:`~protorch.policy.limits.JerkLimiter`).
 
 The tracker calls no torch operation: torch's operators release the GIL while they run, and a
@@ -21,6 +21,7 @@ thread that gave the GIL away waits to take it back while the planner holds it (
 
 from __future__ import annotations
 
+import atexit
 import math
 import threading
 import time
@@ -35,7 +36,7 @@ __all__ = ["Plan", "Planner", "Tracker", "basis3_np", "decay3_np", "decay_np"]
 class Plan(NamedTuple):
     """A plan of the planner: ``W (Kb, D)`` the chosen class's mean weights (one column per
     joint), ``label`` its class, ``t`` the time of the inputs it was made from (s), ``motion``
-    the motion it belongs to (:meth:`~protorch.control.policy.Policy.reset` counts them)."""
+    the motion it belongs to (:meth:`~protorch.policy.policy.Policy.reset` counts them)."""
 
     W: np.ndarray
     label: int
@@ -44,7 +45,7 @@ class Plan(NamedTuple):
 
 
 def basis3_np(centers: np.ndarray, width: float, z: float) -> np.ndarray:
-    """:func:`~protorch.control.policy_means.basis3` at one phase ``z`` in NumPy: ``(3, K)``."""
+    """:func:`~protorch.policy.means.basis3` at one phase ``z`` in NumPy: ``(3, K)``."""
     d = z - centers  # (K,)
     b = np.exp(-0.5 * (d / width) ** 2)
     g = b / b.sum()
@@ -56,7 +57,7 @@ def basis3_np(centers: np.ndarray, width: float, z: float) -> np.ndarray:
 
 
 def decay_np(blend: float, s: float) -> np.ndarray:
-    """:func:`~protorch.control.policy_means.decay_matrix` with 3 rows, in NumPy: ``(3, 2)``."""
+    """:func:`~protorch.policy.means.decay_matrix` with 3 rows, in NumPy: ``(3, 2)``."""
     w, e = blend, math.exp(-blend * s)
     return np.array([[(1 + w * s) * e, s * e], [-w * w * s * e, (1 - w * s) * e],
                      [(-w * w + w ** 3 * s) * e, (-2 * w + w * w * s) * e]])
@@ -190,6 +191,17 @@ def _run(ref, period: float, stop: threading.Event) -> None:
         del planner
 
 
+_RUNNING: "weakref.WeakSet[Planner]" = weakref.WeakSet()
+
+
+@atexit.register
+def _stop_all() -> None:
+    """Stop every planner thread before the interpreter tears torch down under it."""
+    for planner in list(_RUNNING):
+        planner.close()
+        planner._thread.join(timeout=1.0)
+
+
 class Planner:
     """The planner thread (module docstring): ``make(motion, env, t, q, qd) -> Plan`` run every
     ``period`` seconds on the newest :attr:`inbox` when it is new, the result put in
@@ -209,6 +221,7 @@ class Planner:
         self._thread = threading.Thread(target=_run, args=(weakref.ref(self), self.period, self._stop),
                                         name="protorch-planner", daemon=True)
         self._thread.start()
+        _RUNNING.add(self)
 
     def new_motion(self, reset) -> int:
         """Start a new motion: ``reset()`` called with the lock held (no plan is being made), the

@@ -14,7 +14,7 @@ import torch
 
 import protorch
 from protorch.control.arm import run_arm_episodes
-from protorch.control.policy import Policy
+from protorch.policy.policy import Policy
 from protorch.gp import make_env_map
 from protorch.tasks.arm.reach import LEFT, RIGHT, ArmReachTask
 
@@ -258,7 +258,8 @@ def test_the_threaded_reference_keeps_the_robots_limits_through_the_moving_tests
     assert int(res.switches.sum()) >= 1
     pol = Policy(policy._P, policy.env_map, "arm_reach", task=task, duration=policy.duration,
                  switch_margin=policy.switch_margin, decision_dt=0.02,
-                 switch_clearance=policy.switch_clearance, planner="thread", plan_period=1e6, warm_up=False)
+                 switch_clearance=policy.switch_clearance, planner="thread", plan_period=1e6, warm_up=False,
+                 limits=True)
     lim = pol._limiter
     vmax, amax, jmax = lim.vmax, lim.amax, lim.jmax
     np.testing.assert_array_equal(vmax, [2.175] * 4 + [2.61] * 3)

@@ -207,6 +207,7 @@ def time_pieces(policy, envs: torch.Tensor) -> None:
     (the walk runs once more), their mean wall time per call and how many calls; the plan
     check's pieces only where the carried bounds (``ClearanceMemo``) did not pass the plan."""
     import protorch.control.arm_choice as ac
+    import protorch.policy.choice as pc
     import protorch.policy.policy as pm
     from protorch.policy.means import ClassMeans
 
@@ -223,7 +224,7 @@ def time_pieces(policy, envs: torch.Tensor) -> None:
         return f, run
 
     pieces = [(ClassMeans, "__call__", "every class's mean (new sets solved)"), (pm.Policy, "_scores", "the scores"),
-              (pm, "checked_choice", "the plan check (all of it)"), (ac, "rest_plan", "  the plan (rollout, mean after)"),
+              (pc, "checked_choice", "the plan check (all of it)"), (ac, "rest_plan", "  the plan (rollout, mean after)"),
               (ac, "capsule_ends", "  the capsules placed"), (ac, "capsules_clear", "  the capsules bounded")]
     saved = []
     for owner, name, label in pieces:

@@ -1,18 +1,17 @@
 """A run's experiment rebuilt from its resolved ``config.yaml`` through the experiment's own
-settings check and builder: what ``protorch.load`` (:func:`protorch.policy.load.load_policy`,
-also importable from here) needs of it."""
+settings check and builder: what ``protorch.load`` (:func:`protorch.policy.load.load_policy`)
+needs of it."""
 
 from __future__ import annotations
 
 import inspect
 
-from ..policy.load import load_policy
 from . import SettingsError, check_config
 from .arm_reach import ArmReachExperiment
 from .point_particle import PointParticleExperiment
 from .self_improve import GenericExperiment
 
-__all__ = ["POLICY_EXPERIMENTS", "rebuild_experiment", "load_policy"]
+__all__ = ["POLICY_EXPERIMENTS", "rebuild_experiment"]
 
 # the experiments whose runs are a policy: a trained map of a self-improvement experiment
 POLICY_EXPERIMENTS = ("arm_reach", "point_particle", "self_improve")

@@ -10,11 +10,11 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from ..control.arm_choice import rest_scores
 from ..data.files import atomic_write_bytes
 from ..gp.kernels import rbf
 from ..tasks.arm.collision import capsule_ends
 from ..tasks.arm.geometry import segment_cylinder_distance
-from ..control.arm_choice import rest_scores
 from .means import basis3
 
 __all__ = ["ExportProgram", "static_gaps", "write_program"]

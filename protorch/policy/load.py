@@ -1,8 +1,8 @@
 """``protorch.load(run)``: a run folder as a :class:`~protorch.policy.policy.Policy`, without Hydra
 or OmegaConf: the run's resolved ``config.yaml`` read as plain YAML, the task rebuilt through the
 experiment's own settings check and builder
-(:func:`protorch.experiments.policy_run.rebuild_experiment`, imported when a folder has a
-config), the map from its checkpoint, the class choice's settings from the moving test's."""
+(:func:`protorch.experiments.policy_run.rebuild_experiment`), the map from its checkpoint,
+the class choice's settings from the moving test's."""
 
 from __future__ import annotations
 
@@ -10,6 +10,11 @@ import re
 from pathlib import Path
 
 import torch
+
+from ..data.checkpoint import checkpoint_path, load
+from ..experiments.policy_run import rebuild_experiment
+from .policy import Policy
+from .settings import policy_settings
 
 __all__ = ["CONFIG_FILE", "load_policy", "read_config"]
 
@@ -31,7 +36,7 @@ def _loader():
                     |\.[0-9_]+(?:[eE][-+][0-9]+)?
                     |[-+]?[0-9][0-9_]*(?::[0-5]?[0-9])+\.[0-9_]*
                     |[-+]?\.(?:inf|Inf|INF)
-                    |\.(?:nan|NaN|NAN))$""", re.X),
+                    |\.(?:nan|NaN|NAN))$""", re.VERBOSE),
         list("-+0123456789."))
     return Loader
 
@@ -61,10 +66,6 @@ def load_policy(run, *, device=None, dtype=None, backend: str | None = None, war
     ``kp``, ``max_acceleration``, ``switch_clearance``, ``limits``, ``max_velocity``, ``max_jerk``).
     Raises ``FileNotFoundError`` (no such folder, no checkpoint) or ``ValueError`` (another
     experiment, a config this protorch refuses), each naming ``run=``."""
-    from ..data.checkpoint import checkpoint_path, load
-    from .policy import Policy
-    from .settings import policy_settings
-
     dtype = torch.float64 if dtype is None else dtype
     p = Path(run)
     where = f"run={str(run)!r}"
@@ -81,8 +82,6 @@ def load_policy(run, *, device=None, dtype=None, backend: str | None = None, war
         cfg = read_config(config)
     except ValueError as exc:
         raise ValueError(f"{where}: {exc}") from None
-    from ..experiments.policy_run import rebuild_experiment
-
     exp = rebuild_experiment(cfg, where)
     if not checkpoint_path(p).is_file():
         raise FileNotFoundError(f"{where} holds no checkpoint ({checkpoint_path(p)}): the run did not get to "

@@ -40,83 +40,32 @@ backwards within a motion (a smaller ``t`` than the last is taken as the last).
 
 from __future__ import annotations
 
-import bisect
-import contextlib
 import gc
 import math
 from pathlib import Path
-from typing import NamedTuple
 
-import numpy as np
 import torch
 from torch import Tensor
 
-from ..gp.model import EnvToProMP
-from ..tasks.arm.reach import ArmReachTask
 from ..control.arm import arm_follow
-from ..control.arm_choice import Follow, checked_choice, hysteresis_choice, rest_scores
+from ..control.arm_choice import Follow
 from ..control.episodes import check_timing
 from ..control.plan_memo import ClearanceMemo, point_reach
+from ..gp.model import EnvToProMP
+from ..tasks.arm.reach import ArmReachTask
+from .choice import ClassChoice
 from .export import write_program
-from .means import ClassMeans, EndEffector, basis3, decay_matrix
 from .limits import JerkLimiter, robot_limits
-from .two_rate import Plan, Planner, Tracker
+from .means import ClassMeans, EndEffector, basis3, decay_matrix
+from .reference import MotionState, Reference
+from .two_rate import Planner, Tracker, TwoRatePolicy
 
 __all__ = ["DEFAULT_BLEND", "ClassMeans", "Policy", "Reference"]
-
-
-def _array(x, shape: tuple, name: str):
-    """``x`` as a float64 NumPy array of its own of ``shape`` (``None`` stays ``None``); one
-    ``ValueError`` naming ``name`` for a wrong shape or a NaN or inf."""
-    if x is None:
-        return None
-    if isinstance(x, Tensor):
-        x = x.numpy(force=True)
-    a = np.array(x, dtype=np.float64)
-    if a.shape != shape:
-        raise ValueError(f"{name} must be {shape} values, got shape {a.shape}")
-    if not np.isfinite(a).all():
-        raise ValueError(f"{name} holds NaN or inf: {a.tolist()}")
-    return a
 
 DEFAULT_BLEND = 10.0  # 1/s, the offset's decay rate (the moving test's velocity-command gain)
 
 
-class _Reference(NamedTuple):
-    q: Tensor  # (D,) reference position
-    qd: Tensor  # (D,) velocity
-    qdd: Tensor  # (D,) acceleration
-    label: int  # the class tracked (0 for a map with one class)
-
-
-class Reference(_Reference):
-    """What :meth:`Policy.reference` returns: the tuple ``(q, qd, qdd (D,), label)`` (float64; the
-    ProMP's device inline, the CPU with ``planner="thread"``) and the attribute ``plan_t``, the time
-    ``t`` of the inputs the plan in use was made from (inline: the call's own ``t``)."""
-
-    def __new__(cls, q, qd, qdd, label, plan_t: float = math.nan):
-        self = super().__new__(cls, q, qd, qdd, label)
-        self.plan_t = plan_t
-        return self
-
-
-class _Motion:
-    """The state of one motion (:meth:`Policy.reset` starts a new one), kept apart from the
-    module's attributes so that writing it at every call is cheap."""
-
-    __slots__ = ("current", "fresh", "off", "slot", "t", "turn", "w")
-
-    def __init__(self) -> None:
-        self.current: int | None = None  # row of Policy.labels
-        self.slot = -1  # the decision slot of the last decision
-        self.w: Tensor | None = None  # (1, N) the weights tracked at the last call
-        self.t = 0.0
-        self.off: Tensor | None = None  # (2, D) offset and its velocity at t
-        self.fresh = 0.0  # when the other classes' neighbour sets were last brought up to date
-        self.turn = 0  # the other class to bring up to date next
-
-
-class Policy(EnvToProMP):
+class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
     """A trained run for a control loop (module docstring): an
     :class:`~protorch.gp.model.EnvToProMP` (``policy(env)``, ``policy.mean_trajectory(env)``)
     that also knows its task, the motion's duration and the class choice's settings.
@@ -241,7 +190,7 @@ class Policy(EnvToProMP):
                 self._planner.plan = self._plan(self._motion, env, 0.0, q, qd)
 
     def _reset_choice(self) -> None:
-        self._m = _Motion()
+        self._m = MotionState()
         if self._memo is not None:
             self._memo.reset()
         if self.means.mode == "nearest":
@@ -301,96 +250,6 @@ class Policy(EnvToProMP):
             raise ValueError(f"t must be a finite time >= 0 (seconds since the motion started), got {t!r}")
         return env, t, self._joints(q, "q", env), self._joints(qd, "qd", env), point
 
-    # ----------------------------------------------------------------- the class choice
-    def _scores(self, means: Tensor, env: Tensor, z: float, q: Tensor | None, phi: Tensor) -> Tensor:
-        """Each class's score ``(K,)`` (module docstring, item 2); ``phi (K,)`` the basis at ``z``."""
-        task = self.task
-        if not self._arm:
-            return task.costs(self._P.trajectory(means), env.expand(means.shape[0], -1)).sum(-1)  # (K,)
-        k = means.shape[0]
-        w = means.view(k, self._d, self._kb)  # (K, D, Kb)
-        ahead = len(self._grid_list) - bisect.bisect_right(self._grid_list, z)  # the objectives' phases after z
-        now = w @ phi if q is None else q[None]  # (K, D) the arm on each class's own mean now, or (1, D) measured
-        traj = self._phi_grid[len(self._grid_list) - ahead:] @ w.transpose(1, 2)  # (K, P', D) the rest of each mean
-        ee = self._ee(torch.cat([now, traj.reshape(-1, self._d)]))  # (K or 1 + K P', 3) one kinematics pass
-        start, path = ee[: now.shape[0], None], ee[now.shape[0]:].view(k, 1, ahead, 3)
-        rest = self._grid[len(self._grid_list) - ahead:]  # (P',)
-        return rest_scores(task, self._P, means[:, None], env[None], start, rest, path=path)[:, 0]  # (K,)
-
-    def choose(self, env: Tensor, t: float, q: Tensor | None = None, point: list[float] | None = None,
-               phi: Tensor | None = None, qd: Tensor | None = None) -> tuple[int, Tensor]:
-        """The class row (into :attr:`labels`) tracked at ``t`` and its mean weights ``(1, N)``:
-        a decision (every class asked, scored, hysteresis) at the first call and whenever ``t``
-        enters a new ``decision_dt`` slot; between decisions only the current class is asked (a
-        call that solved no set of its own also readies a set for its next swap, or every
-        ``decision_dt / 4`` and right before a decision brings another class's set up to date).
-        ``point``: ``env.tolist()``; ``phi (3, K)``: :meth:`basis_at` ``t``."""
-        z = min(t / self.duration, 1.0)
-        means = self.means
-        if point is None:
-            point = env.tolist()
-        if len(self._label_list) == 1:
-            self._m.current = 0
-            return 0, means.mean(0, env, point)
-        if self.task is None:
-            raise ValueError(f"this map has the classes {self.labels.tolist()}: choosing one needs the run's task "
-                             "(protorch.load(run_dir) of a run folder with its config.yaml)")
-        slot = math.floor(t / self.decision_dt + 1e-9)
-        m = self._m
-        if m.current is not None and slot <= m.slot:
-            solved = means.misses
-            w = means.mean(m.current, env, point)
-            # a call that solved nothing does one thing more: the tracked set's inverses (ClassMeans.prepare),
-            # or another class's (then its set brought up to date; first on the call before a decision)
-            before = (m.slot + 1) * self.decision_dt - t <= 1.5 * (t - m.t)  # by the loop's last interval
-            if means.mode != "nearest" or means.misses != solved or (not before and means.prepare(m.current)):
-                return m.current, w
-            if before or t - m.fresh >= self._refresh_dt:
-                others = [c for c in range(len(self._label_list)) if c != m.current]
-                c = others[m.turn % len(others)]
-                if before or not means.prepare(c):
-                    means.neighbour_set(c, env, point)
-                    m.turn += 1
-                    m.fresh = t if m.turn % len(others) == 0 else m.fresh
-            return m.current, w
-        every = means(env)  # (K, N)
-        phi = self.basis_at(t) if phi is None else phi
-        c = self._decide(every, env, z, q, qd, phi, m.current, self._memo)
-        m.current = c
-        m.slot, m.fresh = slot, t
-        return c, every[c:c + 1]
-
-    def _decide(self, every: Tensor, env: Tensor, z: float, q, qd, phi: Tensor, current: int | None, memo) -> int:
-        """A class decision (module docstring, item 2): ``every (K, N)`` the classes' means at
-        ``env``, ``phi (3, K)`` the basis at ``z``, ``current`` the class tracked (``None``: none)."""
-        scores = self._scores(every, env, z, q, phi[0])[:, None]  # (K, 1)
-        cur = None if current is None else torch.tensor([current])
-        if self.check and self._arm:  # the moving test's checked choice
-            k = every.shape[0]
-            now = q[None] if q is not None else (every.view(k, self._d, self._kb) @ phi[0])[:, None]  # (1, D) | (K, 1, D)
-            rest = self._grid[bisect.bisect_right(self._grid_list, z):]  # (P',) the phases after z
-            v = None if q is None else (torch.zeros_like(q) if qd is None else qd)[None]  # (1, D) the arm's velocity
-            return int(checked_choice(self.task, self._P, every[:, None], env[None], now, z, rest, scores, cur,
-                                      self.switch_margin, v, self._follow, self.switch_clearance, memo)[0])
-        return int(hysteresis_choice(scores, cur, self.switch_margin)[0])
-
-    def first_class(self, env) -> int:
-        """The class row (into :attr:`labels`) a motion at the fixed environment ``env (d,)`` starts
-        with: :meth:`reference`'s first decision after :meth:`reset` with ``q=None`` (the motion's
-        whole objectives from each class's own start, with ``check`` the plan check of each
-        class's mean). Leaves the motion under way as it is (with ``planner="thread"`` it waits
-        for the planner's step)."""
-        env = self._check(env, 0.0, None)[0]
-        if len(self._label_list) == 1:
-            return 0
-        if self.task is None:
-            raise ValueError(f"this map has the classes {self.labels.tolist()}: choosing one needs the run's task "
-                             "(protorch.load(run_dir) of a run folder with its config.yaml)")
-        lock = self._planner.lock if self._planner is not None else contextlib.nullcontext()
-        with lock, torch.inference_mode():
-            every = self.means(env)  # (K, N)
-            return self._decide(every, env, 0.0, None, None, self.basis_at(0.0), None, None)
-
     # ----------------------------------------------------------------- the reference
     def reference(self, env, t, q=None, qd=None) -> Reference:
         """The reference at time ``t`` for the environment ``env`` (module docstring).
@@ -435,45 +294,6 @@ class Policy(EnvToProMP):
             m.w, m.t = w, t
         state = state.clone()  # an ordinary tensor for the caller (inference tensors refuse in-place updates)
         return Reference(state[0], state[1], state[2], self._label_list[c], t)
-
-    # ----------------------------------------------------------------- two rates
-    def _check_np(self, env, t, q, qd) -> tuple:
-        """:meth:`_check` without torch operations: ``env (d,)``, ``t``, ``q, qd (D,)`` or ``None``
-        as float64 NumPy arrays of their own."""
-        env = _array(env, (self._env_dim,), "env")
-        t = float(t)
-        if not math.isfinite(t) or t < 0:
-            raise ValueError(f"t must be a finite time >= 0 (seconds since the motion started), got {t!r}")
-        return env, t, _array(q, (self._d,), "q"), _array(qd, (self._d,), "qd")
-
-    def _plan(self, motion: int, env, t: float, q, qd) -> Plan:
-        """The planner's step: the inline class choice at the inputs the tracker handed over."""
-        env_t = torch.from_numpy(env).to(self._device)
-        q_t = None if q is None else torch.from_numpy(q).to(self._device)
-        qd_t = None if qd is None else torch.from_numpy(qd).to(self._device)
-        with torch.inference_mode():
-            c, w = self.choose(env_t, t, q_t, env.tolist(), self.basis_at(t), qd_t)  # w (1, N)
-            self._m.t = t
-            W = w.view(self._d, self._kb).T.cpu().numpy().copy()  # (Kb, D)
-        return Plan(W, self._label_list[c], t, motion)
-
-    def _track(self, env, t, q, qd) -> Reference:
-        """:meth:`reference` with ``planner="thread"``: the inputs handed to the planner, the newest
-        plan tracked (made here only where the motion has none yet: its first call without
-        ``reset(env)``)."""
-        env, t, q, qd = self._check_np(env, t, q, qd)
-        tr, planner, motion = self._tracker, self._planner, self._motion
-        t = max(t, tr.t)
-        planner.inbox = (motion, env, t, q, qd)
-        plan = planner.plan
-        if plan is None or plan.motion != motion:
-            plan = tr.plan
-            if plan is None:
-                with planner.lock:
-                    plan = planner.plan = self._plan(motion, env, t, q, qd)
-        state = tr.step(t, plan, q, qd)  # (3, D)
-        return Reference(torch.from_numpy(state[0]), torch.from_numpy(state[1]), torch.from_numpy(state[2]),
-                         plan.label, plan.t)
 
     def basis_at(self, t: float) -> Tensor:
         """The basis and its time derivatives at ``t``: ``(3, K)`` (d/dt = d/dz / duration; from

@@ -29,8 +29,11 @@ import weakref
 from typing import NamedTuple
 
 import numpy as np
+import torch
 
-__all__ = ["Plan", "Planner", "Tracker", "basis3_np", "decay3_np", "decay_np"]
+from .reference import Reference, as_array
+
+__all__ = ["Plan", "Planner", "Tracker", "TwoRatePolicy", "basis3_np", "decay3_np", "decay_np"]
 
 
 class Plan(NamedTuple):
@@ -191,7 +194,7 @@ def _run(ref, period: float, stop: threading.Event) -> None:
         del planner
 
 
-_RUNNING: "weakref.WeakSet[Planner]" = weakref.WeakSet()
+_RUNNING: weakref.WeakSet[Planner] = weakref.WeakSet()
 
 
 @atexit.register
@@ -238,3 +241,46 @@ class Planner:
 
     def __del__(self) -> None:
         self._stop.set()
+
+
+class TwoRatePolicy:
+    """``planner="thread"``'s side of :class:`~protorch.policy.policy.Policy` (a mixin): the
+    input check without torch, the planner's step and the tracker's call."""
+
+    def _check_np(self, env, t, q, qd) -> tuple:
+        """:meth:`_check` without torch operations: ``env (d,)``, ``t``, ``q, qd (D,)`` or ``None``
+        as float64 NumPy arrays of their own."""
+        env = as_array(env, (self._env_dim,), "env")
+        t = float(t)
+        if not math.isfinite(t) or t < 0:
+            raise ValueError(f"t must be a finite time >= 0 (seconds since the motion started), got {t!r}")
+        return env, t, as_array(q, (self._d,), "q"), as_array(qd, (self._d,), "qd")
+
+    def _plan(self, motion: int, env, t: float, q, qd) -> Plan:
+        """The planner's step: the inline class choice at the inputs the tracker handed over."""
+        env_t = torch.from_numpy(env).to(self._device)
+        q_t = None if q is None else torch.from_numpy(q).to(self._device)
+        qd_t = None if qd is None else torch.from_numpy(qd).to(self._device)
+        with torch.inference_mode():
+            c, w = self.choose(env_t, t, q_t, env.tolist(), self.basis_at(t), qd_t)  # w (1, N)
+            self._m.t = t
+            W = w.view(self._d, self._kb).T.cpu().numpy().copy()  # (Kb, D)
+        return Plan(W, self._label_list[c], t, motion)
+
+    def _track(self, env, t, q, qd) -> Reference:
+        """:meth:`reference` with ``planner="thread"``: the inputs handed to the planner, the newest
+        plan tracked (made here only where the motion has none yet: its first call without
+        ``reset(env)``)."""
+        env, t, q, qd = self._check_np(env, t, q, qd)
+        tr, planner, motion = self._tracker, self._planner, self._motion
+        t = max(t, tr.t)
+        planner.inbox = (motion, env, t, q, qd)
+        plan = planner.plan
+        if plan is None or plan.motion != motion:
+            plan = tr.plan
+            if plan is None:
+                with planner.lock:
+                    plan = planner.plan = self._plan(motion, env, t, q, qd)
+        state = tr.step(t, plan, q, qd)  # (3, D)
+        return Reference(torch.from_numpy(state[0]), torch.from_numpy(state[1]), torch.from_numpy(state[2]),
+                         plan.label, plan.t)

@@ -14,8 +14,8 @@ import torch
 
 import protorch
 from protorch.control.arm import run_arm_episodes
-from protorch.policy.policy import Policy
 from protorch.gp import make_env_map
+from protorch.policy.policy import Policy
 from protorch.tasks.arm.reach import LEFT, RIGHT, ArmReachTask
 
 from .test_policy import check_export
@@ -264,7 +264,7 @@ def test_the_threaded_reference_keeps_the_robots_limits_through_the_moving_tests
     vmax, amax, jmax = lim.vmax, lim.amax, lim.jmax
     np.testing.assert_array_equal(vmax, [2.175] * 4 + [2.61] * 3)
     np.testing.assert_array_equal(jmax, [7500.0] * 7)
-    per = int(round(res.dt * 1000))
+    per = round(res.dt * 1000)
     worst, switches = np.zeros(3), 0
     for e in torch.nonzero(res.switches > 0).flatten()[:3].tolist():  # the episodes with a switch
         pol.reset(res.envs[e, 0], res.q[e, 0], res.qd[e, 0])
@@ -279,7 +279,7 @@ def test_the_threaded_reference_keeps_the_robots_limits_through_the_moving_tests
             states.append(torch.stack([r.q, r.qd, r.qdd]).numpy())
             labels.append(r.label)
         x = np.stack(states)  # (T, 3, D)
-        switches += sum(a != b for a, b in zip(labels, labels[1:]))
+        switches += int((np.diff(labels) != 0).sum())
         jerk = np.abs(np.diff(x[:, 2], axis=0)) / 1e-3
         worst = np.maximum(worst, [(np.abs(x[:, 1]) / vmax).max(), (np.abs(x[:, 2]) / amax).max(), (jerk / jmax).max()])
         assert np.abs(np.diff(x[:, 0], axis=0)).max() <= np.abs(x[:, 1]).max() * 1e-3 * 1.01 + 1e-12

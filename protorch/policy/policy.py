@@ -36,6 +36,11 @@ measured now. What it computes, per call:
 
 :meth:`Policy.reset` starts a new motion (class, offset and time forgotten). ``t`` must not go
 backwards within a motion (a smaller ``t`` than the last is taken as the last).
+
+That is ``planner="inline"``: every call does items 1-4. With ``planner="thread"`` items 1-2 run
+on a planner thread beside the caller and the call tracks the newest plan (items 3-4 in NumPy,
+:mod:`protorch.policy.two_rate`); ``limits=True`` holds the reference to the robot's velocity,
+acceleration and jerk limits (:mod:`protorch.policy.limits`).
 """
 
 from __future__ import annotations

@@ -173,8 +173,7 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
             self._warm_up()  # the inline path, which the planner runs
         if planner == "thread":
             self._tracker = Tracker(self._phi_ms.cpu().numpy(), self._P.centers.to(torch.float64).cpu().numpy(),
-                                    float(self._P.width), self.duration, self.blend, self._limiter,
-                                    order=2)
+                                    float(self._P.width), self.duration, self.blend, self._limiter)
             period = self.decision_dt / 4 if plan_period is None else float(plan_period)
             self._planner = Planner(self._plan, period)
             self.reset()

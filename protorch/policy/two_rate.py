@@ -33,7 +33,7 @@ import torch
 
 from .reference import Reference, as_array
 
-__all__ = ["Plan", "Planner", "Tracker", "TwoRatePolicy", "basis3_np", "decay3_np", "decay_np"]
+__all__ = ["Plan", "Planner", "Tracker", "TwoRatePolicy", "basis3_np", "decay_np"]
 
 
 class Plan(NamedTuple):
@@ -66,18 +66,6 @@ def decay_np(blend: float, s: float) -> np.ndarray:
                      [(-w * w + w ** 3 * s) * e, (-2 * w + w * w * s) * e]])
 
 
-def decay3_np(blend: float, s: float) -> np.ndarray:
-    """The third-order offset's decay (a triple pole at ``-blend``): ``(3, 3)`` maps an offset's
-    position, velocity and acceleration ``(d0, v0, a0)`` to theirs ``s`` seconds later,
-    ``d(s) = (c0 + c1 s + c2 s^2) exp(-w s)`` with ``c0 = d0``, ``c1 = v0 + w d0``,
-    ``c2 = (a0 + 2 w v0 + w^2 d0) / 2``; its jerk at the jump is ``-(w^3 d0 + 3 w^2 v0 + 3 w a0)``."""
-    w = blend
-    C = np.array([[1.0, 0.0, 0.0], [w, 1.0, 0.0], [w * w / 2, w, 0.5]])  # (d0, v0, a0) -> (c0, c1, c2)
-    D = np.array([[-w, 1.0, 0.0], [0.0, -w, 2.0], [0.0, 0.0, -w]])  # d/ds of (c0 + c1 s + c2 s^2) e^{-ws}
-    at = np.array([1.0, s, s * s]) * math.exp(-w * s)
-    return np.stack([at, at @ D, at @ D @ D]) @ C
-
-
 class Tracker:
     """The reference of one motion from the plans it is given (module docstring).
 
@@ -87,23 +75,17 @@ class Tracker:
         duration: seconds from phase 0 to 1 (past it the last point is held).
         blend: the offset's decay rate (1/s; ``inf``: no offset).
         limiter: a :class:`~protorch.policy.limits.JerkLimiter` or ``None``.
-        order: 2: the offset carries position and velocity (the inline policy's: the reference's
-            acceleration steps where the plan changes); 3: also acceleration (:func:`decay3_np`:
-            position, velocity and acceleration continuous, the jerk of a jump bounded).
     """
 
     def __init__(self, phi_ms: np.ndarray, centers: np.ndarray, width: float, duration: float, blend: float,
-                 limiter=None, order: int = 2) -> None:
-        if order not in (2, 3):
-            raise ValueError(f"order must be 2 or 3, got {order!r}")
-        self.order = order
+                 limiter=None) -> None:
         self.phi_ms, self.centers, self.width = phi_ms, centers, float(width)
         self.duration, self.blend = float(duration), float(blend)
         self.scale = np.array([1.0, 1.0 / duration, 1.0 / duration ** 2])[:, None]  # (3, 1)
         self.phi_end = basis3_np(centers, width, 1.0)
         self.phi_end[1:] = 0.0  # held: no velocity, no acceleration
         self.limiter = limiter
-        self._at_jump = None if not math.isfinite(blend) else decay_np(blend, 0.0) if order == 2 else np.eye(3)
+        self._at_jump = decay_np(blend, 0.0) if math.isfinite(blend) else None  # (3, 2)
         self._decays: dict = {}
         self.reset()
 
@@ -129,7 +111,7 @@ class Tracker:
         if hit is None:
             if len(self._decays) >= 64:
                 self._decays.clear()
-            hit = self._decays[s] = decay_np(self.blend, s)[:2] if self.order == 2 else decay3_np(self.blend, s)
+            hit = self._decays[s] = decay_np(self.blend, s)[:2]
         return hit
 
     def step(self, t: float, plan: Plan, q: np.ndarray | None, qd: np.ndarray | None) -> np.ndarray:
@@ -139,15 +121,15 @@ class Tracker:
         phi = self.basis(t)  # (3, Kb)
         state = phi @ plan.W  # (3, D)
         if self._at_jump is not None:
-            jump, k = None, self.order
+            jump = None
             if self.plan is not None:
                 if plan is not self.plan:  # the mean's jump where the plan changed
-                    jump = phi[:k] @ (self.plan.W - plan.W)  # (k, D)
-            elif q is not None:  # start where the arm is (at rest where qd is not given; acceleration 0)
-                jump = np.stack([q, 0.0 * q if qd is None else qd, 0.0 * q][:k]) - state[:k]
+                    jump = phi[:2] @ (self.plan.W - plan.W)  # (2, D)
+            elif q is not None:  # start where the arm is (at rest where qd is not given)
+                jump = np.stack([q, 0.0 * q if qd is None else qd]) - state[:2]
             off = self.off
             if off is not None:
-                off = self._decay(t - self.t) @ off  # (k, D)
+                off = self._decay(t - self.t) @ off  # (2, D)
                 if jump is not None:
                     off += jump
             else:

@@ -149,6 +149,44 @@ def time_calls(policy, envs: torch.Tensor, kinds: list[str] | None = None) -> tu
     return ts, cpu, policy.means.misses - misses0
 
 
+def time_paced(policy, envs: torch.Tensor) -> tuple[list[float], list[float], list[float]]:
+    """:func:`time_calls` for ``planner="thread"``: the calls paced at 1 kHz (the loop sleeps to
+    the next millisecond, as a control loop waits for its next tick; the planner thread runs in
+    between), each motion's first plan made by ``reset(env)`` before its first tick. Wall-clock
+    and CPU seconds of each call and the age of the plan it tracked (``t - plan_t``, seconds)."""
+    period = int(round((policy.duration + 1.0) * 1000))
+    ts, cpu, ages, q = [], [], [], None
+    due = time.perf_counter()
+    for i in range(envs.shape[0]):
+        if i % period == 0:
+            policy.reset(envs[i])
+            q = None
+            due = time.perf_counter()
+        now = time.perf_counter()
+        if now < due:
+            time.sleep(due - now)
+        due = max(due + 1e-3, time.perf_counter())
+        t = (i % period) * 1e-3
+        COLLECTIONS.on = True
+        c0, t0 = time.thread_time(), time.perf_counter()
+        r = policy.reference(envs[i], t, q)
+        ts.append(time.perf_counter() - t0)
+        cpu.append(time.thread_time() - c0)
+        COLLECTIONS.on = False
+        ages.append(t - r.plan_t)
+        q = r.q
+    return ts, cpu, ages
+
+
+def print_ages(policy, ts: list[float], ages: list[float]) -> None:
+    """The plan's age (median, p99, max, in decision intervals) and the calls over 1 ms."""
+    a = [x / policy.decision_dt for x in ages]
+    print(f"  plan age in decision intervals ({policy.decision_dt * 1e3:g} ms): median {_percentile(a, 0.5):.2f}, "
+          f"p99 {_percentile(a, 0.99):.2f}, max {max(a):.2f}; plans made {policy._planner.plans}; "
+          f"calls over 1 ms: {sum(x > 1e-3 for x in ts)}; hand-overs by Ruckig: "
+          f"{policy._limiter.following if policy._limiter is not None else 0}")
+
+
 def print_kinds(ts: list[float], kinds: list[str]) -> None:
     """Wall-clock median / p90 / max and the calls over 1 ms by kind of call: light (no new neighbour
     set, no decision), solve (a new neighbour set solved), decision (the class chosen), both; and
@@ -169,8 +207,9 @@ def time_pieces(policy, envs: torch.Tensor) -> None:
     (the walk runs once more), their mean wall time per call and how many calls; the plan
     check's pieces only where the carried bounds (``ClearanceMemo``) did not pass the plan."""
     import protorch.control.arm_choice as ac
-    import protorch.control.policy as pm
-    from protorch.control.policy_means import ClassMeans
+    import protorch.policy.choice as pc
+    import protorch.policy.policy as pm
+    from protorch.policy.means import ClassMeans
 
     spent: dict[str, list[float]] = {}
 
@@ -185,7 +224,7 @@ def time_pieces(policy, envs: torch.Tensor) -> None:
         return f, run
 
     pieces = [(ClassMeans, "__call__", "every class's mean (new sets solved)"), (pm.Policy, "_scores", "the scores"),
-              (pm, "checked_choice", "the plan check (all of it)"), (ac, "rest_plan", "  the plan (rollout, mean after)"),
+              (pc, "checked_choice", "the plan check (all of it)"), (ac, "rest_plan", "  the plan (rollout, mean after)"),
               (ac, "capsule_ends", "  the capsules placed"), (ac, "capsules_clear", "  the capsules bounded")]
     saved = []
     for owner, name, label in pieces:
@@ -323,6 +362,10 @@ def main() -> None:
     ap.add_argument("--calls", type=int, default=10_000)
     ap.add_argument("--backends", default="torch,gpytorch,sparse")
     ap.add_argument("--kinds", default="moving,jumping")
+    ap.add_argument("--planner", default="thread,inline",
+                    help="thread (paced at 1 kHz, the planner beside the loop), inline (back to back), or both")
+    ap.add_argument("--switch-interval", type=float, default=None, metavar="S",
+                    help="sys.setswitchinterval(S) first (Python's default 0.005 s)")
     ap.add_argument("--check", default="run",
                     help="the class choice's plan check: run (the run's dynamic.check), or on,off (both, side by side)")
     ap.add_argument("--aoti", action="store_true",
@@ -335,15 +378,32 @@ def main() -> None:
                     help="also the continuity over this many switching episodes of the moving test")
     args = ap.parse_args()
     torch.set_num_threads(1)
+    if args.switch_interval is not None:
+        import sys
+
+        sys.setswitchinterval(args.switch_interval)
     COLLECTIONS.start()
     print(f"torch {torch.__version__}, 1 thread, run {args.run}")
     checks = [None] if args.check == "run" else [{"on": True, "off": False}[c] for c in args.check.split(",")]
-    for backend, check in [(b, c) for b in args.backends.split(",") for c in checks]:
+    runs = [(b, c, p) for b in args.backends.split(",") for c in checks for p in args.planner.split(",")]
+    for backend, check, planner in runs:
         t0 = time.perf_counter()
-        policy = protorch.load(args.run, backend=backend, **({} if check is None else {"check": check}))
+        policy = protorch.load(args.run, backend=backend, planner=planner,
+                               **({} if check is None else {"check": check}))
         load_s = time.perf_counter() - t0
-        print(f"backend {backend}, plan check {'on' if policy.check else 'off'}: map of {policy.env_map.num_points} "
-              f"environments, classes {policy.labels.tolist()}, load + warm-up {load_s:.2f} s")
+        print(f"backend {backend}, plan check {'on' if policy.check else 'off'}, planner {planner}: map of "
+              f"{policy.env_map.num_points} environments, classes {policy.labels.tolist()}, load + warm-up {load_s:.2f} s")
+        if planner == "thread":
+            for kind in args.kinds.split(","):
+                envs = environments(policy, args.calls, kind)
+                COLLECTIONS.seen.clear()
+                ts, cpu, ages = time_paced(policy, envs)
+                print_times(kind, ts, cpu)
+                print(f"  {kind:8s} garbage collections within the calls: {COLLECTIONS.summary()}; load average "
+                      f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+                print_ages(policy, ts, ages)
+            policy.close()
+            continue
         for kind in args.kinds.split(","):
             envs = environments(policy, args.calls, kind)
             policy.reset()

@@ -8,8 +8,8 @@ tell contract (:data:`OPTIMIZERS` by name); :class:`ProtorchError`, the base of 
 (:func:`self_improve`).
 """
 
-from .control.policy import Policy, Reference
-from .experiments.policy_run import load_policy
+from .policy import Policy, Reference
+from .policy.load import load_policy
 from .data.checkpoint import save_model
 from .data.dataset import TrajectoryDataset
 from .data.files import CheckpointError
@@ -40,7 +40,8 @@ def load(run, *, device=None, dtype=None, backend: str | None = None, warm_up: b
     """A trained run as a :class:`Policy` (an :class:`EnvToProMP` that also gives references for a
     control loop): ``run`` is a run folder (its ``config.yaml`` rebuilds the task through the
     experiment's own builder), its ``checkpoint`` folder or the ``.safetensors`` file (the map
-    alone). See :func:`protorch.experiments.policy_run.load_policy`."""
+    alone); ``planner="thread"`` for a control loop (the class choice on a thread beside it).
+    Imports neither Hydra nor OmegaConf. See :func:`protorch.policy.load.load_policy`."""
     return load_policy(run, device=device, dtype=dtype, backend=backend, warm_up=warm_up, **options)
 
 

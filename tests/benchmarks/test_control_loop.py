@@ -40,8 +40,8 @@ def test_each_timed_call_is_sorted_by_what_it_did():
 def test_the_pieces_are_timed_and_the_timers_removed(capsys):
     """time_pieces wraps the decision's pieces in timers for one walk and puts them back."""
     import protorch.control.arm_choice as ac
-    from protorch.control.policy import Policy
-    from protorch.control.policy_means import ClassMeans
+    from protorch.policy.policy import Policy
+    from protorch.policy.means import ClassMeans
     from tests.control.test_policy import toy_policy
 
     before = (ClassMeans.__call__, Policy._scores, ac.rest_plan)

@@ -1,4 +1,4 @@
-"""The policy object (protorch.control.policy): the reference equals the map's label-aware mean at
+"""The policy object (protorch.policy.policy): the reference equals the map's label-aware mean at
 a fixed environment, the fast means equal the map's, the reference stays continuous when the
 environment jumps, bad input is refused, run folders are read or refused, and the exported program
 runs without protorch and equals policy.reference."""
@@ -19,8 +19,9 @@ import torch
 
 from protorch import ProMP
 from protorch.control.episodes import promp_state_at
-from protorch.control.policy import ClassMeans, Policy
-from protorch.control.policy_means import MAX_RANK
+from protorch.policy.means import ClassMeans
+from protorch.policy.policy import Policy
+from protorch.policy.means import MAX_RANK
 from protorch.gp import make_env_map
 from protorch.gp.model import label_aware_mean
 
@@ -130,7 +131,7 @@ def test_loading_collects_the_garbage_so_that_a_call_does_not():
 
 
 def test_the_fast_end_effector_equals_the_kinematics():
-    from protorch.control.policy_means import EndEffector
+    from protorch.policy.means import EndEffector
     from protorch.tasks.arm.reach import ArmReachTask
 
     kin = ArmReachTask().kinematics

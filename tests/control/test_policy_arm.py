@@ -14,8 +14,8 @@ import torch
 
 import protorch
 from protorch.control.arm import run_arm_episodes
-from protorch.control.policy import Policy
 from protorch.gp import make_env_map
+from protorch.policy.policy import Policy
 from protorch.tasks.arm.reach import LEFT, RIGHT, ArmReachTask
 
 from .test_policy import check_export
@@ -242,3 +242,49 @@ def test_load_gives_a_point_particle_run_as_a_policy(tmp_path):
             torch.testing.assert_close(r.q, pos, rtol=0, atol=1e-12)
             torch.testing.assert_close(r.qd, dpos / pol.duration if t < pol.duration else 0 * pos, rtol=0, atol=1e-12)
     check_export(pol, tmp_path, envs, calls=200)
+
+
+def test_the_threaded_reference_keeps_the_robots_limits_through_the_moving_tests_switches(policy):
+    """The moving test's episodes (the can crossing the arm's path, switches included) replayed at
+    1 kHz through ``planner="thread"`` with a plan made every 5 ms on the inputs of that tick (the
+    planner thread's rhythm, made deterministic here): between consecutive ticks the velocity,
+    acceleration and jerk stay within the Panda's published limits (a class switch's offset asks for
+    more acceleration than joint 2's 7.5 rad/s^2: Ruckig's hand-overs to the new plan's motion take
+    over there), the reference never jumps and is back on the plan by the end of the hold."""
+    task = policy.task
+    res = run_arm_episodes(policy, task, task.sample_envs(6, torch.Generator().manual_seed(1)),
+                           generator=torch.Generator().manual_seed(2), duration=policy.duration, hold=0.3, dt=0.02,
+                           switch_margin=policy.switch_margin, switch_clearance=policy.switch_clearance)
+    assert int(res.switches.sum()) >= 1
+    pol = Policy(policy._P, policy.env_map, "arm_reach", task=task, duration=policy.duration,
+                 switch_margin=policy.switch_margin, decision_dt=0.02,
+                 switch_clearance=policy.switch_clearance, planner="thread", plan_period=1e6, warm_up=False,
+                 limits=True)
+    lim = pol._limiter
+    vmax, amax, jmax = lim.vmax, lim.amax, lim.jmax
+    np.testing.assert_array_equal(vmax, [2.175] * 4 + [2.61] * 3)
+    np.testing.assert_array_equal(jmax, [7500.0] * 7)
+    per = round(res.dt * 1000)
+    worst, switches = np.zeros(3), 0
+    for e in torch.nonzero(res.switches > 0).flatten()[:1].tolist():  # the first episode with a switch
+        pol.reset(res.envs[e, 0], res.q[e, 0], res.qd[e, 0])
+        states, labels = [], []
+        for i in range((res.q.shape[1] - 1) * per + 1):
+            s, t = i // per, i * 1e-3
+            env, q, qd = res.envs[e, s], res.q[e, s], res.qd[e, s]
+            if i and i % 5 == 0:
+                with pol._planner.lock:
+                    pol._planner.plan = pol._plan(pol._motion, env.numpy(), t, q.numpy(), qd.numpy())
+            r = pol.reference(env, t, q, qd)
+            states.append(torch.stack([r.q, r.qd, r.qdd]).numpy())
+            labels.append(r.label)
+        x = np.stack(states)  # (T, 3, D)
+        switches += int((np.diff(labels) != 0).sum())
+        jerk = np.abs(np.diff(x[:, 2], axis=0)) / 1e-3
+        worst = np.maximum(worst, [(np.abs(x[:, 1]) / vmax).max(), (np.abs(x[:, 2]) / amax).max(), (jerk / jmax).max()])
+        assert np.abs(np.diff(x[:, 0], axis=0)).max() <= np.abs(x[:, 1]).max() * 1e-3 * 1.01 + 1e-12
+        end = pol._tracker.phi_end @ pol._tracker.plan.W  # (3, D) the last plan's mean, held
+        assert np.abs(x[-1, 0] - end[0]).max() < 1e-4  # back on the plan by the end of the hold
+    assert switches >= 1
+    assert (worst <= 1 + 1e-9).all(), worst
+    assert lim.failed == 0

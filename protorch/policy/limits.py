@@ -1,0 +1,189 @@
+"""The robot's joint limits at every tick of a reference: velocity, acceleration and jerk
+(:class:`JerkLimiter`, Ruckig's online trajectory generation for the hand-over).
+
+A policy's reference is the chosen class's mean plus a continuity offset. Where the plan changes
+(a class switch, an environment jump, the first call) the offset keeps position and velocity
+continuous, but its acceleration steps, and a step of acceleration is an unbounded jerk; a mean
+that ends its motion steps its velocity to 0. :class:`JerkLimiter` passes the wanted state
+through while the step from the last output is within the limits, and otherwise follows it with
+Ruckig (time-optimal, jerk-limited trajectories between two kinematic states, Berscheid and
+Kroeger 2021): from the last output to the wanted state, sampled one interval later, until the
+wanted state is reached within one interval; from there on the wanted state is passed through
+again.
+
+The limits hold between consecutive outputs: ``|qd| <= max_velocity``, ``|qdd| <=
+max_acceleration`` and ``|qdd_t - qdd_{t-dt}| <= max_jerk dt`` per joint (to Ruckig's own
+tolerance, about 1e-9 relative), provided the wanted state's velocity and acceleration are
+within the limits where it is passed through (where they are not, Ruckig follows it with its
+target clipped to the limits).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["PANDA_LIMITS", "JerkLimiter", "robot_limits"]
+
+# Franka's published joint limits of the Panda (rad/s, rad/s^2, rad/s^3)
+PANDA_LIMITS = {
+    "max_velocity": (2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61),
+    "max_acceleration": (15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0),
+    "max_jerk": (7500.0,) * 7,
+}
+DEFAULT_JERK = 7500.0  # rad/s^3 per joint where a robot states none (Franka's, of the same order as KUKA's)
+
+
+def robot_limits(robot, dof: int, *, max_velocity=None, max_acceleration=None, max_jerk=None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(max_velocity, max_acceleration, max_jerk)``, each ``(dof,)`` float64: the arguments
+    where given (a number or one per joint), else the robot's ``max_velocity``,
+    ``max_acceleration``, ``max_jerk`` (a robot without ``max_jerk``: :data:`DEFAULT_JERK`).
+    Raises ``ValueError`` for a limit that is missing, of the wrong size or not > 0."""
+    out = []
+    for name, given in (("max_velocity", max_velocity), ("max_acceleration", max_acceleration),
+                        ("max_jerk", max_jerk)):
+        v = given if given is not None else getattr(robot, name, None)
+        if v is None and name == "max_jerk":
+            v = DEFAULT_JERK
+        if v is None:
+            raise ValueError(f"{name}: the robot states none; pass {name}=")
+        a = np.broadcast_to(np.asarray(v, dtype=np.float64), (dof,)).copy() if np.ndim(v) == 0 \
+            else np.asarray(v, dtype=np.float64)
+        if a.shape != (dof,) or not (np.isfinite(a).all() and (a > 0).all()):
+            raise ValueError(f"{name} must be a number or {dof} numbers, each finite and > 0, got {v!r}")
+        out.append(a)
+    return out[0], out[1], out[2]
+
+
+class JerkLimiter:
+    """A wanted state ``(3, D)`` (position, velocity, acceleration) per tick -> the state sent
+    ``(3, D)``, within the limits (module docstring). ``max_velocity``, ``max_acceleration``,
+    ``max_jerk``: ``(D,)``. :meth:`reset` before a new motion; :attr:`following` counts the ticks
+    Ruckig computed, :attr:`failed` those where Ruckig found no trajectory (the wanted state is
+    then sent, clipped to the velocity and acceleration limits)."""
+
+    def __init__(self, max_velocity, max_acceleration, max_jerk) -> None:
+        from ruckig import InputParameter, Ruckig, Trajectory
+
+        self.vmax = np.asarray(max_velocity, dtype=np.float64)  # (D,)
+        self.amax = np.asarray(max_acceleration, dtype=np.float64)  # (D,)
+        self.jmax = np.asarray(max_jerk, dtype=np.float64)  # (D,)
+        d = self.vmax.shape[0]
+        if self.amax.shape != (d,) or self.jmax.shape != (d,):
+            raise ValueError(f"the limits must have one value per joint: {self.vmax.shape}, {self.amax.shape}, "
+                             f"{self.jmax.shape}")
+        self._otg, self._inp, self._traj = Ruckig(d), InputParameter(d), Trajectory(d)
+        self._inp.max_velocity = self.vmax.tolist()
+        self._inp.max_acceleration = self.amax.tolist()
+        self._inp.max_jerk = self.jmax.tolist()
+        self.following = self.failed = 0
+        self._tests: dict = {}  # dt -> the step's tests (_within)
+        self.reset()
+
+    def reset(self) -> None:
+        """A new motion: the next state is taken as it is wanted (its acceleration clipped)."""
+        self.last: np.ndarray | None = None  # (3, D) the last state sent
+        self._join: float | None = None  # the duration of the hand-over trajectory followed now
+        self._elapsed = 0.0  # seconds into it
+
+    def step(self, want: np.ndarray, dt: float, future, changed: bool = False) -> np.ndarray:
+        """The state to send ``dt`` seconds after the last one (``want (3, D)``; a new array).
+        ``future(s)``: the wanted state ``s`` seconds after the last one, ``(3, D)``, where a
+        hand-over meets it; ``changed``: the wanted motion is a new one (a hand-over under way
+        is planned afresh)."""
+        last = self.last
+        if last is None:
+            out = want.copy()
+            np.clip(out[1], -self.vmax, self.vmax, out=out[1])
+            np.clip(out[2], -self.amax, self.amax, out=out[2])
+            self.last, self._join = out, None
+            return out.copy()
+        if dt <= 0.0:
+            return last.copy()
+        if self._join is not None and changed:
+            self._join = None
+        if self._join is not None:  # on a hand-over trajectory: follow it to its end
+            self._elapsed += dt
+            if self._elapsed < self._join - 1e-12:
+                self.last = out = np.array(self._traj.at_time(self._elapsed))  # (3, D)
+                return out.copy()
+            self._join = None
+        if self._within(last, want, dt):
+            self.last = out = want.copy()
+            return out.copy()
+        self.last = out = self._start(last, want, dt, future)
+        return out.copy()
+
+    def _within(self, last: np.ndarray, want: np.ndarray, dt: float) -> bool:
+        """Whether ``want`` follows ``last`` within the limits: velocity and acceleration within
+        theirs, the acceleration's change within ``max_jerk dt``, and position and velocity where
+        a constant jerk over ``dt`` takes them (within what ``max_jerk`` moves them over ``dt``).
+        All five are linear in ``(last, want)``: one product with a matrix kept per ``dt``."""
+        hit = self._tests.get(dt)
+        if hit is None:
+            if len(self._tests) >= 64:
+                self._tests.clear()
+            h = dt * dt
+            M = np.array([[0, 0, -1, 0, 0, 1],  # the change of acceleration
+                          [0, 0, 0, 0, 1, 0],  # the velocity
+                          [0, 0, 0, 0, 0, 1],  # the acceleration
+                          [0, -1, -dt / 2, 0, 1, -dt / 2],  # velocity off a constant jerk's
+                          [-1, -dt, -h / 3, 1, 0, -h / 6]], dtype=np.float64)  # position off it
+            j = self.jmax
+            bound = np.stack([j * dt, self.vmax, self.amax, j * h / 2, j * h * dt / 6])  # (5, D)
+            hit = self._tests[dt] = (M, bound)
+        M, bound = hit
+        return bool((np.abs(M @ np.concatenate([last, want])) <= bound).all())
+
+    def _start(self, last: np.ndarray, want: np.ndarray, dt: float, future) -> np.ndarray:
+        """A hand-over trajectory from ``last`` to the wanted motion (``future``), meeting it at
+        the first time it can (every joint at once, Ruckig's time synchronisation), its state
+        ``dt`` in."""
+        from ruckig import Result
+
+        self.following += 1
+        inp = self._inp
+        inp.current_position, inp.current_velocity, inp.current_acceleration = last.tolist()
+        ahead, res = dt, None
+        for _ in range(16):  # the first meeting time T at which the wanted state at T can be reached by T
+            inp.minimum_duration = None
+            res = self._toward(future(ahead))
+            if res is None or self._traj.duration <= ahead:
+                break
+            ahead = max(self._traj.duration, 1.2 * ahead)
+        if res is not None:
+            inp.minimum_duration = ahead  # meet it exactly then (every joint at once)
+            res = self._toward(future(ahead))
+        if res not in (Result.Working, Result.Finished):
+            self.failed += 1
+            out = want.copy()
+            np.clip(out[1], -self.vmax, self.vmax, out=out[1])
+            np.clip(out[2], -self.amax, self.amax, out=out[2])
+            return out
+        self._join, self._elapsed = self._traj.duration, dt
+        if dt >= self._join:
+            self._join = None
+            return np.array(self._traj.at_time(self._traj.duration))
+        return np.array(self._traj.at_time(dt))  # (3, D)
+
+    def _toward(self, target: np.ndarray):
+        """Ruckig's trajectory from the input's current state to ``target (3, D)`` (its velocity
+        and acceleration clipped to the limits; where its acceleration cannot be held at its
+        velocity, acceleration 0): the result, or ``None``."""
+        inp = self._inp
+        inp.target_position = target[0].tolist()
+        inp.target_velocity = np.clip(target[1], -self.vmax, self.vmax).tolist()
+        inp.target_acceleration = np.clip(target[2], -self.amax, self.amax).tolist()
+        res = self._calculate()
+        if res is None:
+            inp.target_acceleration = [0.0] * len(self.amax)
+            res = self._calculate()
+        return res
+
+    def _calculate(self):
+        from ruckig import RuckigError
+
+        try:
+            return self._otg.calculate(self._inp, self._traj)
+        except RuckigError:  # a target state that leaves the limits whatever is done
+            return None

@@ -2,7 +2,9 @@
 
 - no import cycle between protorch's modules, and no protorch import inside a function (such an
   import is how a cycle is usually hidden, so it counts as one);
-- no module over 400 lines, no function over 80 lines (its docstring excluded);
+- no module over 700 lines, no function over 120 lines (its docstring excluded), as ruff format
+  lays them out: hard ceilings. 400 lines a module is a prompt in review (``python
+  tests/test_layout.py`` lists the modules past it), not a target to meet with long lines;
 - no private name (``_x``) imported from another module;
 - no project history in docstrings.
 
@@ -17,8 +19,9 @@ import sys
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "protorch"
-MAX_MODULE_LINES = 400
-MAX_FUNCTION_LINES = 80
+MAX_MODULE_LINES = 700
+MAX_FUNCTION_LINES = 120
+REVIEW_MODULE_LINES = 400
 HISTORY = re.compile(r"\b(teammate|as before|previously|used to|no longer|was changed|this session)\b", re.I)
 
 
@@ -158,11 +161,11 @@ def test_no_private_names_imported_across_modules():
     _check("private_imports")
 
 
-def test_modules_at_most_400_lines():
+def test_modules_at_most_700_lines():
     _check("long_modules")
 
 
-def test_functions_at_most_80_lines():
+def test_functions_at_most_120_lines():
     _check("long_functions")
 
 
@@ -171,12 +174,13 @@ def test_no_project_history_in_docstrings():
 
 
 def test_the_checker_finds_a_cycle_and_a_long_function(tmp_path):
-    """The checker itself: a two-module cycle and an 81-line function are found."""
+    """The checker itself: a two-module cycle and a too-long function are found."""
     tree_a = ast.parse("from protorch.b import x\n")
-    tree_b = ast.parse("from .a import y\n" + "def f():\n" + "    z = 1\n" * 81)
+    too_long = MAX_FUNCTION_LINES + 1
+    tree_b = ast.parse("from .a import y\n" + "def f():\n" + "    z = 1\n" * too_long)
     mods = {"protorch.a": (PACKAGE / "a.py", tree_a), "protorch.b": (PACKAGE / "b.py", tree_b)}
     assert cycles(mods, imports(mods)) == [["protorch.a", "protorch.b"]]
-    assert [length for _, _, length in function_lengths(tree_b)] == [81]
+    assert [length for _, _, length in function_lengths(tree_b)] == [too_long]
 
 
 if __name__ == "__main__":
@@ -186,4 +190,9 @@ if __name__ == "__main__":
         for item in items:
             print(f"  {item}")
         total += len(items)
+    review = [(len(p.read_text().splitlines()), n) for n, (p, _) in modules().items()]
+    review = sorted((r for r in review if r[0] > REVIEW_MODULE_LINES), reverse=True)
+    print(f"modules past {REVIEW_MODULE_LINES} lines (to split when next touched): {len(review)}")
+    for n, name in review:
+        print(f"  {name}: {n}")
     sys.exit(1 if total else 0)

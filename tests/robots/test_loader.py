@@ -96,20 +96,18 @@ def test_inertials_with_a_rotated_frame_are_rotated_into_the_link(tmp_path):
     (lambda a, p: {**a, "home": [0.0, "x", 0, 0, 0, 0]}, r"robot\.home has 'x' for joint 'shoulder_lift'"),
     (lambda a, p: {**a, "urdf": _write(p, user_arm_urdf(fixed=("wrist_1",)))}, r"robot\.end_link='tool0': the chain "
      r"of robot\.urdf=.* has 5 joints .*needs at least 6"),
-    (lambda a, p: {**a, "urdf": _write(p, user_arm_urdf().replace('velocity="2.0" ', ""))},
-     r"joint 'shoulder_pan' has no <limit velocity=\.\.\.> > 0; give robot\.max_velocity"),
     (lambda a, p: {**a, "max_acceleration": [1.0] * 3}, r"robot\.max_acceleration=\[.*\] must be a number or 6"),
     (lambda a, p: {**a, "damping": -1.0}, r"robot\.damping has -1\.0 for joint 'shoulder_pan'"),
     (lambda a, p: {**a, "colour": "red"}, r"robot\.colour is not a robot setting"),
     (lambda a, p: {**a, "base": "r2d2"}, r"robot\.base='r2d2' is not a shipped robot"),
-    (lambda a, p: {"urdf": a["urdf"], "home": a["home"]}, r"robot\.end_link must be set"),
+    (lambda a, p: {"home": a["home"]}, r"robot\.urdf must be set"),
     (lambda a, p: {**a, "capsules": {"nowhere": [{"a": [0, 0, 0], "b": [0, 0, 1], "radius": 0.1}]}},
      r"robot\.capsules has link 'nowhere', not on the chain"),
     (lambda a, p: {**a, "capsules": {"forearm": [{"a": [0, 0, 0], "b": [0, 0, 1], "radius": -1}]}},
      r"robot\.capsules\.forearm\[0\]=.* must be"),
     (lambda a, p: {**a, "urdf": _write(p, user_arm_urdf().replace('<cylinder radius="0.045" length="0.4"/>',
                                                                     '<mesh filename="forearm.stl"/>'))},
-     r"robot\.capsules=auto: .*link 'forearm'.*names the mesh 'forearm\.stl', which is not at"),
+     r"robot\.urdf=.*: link 'forearm' <mesh> 1 names the mesh 'forearm\.stl', which is not found"),
     (lambda a, p: {**a, "forearm_link": "elbow_link"}, r"robot\.forearm_link='elbow_link' is not a link"),
 ])
 def test_bad_input_is_one_line_naming_the_setting(arm, tmp_path, change, message):

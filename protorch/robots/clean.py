@@ -180,7 +180,7 @@ def _origin_matrix(el: ET.Element | None) -> np.ndarray:
     return out
 
 
-def _geometry_points(link: ET.Element) -> np.ndarray | None:
+def _geometry_points(link: ET.Element, vertices: Mapping[str, np.ndarray]) -> np.ndarray | None:
     """Points of the link's collision geometry (visual where it has none), link frame ``(n, 3)``."""
     pts = []
     for tag in ("collision", "visual"):
@@ -190,11 +190,9 @@ def _geometry_points(link: ET.Element) -> np.ndarray | None:
             if shape is None:
                 continue
             if shape.tag == "mesh":
-                try:
-                    mesh = load_mesh(shape.get("filename"))
-                except (ValueError, ImportError):
+                if shape.get("filename") not in vertices:
                     continue
-                p = np.asarray(mesh.vertices, float) * np.asarray(_floats(shape.get("scale"), 3, (1, 1, 1)))
+                p = vertices[shape.get("filename")] * np.asarray(_floats(shape.get("scale"), 3, (1, 1, 1)))
             elif shape.tag == "box":
                 half = np.asarray(_floats(shape.get("size"), 3, (0, 0, 0))) / 2
                 p = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * half
@@ -228,7 +226,8 @@ def _hull_inertia(points: np.ndarray, mass: float, com: np.ndarray) -> np.ndarra
     return inertia + mass * (float(d @ d) * np.eye(3) - np.outer(d, d))
 
 
-def _fix_inertias(root: ET.Element, balance: bool, where: str) -> tuple[list[str], list[str], bool]:
+def _fix_inertias(root: ET.Element, balance: bool, where: str, vertices: Mapping[str, np.ndarray]
+                  ) -> tuple[list[str], list[str], bool]:
     balanced, implausible, changed_any = [], [], False
     for link in root.iter("link"):
         el = link.find("inertial")
@@ -245,7 +244,7 @@ def _fix_inertias(root: ET.Element, balance: bool, where: str) -> tuple[list[str
             link.remove(el)  # a massless link has no inertial (MuJoCo refuses a zero inertia given explicitly)
             changed_any = True
             continue
-        pts = _geometry_points(link)
+        pts = _geometry_points(link, vertices)
         if pts is not None:
             dmax = float(np.linalg.norm(pts - frame[:3, 3], axis=1).max())
             if eig.max() > mass * dmax**2 * (1 + 1e-6):
@@ -282,7 +281,7 @@ def clean_urdf(path: str | Path, end_link: str, *, locked: Mapping[str, float] |
     if root.tag != "robot":
         raise CleanError(f"{where} is not a URDF: its root element is <{root.tag}>, expected <robot>")
     report: dict = {}
-    changed = body != raw
+    changed = "encoding" in raw[:len(raw) - len(body)]  # what pytorch_kinematics (lxml) refuses in a str
     dropped = _drop_unused(root)
     if dropped:
         report["ignored"] = dropped
@@ -321,18 +320,21 @@ def clean_urdf(path: str | Path, end_link: str, *, locked: Mapping[str, float] |
             report["continuous"][j.get("name")] = [lo, hi]
             changed = True
     report["meshes"], report["converted"] = 0, []
+    vertices: dict[str, np.ndarray] = {}  # every mesh read once: an unreadable one refused here, before any work
     for link in root.iter("link"):
         for i, mesh in enumerate(link.iter("mesh")):
             what = f"{where}: link {link.get('name')!r} <mesh> {i + 1}"
             src = resolve_mesh(mesh.get("filename") or "", path.parent, packages, what)
             out, converted = mujoco_mesh(src, what)
+            if str(out) not in vertices:
+                vertices[str(out)] = np.asarray(load_mesh(out, f"{what} ({src})").vertices, dtype=np.float64)
             report["meshes"] += 1
             if converted:
                 report["converted"].append(f"{src.name} -> {out}")
             if mesh.get("filename") != str(out):
                 mesh.set("filename", str(out))
                 changed = True
-    balanced, implausible, dropped_massless = _fix_inertias(root, balance, where)
+    balanced, implausible, dropped_massless = _fix_inertias(root, balance, where, vertices)
     report["balanced"], report["implausible"] = balanced, implausible
     if balanced:
         log.warning("%s: inertias balanced (A + B >= C violated): %s", where, ", ".join(balanced))

@@ -11,8 +11,8 @@ The Panda's numbers (``robot=panda``, unchanged) anchor the rule. Its hand, poin
 1. its size ``s_v = L / L_panda`` (``L``: the summed distances between consecutive frame origins
    from the second moving joint to the end link) sets the working height ``0.10 s_v`` and the
    can's height ``0.23 s_v``;
-2. the hand-down inverse kinematics (end link's ``z`` down; four hand yaws, the one reaching
-   the longest interval kept) from the joint limits' middle, continued from neighbour to
+2. the hand-down inverse kinematics (end link's ``z`` down; two hand yaws, 0 and 90 degrees, the one
+   reaching the longer interval kept) from the joint limits' middle, continued from neighbour to
    neighbour on a 1 cm lattice along ``+x`` at that height, measures the interval
    ``[r_min, r_max]`` the hand reaches (every link above the table, inside the limits);
 3. with ``s = r_max / 0.80``, the home at ``x_h = max(0.40 s, r_min + 0.11 s)`` (the Panda's
@@ -60,7 +60,7 @@ def _down(yaw: float, dtype) -> torch.Tensor:
     return torch.tensor([[c, s, 0.0], [s, -c, 0.0], [0.0, 0.0, -1.0]], dtype=dtype)  # z down, x at yaw
 
 
-def _sweep(kin, xs: torch.Tensor, z: float, rot: torch.Tensor, iters: int = 200) -> tuple[torch.Tensor, torch.Tensor]:
+def _sweep(kin, xs: torch.Tensor, z: float, rot: torch.Tensor, iters: int = 150) -> tuple[torch.Tensor, torch.Tensor]:
     """Hand-down IK at ``(x, 0, z)`` for each ``x`` ``(N,)``: ``(q (N, J), ok (N,))``."""
     kw = dict(dtype=kin.lower.dtype, device=kin.lower.device)
     n = xs.shape[0]
@@ -132,9 +132,9 @@ def measure_layout(kin, name: str = "the arm") -> dict:
     length = arm_length(kin)
     s_v = length / PANDA_LENGTH
     z = _HEIGHT * s_v
-    xs = torch.arange(0.02, max(1.6 * length, 0.3), 0.01, dtype=torch.float64)
+    xs = torch.arange(0.02, 1.1 * length + 0.1, 0.01, dtype=torch.float64)  # the hand reaches no farther than L
     best = None
-    for yaw in (0.0, math.pi / 2, math.pi, -math.pi / 2):
+    for yaw in (0.0, math.pi / 2):
         q, ok = _sweep(kin, xs, z, _down(yaw, dtype))
         lo, hi = _longest_run(ok)
         if best is None or hi - lo > best[1] - best[0]:

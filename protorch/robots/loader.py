@@ -21,7 +21,8 @@ The settings (``conf/robot/*.yaml``; docs/your_own_robot.md; every key optional 
                     geometry, :mod:`protorch.robots.capsules`), ``none``, or ``{link: [{a: [x, y, z], b:
                     [x, y, z], radius: r}, ...]}`` in the link frames (m)
 ``forearm_link``    a link whose capsules the volume objective reads besides those rigid with the
-                    end link (the Panda: link 5, which passes over the can); null: none
+                    end link (the Panda: link 5, which passes over the can); null: none; ``auto``
+                    (the default): the link the third moving joint from the end moves
 ``base_links``      links fixed to the table (no table check); ``auto``: the chain's links before
                     its first joint
 ``point_masses``    ``[{link, pos: [x, y, z], mass, inertia: [ixx, iyy, izz]}]``: bodies the URDF
@@ -49,6 +50,7 @@ A velocity or effort limit missing, not positive, or implausible (a velocity abo
 from __future__ import annotations
 
 import functools
+import json
 import logging
 import math
 import numbers
@@ -71,7 +73,7 @@ DEFAULT_EFFORT = 50.0  # N m: a joint's torque where the URDF gives none
 MAX_PLAUSIBLE_VELOCITY = 2 * math.pi  # rad/s: a revolution a second, beyond any arm's rating
 DEFAULTS = {"base": None, "name": None, "urdf": None, "end_link": None, "home": None, "max_velocity": None,
             "max_acceleration": 10.0, "max_torque": None, "damping": 1.0, "armature": 0.1, "capsules": "auto",
-            "forearm_link": None, "base_links": "auto", "point_masses": [], "packages": [], "locked": {},
+            "forearm_link": "auto", "base_links": "auto", "point_masses": [], "packages": [], "locked": {},
             "limits": {}, "balance_inertia": True}
 SETTINGS = {
     "base": "a shipped description (protorch/robots/<base>.yaml) the other keys override; null: none",
@@ -86,7 +88,8 @@ SETTINGS = {
     "armature": "rotor armature (kg m^2), a number or one per joint",
     "capsules": "collision volumes: auto (fitted to the URDF's <collision> geometry), none, or "
                 "{link: [{a: [x,y,z], b: [x,y,z], radius: r}]} in the link frames",
-    "forearm_link": "a link whose capsules the volume objective reads besides the end link's; null: none",
+    "forearm_link": "a link whose capsules the volume objective reads besides the end link's; null: none; auto: "
+                    "the link the third joint from the end moves (the Panda's link 5, the iiwa's link 5)",
     "base_links": "links fixed to the table (no table check); auto: the links before the first joint",
     "point_masses": "[{link, pos, mass, inertia: [ixx, iyy, izz]}]: bodies the URDF lacks (e.g. fingers)",
     "packages": "folders where package://NAME/... meshes are looked up (after the URDF's folders, ROS_PACKAGE_PATH)",
@@ -336,6 +339,25 @@ def load_robot(spec=None) -> Robot:
     where = f"robot.urdf={path}"
     if not path.is_file():
         raise RobotError(f"{where}: no such file")
+    stat = path.stat()
+    try:
+        key = json.dumps(cfg, sort_keys=True) + f"|{stat.st_mtime_ns}|{stat.st_size}"
+    except TypeError:  # a setting JSON cannot hold: refused below, not cached
+        key = None
+    if key is not None and key in _LOADED:
+        return _LOADED[key]
+    robot = _load(cfg, path, where)
+    if key is not None:
+        _LOADED[key] = robot
+        while len(_LOADED) > 16:
+            _LOADED.pop(next(iter(_LOADED)))
+    return robot
+
+
+_LOADED: dict[str, Robot] = {}  # load_robot's results by settings and file (a Robot is frozen)
+
+
+def _load(cfg: dict, path: Path, where: str) -> Robot:
     found: dict = {}
     root = _parse(path.read_text(), where)
     end_link, auto_end = _end_link(root, cfg["end_link"], where)
@@ -399,6 +421,7 @@ def load_robot(spec=None) -> Robot:
     home = cfg["home"]
     if home is None:
         home = _auto_home(text, end_link, found, where)
+        cfg = {**cfg, "home": list(home)}  # a worker reloading robot.settings gets this home, unmeasured
     if not isinstance(home, (list, tuple)) or len(home) != n:
         raise RobotError(f"robot.home={home!r} must be {n} joint angles (rad), one per joint {names}")
     home = tuple(_angle(v, i, names) for i, v in enumerate(home))
@@ -413,6 +436,10 @@ def load_robot(spec=None) -> Robot:
     if not isinstance(base_links, (list, tuple)) or any(b not in frame_names for b in base_links):
         raise RobotError(f"robot.base_links={base_links!r} must be auto or links of the chain {frame_names}")
     forearm = cfg["forearm_link"]
+    if forearm == "auto":  # the forearm: what the third joint from the end moves (wrist joints after it)
+        forearm = moving[-3].find("child").get("link")
+        forearm = forearm if forearm in capsules else None
+        found["forearm_link"] = forearm
     if forearm is not None and forearm not in frame_names:
         raise RobotError(f"robot.forearm_link={forearm!r} is not a link of the chain {frame_names}")
     name = cfg["name"] if cfg["name"] is not None else (root.get("name") or path.stem)

@@ -40,7 +40,7 @@ def test_a_users_arm_from_settings(arm):
     assert isinstance(robot, Robot) and robot.name == "my_arm" and robot.num_joints == 6
     assert robot.max_acceleration == (10.0,) * 6 and robot.damping == (1.0,) * 6  # the stated defaults
     assert robot.max_torque == (150.0, 150.0, 150.0, 30.0, 30.0, 30.0)  # the URDF's effort
-    assert robot.base_links == ("base_link",) and robot.forearm_link is None
+    assert robot.base_links == ("base_link",) and robot.forearm_link == "wrist_1_link"  # auto: what the third joint from the end moves
     check_inertials(robot)  # every moving link has its mass
     assert load_robot({**arm, "name": "Mine", "max_acceleration": [5.0] * 6, "capsules": "none"}).capsules == {}
     over = load_robot({**arm, "max_velocity": 1.5, "damping": [0.5] * 6})

@@ -21,7 +21,11 @@ ARMS = (("xArm 6", "xarm/xarm6_robot.urdf", None), ("KUKA iiwa", "kuka_iiwa/mode
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--png", default=None, help="write the frames of the three arms here")
+    parser.add_argument("--inertia", action="store_true", help="the joint-space inertia at home of pybullet's Panda: "
+                        "the file's inertials, repaired, and the shipped Panda's")
     args = parser.parse_args(argv)
+    if args.inertia:
+        return joint_inertia()
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
     import numpy as np
     import pybullet_data
@@ -58,6 +62,40 @@ def main(argv=None) -> None:
     if args.png:
         write_strip(args.png, frames, titles, "pybullet_data's arms, unedited, in protorch's MuJoCo scene")
         print(f"wrote {args.png}")
+
+
+def joint_inertia() -> None:
+    """The diagonal of MuJoCo's joint-space inertia ``M(q)`` at home (the controller's model) of
+    pybullet's Panda with its file's inertials on the chain, repaired, and of the shipped Panda."""
+    import dataclasses
+    import re
+    import xml.etree.ElementTree as ET
+
+    import mujoco
+    import numpy as np
+    import pybullet_data
+
+    from protorch.robots import load_robot
+    from protorch.robots.loader import urdf_inertials
+    from protorch.sim.scene import controller_model
+    from protorch.tasks import ArmReachTask
+
+    def diagonal(robot):
+        model = controller_model(ArmReachTask(robot=robot, collision="volume"))
+        data = mujoco.MjData(model)
+        data.qpos[:] = robot.home
+        mujoco.mj_forward(model, data)
+        full = np.zeros((model.nv, model.nv))
+        mujoco.mj_fullM(model, data, full)
+        return np.round(np.diag(full), 4).tolist()
+
+    path = f"{pybullet_data.getDataPath()}/franka_panda/panda.urdf"
+    fixed = load_robot({"urdf": path, "end_link": "panda_grasptarget"})
+    text = re.sub(r"^\s*<\?xml[^>]*\?>", "", open(path).read())
+    as_is = dataclasses.replace(fixed, inertials={k: v for k, v in urdf_inertials(ET.fromstring(text)).items()
+                                                  if v.mass > 0})
+    for label, robot in (("the file's inertials", as_is), ("repaired", fixed), ("shipped Panda", load_robot("panda"))):
+        print(f"{label}: M(home) diagonal {diagonal(robot)} kg m^2, effort {list(robot.max_torque)} N m")
 
 
 if __name__ == "__main__":

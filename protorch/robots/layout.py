@@ -9,8 +9,10 @@ The Panda's numbers (``robot=panda``, unchanged) anchor the rule. Its hand, poin
 ``[0.2, 0.9] x [-0.5, 0.5]``, the can 0.0375 m in radius and 0.23 m high. For another arm:
 
 1. its size ``s_v = L / L_panda`` (``L``: the summed distances between consecutive frame origins
-   from the second moving joint to the end link) sets the working height ``0.10 s_v`` and the
-   can's height ``0.23 s_v``;
+   from the second moving joint to the end link) sets the working height ``0.10 s_v``; the can's
+   height is the Panda's 0.23 m times the ratio of the wrists' heights at home (the frame the
+   second-to-last joint moves; the Panda's 0.3104 m), so that the wrist passes over the can as
+   the Panda's does;
 2. the hand-down inverse kinematics (end link's ``z`` down; two hand yaws, 0 and 90 degrees, the one
    reaching the longer interval kept) from the joint limits' middle, continued from neighbour to
    neighbour on a 1 cm lattice along ``+x`` at that height, measures the interval
@@ -33,6 +35,7 @@ __all__ = ["auto_workspace", "hand_down_layout", "measure_layout", "arm_length",
 
 PANDA_REACH = (0.29, 0.80)  # m, the Panda's hand-down reach at 0.10 m by this module's rule (its 1 cm lattice)
 PANDA_LENGTH = 1.0897  # m, the Panda's L (module docstring), measured on protorch/robots/panda.urdf
+PANDA_WRIST = 0.3104  # m, the Panda's wrist (the frame its second-to-last joint moves) above the table at home
 _HEIGHT, _CAN_HEIGHT, _CAN_RADIUS = 0.10, 0.23, 0.0375
 _HOME_X, _CAN_X, _GOAL_X, _TABLE_X = 0.40, (0.50, 0.62), (0.66, 0.74), (0.2, 0.9)
 _CAN_Y, _GOAL_Y, _TABLE_Y = 0.12, 0.24, 0.5
@@ -118,9 +121,10 @@ def hand_down_layout(kin, name: str = "the arm") -> dict:
 
 @functools.lru_cache(maxsize=8)
 def _cached(text: str, end_link: str, name: str) -> dict:
+    from ..threads import torch_threads
     from .kinematics import ArmKinematics
 
-    with torch.no_grad():
+    with torch.no_grad(), torch_threads(1):  # small batches: one thread (several only wait on each other)
         return measure_layout(ArmKinematics(text, end_link=end_link), name)
 
 
@@ -157,11 +161,13 @@ def measure_layout(kin, name: str = "the arm") -> dict:
     target = torch.tensor([[home_x, 0.0, z]], dtype=dtype, device=kin.lower.device)
     home, err = kin.inverse(target, q[i:i + 1].to(kin.lower.device), rotation=_down(yaw, dtype)[None].to(target),
                             rest=q[i].to(target), iters=300, tol=1e-9)
-    return {"scale": round(s_v, 4), "scale_xy": round(s_h, 4), "length": round(length, 4), "height": round(z, 4),
+    moving = [n for n in kin.frame_names[1:] if n in _moving_frames(kin)]
+    wrist = float(kin.link_positions(home[0])[kin.frame_names.index(moving[-2]), 2])
+    return {"wrist_height": round(wrist, 4), "scale": round(s_v, 4), "scale_xy": round(s_h, 4), "length": round(length, 4), "height": round(z, 4),
             "reach": [round(r0, 4), round(r1, 4)], "yaw": yaw, "home": [float(v) for v in home[0].tolist()],
             "home_target": [home_x, 0.0, round(z, 4)], "home_residual": float(err[0]),
             "home_seed": "the joint limits' middle, continued along the reach lattice",
             "can_box": [[at(_CAN_X[0]), at(_CAN_X[1])], [round(-_CAN_Y * s_h, 4), round(_CAN_Y * s_h, 4)]],
             "goal_box": [[at(_GOAL_X[0]), at(_GOAL_X[1])], [round(-_GOAL_Y * s_h, 4), round(_GOAL_Y * s_h, 4)]],
             "table": [[at(_TABLE_X[0]), at(_TABLE_X[1])], [round(-_TABLE_Y * s_h, 4), round(_TABLE_Y * s_h, 4)]],
-            "can_radius": round(_CAN_RADIUS * s_h, 4), "can_height": round(_CAN_HEIGHT * s_v, 4)}
+            "can_radius": round(_CAN_RADIUS * s_h, 4), "can_height": round(_CAN_HEIGHT * wrist / PANDA_WRIST, 4)}

@@ -84,7 +84,8 @@ class ArmReachTask(Task):
             environment is refused; ``min_separation``: between can, target and start. Each of
             these, ``can_radius``, ``can_height`` and ``reach`` may be ``"auto"`` (the default):
             the Panda's numbers for a shipped robot, for any other arm placed on its own reach
-            (:func:`protorch.robots.layout.hand_down_layout`).
+            (:func:`protorch.robots.layout.hand_down_layout`); ``reach`` alone ``"auto"`` (the
+            rest given) is the Panda's ``(0.30, 0.80)``.
         region: where :meth:`sample_envs` draws: ``"rectangles"`` (``can_box``, ``goal_box``) or
             ``"table"`` (the whole table, targets within ``reach``, the can clear of the start
             posture); ``reach``: ``(r_min, r_max)``, the targets' horizontal distance from the
@@ -163,7 +164,11 @@ class ArmReachTask(Task):
         self.layout = None
         if not any(isinstance(getattr(self, k), str) and getattr(self, k) == "auto" for k in keys):
             return
-        values, self.layout = auto_workspace(self.robot)
+        auto = {k for k in keys if isinstance(getattr(self, k), str) and getattr(self, k) == "auto"}
+        if auto == {"reach"}:  # the rest given: no measurement, the Panda's reach (read by region=table only)
+            values = {"reach": (0.30, 0.80)}
+        else:
+            values, self.layout = auto_workspace(self.robot)
         for k in keys:
             if isinstance(getattr(self, k), str) and getattr(self, k) == "auto":
                 setattr(self, k, values[k])

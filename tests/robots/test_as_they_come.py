@@ -263,3 +263,25 @@ def test_an_arm_that_cannot_hold_its_hand_down_is_refused(tmp_path):
     text = re.sub(r'lower="[^"]*" upper="[^"]*"', 'lower="-0.05" upper="0.05"', user_arm_urdf(scale=0.2))  # upright
     with pytest.raises(RobotError, match=r"holds its hand down .* over no interval of 10 cm"):
         load_robot({"urdf": str(_write(tmp_path, text))})
+
+
+@pytest.mark.slow
+def test_pybullet_arms_run_unedited():
+    """pybullet's own files (skipped without `pip install "protorch[arms]"`): the faults of the
+    issue, each found, and MuJoCo's scene of each arm with the chain's joints its only ones."""
+    pybullet_data = pytest.importorskip("pybullet_data")
+    pytest.importorskip("mujoco")
+    from protorch.sim.scene import build_scene
+    from protorch.tasks import ArmReachTask
+
+    root = pybullet_data.getDataPath()
+    xarm = load_robot({"urdf": f"{root}/xarm/xarm6_robot.urdf"})
+    assert xarm.end_link == "link6" and xarm.found["ignored"] == {"<gazebo>": 8, "<transmission>": 6}
+    assert xarm.found["balanced"] == ["link2", "link3"] and len(xarm.found["converted"]) == 6
+    panda = load_robot({"urdf": f"{root}/franka_panda/panda.urdf", "end_link": "panda_grasptarget"})
+    assert panda.found["locked"] == {"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0}
+    assert "panda_hand" in panda.found["implausible"]
+    for robot in (xarm, panda):
+        scene = build_scene(ArmReachTask(robot=robot, collision="volume"))
+        assert scene.model.nv == robot.num_joints
+        assert robot.found["home"]["residual"] < 1e-6

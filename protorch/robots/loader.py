@@ -443,6 +443,7 @@ def _load(cfg: dict, path: Path, where: str) -> Robot:
     if forearm is not None and forearm not in frame_names:
         raise RobotError(f"robot.forearm_link={forearm!r} is not a link of the chain {frame_names}")
     name = cfg["name"] if cfg["name"] is not None else (root.get("name") or path.stem)
+    _log_found(found, where)
     return Robot(name=str(name), urdf=path, end_link=end_link, joint_names=tuple(names), home=home,
                  lower=tuple(lower), upper=tuple(upper), max_velocity=velocity,
                  max_acceleration=_vec(cfg["max_acceleration"], n, "max_acceleration", names),
@@ -450,6 +451,23 @@ def _load(cfg: dict, path: Path, where: str) -> Robot:
                  armature=_vec(cfg["armature"], n, "armature", names, positive=False), capsules=capsules,
                  base_links=tuple(base_links), forearm_link=forearm, inertials=urdf_inertials(root),
                  point_masses=_point_masses(cfg["point_masses"], frame_names), settings=cfg, text=text, found=found)
+
+
+def _log_found(found: dict, where: str) -> None:
+    """One line of what was found (end link, home, forearm link, locked joints), where any was."""
+    parts = []
+    if "end_link" in found:
+        parts.append(f"end link {found['end_link']!r} (the leaf through the most moving joints)")
+    if "home" in found:
+        h = found["home"]
+        parts.append(f"home {[round(v, 4) for v in h['pose']]} (hand down at {h['target']}, IK residual "
+                     f"{h['residual']:.1e} m, from {h['seed']})")
+    if found.get("forearm_link"):
+        parts.append(f"forearm link {found['forearm_link']!r}")
+    if found.get("locked"):
+        parts.append(f"locked {found['locked']}")
+    if parts:
+        log.info("%s: found %s", where, "; ".join(parts))
 
 
 def _auto_home(text: str, end_link: str, found: dict, where: str) -> list[float]:

@@ -43,6 +43,7 @@ the two classes apart in the GP map.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
 
@@ -172,6 +173,10 @@ class ArmReachTask(Task):
         for k in keys:
             if isinstance(getattr(self, k), str) and getattr(self, k) == "auto":
                 setattr(self, k, values[k])
+        if self.layout is not None:
+            logging.getLogger(__name__).info(
+                "workspace auto for %s (its hand-down reach %s m at %.3f m): %s", self.robot.name, self.layout["reach"],
+                self.layout["height"], ", ".join(f"{k}={getattr(self, k)}" for k in sorted(auto)))
 
     # ---------------------------------------------------------------- sizes
     @property

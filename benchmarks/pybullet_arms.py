@@ -13,6 +13,7 @@ import argparse
 import json
 import logging
 import time
+from pathlib import Path
 
 ARMS = (("xArm 6", "xarm/xarm6_robot.urdf", None), ("KUKA iiwa", "kuka_iiwa/model.urdf", None),
         ("Panda", "franka_panda/panda.urdf", "panda_grasptarget"))
@@ -51,7 +52,7 @@ def main(argv=None) -> None:
                           "capsules": len(robot.capsule_list()), "found": found}))
         if args.png:
             scene = build_scene(task)
-            (x0, x1), (y0, y1) = task.goal_box
+            (_, x1), (_, y1) = task.goal_box
             can = np.array([[sum(task.can_box[0]) / 2, 0.0]] * 2)
             goal = np.array([[x1, y1], [x1, y1]])
             env = torch.tensor([[can[0, 0], can[0, 1], x1, y1]], dtype=torch.float64)
@@ -91,7 +92,7 @@ def joint_inertia() -> None:
 
     path = f"{pybullet_data.getDataPath()}/franka_panda/panda.urdf"
     fixed = load_robot({"urdf": path, "end_link": "panda_grasptarget"})
-    text = re.sub(r"^\s*<\?xml[^>]*\?>", "", open(path).read())
+    text = re.sub(r"^\s*<\?xml[^>]*\?>", "", Path(path).read_text())
     as_is = dataclasses.replace(fixed, inertials={k: v for k, v in urdf_inertials(ET.fromstring(text)).items()
                                                   if v.mass > 0})
     for label, robot in (("the file's inertials", as_is), ("repaired", fixed), ("shipped Panda", load_robot("panda"))):

@@ -34,16 +34,16 @@ import logging
 import math
 import re
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import numpy as np
 
 from .meshes import load_mesh, mujoco_mesh, resolve_mesh
 from .urdf import rpy_matrix
 
-__all__ = ["Cleaned", "clean_urdf", "urdf_chain", "end_link_candidates", "CleanError"]
+__all__ = ["CleanError", "Cleaned", "clean_urdf", "end_link_candidates", "urdf_chain"]
 
 log = logging.getLogger(__name__)
 
@@ -217,7 +217,7 @@ def _hull_inertia(points: np.ndarray, mass: float, com: np.ndarray) -> np.ndarra
 
     try:
         hull = trimesh.convex.convex_hull(points)
-    except Exception:  # a degenerate (flat) cloud
+    except Exception:  # noqa: BLE001 (qhull on a degenerate, flat cloud)
         return None
     if not hull.is_volume or hull.volume <= 0:
         return None

@@ -31,7 +31,7 @@ import math
 
 import torch
 
-__all__ = ["auto_workspace", "hand_down_layout", "measure_layout", "arm_length", "PANDA_REACH", "PANDA_LENGTH", "PANDA_LAYOUT"]
+__all__ = ["PANDA_LAYOUT", "PANDA_LENGTH", "PANDA_REACH", "arm_length", "auto_workspace", "hand_down_layout", "measure_layout"]
 
 PANDA_REACH = (0.29, 0.80)  # m, the Panda's hand-down reach at 0.10 m by this module's rule (its 1 cm lattice)
 PANDA_LENGTH = 1.0897  # m, the Panda's L (module docstring), measured on protorch/robots/panda.urdf

@@ -23,10 +23,10 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
-__all__ = ["resolve_mesh", "mujoco_mesh", "needs_conversion", "obj_objects", "cache_dir", "load_mesh"]
+__all__ = ["cache_dir", "load_mesh", "mujoco_mesh", "needs_conversion", "obj_objects", "resolve_mesh"]
 
 _MUJOCO_EXTS = {".stl", ".obj", ".msh"}
 _OBJECT_LINE = re.compile(rb"^[og]\s+\S", re.MULTILINE)
@@ -120,7 +120,7 @@ def load_mesh(path: str | Path, what: str = "a <mesh>"):
                           '"protorch[meshes]"') from None
     try:
         mesh = trimesh.load(str(path), force="mesh", process=False)
-    except Exception as exc:  # trimesh's readers raise many kinds
+    except Exception as exc:  # noqa: BLE001 (trimesh's readers raise many kinds)
         raise ValueError(f"{what}: the mesh {path} cannot be read: {type(exc).__name__}: {exc}") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.vertices) == 0 or len(mesh.faces) == 0:
         raise ValueError(f"{what}: the mesh {path} has no triangles")

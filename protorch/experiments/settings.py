@@ -360,12 +360,13 @@ class ArmReachTaskSettings:
                                              "null = 0.02 for the skeleton, 0.01 for the volumes", ge=0)
     goal_tol: float = setting(0.02, "success radius at the target (m)", gt=0)
     start_tol: float = setting(0.02, "success radius at the start (m)", gt=0)
-    can_radius: float = setting(0.0375, "the can's radius (m)", gt=0)
-    can_height: float = setting(0.23, "the can's height (m)", gt=0)
+    can_radius: typing.Any = setting("auto", "the can's radius (m); auto: the Panda's 0.0375, scaled to a custom arm")
+    can_height: typing.Any = setting("auto", "the can's height (m); auto: the Panda's 0.23, scaled to a custom arm")
     clearance: float = setting(0.2, "the 0.2 of the can objective max(-min_t ||p - can||, -0.2)", gt=0)
-    can_box: typing.Any = setting([[0.50, 0.62], [-0.12, 0.12]], "where the can is drawn: [[x_min, x_max], [y_min, y_max]] (m)")
-    goal_box: typing.Any = setting([[0.66, 0.74], [-0.24, 0.24]], "where the target is drawn; within the arm's reach")
-    table: typing.Any = setting([[0.2, 0.9], [-0.5, 0.5]], "the table top; an environment off it is refused")
+    can_box: typing.Any = setting("auto", "where the can is drawn: [[x_min, x_max], [y_min, y_max]] (m); auto: the "
+                                  "Panda's [[0.50, 0.62], [-0.12, 0.12]], placed on a custom arm's reach")
+    goal_box: typing.Any = setting("auto", "where the target is drawn; within the arm's reach (auto: as can_box)")
+    table: typing.Any = setting("auto", "the table top; an environment off it is refused (auto: as can_box)")
     deviation: str = setting("segment", "d of the objectives: distance to the segment s -> g, or to tau_direct(t)",
                              choices=("segment", "time"))
     collision: str = setting("volume", "the arm in planning and the success check: the robot's link capsules (as "

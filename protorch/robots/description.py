@@ -91,6 +91,8 @@ class Robot:
     inertials: Mapping[str, Inertial]
     point_masses: tuple[PointMass, ...] = ()
     settings: dict = field(default_factory=dict, compare=False, repr=False)
+    text: str | None = field(default=None, compare=False, repr=False)  # the cleaned URDF (protorch.robots.clean)
+    found: dict = field(default_factory=dict, compare=False, repr=False)  # what protorch found or defaulted
 
     @property
     def num_joints(self) -> int:
@@ -99,7 +101,9 @@ class Robot:
 
     @property
     def urdf_text(self) -> str:
-        return Path(self.urdf).read_text()
+        """The URDF as protorch reads it (:func:`~protorch.robots.clean.clean_urdf`: mesh paths
+        absolute, off-chain joints locked, ...); the file's own text where nothing needed it."""
+        return self.text if self.text is not None else Path(self.urdf).read_text()
 
     def capsule_list(self) -> tuple[Capsule, ...]:
         """Every capsule, link by link in the description's order."""
@@ -107,13 +111,19 @@ class Robot:
 
     def kinematics(self, dtype: torch.dtype = torch.float64, device=None):
         """The chain base -> end link (:class:`~protorch.robots.ArmKinematics`)."""
-        return ArmKinematics(self.urdf, end_link=self.end_link, dtype=dtype, device=device)
+        return ArmKinematics(self.urdf if self.text is None else self.text, end_link=self.end_link, dtype=dtype,
+                             device=device)
 
     def summary(self) -> dict:
-        """What ``metrics.json`` records of the robot: name, URDF, end link, joints, home."""
-        return {"name": self.name, "urdf": str(self.urdf), "end_link": self.end_link, "joints": self.num_joints,
-                "joint_names": list(self.joint_names), "home": list(self.home),
-                "capsules": len(self.capsule_list())}
+        """What ``metrics.json`` records of the robot: name, URDF, end link, joints, home, and
+        under ``found`` what protorch found or defaulted (end link, home, locked joints, balanced
+        or replaced inertias, converted meshes, ignored tags, limits; absent where nothing)."""
+        out = {"name": self.name, "urdf": str(self.urdf), "end_link": self.end_link, "joints": self.num_joints,
+               "joint_names": list(self.joint_names), "home": list(self.home),
+               "capsules": len(self.capsule_list())}
+        if self.found:
+            out["found"] = self.found
+        return out
 
 
 def capsule_index(frame_names: Sequence[str], capsules: Sequence[Capsule]) -> list[int]:

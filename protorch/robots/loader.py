@@ -21,21 +21,37 @@ The settings (``conf/robot/*.yaml``; docs/your_own_robot.md; every key optional 
                     geometry, :mod:`protorch.robots.capsules`), ``none``, or ``{link: [{a: [x, y, z], b:
                     [x, y, z], radius: r}, ...]}`` in the link frames (m)
 ``forearm_link``    a link whose capsules the volume objective reads besides those rigid with the
-                    end link (the Panda: link 5, which passes over the can); null: none
+                    end link (the Panda: link 5, which passes over the can); null: none; ``auto``
+                    (the default): the link the third moving joint from the end moves
 ``base_links``      links fixed to the table (no table check); ``auto``: the chain's links before
                     its first joint
 ``point_masses``    ``[{link, pos: [x, y, z], mass, inertia: [ixx, iyy, izz]}]``: bodies the URDF
                     lacks (the Panda's fingers)
+``packages``        folders where ``package://NAME/...`` meshes are looked up after the URDF's own
+                    folders and ``ROS_PACKAGE_PATH`` (:mod:`protorch.robots.meshes`)
+``locked``          ``{joint: value}``: joints off the chain held at a value other than 0
+``limits``          ``{joint: [lower, upper]}``: limits of ``continuous`` joints (default +-pi)
+``balance_inertia`` true: inertias violating ``A + B >= C`` are balanced with a warning; false:
+                    refused
 ==================  ============================================================================
 
-Limits the URDF lacks (a joint without ``<limit lower upper>``, without ``velocity`` or
-``effort``) and that no setting gives are refused with one line naming the joint and the
-setting that would give them.
+``end_link`` null: the leaf link reached through the most moving joints (refused, listing the
+candidates, where several tie). ``home`` null: found by the hand-down inverse kinematics
+(:func:`protorch.robots.layout.hand_down_layout`; the pose, residual and seed reported in
+:attr:`Robot.found`). The file is read as it comes (:func:`protorch.robots.clean.clean_urdf`:
+XML declaration, unused tags, off-chain joints, continuous joints, inertias, meshes).
+
+A joint without ``<limit lower upper>`` (other than ``continuous``) is refused naming the joint.
+A velocity or effort limit missing, not positive, or implausible (a velocity above
+:data:`MAX_PLAUSIBLE_VELOCITY`) that no setting gives is replaced by :data:`DEFAULT_VELOCITY` /
+:data:`DEFAULT_EFFORT` with a warning naming the joints (reported in :attr:`Robot.found`).
 """
 
 from __future__ import annotations
 
 import functools
+import json
+import logging
 import math
 import numbers
 import xml.etree.ElementTree as ET
@@ -44,15 +60,22 @@ from pathlib import Path
 from ..errors import ProtorchError
 from .description import Capsule, Inertial, PointMass, Robot
 from .capsules import fit_capsules
+from .clean import CleanError, clean_urdf, end_link_candidates, urdf_chain
 from .urdf import ROBOTS_DIR, collision_geometry, parse_urdf, rpy_matrix, shipped_yaml
+
+log = logging.getLogger(__name__)
 
 __all__ = ["RobotError", "ROBOTS_DIR", "SETTINGS", "DEFAULTS", "shipped_robots", "load_robot", "robot_settings",
            "urdf_inertials", "check_inertials", "auto_capsules", "MIN_JOINTS"]
 
 MIN_JOINTS = 6  # a hand-down pose at every point of the workspace needs six joints
+DEFAULT_VELOCITY = 2.0  # rad/s: a joint's speed where the URDF gives none (or an implausible one)
+DEFAULT_EFFORT = 50.0  # N m: a joint's torque where the URDF gives none
+MAX_PLAUSIBLE_VELOCITY = 2 * math.pi  # rad/s: a revolution a second, beyond any arm's rating
 DEFAULTS = {"base": None, "name": None, "urdf": None, "end_link": None, "home": None, "max_velocity": None,
             "max_acceleration": 10.0, "max_torque": None, "damping": 1.0, "armature": 0.1, "capsules": "auto",
-            "forearm_link": None, "base_links": "auto", "point_masses": []}
+            "forearm_link": "auto", "base_links": "auto", "point_masses": [], "packages": [], "locked": {},
+            "limits": {}, "balance_inertia": True}
 SETTINGS = {
     "base": "a shipped description (protorch/robots/<base>.yaml) the other keys override; null: none",
     "name": "display name (figure titles, metrics.json); null: the URDF's <robot name>",
@@ -66,9 +89,14 @@ SETTINGS = {
     "armature": "rotor armature (kg m^2), a number or one per joint",
     "capsules": "collision volumes: auto (fitted to the URDF's <collision> geometry), none, or "
                 "{link: [{a: [x,y,z], b: [x,y,z], radius: r}]} in the link frames",
-    "forearm_link": "a link whose capsules the volume objective reads besides the end link's; null: none",
+    "forearm_link": "a link whose capsules the volume objective reads besides the end link's; null: none; auto: "
+                    "the link the third joint from the end moves (the Panda's link 5, the iiwa's link 5)",
     "base_links": "links fixed to the table (no table check); auto: the links before the first joint",
     "point_masses": "[{link, pos, mass, inertia: [ixx, iyy, izz]}]: bodies the URDF lacks (e.g. fingers)",
+    "packages": "folders where package://NAME/... meshes are looked up (after the URDF's folders, ROS_PACKAGE_PATH)",
+    "locked": "{joint: value}: joints off the chain to the end link held there (default 0)",
+    "limits": "{joint: [lower, upper]}: limits of continuous joints (default [-pi, pi])",
+    "balance_inertia": "true: inertias violating A + B >= C balanced with a warning; false: refused",
 }
 
 
@@ -111,9 +139,9 @@ def robot_settings(spec=None) -> dict:
             raise RobotError(f"protorch/robots/{base}.yaml: {unknown[0]!r} is not a robot setting")
         out.update(shipped)
     out.update({k: v for k, v in spec.items() if v is not None and v != "???"})
-    for key in ("urdf", "end_link", "home"):
-        if out[key] is None:
-            raise RobotError(f"robot.{key} must be set (robot=custom needs robot.urdf, robot.end_link and robot.home)")
+    if out["urdf"] is None:
+        raise RobotError("robot.urdf must be set (robot=custom needs robot.urdf; robot.end_link and robot.home "
+                         "are found where not given)")
     if not isinstance(out["urdf"], (str, Path)):
         raise RobotError(f"robot.urdf={out['urdf']!r} must be a file path")
     out["urdf"] = str(Path(out["urdf"]).expanduser().resolve())
@@ -126,26 +154,6 @@ def _parse(text: str, where: str) -> ET.Element:
         return parse_urdf(text, where)
     except ValueError as exc:
         raise RobotError(str(exc)) from None
-
-
-def _chain(root: ET.Element, end_link: str, where: str) -> list[ET.Element]:
-    """The joints from the URDF's root link to ``end_link``, in order."""
-    links = [link.get("name") for link in root.iter("link")]
-    if end_link not in links:
-        raise RobotError(f"robot.end_link={end_link!r} is not a link of {where}; its links are {links}")
-    by_child = {}
-    for j in root.iter("joint"):
-        child = j.find("child")
-        if child is not None:
-            by_child[child.get("link")] = j
-    chain, link = [], end_link
-    while link in by_child:
-        j = by_child[link]
-        chain.append(j)
-        link = j.find("parent").get("link")
-        if len(chain) > len(by_child):
-            raise RobotError(f"{where}: the joints form a loop above {end_link!r}")
-    return chain[::-1]
 
 
 def _vec(value, n: int, key: str, names, *, positive: bool = True) -> tuple[float, ...]:
@@ -216,7 +224,7 @@ def check_inertials(robot: Robot) -> None:
     """Refuse, with one line naming the link, a robot whose moving links (the children of its
     joints) lack a mass and inertia: what the MuJoCo scene needs (before any work)."""
     root = _parse(robot.urdf_text, f"robot.urdf={robot.urdf}")
-    for j in _chain(root, robot.end_link, f"robot.urdf={robot.urdf}"):
+    for j in urdf_chain(root, robot.end_link):
         if j.get("type") == "fixed":
             continue
         link = j.find("child").get("link")
@@ -227,14 +235,19 @@ def check_inertials(robot: Robot) -> None:
                              "them to the URDF or set settings.physics.run=never")
 
 
-def auto_capsules(urdf: Path, links, where: str) -> dict[str, tuple[Capsule, ...]]:
+def auto_capsules(urdf: str | Path, links, where: str) -> dict[str, tuple[Capsule, ...]]:
     """Capsules fitted to the URDF's ``<collision>`` geometry of those ``links`` that have some
     (:func:`protorch.robots.capsules.fit_capsules`: cylinders, spheres, boxes and ``<capsule>``
     exactly, meshes with ``trimesh``); a geometry it cannot read is refused in one line naming the
-    link. Cached per URDF text: a robot loaded again reuses its fit."""
-    text = Path(urdf).read_text()
+    link. ``urdf``: a path, or a cleaned text (:func:`~protorch.robots.clean.clean_urdf`, its mesh
+    paths absolute). Cached per URDF text: a robot loaded again reuses its fit."""
+    if isinstance(urdf, Path) or not str(urdf).lstrip().startswith("<"):
+        source = str(urdf)
+        text = Path(urdf).read_text()
+    else:
+        source = text = str(urdf)
     return {link: tuple(Capsule(link, a, b, r) for a, b, r in caps)
-            for link, caps in _fit_cached(text, str(urdf), tuple(links), where).items()}
+            for link, caps in _fit_cached(text, source, tuple(links), where).items()}
 
 
 @functools.lru_cache(maxsize=16)
@@ -292,10 +305,34 @@ def _point_masses(value, frame_names) -> tuple[PointMass, ...]:
     return tuple(out)
 
 
+def _end_link(root: ET.Element, value, where: str) -> tuple[str, bool]:
+    """``(end link, found)``: the setting, or the one leaf reached through the most moving joints."""
+    if value is not None:
+        if not isinstance(value, str):
+            raise RobotError(f"robot.end_link={value!r} must be a link's name")
+        return value, False
+    cands = end_link_candidates(root)
+    if not cands:
+        raise RobotError(f"{where} has no leaf link to end the chain at; give robot.end_link")
+    top = [name for name, n in cands if n == cands[0][1]]
+    if len(top) > 1:
+        raise RobotError(f"robot.end_link is not set and {where} has {len(top)} leaf links reached through "
+                         f"{cands[0][1]} moving joints: {top}; give robot.end_link=LINK")
+    return top[0], True
+
+
+def _mapping(value, key: str, what: str) -> dict:
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise RobotError(f"robot.{key}={value!r} must be {what}")
+    return dict(value)
+
+
 def load_robot(spec=None) -> Robot:
     """The :class:`~protorch.robots.Robot` of ``spec``: ``None`` (the Panda), a shipped name, a
     dict of ``robot.*`` settings (module docstring) or a ``Robot`` (returned as it is). Every
-    bad input is a :class:`RobotError` of one line naming the setting."""
+    bad input is a :class:`RobotError` of one line naming the setting, before any work."""
     if isinstance(spec, Robot):
         return spec
     cfg = robot_settings(spec)
@@ -303,19 +340,66 @@ def load_robot(spec=None) -> Robot:
     where = f"robot.urdf={path}"
     if not path.is_file():
         raise RobotError(f"{where}: no such file")
-    text = path.read_text()
+    stat = path.stat()
+    try:
+        key = json.dumps(cfg, sort_keys=True) + f"|{stat.st_mtime_ns}|{stat.st_size}"
+    except TypeError:  # a setting JSON cannot hold: refused below, not cached
+        key = None
+    if key is not None and key in _LOADED:
+        return _LOADED[key]
+    robot = _load(cfg, path, where)
+    if key is not None:
+        _LOADED[key] = robot
+        while len(_LOADED) > 16:
+            _LOADED.pop(next(iter(_LOADED)))
+    return robot
+
+
+_LOADED: dict[str, Robot] = {}  # load_robot's results by settings and file (a Robot is frozen)
+
+
+def _load(cfg: dict, path: Path, where: str) -> Robot:
+    found: dict = {}
+    root = _parse(path.read_text(), where)
+    end_link, auto_end = _end_link(root, cfg["end_link"], where)
+    links = [link.get("name") for link in root.iter("link")]
+    if end_link not in links:
+        raise RobotError(f"robot.end_link={end_link!r} is not a link of {where}; its links are {links}")
+    if auto_end:
+        found["end_link"] = end_link
+    packages = cfg["packages"] or []
+    if isinstance(packages, (str, Path)) or not isinstance(packages, (list, tuple)):
+        raise RobotError(f"robot.packages={packages!r} must be a list of folders")
+    if not isinstance(cfg["balance_inertia"], bool):
+        raise RobotError(f"robot.balance_inertia={cfg['balance_inertia']!r} must be true or false")
+    limits = _mapping(cfg["limits"], "limits", "{joint: [lower, upper]}")
+    for name, lim in limits.items():
+        ok = isinstance(lim, (list, tuple)) and len(lim) == 2 and all(
+            isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v) for v in lim)
+        if not ok or not lim[0] < lim[1]:
+            raise RobotError(f"robot.limits.{name}={lim!r} must be [lower, upper] with lower < upper (rad)")
+    locked = _mapping(cfg["locked"], "locked", "{joint: value}")
+    for name, v in locked.items():
+        if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
+            raise RobotError(f"robot.locked.{name}={v!r} must be a number (rad, or m for a sliding joint)")
+    try:
+        cleaned = clean_urdf(path, end_link, locked=locked, limits=limits, packages=packages,
+                             balance=cfg["balance_inertia"], where=where)
+    except (CleanError, FileNotFoundError, ValueError, ImportError) as exc:
+        raise RobotError(str(exc).splitlines()[0]) from None
+    report = {k: v for k, v in cleaned.report.items() if v}
+    found.update(report)
+    text = cleaned.text
     root = _parse(text, where)
-    if not isinstance(cfg["end_link"], str):
-        raise RobotError(f"robot.end_link={cfg['end_link']!r} must be a link's name")
-    joints = _chain(root, cfg["end_link"], where)
+    joints = urdf_chain(root, end_link)
     moving = [j for j in joints if j.get("type") != "fixed"]
     kinds = sorted({j.get("type") for j in moving} - {"revolute"})
     if kinds:
-        raise RobotError(f"{where}: the chain to robot.end_link={cfg['end_link']!r} has {kinds[0]} joints; "
-                         "only revolute and fixed joints are supported")
+        raise RobotError(f"{where}: the chain to robot.end_link={end_link!r} has {kinds[0]} joints; "
+                         "only revolute, continuous and fixed joints are supported")
     names = [j.get("name") for j in moving]
     if len(names) < MIN_JOINTS:
-        raise RobotError(f"robot.end_link={cfg['end_link']!r}: the chain of {where} to it has {len(names)} joints "
+        raise RobotError(f"robot.end_link={end_link!r}: the chain of {where} to it has {len(names)} joints "
                          f"{names}; the arm experiment needs at least {MIN_JOINTS}")
     lower, upper, vel, eff = [], [], [], []
     for j in moving:
@@ -331,17 +415,21 @@ def load_robot(spec=None) -> Robot:
         vel.append(float(get("velocity")) if get("velocity") is not None else None)
         eff.append(float(get("effort")) if get("effort") is not None else None)
     n = len(names)
-    velocity = _urdf_or_setting(cfg["max_velocity"], vel, n, names, "max_velocity", "velocity")
-    torque = _urdf_or_setting(cfg["max_torque"], eff, n, names, "max_torque", "effort")
+    velocity = _urdf_or_default(cfg["max_velocity"], vel, n, names, "max_velocity", DEFAULT_VELOCITY,
+                                MAX_PLAUSIBLE_VELOCITY, found, where)
+    torque = _urdf_or_default(cfg["max_torque"], eff, n, names, "max_torque", DEFAULT_EFFORT, math.inf, found, where)
+    frame_names = [joints[0].find("parent").get("link")] + [j.find("child").get("link") for j in joints]
     home = cfg["home"]
+    if home is None:
+        home = _auto_home(text, end_link, found, where)
+        cfg = {**cfg, "home": list(home)}  # a worker reloading robot.settings gets this home, unmeasured
     if not isinstance(home, (list, tuple)) or len(home) != n:
         raise RobotError(f"robot.home={home!r} must be {n} joint angles (rad), one per joint {names}")
     home = tuple(_angle(v, i, names) for i, v in enumerate(home))
     for q, lo, hi, name in zip(home, lower, upper, names):
         if not lo <= q <= hi:
             raise RobotError(f"robot.home has {q} for joint {name!r}, outside its limits [{lo}, {hi}]")
-    frame_names = [joints[0].find("parent").get("link")] + [j.find("child").get("link") for j in joints]
-    capsules = _capsules(cfg["capsules"], path, frame_names, where)
+    capsules = _capsules(cfg["capsules"], text, frame_names, where)
     first_moving = next(i for i, j in enumerate(joints) if j.get("type") != "fixed")
     base_links = cfg["base_links"]
     if base_links == "auto":
@@ -349,16 +437,53 @@ def load_robot(spec=None) -> Robot:
     if not isinstance(base_links, (list, tuple)) or any(b not in frame_names for b in base_links):
         raise RobotError(f"robot.base_links={base_links!r} must be auto or links of the chain {frame_names}")
     forearm = cfg["forearm_link"]
+    if forearm == "auto":  # the forearm: what the third joint from the end moves (wrist joints after it)
+        forearm = moving[-3].find("child").get("link")
+        forearm = forearm if forearm in capsules else None
+        found["forearm_link"] = forearm
     if forearm is not None and forearm not in frame_names:
         raise RobotError(f"robot.forearm_link={forearm!r} is not a link of the chain {frame_names}")
     name = cfg["name"] if cfg["name"] is not None else (root.get("name") or path.stem)
-    return Robot(name=str(name), urdf=path, end_link=cfg["end_link"], joint_names=tuple(names), home=home,
+    _log_found(found, where)
+    return Robot(name=str(name), urdf=path, end_link=end_link, joint_names=tuple(names), home=home,
                  lower=tuple(lower), upper=tuple(upper), max_velocity=velocity,
                  max_acceleration=_vec(cfg["max_acceleration"], n, "max_acceleration", names),
                  max_torque=torque, damping=_vec(cfg["damping"], n, "damping", names, positive=False),
                  armature=_vec(cfg["armature"], n, "armature", names, positive=False), capsules=capsules,
                  base_links=tuple(base_links), forearm_link=forearm, inertials=urdf_inertials(root),
-                 point_masses=_point_masses(cfg["point_masses"], frame_names), settings=cfg)
+                 point_masses=_point_masses(cfg["point_masses"], frame_names), settings=cfg, text=text, found=found)
+
+
+def _log_found(found: dict, where: str) -> None:
+    """One line of what was found (end link, home, forearm link, locked joints), where any was."""
+    parts = []
+    if "end_link" in found:
+        parts.append(f"end link {found['end_link']!r} (the leaf through the most moving joints)")
+    if "home" in found:
+        h = found["home"]
+        parts.append(f"home {[round(v, 4) for v in h['pose']]} (hand down at {h['target']}, IK residual "
+                     f"{h['residual']:.1e} m, from {h['seed']})")
+    if found.get("forearm_link"):
+        parts.append(f"forearm link {found['forearm_link']!r}")
+    if found.get("locked"):
+        parts.append(f"locked {found['locked']}")
+    if parts:
+        log.info("%s: found %s", where, "; ".join(parts))
+
+
+def _auto_home(text: str, end_link: str, found: dict, where: str) -> list[float]:
+    """The hand-down home (:func:`protorch.robots.layout.hand_down_layout`), its report in ``found``."""
+    from .kinematics import ArmKinematics
+    from .layout import hand_down_layout
+
+    try:
+        layout = hand_down_layout(ArmKinematics(text, end_link=end_link), f"the arm of {where}")
+    except ValueError as exc:
+        raise RobotError(str(exc)) from None
+    found["home"] = {"pose": layout["home"], "target": layout["home_target"], "residual": layout["home_residual"],
+                     "seed": layout["home_seed"]}
+    found["layout"] = layout
+    return layout["home"]
 
 
 def _angle(v, i: int, names) -> float:
@@ -367,13 +492,15 @@ def _angle(v, i: int, names) -> float:
     return float(v)
 
 
-def _urdf_or_setting(value, urdf: list, n: int, names, key: str, attr: str) -> tuple[float, ...]:
-    """A limit from the setting ``robot.<key>`` or, where it is null, the URDF's ``<limit attr>``
-    (missing or 0 there: refused, naming the joint and the setting)."""
+def _urdf_or_default(value, urdf: list, n: int, names, key: str, default: float, most: float, found: dict,
+                     where: str) -> tuple[float, ...]:
+    """A limit from the setting ``robot.<key>`` or, where it is null, the URDF's; where the URDF's
+    is missing, not positive or above ``most``: ``default``, with a warning naming the joints."""
     if value is not None:
         return _vec(value, n, key, names)
-    for v, name in zip(urdf, names):
-        if v is None or not v > 0:
-            raise RobotError(f"robot.urdf: joint {name!r} has no <limit {attr}=...> > 0; give robot.{key} "
-                             "(a number or one per joint)")
-    return tuple(urdf)
+    bad = [name for v, name in zip(urdf, names) if v is None or not 0 < v <= most]
+    if bad:
+        log.warning("%s: joints %s have no plausible <limit %s> (missing, <= 0 or > %g): %g used (set robot.%s)",
+                    where, bad, "velocity" if key == "max_velocity" else "effort", most, default, key)
+        found[f"{key}_default"] = {"joints": bad, "value": default}
+    return tuple(default if name in bad else float(v) for v, name in zip(urdf, names))

@@ -127,23 +127,11 @@ def _origin(elem, what: str) -> np.ndarray:
 
 
 def _mesh_path(filename: str, base: Path | None, mesh_dir: Path | None, what: str) -> Path:
-    """A ``<mesh filename>`` on disk: ``package://<pkg>/rest`` and ``file://`` under ``mesh_dir``
-    (default the URDF's folder), a relative path from the URDF's folder."""
-    name = filename
-    for prefix in ("file://", "package://"):
-        if name.startswith(prefix):
-            name = name[len(prefix):]
-            if prefix == "package://":
-                name = name.split("/", 1)[1] if "/" in name else name
-    candidates = [Path(name)] if Path(name).is_absolute() else []
-    for root in (mesh_dir, base):
-        if root is not None and not Path(name).is_absolute():
-            candidates.append(Path(root) / name)
-    for path in candidates:
-        if path.is_file():
-            return path
-    where = ", ".join(str(c) for c in candidates) or name
-    raise FileNotFoundError(f"{what} names the mesh {filename!r}, which is not at {where} (give mesh_dir=)")
+    """A ``<mesh filename>`` on disk (:func:`protorch.robots.meshes.resolve_mesh`; ``mesh_dir`` is
+    searched as a ``robot.packages`` folder)."""
+    from .meshes import resolve_mesh
+
+    return resolve_mesh(filename, base, [mesh_dir] if mesh_dir is not None else [], what)
 
 
 def collision_geometry(urdf: str | Path, *, mesh_dir: str | Path | None = None) -> list[CollisionGeometry]:

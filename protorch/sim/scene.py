@@ -9,7 +9,8 @@ hand and tool centre point, as bodies of their own) and adds:
   refused before any work (:func:`~protorch.robots.check_inertials`);
 * the robot's link capsules as the arm's collision geometry (the volumes ``collision=volume``
   plans with); the URDF's own geometry is kept without contacts or mass, its ``<visual>``
-  elements (meshes resolved beside the URDF, ``package://`` by the folders above it) in geom
+  elements (meshes resolved by :func:`protorch.robots.meshes.resolve_mesh`, converted where MuJoCo
+  cannot read them whole: :mod:`protorch.robots.clean`) in geom
   group 3, which the renders show instead of the capsules where the URDF has them;
 * the robot's joint damping and rotor armature, and a torque motor per joint clipped to its
   torque limits (the URDF's ``<limit effort>``);
@@ -30,7 +31,6 @@ is the same arm alone, without contacts and constraints, its link masses and ine
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -46,7 +46,6 @@ WORLD_BITS = (2, 1)  # the table and the can
 _COMPILER = ('<mujoco><compiler fusestatic="false" discardvisual="false" balanceinertia="false" strippath="false" '
              'meshdir="{meshdir}"/></mujoco>')
 VISUAL_GROUP, HIDDEN_GROUP, CAPSULE_GROUP = 3, 4, 2  # geom groups: the URDF's <visual>, its <collision>, the capsules
-_PACKAGE = re.compile(r'filename="package://([^/"]+)/([^"]*)"')
 _CONTACT_SENSOR = [1 | 8, 1, 1]  # data: found | dist (bit flags), reduce: mindist, num: 1 -> (count, distance)
 _TABLE_THICKNESS = 0.02
 _CAN_RGBA = (0.75, 0.15, 0.12, 1.0)
@@ -87,24 +86,13 @@ def hand_links(task) -> set[str]:
     return out
 
 
-def _package_file(folder: Path, package: str, rest: str) -> str:
-    """A ``package://PACKAGE/REST`` mesh file: REST under the first folder above the URDF named
-    PACKAGE or holding a folder PACKAGE (as a ROS workspace lays them out); else left to MuJoCo,
-    whose error names the file."""
-    for up in (folder, *folder.parents):
-        for root in (up, up / package):
-            if root.name == package and (root / rest).is_file():
-                return str(root / rest)
-    return f"package://{package}/{rest}"
-
-
 def _arm_spec(task, mass_scale: float, timestep: float):
     """The task's robot from its URDF with its inertials, capsules, damping, armature and motors."""
     mujoco = load_mujoco()
     robot = task.robot
     check_inertials(robot)
     folder = Path(robot.urdf).parent
-    text = _PACKAGE.sub(lambda m: f'filename="{_package_file(folder, m[1], m[2])}"', task.kinematics.urdf_text)
+    text = robot.urdf_text  # mesh paths resolved, off-chain joints locked (protorch.robots.clean)
     head = text.index(">", text.index("<robot")) + 1
     spec = mujoco.MjSpec.from_string(text[:head] + _COMPILER.format(meshdir=f"{folder}/") + text[head:])
     spec.option.timestep = float(timestep)

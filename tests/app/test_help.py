@@ -98,7 +98,7 @@ def test_help_of_one_experiment_lists_its_keys_meanings():
 def test_help_lists_the_robot_group_and_the_arm_experiments_robot_settings():
     text = help_text(CONF, ["experiment=arm_reach", "--help"])
     assert "robot=NAME" in text and "  panda " in text and "  custom " in text
-    for key in ("robot.urdf=???", "robot.end_link=???", "robot.home=???", "robot.max_acceleration=10.0",
+    for key in ("robot.urdf=???", "robot.end_link=null", "robot.home=null", "robot.max_acceleration=10.0",
                 "robot.capsules=auto"):
         assert key in text, key
     assert "robot.urdf=???" not in help_text(CONF, ["experiment=point_particle", "--help"])

@@ -57,7 +57,10 @@ def test_the_robot_group_reaches_the_experiment(tmp_path):
      r"robot\.end_link='tool0': the chain of .* has 5 joints"),
     (lambda p: _write(p, user_arm_urdf(inertials=False)), ("settings.physics.run=always",),
      r"link 'shoulder' \(moved by joint 'shoulder_pan'\) has no <inertial>"),
-    (lambda p: _write(p, user_arm_urdf(scale=0.5)), (), r"task\.goal_box: the target \(0\.660, -0\.240\) .* out of "
+    (lambda p: _write(p, user_arm_urdf(scale=0.5)), ("task.goal_box=[[0.66,0.74],[-0.24,0.24]]",
+                                                      "task.can_box=[[0.50,0.62],[-0.12,0.12]]",
+                                                      "task.table=[[0.2,0.9],[-0.5,0.5]]", "task.can_radius=0.0375",
+                                                      "task.can_height=0.23"), r"task\.goal_box: the target \(0\.660, -0\.240\) .* out of "
                                                           r"the my_arm arm's reach"),
     (lambda p: write_user_arm(p), ("task.goal_box=[[0.66,1.4],[-0.2,0.2]]",), r"goal_box .* must lie on the table"),
     (lambda p: write_user_arm(p), ("robot.capsules=none",),

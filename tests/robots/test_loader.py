@@ -40,7 +40,7 @@ def test_a_users_arm_from_settings(arm):
     assert isinstance(robot, Robot) and robot.name == "my_arm" and robot.num_joints == 6
     assert robot.max_acceleration == (10.0,) * 6 and robot.damping == (1.0,) * 6  # the stated defaults
     assert robot.max_torque == (150.0, 150.0, 150.0, 30.0, 30.0, 30.0)  # the URDF's effort
-    assert robot.base_links == ("base_link",) and robot.forearm_link is None
+    assert robot.base_links == ("base_link",) and robot.forearm_link == "wrist_1_link"  # auto: what the third joint from the end moves
     check_inertials(robot)  # every moving link has its mass
     assert load_robot({**arm, "name": "Mine", "max_acceleration": [5.0] * 6, "capsules": "none"}).capsules == {}
     over = load_robot({**arm, "max_velocity": 1.5, "damping": [0.5] * 6})
@@ -96,20 +96,18 @@ def test_inertials_with_a_rotated_frame_are_rotated_into_the_link(tmp_path):
     (lambda a, p: {**a, "home": [0.0, "x", 0, 0, 0, 0]}, r"robot\.home has 'x' for joint 'shoulder_lift'"),
     (lambda a, p: {**a, "urdf": _write(p, user_arm_urdf(fixed=("wrist_1",)))}, r"robot\.end_link='tool0': the chain "
      r"of robot\.urdf=.* has 5 joints .*needs at least 6"),
-    (lambda a, p: {**a, "urdf": _write(p, user_arm_urdf().replace('velocity="2.0" ', ""))},
-     r"joint 'shoulder_pan' has no <limit velocity=\.\.\.> > 0; give robot\.max_velocity"),
     (lambda a, p: {**a, "max_acceleration": [1.0] * 3}, r"robot\.max_acceleration=\[.*\] must be a number or 6"),
     (lambda a, p: {**a, "damping": -1.0}, r"robot\.damping has -1\.0 for joint 'shoulder_pan'"),
     (lambda a, p: {**a, "colour": "red"}, r"robot\.colour is not a robot setting"),
     (lambda a, p: {**a, "base": "r2d2"}, r"robot\.base='r2d2' is not a shipped robot"),
-    (lambda a, p: {"urdf": a["urdf"], "home": a["home"]}, r"robot\.end_link must be set"),
+    (lambda a, p: {"home": a["home"]}, r"robot\.urdf must be set"),
     (lambda a, p: {**a, "capsules": {"nowhere": [{"a": [0, 0, 0], "b": [0, 0, 1], "radius": 0.1}]}},
      r"robot\.capsules has link 'nowhere', not on the chain"),
     (lambda a, p: {**a, "capsules": {"forearm": [{"a": [0, 0, 0], "b": [0, 0, 1], "radius": -1}]}},
      r"robot\.capsules\.forearm\[0\]=.* must be"),
     (lambda a, p: {**a, "urdf": _write(p, user_arm_urdf().replace('<cylinder radius="0.045" length="0.4"/>',
                                                                     '<mesh filename="forearm.stl"/>'))},
-     r"robot\.capsules=auto: .*link 'forearm'.*names the mesh 'forearm\.stl', which is not at"),
+     r"robot\.urdf=.*: link 'forearm' <mesh> 1 names the mesh 'forearm\.stl', which is not found"),
     (lambda a, p: {**a, "forearm_link": "elbow_link"}, r"robot\.forearm_link='elbow_link' is not a link"),
 ])
 def test_bad_input_is_one_line_naming_the_setting(arm, tmp_path, change, message):

@@ -43,6 +43,7 @@ the two classes apart in the GP map.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
 
@@ -51,6 +52,7 @@ from torch import Tensor
 
 from ...checks import check_tensor
 from ...robots import Robot, load_robot
+from ...robots.layout import auto_workspace
 from .collision import (CAN_OBJECTIVES, above_table, capsule_plan, check_collision, check_volumes, end_capsules,
                         end_volume_near, frames_gap, joints_clearance)
 from .demos import follow_path, ik_demonstrations, straight_paths
@@ -80,7 +82,11 @@ class ArmReachTask(Task):
         cost_steps: time steps the objectives are evaluated on (evenly spaced, first and last
             included; ``None``: all). Success always uses every step.
         can_box, goal_box: the sampler's rectangles; ``table``: the table top, outside which an
-            environment is refused; ``min_separation``: between can, target and start.
+            environment is refused; ``min_separation``: between can, target and start. Each of
+            these, ``can_radius``, ``can_height`` and ``reach`` may be ``"auto"`` (the default):
+            the Panda's numbers for a shipped robot, for any other arm placed on its own reach
+            (:func:`protorch.robots.layout.hand_down_layout`); ``reach`` alone ``"auto"`` (the
+            rest given) is the Panda's ``(0.30, 0.80)``.
         region: where :meth:`sample_envs` draws: ``"rectangles"`` (``can_box``, ``goal_box``) or
             ``"table"`` (the whole table, targets within ``reach``, the can clear of the start
             posture); ``reach``: ``(r_min, r_max)``, the targets' horizontal distance from the
@@ -90,19 +96,19 @@ class ArmReachTask(Task):
         start_q: the fixed start configuration (one angle per joint); ``None``: the robot's home.
     """
 
-    can_radius: float = 0.0375
-    can_height: float = 0.23
+    can_radius: float | str = "auto"
+    can_height: float | str = "auto"
     margin: float | None = None
     clearance: float = 0.2
     goal_tol: float = 0.02
     start_tol: float = 0.02
     cost_steps: int | None = 25
-    can_box: tuple = ((0.50, 0.62), (-0.12, 0.12))
-    goal_box: tuple = ((0.66, 0.74), (-0.24, 0.24))
-    table: tuple = ((0.2, 0.9), (-0.5, 0.5))
+    can_box: tuple | str = "auto"
+    goal_box: tuple | str = "auto"
+    table: tuple | str = "auto"
     min_separation: float = 0.12
     region: str = "rectangles"
-    reach: tuple = (0.30, 0.80)
+    reach: tuple | str = "auto"
     robot: Robot | str | dict | None = None
     start_q: tuple | None = None
     deviation: str = "segment"  # "time": to tau_direct(t) at the same instant (protorch.tasks.arm.deviation)
@@ -113,6 +119,8 @@ class ArmReachTask(Task):
     env_names: tuple[str, ...] = field(default=("can_x", "can_y", "goal_x", "goal_y"), init=False)
 
     def __post_init__(self) -> None:
+        self.robot = load_robot(self.robot)
+        self._auto_workspace()
         if self.deviation not in DEVIATIONS:
             raise ValueError(f"deviation must be one of {list(DEVIATIONS)}, got {self.deviation!r}")
         for name in ("can_radius", "can_height", "clearance", "goal_tol", "start_tol"):
@@ -131,7 +139,6 @@ class ArmReachTask(Task):
             raise ValueError(f"can_objective must be one of {', '.join(CAN_OBJECTIVES)}, auto, got {self.can_objective!r}")
         if self.can_objective == "auto":
             self.can_objective = "volume" if self.collision == "volume" else "ee"
-        self.robot = load_robot(self.robot)
         self.kinematics = self.robot.kinematics()
         if "volume" in (self.collision, self.can_objective):
             check_volumes(self.robot, self.kinematics.frame_names)
@@ -150,6 +157,26 @@ class ArmReachTask(Task):
         self.start = tuple(self.kinematics.ee_position(q0).tolist())  # s, (3,)
         if self.start[2] <= 0:
             raise ValueError(f"start_q puts the end effector below the table (z = {self.start[2]:.3f})")
+
+    def _auto_workspace(self) -> None:
+        """Resolve every ``"auto"`` workspace field (class docstring); the measured layout, where
+        one was used, in ``self.layout``."""
+        keys = ("can_box", "goal_box", "table", "can_radius", "can_height", "reach")
+        self.layout = None
+        if not any(isinstance(getattr(self, k), str) and getattr(self, k) == "auto" for k in keys):
+            return
+        auto = {k for k in keys if isinstance(getattr(self, k), str) and getattr(self, k) == "auto"}
+        if auto == {"reach"}:  # the rest given: no measurement, the Panda's reach (read by region=table only)
+            values = {"reach": (0.30, 0.80)}
+        else:
+            values, self.layout = auto_workspace(self.robot)
+        for k in keys:
+            if isinstance(getattr(self, k), str) and getattr(self, k) == "auto":
+                setattr(self, k, values[k])
+        if self.layout is not None:
+            logging.getLogger(__name__).info(
+                "workspace auto for %s (its hand-down reach %s m at %.3f m): %s", self.robot.name, self.layout["reach"],
+                self.layout["height"], ", ".join(f"{k}={getattr(self, k)}" for k in sorted(auto)))
 
     # ---------------------------------------------------------------- sizes
     @property

@@ -1,0 +1,173 @@
+"""Where an arm works, measured from its kinematics: :func:`hand_down_layout` gives the home pose
+(hand down above the workspace) and the workspace (can and target rectangles, table, can size)
+of an arm that has none, placed on the arm's own reach as the Panda's are on the Panda's.
+
+The Panda's numbers (``robot=panda``, unchanged) anchor the rule. Its hand, pointing down
+10 cm above the table, reaches targets on the ``x`` axis in ``[0.29, 0.80]`` m by the rule below
+(span 0.51 m; applied to the Panda, the rule gives the Panda's numbers to 1e-4 m); its home is at ``x = 0.40``, the can in
+``[0.50, 0.62] x [-0.12, 0.12]``, the target in ``[0.66, 0.74] x [-0.24, 0.24]``, the table
+``[0.2, 0.9] x [-0.5, 0.5]``, the can 0.0375 m in radius and 0.23 m high. For another arm:
+
+1. its size ``s_v = L / L_panda`` (``L``: the summed distances between consecutive frame origins
+   from the second moving joint to the end link) sets the working height ``0.10 s_v``; the can's
+   height is the Panda's 0.23 m times the ratio of the wrists' heights at home (the frame the
+   second-to-last joint moves; the Panda's 0.3104 m), so that the wrist passes over the can as
+   the Panda's does;
+2. the hand-down inverse kinematics (end link's ``z`` down; two hand yaws, 0 and 90 degrees, the one
+   reaching the longer interval kept) from the joint limits' middle, continued from neighbour to
+   neighbour on a 1 cm lattice along ``+x`` at that height, measures the interval
+   ``[r_min, r_max]`` the hand reaches (every link above the table, inside the limits);
+3. with ``s = r_max / 0.80``, the home at ``x_h = max(0.40 s, r_min + 0.11 s)`` (the Panda's
+   ``0.40``, its ``r_min + 0.11``), every x coordinate mapped linearly so that the Panda's home goes
+   to ``x_h`` and its ``r_max`` to this arm's; every y extent and the can's radius scaled by ``s``.
+
+A lattice where the hand reaches no interval of at least 10 cm is refused (``ValueError``).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import torch
+
+__all__ = ["PANDA_LAYOUT", "PANDA_LENGTH", "PANDA_REACH", "arm_length", "auto_workspace", "hand_down_layout", "measure_layout"]
+
+PANDA_REACH = (0.29, 0.80)  # m, the Panda's hand-down reach at 0.10 m by this module's rule (its 1 cm lattice)
+PANDA_LENGTH = 1.0897  # m, the Panda's L (module docstring), measured on protorch/robots/panda.urdf
+PANDA_WRIST = 0.3104  # m, the Panda's wrist (the frame its second-to-last joint moves) above the table at home
+_HEIGHT, _CAN_HEIGHT, _CAN_RADIUS = 0.10, 0.23, 0.0375
+_HOME_X, _CAN_X, _GOAL_X, _TABLE_X = 0.40, (0.50, 0.62), (0.66, 0.74), (0.2, 0.9)
+_CAN_Y, _GOAL_Y, _TABLE_Y = 0.12, 0.24, 0.5
+PANDA_LAYOUT = {"can_box": ((0.50, 0.62), (-0.12, 0.12)), "goal_box": ((0.66, 0.74), (-0.24, 0.24)),
+                "table": ((0.2, 0.9), (-0.5, 0.5)), "can_radius": _CAN_RADIUS, "can_height": _CAN_HEIGHT,
+                "reach": (0.30, 0.80)}  # the shipped robots' workspace (``auto`` with a shipped robot)
+
+
+def arm_length(kin) -> float:
+    """``L``: the summed distances between consecutive frame origins from the second moving
+    joint's frame to the end link, at the zero pose (m)."""
+    q = torch.zeros(kin.num_joints, dtype=kin.lower.dtype, device=kin.lower.device).clamp(kin.lower, kin.upper)
+    pos = kin.link_positions(q).cpu()  # (F, 3)
+    moving = [i for i, n in enumerate(kin.frame_names) if n in _moving_frames(kin)]
+    start = moving[1] if len(moving) > 1 else 0
+    return float((pos[start + 1:] - pos[start:-1]).norm(dim=-1).sum())
+
+
+def _moving_frames(kin) -> set[str]:
+    return {n for n in kin.frame_names[1:] if kin.chain.find_frame(n).joint.joint_type != "fixed"}
+
+
+def _down(yaw: float, dtype) -> torch.Tensor:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return torch.tensor([[c, s, 0.0], [s, -c, 0.0], [0.0, 0.0, -1.0]], dtype=dtype)  # z down, x at yaw
+
+
+def _sweep(kin, xs: torch.Tensor, z: float, rot: torch.Tensor, iters: int = 150) -> tuple[torch.Tensor, torch.Tensor]:
+    """Hand-down IK at ``(x, 0, z)`` for each ``x`` ``(N,)``: ``(q (N, J), ok (N,))``."""
+    kw = dict(dtype=kin.lower.dtype, device=kin.lower.device)
+    n = xs.shape[0]
+    mid = (0.5 * (kin.lower + kin.upper)).to(**kw)  # (J,)
+    pts = torch.stack([xs, torch.zeros_like(xs), torch.full_like(xs, z)], -1).to(**kw)  # (N, 3)
+    rots = rot.to(**kw).expand(n, 3, 3)
+
+    def solve(q0):
+        q, err = kin.inverse(pts, q0, rotation=rots, rest=mid, iters=iters, compiled=True)
+        pose_rot = kin.ee_pose(q)[..., :3, :3]
+        rot_err = (pose_rot - rots).flatten(1).norm(dim=-1)
+        above = (kin.link_positions(q)[..., 2:, 2] >= -1e-6).all(-1)
+        return q, (err < 1e-3) & (rot_err < 1e-2) & above
+
+    q, ok = solve(mid.expand(n, -1).clone())
+    for _ in range(4):  # continuation: a failed point starts from its nearest solved neighbour
+        if bool(ok.all()) or not bool(ok.any()):
+            break
+        idx = torch.arange(n)
+        good = idx[ok.cpu()]
+        near = good[(idx[:, None] - good[None, :]).abs().argmin(1)]
+        q2, ok2 = solve(q[near.to(q.device)].clone())
+        better = ok2 & ~ok
+        q, ok = torch.where(better[:, None], q2, q), ok | ok2
+    return q, ok.cpu()
+
+
+def _longest_run(ok: torch.Tensor) -> tuple[int, int]:
+    best, start, out = 0, None, (0, -1)
+    for i, v in enumerate(ok.tolist() + [False]):
+        if v and start is None:
+            start = i
+        elif not v and start is not None:
+            if i - start > best:
+                best, out = i - start, (start, i - 1)
+            start = None
+    return out
+
+
+def auto_workspace(robot) -> tuple[dict, dict | None]:
+    """``(values, measured layout or None)``: the workspace ``auto`` stands for (``can_box``,
+    ``goal_box``, ``table``, ``can_radius``, ``can_height``, ``reach``): the Panda's numbers for a
+    shipped robot (``robot.base`` set), else the arm's measured layout (:func:`hand_down_layout`)."""
+    if robot.settings.get("base") is not None:
+        return dict(PANDA_LAYOUT), None
+    layout = robot.found.get("layout") or hand_down_layout(robot.kinematics(), robot.name)
+    return layout, layout
+
+
+def hand_down_layout(kin, name: str = "the arm") -> dict:
+    """The measured layout of an arm (module docstring), cached per URDF text and end link:
+    :func:`measure_layout`."""
+    return dict(_cached(kin.urdf_text, kin.end_link, name))
+
+
+@functools.lru_cache(maxsize=8)
+def _cached(text: str, end_link: str, name: str) -> dict:
+    from ..threads import torch_threads
+    from .kinematics import ArmKinematics
+
+    with torch.no_grad(), torch_threads(1):  # small batches: one thread (several only wait on each other)
+        return measure_layout(ArmKinematics(text, end_link=end_link), name)
+
+
+def measure_layout(kin, name: str = "the arm") -> dict:
+    """The measured layout of an arm (module docstring): ``{"scale", "height", "reach", "yaw",
+    "home", "home_target", "home_residual", "home_seed", "can_box", "goal_box", "table",
+    "can_radius", "can_height"}``; a ``ValueError`` where the hand reaches no 10 cm interval."""
+    dtype = kin.lower.dtype
+    length = arm_length(kin)
+    s_v = length / PANDA_LENGTH
+    z = _HEIGHT * s_v
+    xs = torch.arange(0.02, 1.1 * length + 0.1, 0.01, dtype=torch.float64)  # the hand reaches no farther than L
+    best = None
+    for yaw in (0.0, math.pi / 2):
+        q, ok = _sweep(kin, xs, z, _down(yaw, dtype))
+        lo, hi = _longest_run(ok)
+        if best is None or hi - lo > best[1] - best[0]:
+            best = (lo, hi, yaw, q)
+    lo, hi, yaw, q = best
+    if hi - lo < 10:
+        raise ValueError(f"{name} holds its hand down at {z:.3f} m above the table over no interval of 10 cm along x "
+                         "(the hand-down inverse kinematics from the joint limits' middle); give robot.home and the "
+                         "workspace (task.can_box, task.goal_box, task.table)")
+    r0, r1 = float(xs[lo]), float(xs[hi])
+    scale = r1 / PANDA_REACH[1]
+    home_x = max(_HOME_X * scale, r0 + (_HOME_X - PANDA_REACH[0]) * scale)
+
+    def at(x):  # the Panda's home -> home_x, its farthest reach -> r1, linearly
+        return round(home_x + (x - _HOME_X) / (PANDA_REACH[1] - _HOME_X) * (r1 - home_x), 4)
+
+    home_x = at(_HOME_X)
+    s_h = scale
+    i = int((xs - home_x).abs().argmin())
+    target = torch.tensor([[home_x, 0.0, z]], dtype=dtype, device=kin.lower.device)
+    home, err = kin.inverse(target, q[i:i + 1].to(kin.lower.device), rotation=_down(yaw, dtype)[None].to(target),
+                            rest=q[i].to(target), iters=300, tol=1e-9)
+    moving = [n for n in kin.frame_names[1:] if n in _moving_frames(kin)]
+    wrist = float(kin.link_positions(home[0])[kin.frame_names.index(moving[-2]), 2])
+    return {"wrist_height": round(wrist, 4), "scale": round(s_v, 4), "scale_xy": round(s_h, 4), "length": round(length, 4), "height": round(z, 4),
+            "reach": [round(r0, 4), round(r1, 4)], "yaw": yaw, "home": [float(v) for v in home[0].tolist()],
+            "home_target": [home_x, 0.0, round(z, 4)], "home_residual": float(err[0]),
+            "home_seed": "the joint limits' middle, continued along the reach lattice",
+            "can_box": [[at(_CAN_X[0]), at(_CAN_X[1])], [round(-_CAN_Y * s_h, 4), round(_CAN_Y * s_h, 4)]],
+            "goal_box": [[at(_GOAL_X[0]), at(_GOAL_X[1])], [round(-_GOAL_Y * s_h, 4), round(_GOAL_Y * s_h, 4)]],
+            "table": [[at(_TABLE_X[0]), at(_TABLE_X[1])], [round(-_TABLE_Y * s_h, 4), round(_TABLE_Y * s_h, 4)]],
+            "can_radius": round(_CAN_RADIUS * s_h, 4), "can_height": round(_CAN_HEIGHT * wrist / PANDA_WRIST, 4)}

@@ -13,7 +13,7 @@ from pathlib import Path
 # the library's packages, in reading order; tests/test_api_docs.py checks none is missing
 MODULES = [
     "protorch", "protorch.primitives", "protorch.optim", "protorch.gp", "protorch.loop",
-    "protorch.tasks", "protorch.robots", "protorch.data", "protorch.control", "protorch.sim",
+    "protorch.tasks", "protorch.robots", "protorch.data", "protorch.control", "protorch.policy", "protorch.sim",
     "protorch.viz", "protorch.errors", "protorch.checks", "protorch.threads",
 ]
 

@@ -22,14 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["PANDA_LIMITS", "JerkLimiter", "robot_limits"]
+__all__ = ["JerkLimiter", "robot_limits"]
 
-# Franka's published joint limits of the Panda (rad/s, rad/s^2, rad/s^3)
-PANDA_LIMITS = {
-    "max_velocity": (2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61),
-    "max_acceleration": (15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0),
-    "max_jerk": (7500.0,) * 7,
-}
 DEFAULT_JERK = 7500.0  # rad/s^3 per joint where a robot states none (Franka's, of the same order as KUKA's)
 
 

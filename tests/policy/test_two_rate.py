@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 import torch
 
-from protorch.policy.limits import PANDA_LIMITS, JerkLimiter, robot_limits
+from protorch.policy.limits import JerkLimiter, robot_limits
+from protorch.robots.published import FRANKA_JOINT_LIMITS
 from protorch.policy.two_rate import basis3_np
 from tests.control.test_policy import toy_policy
 
@@ -129,7 +130,7 @@ def test_the_numpy_basis_is_the_policys():
 
 
 def limiter() -> JerkLimiter:
-    return JerkLimiter(*robot_limits(None, 7, **{k: v for k, v in PANDA_LIMITS.items()}))
+    return JerkLimiter(*robot_limits(None, 7, **{k: v for k, v in FRANKA_JOINT_LIMITS.items()}))
 
 
 def test_the_limiter_keeps_the_limits_and_gives_the_wanted_state_back():

@@ -27,8 +27,14 @@ from configs import arguments_of, experiment_settings
 from protorch.experiments.arm_reach import prepare
 from protorch.robots.kinematics import ArmKinematics
 
-QUICK = ["settings.loop.batch_size=10", "optimizer.max_iter=5", "optimizer.num_samples=20",
-         "task.priors=60", "task.demo_envs=4", "settings.test.num_envs=10"]
+QUICK = [
+    "settings.loop.batch_size=10",
+    "optimizer.max_iter=5",
+    "optimizer.num_samples=20",
+    "task.priors=60",
+    "task.demo_envs=4",
+    "settings.test.num_envs=10",
+]
 
 
 def _sync(device: str) -> None:
@@ -55,7 +61,10 @@ def fk_table(devices: list[str], sizes: tuple[int, ...] = (10**4, 10**5)) -> Non
     gen = torch.Generator().manual_seed(0)
     for n in sizes:
         q0 = torch.rand(n, 7, generator=gen, dtype=torch.float64) * 2 - 1
-        for name, method in (("all 11 frames (pytorch_kinematics)", "frames"), ("end effector (compiled)", "ee_position")):
+        for name, method in (
+            ("all 11 frames (pytorch_kinematics)", "frames"),
+            ("end effector (compiled)", "ee_position"),
+        ):
             row = []
             for d in devices:
                 for dt in (torch.float64, torch.float32):
@@ -70,29 +79,53 @@ def loop_table(devices: list[str], envs: int, overrides: list[str]) -> None:
     base = experiment_settings("arm_reach", overrides)
     opt, lp = base["optimizer"], base["loop"]
     classes = "both classes" if lp["labels"] and lp["each_label"] else "one class"
-    print(f"\nself-improvement loop, {envs} environments, {opt['name'].upper()} <= {opt['max_iter']} x "
-          f"{opt['num_samples']}, B = {lp['batch_size']}, labels {'on' if lp['labels'] else 'off'}, {classes} per environment")
-    print(f"{'device':<8}{'loop s':>10}{'s / env':>10}{'2024 envs (extrap.)':>22}{'tried success':>15}{'held-out success':>18}")
+    print(
+        f"\nself-improvement loop, {envs} environments, {opt['name'].upper()} <= {opt['max_iter']} "
+        "x "
+        f"{opt['num_samples']}, B = {lp['batch_size']}, labels {'on' if lp['labels'] else 'off'}, "
+        f"{classes} per environment"
+    )
+    print(
+        f"{'device':<8}{'loop s':>10}{'s / env':>10}{'2024 envs (extrap.)':>22}"
+        f"{'tried success':>15}{'held-out success':>18}"
+    )
     for d in devices:
-        setup = prepare(**arguments_of(prepare, experiment_settings("arm_reach", [*overrides, f"device={d}"])))
+        setup = prepare(
+            **arguments_of(prepare, experiment_settings("arm_reach", [*overrides, f"device={d}"]))
+        )
         res = setup.run_loop()
         per = res.seconds / max(len(res.tried), 1)
-        print(f"{d:<8}{res.seconds:>10.1f}{per:>10.3f}{2024 * per:>20.0f} s{res.success_rate:>15.3f}"
-              f"{res.metrics[-1]['eval_success']:>18.3f}")
+        print(
+            f"{d:<8}{res.seconds:>10.1f}{per:>10.3f}{2024 * per:>20.0f} s{res.success_rate:>15.3f}"
+            f"{res.metrics[-1]['eval_success']:>18.3f}"
+        )
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--envs", type=int, default=None, help="environments for the loop timing (default 200; --quick 10)")
+    p.add_argument(
+        "--envs",
+        type=int,
+        default=None,
+        help="environments for the loop timing (default 200; --quick 10)",
+    )
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
     p.add_argument("--skip-loop", action="store_true", help="only the forward-kinematics table")
-    p.add_argument("--quick", action="store_true", help="a reduced run that checks the benchmark works")
-    p.add_argument("overrides", nargs="*", help="more config overrides for the loop, as on the app's command line")
+    p.add_argument(
+        "--quick", action="store_true", help="a reduced run that checks the benchmark works"
+    )
+    p.add_argument(
+        "overrides",
+        nargs="*",
+        help="more config overrides for the loop, as on the app's command line",
+    )
     args = p.parse_args()
     torch.set_num_threads(args.threads)
     devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} thread(s), devices: {devices}"
-          + ("" if "cuda" in devices else " (no CUDA here: the CUDA columns are skipped)"))
+    print(
+        f"torch {torch.__version__}, {torch.get_num_threads()} thread(s), devices: {devices}"
+        + ("" if "cuda" in devices else " (no CUDA here: the CUDA columns are skipped)")
+    )
     fk_table(devices, (10**3,) if args.quick else (10**4, 10**5))
     if not args.skip_loop:
         envs = args.envs if args.envs is not None else (10 if args.quick else 200)

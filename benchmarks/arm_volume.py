@@ -34,7 +34,7 @@ import time
 
 import torch
 
-from protorch.robots import capsule_segments
+from protorch.robots import ArmKinematics, capsule_segments
 from protorch.tasks import ArmReachTask
 from protorch.tasks.arm.collision import (
     CLEARANCE_CHUNK,
@@ -44,7 +44,6 @@ from protorch.tasks.arm.collision import (
     end_volume_near,
     joints_clearance,
 )
-from protorch.robots import ArmKinematics
 from protorch.tasks.arm.demos import detour_paths, follow_path
 from protorch.tasks.arm.geometry import segment_cylinder_distance
 
@@ -56,7 +55,7 @@ def timed(old, new, repeats: int):
     outs = (old(), new())
     times: tuple[list[float], list[float]] = ([], [])
     for i in range(repeats):
-        for j in ((0, 1) if i % 2 == 0 else (1, 0)):
+        for j in (0, 1) if i % 2 == 0 else (1, 0):
             t0 = time.perf_counter()
             (old, new)[j]()
             times[j].append(time.perf_counter() - t0)
@@ -72,12 +71,16 @@ def diff(a, b) -> float:
 
 
 class StridedRows(ArmKinematics):
-    """The compiled chain as it was before its ``cos``/``sin`` rows were made contiguous (row 7): the
-    rows of the transposed joints ``(J, P)`` as they come (each a stride-``J`` view), and the carried
+    """The compiled chain as it was before its ``cos``/``sin`` rows were made contiguous (row 7):
+    the
+    rows of the transposed joints ``(J, P)`` as they come (each a stride-``J`` view), and the
+    carried
     points copied back into their rows at every joint."""
 
     def ee_position(self, q):
-        qt = self.check_joints(q, finite=False).reshape(-1, self.num_joints).T  # (J, P), strided rows
+        qt = (
+            self.check_joints(q, finite=False).reshape(-1, self.num_joints).T
+        )  # (J, P), strided rows
         c, s = torch.cos(qt), torch.sin(qt)
         x, y, z = (torch.full_like(c[0], v) for v in self._tail)
         for j in range(self.num_joints - 1, -1, -1):
@@ -108,7 +111,8 @@ class StridedRows(ArmKinematics):
 
 
 class TrigPerFrame(ArmKinematics):
-    """The compiled chain as :func:`end_volume_near` used it before (row 8): the ``cos``/``sin`` rows
+    """The compiled chain as :func:`end_volume_near` used it before (row 8): the ``cos``/``sin``
+    rows
     of the joints computed afresh for each frame's capsules instead of once and passed on."""
 
     def ee_frame_rows(self, q, trig=None):
@@ -120,8 +124,11 @@ class TrigPerFrame(ArmKinematics):
 
 def row(name: str, old, new, repeats: int) -> None:
     (t_old, r_old), (t_new, r_new) = timed(old, new, repeats)
-    print(f"{name:52s} {1e3 * t_old:9.1f} ms {1e3 * t_new:9.1f} ms {t_old / t_new:6.1f}x   "
-          f"largest difference {diff(r_old, r_new):.1e}", flush=True)
+    print(
+        f"{name:52s} {1e3 * t_old:9.1f} ms {1e3 * t_new:9.1f} ms {t_old / t_new:6.1f}x   "
+        f"largest difference {diff(r_old, r_new):.1e}",
+        flush=True,
+    )
 
 
 def main(argv=None) -> None:
@@ -135,7 +142,9 @@ def main(argv=None) -> None:
     task = ArmReachTask(collision="volume")
     kin, caps = task.kinematics, task.robot.capsule_list()
     gen = torch.Generator().manual_seed(0)
-    q = task.start_config() + 0.3 * torch.randn(n, steps, kin.num_joints, generator=gen, dtype=torch.float64)
+    q = task.start_config() + 0.3 * torch.randn(
+        n, steps, kin.num_joints, generator=gen, dtype=torch.float64
+    )
     env = task.sample_envs(n, gen)  # (n, 4)
     a_c, b_c = capsule_ends(kin, q, task.capsule_plan)  # (n, T, C, 3)
     r = task.capsule_radii
@@ -145,10 +154,16 @@ def main(argv=None) -> None:
         return a_f, b_f
 
     def full_gap():
-        d = segment_cylinder_distance(a_c, b_c, env[:, None, None, :2], task.can_radius, 0.0, task.can_height) - r
+        d = (
+            segment_cylinder_distance(
+                a_c, b_c, env[:, None, None, :2], task.can_radius, 0.0, task.can_height
+            )
+            - r
+        )
         return d.flatten(-2).amin(-1)
 
-    def frames_success():  # the success check through pytorch_kinematics' frames, as before the compiled path
+    # the success check through pytorch_kinematics' frames, as before the compiled path
+    def frames_success():
         frames = kin.frames(q)
         ee = frames[..., -1, :3, 3]
         ok_start = (ee[..., 0, :] - task.start_position()).norm(dim=-1) <= task.start_tol
@@ -157,36 +172,69 @@ def main(argv=None) -> None:
         return ok_start & ok_goal & clear & kin.within_limits(q).all(-1) & above_table(task, frames)
 
     print(f"{'':52s} {'before':>12s} {'now':>12s} {'ratio':>7s}   (one thread: {a.threads})")
-    row(f"capsules placed, {n} x {steps} float64", frames_capsules, lambda: capsule_ends(kin, q, task.capsule_plan),
-        a.repeats)
-    row("their gap to the can (exact search / pruned)", full_gap,
-        lambda: capsules_gap(a_c, b_c, r, env, task.can_radius, task.can_height), a.repeats)
+    row(
+        f"capsules placed, {n} x {steps} float64",
+        frames_capsules,
+        lambda: capsule_ends(kin, q, task.capsule_plan),
+        a.repeats,
+    )
+    row(
+        "their gap to the can (exact search / pruned)",
+        full_gap,
+        lambda: capsules_gap(a_c, b_c, r, env, task.can_radius, task.can_height),
+        a.repeats,
+    )
     row("the volume success check", frames_success, lambda: task.success(q, env), a.repeats)
-    qj = task.start_config() + 0.5 * torch.randn(jac_n, kin.num_joints, generator=gen, dtype=torch.float64)
-    row(f"Jacobian and pose, {jac_n} configurations", lambda: kin.chain.jacobian(qj, ret_eef_pose=True),
-        lambda: kin.jacobian_pose(qj), a.repeats)
+    qj = task.start_config() + 0.5 * torch.randn(
+        jac_n, kin.num_joints, generator=gen, dtype=torch.float64
+    )
+    row(
+        f"Jacobian and pose, {jac_n} configurations",
+        lambda: kin.chain.jacobian(qj, ret_eef_pose=True),
+        lambda: kin.jacobian_pose(qj),
+        a.repeats,
+    )
     detours = detour_paths(task, task.sample_envs(paths, gen), 0, 0.18, 100)  # (paths, 100, 3)
-    row(f"detour IK, {paths} paths x 100 steps", lambda: follow_path(task, detours)[0],
-        lambda: follow_path(task, detours, compiled=True)[0], max(1, a.repeats // 5))
+    row(
+        f"detour IK, {paths} paths x 100 steps",
+        lambda: follow_path(task, detours)[0],
+        lambda: follow_path(task, detours, compiled=True)[0],
+        max(1, a.repeats // 5),
+    )
     many = 200 if a.quick else 2000
-    chunk = 64 * steps if a.quick else CLEARANCE_CHUNK  # --quick: pieces of 64, so that the small check is cut too
-    q_many = task.start_config() + 0.3 * torch.randn(many, steps, kin.num_joints, generator=gen, dtype=torch.float64)
+    chunk = (
+        64 * steps if a.quick else CLEARANCE_CHUNK
+    )  # --quick: pieces of 64, so that the small check is cut too
+    q_many = task.start_config() + 0.3 * torch.randn(
+        many, steps, kin.num_joints, generator=gen, dtype=torch.float64
+    )
     env_many = task.sample_envs(many, gen)
-    row(f"volume gap and table, {many} x {steps} (one call / pieces)",
+    row(
+        f"volume gap and table, {many} x {steps} (one call / pieces)",
         lambda: joints_clearance(task, q_many, env_many, chunk=None),
-        lambda: joints_clearance(task, q_many, env_many, chunk=chunk), a.repeats)
+        lambda: joints_clearance(task, q_many, env_many, chunk=chunk),
+        a.repeats,
+    )
     pieces = 20 if a.quick else 700  # one of the loop's cost pieces (loop/phases.py: cost_chunks)
-    q_obj = (task.start_config() + 0.3 * torch.randn(pieces, 25, kin.num_joints, generator=gen, dtype=torch.float64)
-             ).float()  # (pieces, 25, J): the objectives' 25 cost steps, float32 as the loop samples
+    q_obj = (
+        task.start_config()
+        + 0.3 * torch.randn(pieces, 25, kin.num_joints, generator=gen, dtype=torch.float64)
+    ).float()  # (pieces, 25, J): the objectives' 25 cost steps, float32 as the loop samples
     env_obj = task.sample_envs(pieces, gen).float()
     strided = StridedRows(kin.urdf_text, end_link=kin.end_link)
-    row(f"volume objective, {pieces} x 25 float32 (strided / rows)",
+    row(
+        f"volume objective, {pieces} x 25 float32 (strided / rows)",
         lambda: end_volume_near(strided, q_obj, env_obj, task.end_capsules, task.can_height),
-        lambda: end_volume_near(kin, q_obj, env_obj, task.end_capsules, task.can_height), 10 * a.repeats)
+        lambda: end_volume_near(kin, q_obj, env_obj, task.end_capsules, task.can_height),
+        10 * a.repeats,
+    )
     per_frame = TrigPerFrame(kin.urdf_text, end_link=kin.end_link)
-    row(f"volume objective, {pieces} x 25 float32 (trig per frame / once)",
+    row(
+        f"volume objective, {pieces} x 25 float32 (trig per frame / once)",
         lambda: end_volume_near(per_frame, q_obj, env_obj, task.end_capsules, task.can_height),
-        lambda: end_volume_near(kin, q_obj, env_obj, task.end_capsules, task.can_height), 10 * a.repeats)
+        lambda: end_volume_near(kin, q_obj, env_obj, task.end_capsules, task.can_height),
+        10 * a.repeats,
+    )
 
 
 if __name__ == "__main__":

@@ -30,21 +30,33 @@ def timed(f, repeats: int) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--no-experiment", action="store_true", help="only the cost timings")
     args = parser.parse_args()
     print(f"torch {torch.__version__}, {torch.get_num_threads()} thread(s)")
     task, person = BeamWindowTask(), SimulatedOperator()
     demos = person.trials(task, 10, torch.Generator().manual_seed(101))
-    model = PoseProMP(10, 250).fit(demos, reference=torch.tensor(task.start_quaternion, dtype=torch.float64))
+    model = PoseProMP(10, 250).fit(
+        demos, reference=torch.tensor(task.start_quaternion, dtype=torch.float64)
+    )
     phases = torch.tensor([0.0, 0.45, 0.58, 1.0], dtype=torch.float64)
     print("\n1. costs of one ask (200 samples, T = 250)")
-    print(f"{'':14s}{'float64 (ms)':>14s}{'float32 (ms)':>14s}{'ratio':>8s}{'max |difference|':>18s}")
+    print(
+        f"{'':14s}{'float64 (ms)':>14s}{'float32 (ms)':>14s}{'ratio':>8s}{'max |difference|':>18s}"
+    )
     w_pos, w_rot = model.sample(200, generator=torch.Generator().manual_seed(0))
-    for name, cost in (("position", lambda m, d: task.position_costs(m.position.trajectory(w_pos.to(d)))),
-                       ("orientation", lambda m, d: task.orientation_costs(m.orientation.trajectory(w_rot.to(d)),
-                                                                          phases.to(d)))):
+    for name, cost in (
+        ("position", lambda m, d: task.position_costs(m.position.trajectory(w_pos.to(d)))),
+        (
+            "orientation",
+            lambda m, d: task.orientation_costs(
+                m.orientation.trajectory(w_rot.to(d)), phases.to(d)
+            ),
+        ),
+    ):
         m32 = model.copy().to(torch.float32)
         t64 = timed(lambda: cost(model, torch.float64), args.repeats) * 1e3
         t32 = timed(lambda: cost(m32, torch.float32), args.repeats) * 1e3
@@ -53,16 +65,24 @@ def main() -> None:
     if args.no_experiment:
         return
     print("\n2. the experiment's parts at the paper's budget, s")
-    opt = dict(beta=200.0, num_samples=200, max_iter=150, tol=0.0,
-               pro=dict(relevance_samples=200, relevance_var=1e-5, noise_floor=3.0))
+    opt = dict(
+        beta=200.0,
+        num_samples=200,
+        max_iter=150,
+        tol=0.0,
+        pro=dict(relevance_samples=200, relevance_var=1e-5, noise_floor=3.0),
+    )
     stages = optimize_pose_promp(task, model, optimizer=opt, seed=0)
     samples = model.trajectory(*model.sample(1000, generator=torch.Generator().manual_seed(1)))
     t_col = timed(lambda: task.collides(samples), 1)
     intended, lengths = person.intentions(task, 100, torch.Generator().manual_seed(303))
     guide = HapticGuidance(model)
     t_assist = timed(lambda: guide.assist(intended, lengths=lengths), 1)
-    print(f"position PRO {stages['position']['seconds']:.2f}, orientation PRO {stages['orientation']['seconds']:.2f}, "
-          f"collision check of 1000 samples {t_col:.2f}, 100 assisted trials {t_assist:.2f}")
+    print(
+        f"position PRO {stages['position']['seconds']:.2f}, orientation PRO "
+        f"{stages['orientation']['seconds']:.2f}, "
+        f"collision check of 1000 samples {t_col:.2f}, 100 assisted trials {t_assist:.2f}"
+    )
 
 
 if __name__ == "__main__":

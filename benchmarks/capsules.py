@@ -5,7 +5,8 @@ coverage per link and its time.
 shipped with protorch) fits the capsules and prints, per link with collision geometry, the number
 of capsules, the fraction of ``N`` points sampled on each of the link's collision surfaces that
 lie inside the link's capsules, the largest protrusion (mm), and the capsules' volume against the
-geometry's own (primitives; meshes: their convex hull's): the measure ``benchmarks/panda_volumes.py``
+geometry's own (primitives; meshes: their convex hull's): the measure
+``benchmarks/panda_volumes.py``
 reports for the Panda. ``--print`` writes the capsules in ``robot.capsules``' yaml form.
 """
 
@@ -42,11 +43,15 @@ def capsule_volume(caps) -> float:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("urdf", nargs="?", type=Path, default=IIWA14)
     p.add_argument("--mesh-dir", type=Path, default=None, help="where package:// mesh paths live")
     p.add_argument("--count", type=int, default=20000, help="points sampled per collision surface")
-    p.add_argument("--print", action="store_true", help="print the capsules in robot.capsules' yaml form")
+    p.add_argument(
+        "--print", action="store_true", help="print the capsules in robot.capsules' yaml form"
+    )
     a = p.parse_args()
     t0 = time.perf_counter()
     fit = fit_capsules(a.urdf, mesh_dir=a.mesh_dir)
@@ -55,14 +60,23 @@ def main() -> None:
     geoms: dict[str, list] = {}
     for g in collision_geometry(a.urdf, mesh_dir=a.mesh_dir):
         geoms.setdefault(g.link, []).append(g)
-    print(f"{a.urdf}: capsules fitted in {fit_s:.2f} s; {a.count} points sampled per collision surface\n")
-    print("| link | geometry | capsules | surface points inside | largest protrusion | capsule volume / geometry volume |")
+    print(
+        f"{a.urdf}: capsules fitted in {fit_s:.2f} s; {a.count} points sampled per collision "
+        "surface\n"
+    )
+    print(
+        "| link | geometry | capsules | surface points inside | largest protrusion | capsule "
+        "volume / geometry volume |"
+    )
     print("|---|---|---|---|---|---|")
     for link, row in cov.items():
         kinds = ", ".join(g.kind for g in geoms[link])
         ratio = capsule_volume(fit[link]) / sum(geometry_volume(g) for g in geoms[link])
-        print(f"| {link} | {kinds} | {row['capsules']} | {row['inside']:.4f} | {1e3 * row['largest_out']:.1f} mm "
-              f"| {ratio:.2f} |")
+        print(
+            f"| {link} | {kinds} | {row['capsules']} | {row['inside']:.4f} | "
+            f"{1e3 * row['largest_out']:.1f} mm "
+            f"| {ratio:.2f} |"
+        )
     if a.print:
         print("\ncapsules:")
         for link, caps in fit.items():

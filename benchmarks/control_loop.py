@@ -21,16 +21,19 @@ object torch's import left and takes ~0.1 s: ``Policy`` collects once after its 
 
 Continuity (``--continuity N``): the run's moving test re-simulated (its own environments and moves,
 :func:`protorch.control.arm.run_arm_episodes`); the policy's class at every instant of every
-episode (given the episode's environment, joints and velocities of that instant) compared with the test's;
+episode (given the episode's environment, joints and velocities of that instant) compared with the
+test's;
 then the first ``N`` episodes with a class switch replayed at 1 kHz through ``policy.reference``
 (the environment and joints of the test's instant): the largest change of ``q_r`` and ``qd_r``
 between consecutive calls, against the same with the offset off (``blend=inf``: the chosen mean).
 
-    python benchmarks/control_loop.py RUN_DIR [--calls 10000] [--backends torch,gpytorch,sparse] [--check on,off]
+    python benchmarks/control_loop.py RUN_DIR [--calls 10000] [--backends torch,gpytorch,sparse]
+    [--check on,off]
         [--continuity 10] [--soak 200000]
 
 ``--pieces``: the walk once more with the decisions' pieces (every class's mean, the scores, the
-plan check and its plan, capsule placement and bounds) each timed. ``--check on,off`` times the class choice with and without its plan check (the run's
+plan check and its plan, capsule placement and bounds) each timed. ``--check on,off`` times the
+class choice with and without its plan check (the run's
 ``dynamic.check``, on by default: :func:`protorch.control.arm_choice.rest_blocked`) side by side.
 
 ``--soak CALLS``: a long loop on the first backend's policy (moving environments, a new walk every
@@ -76,7 +79,9 @@ def environments(policy, calls: int, kind: str, seed: int = 0) -> torch.Tensor:
     out = torch.empty(calls, env.numel(), dtype=torch.float64)
     dt = 1e-3
     for i in range(calls):
-        vel = (vel + 0.5 * torch.randn(env.shape, generator=g, dtype=torch.float64) * dt ** 0.5 * 4).clamp(-0.2, 0.2)
+        vel = (
+            vel + 0.5 * torch.randn(env.shape, generator=g, dtype=torch.float64) * dt**0.5 * 4
+        ).clamp(-0.2, 0.2)
         env = env + vel * dt
         bounce = (env < lo) | (env > hi)
         vel = torch.where(bounce, -vel, vel)
@@ -110,7 +115,9 @@ class Collections:
         parts = []
         for g in range(3):
             ds = [d * 1e3 for gen, d in self.seen if gen == g]
-            parts.append(f"generation {g}: {len(ds)}" + (f" (longest {max(ds):.2f} ms)" if ds else ""))
+            parts.append(
+                f"generation {g}: {len(ds)}" + (f" (longest {max(ds):.2f} ms)" if ds else "")
+            )
         return "; ".join(parts)
 
 
@@ -121,11 +128,15 @@ def print_times(kind: str, ts: list[float], cpu: list[float]) -> None:
     """Median, p99, max and first of the calls' wall-clock and CPU seconds, in ms."""
     for what, xs in (("wall", ts), ("cpu", cpu)):
         ms = [x * 1e3 for x in xs]
-        print(f"  {kind:8s} {what:4s} {len(ms)} calls: median {_percentile(ms, 0.5):.3f} ms, "
-              f"p99 {_percentile(ms, 0.99):.3f} ms, max {max(ms):.3f} ms, first {ms[0]:.3f} ms")
+        print(
+            f"  {kind:8s} {what:4s} {len(ms)} calls: median {_percentile(ms, 0.5):.3f} ms, "
+            f"p99 {_percentile(ms, 0.99):.3f} ms, max {max(ms):.3f} ms, first {ms[0]:.3f} ms"
+        )
 
 
-def time_calls(policy, envs: torch.Tensor, kinds: list[str] | None = None) -> tuple[list[float], list[float], int]:
+def time_calls(
+    policy, envs: torch.Tensor, kinds: list[str] | None = None
+) -> tuple[list[float], list[float], int]:
     """Wall-clock and CPU seconds (this thread's: what a call costs when its core is free) of each
     call; ``kinds`` receives each call's kind (:func:`print_kinds`)."""
     period = int(round((policy.duration + 1.0) * 1000))
@@ -144,7 +155,11 @@ def time_calls(policy, envs: torch.Tensor, kinds: list[str] | None = None) -> tu
         COLLECTIONS.on = False
         if kinds is not None:
             solved = "solve" if policy.means.misses > misses else ""
-            kinds.append(("decision" + (" + " + solved if solved else "")) if policy._m.slot != slot else solved or "light")
+            kinds.append(
+                ("decision" + (" + " + solved if solved else ""))
+                if policy._m.slot != slot
+                else solved or "light"
+            )
         q = r.q
     return ts, cpu, policy.means.misses - misses0
 
@@ -181,25 +196,35 @@ def time_paced(policy, envs: torch.Tensor) -> tuple[list[float], list[float], li
 def print_ages(policy, ts: list[float], ages: list[float]) -> None:
     """The plan's age (median, p99, max, in decision intervals) and the calls over 1 ms."""
     a = [x / policy.decision_dt for x in ages]
-    print(f"  plan age in decision intervals ({policy.decision_dt * 1e3:g} ms): median {_percentile(a, 0.5):.2f}, "
-          f"p99 {_percentile(a, 0.99):.2f}, max {max(a):.2f}; plans made {policy._planner.plans}; "
-          f"calls over 1 ms: {sum(x > 1e-3 for x in ts)}; hand-overs by Ruckig: "
-          f"{policy._limiter.following if policy._limiter is not None else 0}")
+    print(
+        f"  plan age in decision intervals ({policy.decision_dt * 1e3:g} ms): median "
+        f"{_percentile(a, 0.5):.2f}, "
+        f"p99 {_percentile(a, 0.99):.2f}, max {max(a):.2f}; plans made {policy._planner.plans}; "
+        f"calls over 1 ms: {sum(x > 1e-3 for x in ts)}; hand-overs by Ruckig: "
+        f"{policy._limiter.following if policy._limiter is not None else 0}"
+    )
 
 
 def print_kinds(ts: list[float], kinds: list[str]) -> None:
-    """Wall-clock median / p90 / max and the calls over 1 ms by kind of call: light (no new neighbour
+    """Wall-clock median / p90 / max and the calls over 1 ms by kind of call: light (no new
+    neighbour
     set, no decision), solve (a new neighbour set solved), decision (the class chosen), both; and
     the p99 of the calls that make no decision."""
     for k in ("light", "solve", "decision", "decision + solve"):
         xs = [t for t, c in zip(ts, kinds) if c == k]
         if xs:
-            print(f"    {k:17s} {len(xs):6d} calls: median {_percentile(xs, 0.5) * 1e3:.3f}, p90 "
-                  f"{_percentile(xs, 0.9) * 1e3:.3f}, max {max(xs) * 1e3:.3f} ms; {sum(x > 1e-3 for x in xs)} over 1 ms")
+            print(
+                f"    {k:17s} {len(xs):6d} calls: median {_percentile(xs, 0.5) * 1e3:.3f}, p90 "
+                f"{_percentile(xs, 0.9) * 1e3:.3f}, max {max(xs) * 1e3:.3f} ms; "
+                f"{sum(x > 1e-3 for x in xs)} over 1 ms"
+            )
     rest = [t for t, c in zip(ts, kinds) if not c.startswith("decision")]
     if rest:  # what the decisions leave: the tail of a loop whose class is chosen elsewhere
-        print(f"    without the decisions ({len(rest)} calls): p99 {_percentile(rest, 0.99) * 1e3:.3f} ms, "
-              f"{sum(x > 1e-3 for x in rest)} over 1 ms")
+        print(
+            f"    without the decisions ({len(rest)} calls): p99 "
+            f"{_percentile(rest, 0.99) * 1e3:.3f} ms, "
+            f"{sum(x > 1e-3 for x in rest)} over 1 ms"
+        )
 
 
 def time_pieces(policy, envs: torch.Tensor) -> None:
@@ -221,11 +246,17 @@ def time_pieces(policy, envs: torch.Tensor) -> None:
             out = f(*a, **k)
             spent.setdefault(label, []).append(time.perf_counter() - t0)
             return out
+
         return f, run
 
-    pieces = [(ClassMeans, "__call__", "every class's mean (new sets solved)"), (pm.Policy, "_scores", "the scores"),
-              (pc, "checked_choice", "the plan check (all of it)"), (ac, "rest_plan", "  the plan (rollout, mean after)"),
-              (ac, "capsule_ends", "  the capsules placed"), (ac, "capsules_clear", "  the capsules bounded")]
+    pieces = [
+        (ClassMeans, "__call__", "every class's mean (new sets solved)"),
+        (pm.Policy, "_scores", "the scores"),
+        (pc, "checked_choice", "the plan check (all of it)"),
+        (ac, "rest_plan", "  the plan (rollout, mean after)"),
+        (ac, "capsule_ends", "  the capsules placed"),
+        (ac, "capsules_clear", "  the capsules bounded"),
+    ]
     saved = []
     for owner, name, label in pieces:
         f, run = timed(owner, name, label)
@@ -263,10 +294,15 @@ def time_aoti(policy, kinds: list[str], calls: int) -> None:
         out = program(envs[i], torch.tensor(t, dtype=torch.float64))
         policy.reset()
         r = policy.reference(envs[i], t)
-        worst = max(worst, *(float((a - b).abs().max()) for a, b in zip(out[:3], (r.q, r.qd, r.qdd))))
+        worst = max(
+            worst, *(float((a - b).abs().max()) for a, b in zip(out[:3], (r.q, r.qd, r.qdd)))
+        )
         differ += int(out[3]) != r.label
-    print(f"aoti: export + compile {compile_s:.0f} s, load {load_s:.2f} s; against reset(); reference(): largest "
-          f"difference {worst:.2g}, class differs at {differ} of {envs.shape[0]} calls")
+    print(
+        f"aoti: export + compile {compile_s:.0f} s, load {load_s:.2f} s; against reset(); "
+        "reference(): largest "
+        f"difference {worst:.2g}, class differs at {differ} of {envs.shape[0]} calls"
+    )
     period = int(round((policy.duration + 1.0) * 1000))
     for kind in kinds:
         envs = environments(policy, calls, kind)
@@ -296,17 +332,23 @@ def soak(policy, calls: int, chunk: int = 20_000) -> None:
     """``calls`` calls of :func:`time_calls`, a new walk every ``chunk`` (each starts a new
     motion); prints the resident memory (``/proc/self/statm``, Linux), the garbage collector's
     tracked objects and the walk's p99 after each."""
-    page = os.sysconf("SC_PAGE_SIZE") / 2 ** 20
+    page = os.sysconf("SC_PAGE_SIZE") / 2**20
     rss = lambda: int(Path("/proc/self/statm").read_text().split()[1]) * page  # noqa: E731 (MB)
-    print(f"soak: {calls} calls; before: {rss():.0f} MB resident, {len(gc.get_objects())} objects tracked")
+    print(
+        f"soak: {calls} calls; before: {rss():.0f} MB resident, {len(gc.get_objects())} objects "
+        "tracked"
+    )
     done = 0
     while done < calls:
         envs = environments(policy, min(chunk, calls - done), "moving", seed=1 + done // chunk)
         policy.reset()
         ts = time_calls(policy, envs)[0]
         done += len(ts)
-        print(f"  after {done} calls: {rss():.0f} MB resident, {len(gc.get_objects())} objects tracked, "
-              f"p99 of the walk {_percentile(ts, 0.99) * 1e3:.3f} ms")
+        print(
+            f"  after {done} calls: {rss():.0f} MB resident, {len(gc.get_objects())} objects "
+            "tracked, "
+            f"p99 of the walk {_percentile(ts, 0.99) * 1e3:.3f} ms"
+        )
 
 
 def continuity(run: str, episodes: int) -> None:
@@ -320,20 +362,32 @@ def continuity(run: str, episodes: int) -> None:
     cfg = OmegaConf.to_container(OmegaConf.load(f"{run}/config.yaml"), resolve=True)
     exp = rebuild_experiment(cfg)
     env0 = exp.sample(exp.episodes, exp.dyn_seed)
-    res = run_arm_episodes(policy, policy.task, env0, generator=torch.Generator().manual_seed(exp.dyn_seed),
-                           **exp.dyn_cfg)
-    # the class at every instant of every episode, the episode's measured joints and velocities given
+    res = run_arm_episodes(
+        policy,
+        policy.task,
+        env0,
+        generator=torch.Generator().manual_seed(exp.dyn_seed),
+        **exp.dyn_cfg,
+    )
+    # the class at every instant of every episode, the episode's measured joints and velocities
+    # given
     mismatched = 0
     for e in range(res.q.shape[0]):
         policy.reset()
         for s in range(res.q.shape[1]):
-            mismatched += policy.reference(res.envs[e, s], s * res.dt, res.q[e, s], res.qd[e, s]).label \
-                != int(res.labels[e, s])
+            mismatched += policy.reference(
+                res.envs[e, s], s * res.dt, res.q[e, s], res.qd[e, s]
+            ).label != int(res.labels[e, s])
     back, where = reversed_switches(res.labels)
-    print(f"moving test of {run}: {res.q.shape[0]} episodes, {int(res.switches.sum())} class switches in "
-          f"{int((res.switches > 0).sum())} episodes ({back} undone within 3 decisions, in {where} episodes), "
-          f"{int(res.moves.sum())} moves; the policy's class differs from the test's at {mismatched} of "
-          f"{res.labels.numel()} instants")
+    print(
+        f"moving test of {run}: {res.q.shape[0]} episodes, {int(res.switches.sum())} class "
+        "switches in "
+        f"{int((res.switches > 0).sum())} episodes ({back} undone within 3 decisions, in {where} "
+        "episodes), "
+        f"{int(res.moves.sum())} moves; the policy's class differs from the test's at {mismatched} "
+        "of "
+        f"{res.labels.numel()} instants"
+    )
     # at 1 kHz through the episodes with a switch (the environment and joints of the test's instant)
     chosen = torch.nonzero(res.switches > 0).flatten()[:episodes].tolist()
     per = int(round(res.dt * 1000))
@@ -362,20 +416,49 @@ def main() -> None:
     ap.add_argument("--calls", type=int, default=10_000)
     ap.add_argument("--backends", default="torch,gpytorch,sparse")
     ap.add_argument("--kinds", default="moving,jumping")
-    ap.add_argument("--planner", default="thread,inline",
-                    help="thread (paced at 1 kHz, the planner beside the loop), inline (back to back), or both")
-    ap.add_argument("--switch-interval", type=float, default=None, metavar="S",
-                    help="sys.setswitchinterval(S) first (Python's default 0.005 s)")
-    ap.add_argument("--check", default="run",
-                    help="the class choice's plan check: run (the run's dynamic.check), or on,off (both, side by side)")
-    ap.add_argument("--aoti", action="store_true",
-                    help="also the AOTInductor-compiled exported program (the first backend's map)")
-    ap.add_argument("--pieces", action="store_true",
-                    help="also the decisions' pieces timed (the walk once more, each piece wrapped in a timer)")
-    ap.add_argument("--soak", type=int, default=0, metavar="CALLS",
-                    help="also a long loop of this many calls: resident memory and tracked objects every 20,000")
-    ap.add_argument("--continuity", type=int, default=0, metavar="EPISODES",
-                    help="also the continuity over this many switching episodes of the moving test")
+    ap.add_argument(
+        "--planner",
+        default="thread,inline",
+        help="thread (paced at 1 kHz, the planner beside the loop), inline (back to back), or both",
+    )
+    ap.add_argument(
+        "--switch-interval",
+        type=float,
+        default=None,
+        metavar="S",
+        help="sys.setswitchinterval(S) first (Python's default 0.005 s)",
+    )
+    ap.add_argument(
+        "--check",
+        default="run",
+        help="the class choice's plan check: run (the run's dynamic.check), or on,off (both, side "
+        "by side)",
+    )
+    ap.add_argument(
+        "--aoti",
+        action="store_true",
+        help="also the AOTInductor-compiled exported program (the first backend's map)",
+    )
+    ap.add_argument(
+        "--pieces",
+        action="store_true",
+        help="also the decisions' pieces timed (the walk once more, each piece wrapped in a timer)",
+    )
+    ap.add_argument(
+        "--soak",
+        type=int,
+        default=0,
+        metavar="CALLS",
+        help="also a long loop of this many calls: resident memory and tracked objects every "
+        "20,000",
+    )
+    ap.add_argument(
+        "--continuity",
+        type=int,
+        default=0,
+        metavar="EPISODES",
+        help="also the continuity over this many switching episodes of the moving test",
+    )
     args = ap.parse_args()
     torch.set_num_threads(1)
     if args.switch_interval is not None:
@@ -384,23 +467,40 @@ def main() -> None:
         sys.setswitchinterval(args.switch_interval)
     COLLECTIONS.start()
     print(f"torch {torch.__version__}, 1 thread, run {args.run}")
-    checks = [None] if args.check == "run" else [{"on": True, "off": False}[c] for c in args.check.split(",")]
-    runs = [(b, c, p) for b in args.backends.split(",") for c in checks for p in args.planner.split(",")]
+    checks = (
+        [None]
+        if args.check == "run"
+        else [{"on": True, "off": False}[c] for c in args.check.split(",")]
+    )
+    runs = [
+        (b, c, p) for b in args.backends.split(",") for c in checks for p in args.planner.split(",")
+    ]
     for backend, check, planner in runs:
         t0 = time.perf_counter()
-        policy = protorch.load(args.run, backend=backend, planner=planner,
-                               **({} if check is None else {"check": check}))
+        policy = protorch.load(
+            args.run,
+            backend=backend,
+            planner=planner,
+            **({} if check is None else {"check": check}),
+        )
         load_s = time.perf_counter() - t0
-        print(f"backend {backend}, plan check {'on' if policy.check else 'off'}, planner {planner}: map of "
-              f"{policy.env_map.num_points} environments, classes {policy.labels.tolist()}, load + warm-up {load_s:.2f} s")
+        print(
+            f"backend {backend}, plan check {'on' if policy.check else 'off'}, planner {planner}: "
+            "map of "
+            f"{policy.env_map.num_points} environments, classes {policy.labels.tolist()}, load + "
+            f"warm-up {load_s:.2f} s"
+        )
         if planner == "thread":
             for kind in args.kinds.split(","):
                 envs = environments(policy, args.calls, kind)
                 COLLECTIONS.seen.clear()
                 ts, cpu, ages = time_paced(policy, envs)
                 print_times(kind, ts, cpu)
-                print(f"  {kind:8s} garbage collections within the calls: {COLLECTIONS.summary()}; load average "
-                      f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+                print(
+                    f"  {kind:8s} garbage collections within the calls: {COLLECTIONS.summary()}; "
+                    "load average "
+                    f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
+                )
                 print_ages(policy, ts, ages)
             policy.close()
             continue
@@ -416,16 +516,27 @@ def main() -> None:
             print_times(kind, ts, cpu)
             print(f"  {kind:8s} garbage collections within the calls: {COLLECTIONS.summary()}")
             swaps = getattr(policy.means, "updates", 0) - swaps0
-            print(f"  {kind:8s} new neighbour sets solved at {misses / len(ts):.1%} of the calls ({swaps / len(ts):.1%} "
-                  f"by a swap update); load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+            print(
+                f"  {kind:8s} new neighbour sets solved at {misses / len(ts):.1%} of the calls ("
+                f"{swaps / len(ts):.1%} "
+                f"by a swap update); load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} "
+                "cores"
+            )
             if memo is not None:
                 passed, checked = memo.passed - passed0, memo.checked - checked0
-                print(f"  {kind:8s} plans passed by the bounds carried from earlier checks: {passed} of {passed + checked}")
+                print(
+                    f"  {kind:8s} plans passed by the bounds carried from earlier checks: {passed} "
+                    f"of {passed + checked}"
+                )
             print_kinds(ts, kinds)
             if args.pieces:
                 time_pieces(policy, envs)
     if args.aoti:
-        time_aoti(protorch.load(args.run, backend=args.backends.split(",")[0]), args.kinds.split(","), args.calls)
+        time_aoti(
+            protorch.load(args.run, backend=args.backends.split(",")[0]),
+            args.kinds.split(","),
+            args.calls,
+        )
     if args.soak:
         soak(protorch.load(args.run, backend=args.backends.split(",")[0]), args.soak)
     if args.continuity:

@@ -40,7 +40,9 @@ def _data(m: int, n: int, seed: int = 0):
 def bench(backend: str, m: int, n: int, alpha: float = 1.0) -> dict:
     E, MU, VAR, q = _data(m, n)
     opts = {"capacity": m} if backend == "torch" else {}
-    make_env_map(backend, alpha, **opts).fit(E[:8], MU[:8], VAR[:8]).predict(q)  # first-call overheads
+    make_env_map(backend, alpha, **opts).fit(E[:8], MU[:8], VAR[:8]).predict(
+        q
+    )  # first-call overheads
     t = time.perf_counter()
     gp = make_env_map(backend, alpha, **opts).fit(E, MU, VAR)
     gp.predict_mean(q)  # gpytorch solves lazily: a refit is ready once it has answered
@@ -62,8 +64,15 @@ def bench(backend: str, m: int, n: int, alpha: float = 1.0) -> dict:
         adds.append(time.perf_counter() - t)
         gp1.predict_mean(q)
         add_qs.append(time.perf_counter() - t)
-    return dict(refit=refit, mean=mean_t, exact=exact_t, approx=approx_t, err=err,
-                add=statistics.median(adds), add_q=statistics.median(add_qs))
+    return dict(
+        refit=refit,
+        mean=mean_t,
+        exact=exact_t,
+        approx=approx_t,
+        err=err,
+        add=statistics.median(adds),
+        add_q=statistics.median(add_qs),
+    )
 
 
 def _ms(x: float) -> str:
@@ -80,8 +89,10 @@ def main() -> None:
         torch.set_num_threads(args.threads)
     sizes = [int(s) for s in args.sizes.split(",")]
     weights = [int(s) for s in args.weights.split(",")]
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, float64, CPU; times in ms; "
-          "ratio = refit / (add + next mean query)")
+    print(
+        f"torch {torch.__version__}, {torch.get_num_threads()} threads, float64, CPU; times in ms; "
+        "ratio = refit / (add + next mean query)"
+    )
     cols = ("mean", "mean+var", "mean+~var", "~var err", "add", "add+query", "refit", "ratio")
     print(f"{'M':>5} {'N':>3} {'backend':>8} " + " ".join(f"{c:>10}" for c in cols))
     for m in sizes:
@@ -89,16 +100,45 @@ def main() -> None:
             res = {b: bench(b, m, n) for b in ("torch", "gpytorch")}
             for b, r in res.items():
                 ratio = r["refit"] / r["add_q"]
-                print(f"{m:>5} {n:>3} {b:>8} " + " ".join(f"{v:>10}" for v in (
-                    _ms(r["mean"]), _ms(r["exact"]), _ms(r["approx"]), f"{r['err']:.1e}",
-                    _ms(r["add"]), _ms(r["add_q"]), _ms(r["refit"]), f"{ratio:.1f}x")))
+                print(
+                    f"{m:>5} {n:>3} {b:>8} "
+                    + " ".join(
+                        f"{v:>10}"
+                        for v in (
+                            _ms(r["mean"]),
+                            _ms(r["exact"]),
+                            _ms(r["approx"]),
+                            f"{r['err']:.1e}",
+                            _ms(r["add"]),
+                            _ms(r["add_q"]),
+                            _ms(r["refit"]),
+                            f"{ratio:.1f}x",
+                        )
+                    )
+                )
             t, g = res["torch"], res["gpytorch"]
-            print(f"{'':>5} {'':>3} {'g/t':>8} " + " ".join(f"{v:>10}" for v in (
-                f"{g['mean'] / t['mean']:.1f}x", f"{g['exact'] / t['exact']:.1f}x", f"{g['approx'] / t['approx']:.1f}x",
-                "", f"{g['add'] / t['add']:.1f}x", f"{g['add_q'] / t['add_q']:.1f}x", f"{g['refit'] / t['refit']:.1f}x", "")))
-    print("~var: torch = Nystroem (var_rank 256, var_tol 1e-10, float32 cache), gpytorch = LOVE (rank 100); "
-          "err = max |~var - var| over 64 queries; add = median of 3 single adds at M - 3 .. M - 1. "
-          "gpytorch's add only appends and drops its caches.")
+            print(
+                f"{'':>5} {'':>3} {'g/t':>8} "
+                + " ".join(
+                    f"{v:>10}"
+                    for v in (
+                        f"{g['mean'] / t['mean']:.1f}x",
+                        f"{g['exact'] / t['exact']:.1f}x",
+                        f"{g['approx'] / t['approx']:.1f}x",
+                        "",
+                        f"{g['add'] / t['add']:.1f}x",
+                        f"{g['add_q'] / t['add_q']:.1f}x",
+                        f"{g['refit'] / t['refit']:.1f}x",
+                        "",
+                    )
+                )
+            )
+    print(
+        "~var: torch = Nystroem (var_rank 256, var_tol 1e-10, float32 cache), gpytorch = LOVE "
+        "(rank 100); "
+        "err = max |~var - var| over 64 queries; add = median of 3 single adds at M - 3 .. M - 1. "
+        "gpytorch's add only appends and drops its caches."
+    )
 
 
 if __name__ == "__main__":

@@ -30,12 +30,11 @@ import time
 
 import gpytorch
 import torch
+from gp_scaling import smooth_data  # noqa: E402  (benchmarks/ is the script's directory)
 
 from protorch import load
 from protorch.gp import make_env_map
 from protorch.gp.gpytorch_exact import exact_settings
-
-from gp_scaling import smooth_data  # noqa: E402  (benchmarks/ is the script's directory)
 
 QUERIES = 200
 
@@ -83,15 +82,29 @@ def datasets(args):
         E, MU, VAR = smooth_data(m + QUERIES, args.weights)
         out.append((f"arm-like M={m}", E[:m], MU[:m], VAR[:m], None, E[m:], None, 30.0))
         E, MU, VAR = smooth_data(m + QUERIES, args.weights, d=6, side=10.0, seed=1)
-        MU = MU + 0.3 * (E @ torch.randn(6, args.weights, generator=g, dtype=torch.float64))  # broad trends
+        MU = MU + 0.3 * (
+            E @ torch.randn(6, args.weights, generator=g, dtype=torch.float64)
+        )  # broad trends
         out.append((f"particle-like M={m}", E[:m], MU[:m], VAR[:m], None, E[m:], None, 1e-3))
     for run in args.runs:
         em = load(run).env_map
-        keep = torch.linspace(0, em.num_weights - 1, min(args.weights, em.num_weights)).round().long()
+        keep = (
+            torch.linspace(0, em.num_weights - 1, min(args.weights, em.num_weights)).round().long()
+        )
         perm = torch.randperm(em.num_points, generator=torch.Generator().manual_seed(0))
         q, r = perm[:QUERIES], perm[QUERIES:].sort().values
-        out.append((f"{run} M={r.numel()}", em.E[r], em.MU[r][:, keep], em.VAR[r][:, keep], em.labels[r],
-                    em.E[q], em.labels[q], em.alpha))
+        out.append(
+            (
+                f"{run} M={r.numel()}",
+                em.E[r],
+                em.MU[r][:, keep],
+                em.VAR[r][:, keep],
+                em.labels[r],
+                em.E[q],
+                em.labels[q],
+                em.alpha,
+            )
+        )
     return out
 
 
@@ -106,8 +119,12 @@ def errors(mu, var, ref_mu, ref_var, VAR, MU) -> list[list[float]]:
     def stats(x):
         return [*torch.quantile(x.flatten(), q).tolist(), float(x.max())]
 
-    return [stats(em / MU.std(0)), [float((em / prior_var.sqrt()).max())], stats(ev / ref_var),
-            [float((ev / prior_var).max())]]
+    return [
+        stats(em / MU.std(0)),
+        [float((em / prior_var.sqrt()).max())],
+        stats(ev / ref_var),
+        [float((ev / prior_var).max())],
+    ]
 
 
 def per_label(predict, E, MU, VAR, labels, Eq, qlabels):
@@ -126,6 +143,7 @@ def methods(alpha):
     def map_method(**opts):
         def predict(E, MU, VAR, Eq):
             return make_env_map("sparse", alpha, **opts).fit(E, MU, VAR).predict(Eq)
+
         return predict
 
     out = {f"sparse k={k}": map_method(neighbours=k) for k in (16, 32, 64, 128)}
@@ -143,9 +161,12 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
-    print("| data | method | mean error / spread: median, p99, max | mean error / prior std: max "
-          "| variance rel. error: median, p99, max | variance error / prior var: max | build + 200 queries (s) |\n"
-          "|---|---|---|---|---|---|---|")
+    print(
+        "| data | method | mean error / spread: median, p99, max | mean error / prior std: max "
+        "| variance rel. error: median, p99, max | variance error / prior var: max | build + 200 "
+        "queries (s) |\n"
+        "|---|---|---|---|---|---|---|"
+    )
     for name, E, MU, VAR, lab, Eq, qlab, alpha in datasets(args):
         t = time.perf_counter()
         ref = make_env_map("torch", alpha).fit(E, MU, VAR, lab).predict(Eq, qlab)
@@ -154,7 +175,9 @@ def main() -> None:
             t = time.perf_counter()
             mu, var = per_label(fn, E, MU, VAR, lab, Eq, qlab)
             dt = time.perf_counter() - t
-            cols = " | ".join(", ".join(f"{x:.2g}" for x in c) for c in errors(mu, var, *ref, VAR, MU))
+            cols = " | ".join(
+                ", ".join(f"{x:.2g}" for x in c) for c in errors(mu, var, *ref, VAR, MU)
+            )
             print(f"| {name} | {mname} | {cols} | {dt:.2f} |", flush=True)
 
 

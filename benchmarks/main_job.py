@@ -26,16 +26,19 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-QUICK = ["settings.loop.num_envs=100", "settings.test.num_envs=20", "settings.dynamic.episodes=10",
-         "settings.dynamic_paper.episodes=10"]
+QUICK = [
+    "settings.loop.num_envs=100",
+    "settings.test.num_envs=20",
+    "settings.dynamic.episodes=10",
+    "settings.dynamic_paper.episodes=10",
+]
 TIMING = ("seconds", "wall", "started", "finished", "pid", "host", "run_dir")
 PHASES = ("startup", "demos_only", "loop", "evaluation", "authors_test", "rwr", "figures", "total")
 
-CHILD = r'''
+CHILD = r"""
 import json, resource, sys, time
 t_start = time.perf_counter()
 tree, out, overrides = sys.argv[1], sys.argv[2], json.loads(sys.argv[3])
@@ -52,7 +55,8 @@ def timed(cls, name, key):
     orig = getattr(cls, name)
     def wrapper(self, *a, **k):
         label = key(a) if callable(key) else key
-        if inside or label is None:  # counted in the phase that called it (a baseline's own evaluation)
+        # counted in the phase that called it (a baseline's own evaluation)
+        if inside or label is None:
             return orig(self, *a, **k)
         inside.append(label)
         w, c = time.perf_counter(), cpu()
@@ -74,7 +78,7 @@ spent["startup"] = (w0 - t_start, c0)
 run_experiment(cfg, out)
 spent["total"] = (time.perf_counter() - t_start, cpu())
 print(json.dumps(spent))
-'''
+"""
 
 
 def run_once(tree: Path, overrides: list[str]) -> tuple[dict, dict]:
@@ -82,8 +86,13 @@ def run_once(tree: Path, overrides: list[str]) -> tuple[dict, dict]:
     with tempfile.TemporaryDirectory(prefix="main_job_") as tmp:
         out = Path(tmp) / "run"
         env = {**os.environ, "PYTHONPATH": str(tree)}
-        res = subprocess.run([sys.executable, "-c", CHILD, str(tree), str(out), json.dumps(overrides)], env=env,
-                             capture_output=True, text=True, cwd=tree)
+        res = subprocess.run(
+            [sys.executable, "-c", CHILD, str(tree), str(out), json.dumps(overrides)],
+            env=env,
+            capture_output=True,
+            text=True,
+            cwd=tree,
+        )
         if res.returncode != 0:
             raise RuntimeError(f"the run of {tree} failed:\n{res.stderr[-3000:]}")
         spent = {k: tuple(v) for k, v in json.loads(res.stdout.strip().splitlines()[-1]).items()}
@@ -93,7 +102,7 @@ def run_once(tree: Path, overrides: list[str]) -> tuple[dict, dict]:
 
 def flatten(d, prefix=""):
     out = {}
-    for k, v in (d.items() if isinstance(d, dict) else enumerate(d)):
+    for k, v in d.items() if isinstance(d, dict) else enumerate(d):
         key = f"{prefix}.{k}" if prefix else str(k)
         out.update(flatten(v, key) if isinstance(v, (dict, list)) else {key: v})
     return out
@@ -106,18 +115,26 @@ def differences(a: dict, b: dict) -> list[str]:
         if any(t in k for t in TIMING) or k.startswith("run."):
             continue
         x, y = fa.get(k, "<missing>"), fb.get(k, "<missing>")
-        if x != y and not (isinstance(x, float) and isinstance(y, float) and math.isnan(x) and math.isnan(y)):
+        if x != y and not (
+            isinstance(x, float) and isinstance(y, float) and math.isnan(x) and math.isnan(y)
+        ):
             out.append(f"{k}: {x!r} != {y!r}")
     return out
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--against", type=Path, default=None, help="another checkout to time side by side")
+    p.add_argument(
+        "--against", type=Path, default=None, help="another checkout to time side by side"
+    )
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--threads", default="auto", help="the app's threads setting (auto, 1, 2, ...)")
-    p.add_argument("--quick", action="store_true", help="a reduced budget: a check that the benchmark runs")
-    p.add_argument("overrides", nargs="*", help="more config overrides, as on the app's command line")
+    p.add_argument(
+        "--quick", action="store_true", help="a reduced budget: a check that the benchmark runs"
+    )
+    p.add_argument(
+        "overrides", nargs="*", help="more config overrides, as on the app's command line"
+    )
     args = p.parse_args()
     overrides = [f"threads={args.threads}", *(QUICK if args.quick else []), *args.overrides]
     trees = {"this": HERE.parent} | ({"against": args.against.resolve()} if args.against else {})
@@ -130,18 +147,32 @@ def main() -> None:
             runs[name].append(spent)
             reference = reference or metrics
             diff = differences(reference, metrics)
-            print(f"run {r + 1} {name}: {spent['total'][0]:.1f} s wall, {spent['total'][1]:.1f} s CPU, load "
-                  f"{os.getloadavg()[0]:.1f}; metrics vs the first run: {len(diff)} keys differ", flush=True)
+            print(
+                f"run {r + 1} {name}: {spent['total'][0]:.1f} s wall, {spent['total'][1]:.1f} s "
+                "CPU, load "
+                f"{os.getloadavg()[0]:.1f}; metrics vs the first run: {len(diff)} keys differ",
+                flush=True,
+            )
             for line in diff:
                 print("   ", line)
-    print("\n| phase | " + " | ".join(f"{n}: wall / CPU s" for n in trees)
-          + (" | against / this: wall, CPU |" if args.against else " |"))
+    print(
+        "\n| phase | "
+        + " | ".join(f"{n}: wall / CPU s" for n in trees)
+        + (" | against / this: wall, CPU |" if args.against else " |")
+    )
     print("|---|" + "---|" * (len(trees) + bool(args.against)))
     for phase in PHASES:
-        med = {n: [statistics.median(s.get(phase, (0.0, 0.0))[i] for s in runs[n]) for i in (0, 1)] for n in trees}
+        med = {
+            n: [statistics.median(s.get(phase, (0.0, 0.0))[i] for s in runs[n]) for i in (0, 1)]
+            for n in trees
+        }
         cells = " | ".join(f"{med[n][0]:.1f} / {med[n][1]:.1f}" for n in trees)
-        ratio = (f" | {med['against'][0] / med['this'][0]:.2f}x, {med['against'][1] / max(med['this'][1], 1e-9):.2f}x |"
-                 if args.against and med["this"][0] > 0 else " |")
+        ratio = (
+            f" | {med['against'][0] / med['this'][0]:.2f}x, "
+            f"{med['against'][1] / max(med['this'][1], 1e-9):.2f}x |"
+            if args.against and med["this"][0] > 0
+            else " |"
+        )
         print(f"| {phase} | {cells}{ratio}")
 
 

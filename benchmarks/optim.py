@@ -44,7 +44,9 @@ def asked_objective(task: WindowTask, promp: ProMP, opt):
     computed (``WindowTask.objective_cost``; the others are 0, which the update never reads), the
     start and end distances on the trajectory's first and last steps alone
     (``Evaluator.sample_trajectory``: the same numbers as the full trajectory's)."""
-    ev = Evaluator.build(task, promp, eval_dtype=None, sample_steps=None, labeler=None, dtype=promp.basis.dtype)
+    ev = Evaluator.build(
+        task, promp, eval_dtype=None, sample_steps=None, labeler=None, dtype=promp.basis.dtype
+    )
 
     def f(w):  # (B, S, N) -> (B, S, 3)
         o = opt.asked_objective
@@ -61,17 +63,34 @@ def bench_relevance(repeats: int, device: str) -> tuple[float, float]:
     task, promp, f = window_problem(device=device)
     pro_t, rwpo_t = [], []
     for r in range(repeats):
-        pro = PRO(promp.mean, promp.var, beta=20.0, relevance_samples=200, noise_floor=3.0, max_iter=5, seed=r)
+        pro = PRO(
+            promp.mean,
+            promp.var,
+            beta=20.0,
+            relevance_samples=200,
+            noise_floor=3.0,
+            max_iter=5,
+            seed=r,
+        )
         pro.minimize(f)
         pro_t += pro.relevance_seconds[1:]  # the first includes one-off warm-up
-        rwpo = RWPO(promp.mean, promp.var, beta=20.0, num_objectives=3, num_basis=10, max_iter=1, seed=r)
+        rwpo = RWPO(
+            promp.mean, promp.var, beta=20.0, num_objectives=3, num_basis=10, max_iter=1, seed=r
+        )
         rwpo.minimize(f)
         rwpo_t += rwpo.relevance_seconds
     return statistics.median(pro_t), statistics.median(rwpo_t)
 
 
-def bench_batch(batch: int, iters: int, device: str, rows: int | None = None, dtype=torch.float64,
-                clock=time.perf_counter, asked: bool = False) -> tuple[float, float]:
+def bench_batch(
+    batch: int,
+    iters: int,
+    device: str,
+    rows: int | None = None,
+    dtype=torch.float64,
+    clock=time.perf_counter,
+    asked: bool = False,
+) -> tuple[float, float]:
     """Seconds per PRO iteration for ``batch`` problems at once, and the part of it spent in the
     objective (``rows``: evaluate it that many problems at a time; ``asked``: only what the update
     reads, :func:`asked_objective`), on ``clock``."""
@@ -80,7 +99,11 @@ def bench_batch(batch: int, iters: int, device: str, rows: int | None = None, dt
 
     def objective(w):  # (B, S, N) -> (B, S, 3), timed
         t = clock()
-        out = f(w) if rows is None else torch.cat([f(w[i:i + rows]) for i in range(0, w.shape[0], rows)])
+        out = (
+            f(w)
+            if rows is None
+            else torch.cat([f(w[i : i + rows]) for i in range(0, w.shape[0], rows)])
+        )
         spent[0] += clock() - t
         return out
 
@@ -105,13 +128,19 @@ def bench_batch(batch: int, iters: int, device: str, rows: int | None = None, dt
 def ops_per_iteration(device: str) -> int:
     """The torch operations one B = 1 PRO iteration dispatches, objective included."""
     task, promp, f = window_problem(device=device)
-    opt = PRO(promp.mean[None], promp.var[None], beta=20.0, num_samples=100, max_iter=3, tol=0.0, seed=0)
+    opt = PRO(
+        promp.mean[None], promp.var[None], beta=20.0, num_samples=100, max_iter=3, tol=0.0, seed=0
+    )
     opt.tell(f(opt.ask()))
     with torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU]) as prof:
         it = opt.iteration
         while opt.iteration == it:
             opt.tell(f(opt.ask()))
-    return sum(e.count for e in prof.key_averages() if not e.key.startswith(("aten::view", "aten::as_strided")))
+    return sum(
+        e.count
+        for e in prof.key_averages()
+        if not e.key.startswith(("aten::view", "aten::as_strided"))
+    )
 
 
 def copy_bandwidth(device: str) -> float:
@@ -132,37 +161,63 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--iters", type=int, default=30)
     ap.add_argument("--device", default="cpu")
-    ap.add_argument("--dtype", choices=("float64", "float32"), default="float64", help="of the batching part")
+    ap.add_argument(
+        "--dtype", choices=("float64", "float32"), default="float64", help="of the batching part"
+    )
     ap.add_argument("--clock", choices=("wall", "cpu"), default="wall", help="of the batching part")
-    ap.add_argument("--batch-only", action="store_true", help="the batching part alone (no relevance timing)")
+    ap.add_argument(
+        "--batch-only", action="store_true", help="the batching part alone (no relevance timing)"
+    )
     args = ap.parse_args()
-    dtype, clock = getattr(torch, args.dtype), (time.perf_counter if args.clock == "wall" else time.process_time)
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, device {args.device}; "
-          f"batching in {args.dtype}, {args.clock} seconds\n")
+    dtype, clock = (
+        getattr(torch, args.dtype),
+        (time.perf_counter if args.clock == "wall" else time.process_time),
+    )
+    print(
+        f"torch {torch.__version__}, {torch.get_num_threads()} threads, device {args.device}; "
+        f"batching in {args.dtype}, {args.clock} seconds\n"
+    )
     if not args.batch_only:
         pro_s, rwpo_s = bench_relevance(args.repeats, args.device)
         print("| relevance (window task, rollouts included) | seconds |")
         print("|---|---|")
         print(f"| PRO (Pearson, 200 samples) | {pro_s:.5f} |")
         print(f"| RWPO (50 x 200 x 50 learning) | {rwpo_s:.3f} |")
-        print(f"| ratio RWPO / PRO | {rwpo_s / pro_s:,.0f}x |  (paper: 84.47 s / 0.02 s = 4,224x)\n")
-    print("| PRO batch | s / iteration | of it the objective | per-problem speed-up | PRO alone (ask + tell): speed-up |")
+        print(
+            f"| ratio RWPO / PRO | {rwpo_s / pro_s:,.0f}x |  (paper: 84.47 s / 0.02 s = 4,224x)\n"
+        )
+    print(
+        "| PRO batch | s / iteration | of it the objective | per-problem speed-up | PRO alone (ask "
+        "+ tell): speed-up |"
+    )
     print("|---|---|---|---|---|")
     for asked in (False, True):
         one, one_f = bench_batch(1, args.iters, args.device, dtype=dtype, clock=clock, asked=asked)
-        what = "the objective only as the update reads it (the loop's evaluation)" if asked else "the objective as written"
+        what = (
+            "the objective only as the update reads it (the loop's evaluation)"
+            if asked
+            else "the objective as written"
+        )
         print(f"| B = 1, {what} | {one:.4f} | {one_f:.4f} | 1.0x | 1.0x |")
-        for rows in ((16,) if asked else (None, 16)):
-            many, many_f = bench_batch(256, max(args.iters // 3, 5), args.device, rows, dtype, clock, asked)
-            label = (f"{what}, 16 problems at a time" if rows else what)
-            print(f"| B = 256, {label} | {many:.4f} | {many_f:.4f} | {256 * one / many:,.1f}x "
-                  f"| {256 * (one - one_f) / (many - many_f):,.1f}x |")
+        for rows in (16,) if asked else (None, 16):
+            many, many_f = bench_batch(
+                256, max(args.iters // 3, 5), args.device, rows, dtype, clock, asked
+            )
+            label = f"{what}, 16 problems at a time" if rows else what
+            print(
+                f"| B = 256, {label} | {many:.4f} | {many_f:.4f} | {256 * one / many:,.1f}x "
+                f"| {256 * (one - one_f) / (many - many_f):,.1f}x |"
+            )
     ops = ops_per_iteration(args.device)
     # each ask's trajectories (B, S, T, 2) in the dtype: written by the ProMP, read by the costs
     traj_gb = 256 * (200 + 3 * 100) * 100 * 2 * dtype.itemsize / 1e9
-    print(f"\nB = 1 dispatches {ops} torch operations per iteration: {1e6 * one / ops:.1f} us each, "
-          f"end to end; the copy bandwidth here is {copy_bandwidth(args.device):.1f} GB/s, and B = 256 "
-          f"writes {traj_gb:.2f} GB of trajectories per iteration before its costs read them.")
+    print(
+        f"\nB = 1 dispatches {ops} torch operations per iteration: {1e6 * one / ops:.1f} us each, "
+        f"end to end; the copy bandwidth here is {copy_bandwidth(args.device):.1f} GB/s, and B = "
+        "256 "
+        f"writes {traj_gb:.2f} GB of trajectories per iteration before its costs read them."
+    )
+
 
 if __name__ == "__main__":
     main()

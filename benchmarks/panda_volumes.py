@@ -26,7 +26,9 @@ import numpy as np
 import torch
 
 from protorch.robots import load_robot
-from protorch.robots.capsules import protrusion  # the coverage measure, shared with benchmarks/capsules.py
+from protorch.robots.capsules import (
+    protrusion,
+)  # the coverage measure, shared with benchmarks/capsules.py
 
 PANDA = load_robot("panda")
 PANDA_CAPSULES = PANDA.capsule_list()
@@ -41,7 +43,7 @@ def stl_triangles(path: Path) -> np.ndarray:
     raw = path.read_bytes()
     n = struct.unpack("<I", raw[80:84])[0]
     rec = np.dtype([("normal", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")])
-    return np.frombuffer(raw[84:84 + 50 * n], dtype=rec)["v"].astype(np.float64)
+    return np.frombuffer(raw[84 : 84 + 50 * n], dtype=rec)["v"].astype(np.float64)
 
 
 def dae_vertices(path: Path) -> np.ndarray:
@@ -51,12 +53,14 @@ def dae_vertices(path: Path) -> np.ndarray:
     pos = {}
     for g in root.iter(ns + "geometry"):
         arrays = [a for a in g.iter(ns + "float_array") if "position" in (a.get("id") or "")]
-        pos[g.get("id")] = np.concatenate([np.array(a.text.split(), float).reshape(-1, 3) for a in arrays])
+        pos[g.get("id")] = np.concatenate(
+            [np.array(a.text.split(), float).reshape(-1, 3) for a in arrays]
+        )
     out = []
 
     def walk(node, mat):
         for child in node:
-            tag = child.tag[len(ns):]
+            tag = child.tag[len(ns) :]
             if tag == "matrix":
                 mat = mat @ np.array(child.text.split(), float).reshape(4, 4)
             elif tag == "translate":
@@ -64,7 +68,7 @@ def dae_vertices(path: Path) -> np.ndarray:
                 t[:3, 3] = np.array(child.text.split(), float)
                 mat = mat @ t
         for child in node:
-            tag = child.tag[len(ns):]
+            tag = child.tag[len(ns) :]
             if tag == "instance_geometry":
                 v = pos[child.get("url")[1:]]
                 out.append(v @ mat[:3, :3].T + mat[:3, 3])
@@ -91,9 +95,15 @@ def link_points(root: Path, link: str, rng: np.random.Generator) -> dict[str, np
     u = rng.random((tri.shape[0], 30, 2))
     flip = u.sum(-1) > 1
     u[flip] = 1 - u[flip]
-    surface = tri[:, None, 0] + u[..., :1] * (tri[:, None, 1] - tri[:, None, 0]) + u[..., 1:] * (tri[:, None, 2] - tri[:, None, 0])
-    out = {"visual": dae_vertices(root / f"meshes/robot_arms/fer/visual/{link}.dae"),
-           "collision surface": surface.reshape(-1, 3)}
+    surface = (
+        tri[:, None, 0]
+        + u[..., :1] * (tri[:, None, 1] - tri[:, None, 0])
+        + u[..., 1:] * (tri[:, None, 2] - tri[:, None, 0])
+    )
+    out = {
+        "visual": dae_vertices(root / f"meshes/robot_arms/fer/visual/{link}.dae"),
+        "collision surface": surface.reshape(-1, 3),
+    }
     if link == "hand":
         out["visual"] = np.concatenate([out["visual"], fingers(root)])
     return out
@@ -101,8 +111,11 @@ def link_points(root: Path, link: str, rng: np.random.Generator) -> dict[str, np
 
 def coverage(root: Path, capsules: dict) -> None:
     rng = np.random.default_rng(0)
-    print(f"{'link':<8}{'capsules':>9}{'visual inside':>15}{'largest out, mm':>17}{'collision inside':>18}"
-          f"{'largest out, mm':>17}")
+    print(
+        f"{'link':<8}{'capsules':>9}{'visual inside':>15}{'largest out, mm':>17}"
+        f"{'collision inside':>18}"
+        f"{'largest out, mm':>17}"
+    )
     for link in LINKS:
         pts = link_points(root, link, rng)
         row = f"{link:<8}{len(capsules[link]):>9}"
@@ -131,18 +144,30 @@ def fit(points: np.ndarray, init, steps: int = 3000):
         loss.backward()
         opt.step()
     a, b = np.round(a.detach().numpy() * 2000) / 2000, np.round(b.detach().numpy() * 2000) / 2000
-    dist = np.stack([protrusion(points, [(ai, bi, 0.0)]) for ai, bi in zip(a, b)], 1)  # (n, K) to each segment
+    dist = np.stack(
+        [protrusion(points, [(ai, bi, 0.0)]) for ai, bi in zip(a, b)], 1
+    )  # (n, K) to each segment
     owner = dist.argmin(1)
-    r = [math.ceil(1e3 * dist[owner == k, k].max()) / 1e3 if (owner == k).any() else 0.0 for k in range(len(a))]
+    r = [
+        math.ceil(1e3 * dist[owner == k, k].max()) / 1e3 if (owner == k).any() else 0.0
+        for k in range(len(a))
+    ]
     return [(tuple(ai), tuple(bi), ri) for ai, bi, ri in zip(a, b, r)]
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--meshes", type=Path, required=True, help="a checkout of frankaemika/franka_description")
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument(
+        "--meshes", type=Path, required=True, help="a checkout of frankaemika/franka_description"
+    )
     p.add_argument("--fit", action="store_true", help="refit the capsules (minutes) and print them")
     a = p.parse_args()
-    shipped = {link: [(c.a, c.b, c.radius) for c in PANDA_CAPSULES if c.link == f"panda_{link}"] for link in LINKS}
+    shipped = {
+        link: [(c.a, c.b, c.radius) for c in PANDA_CAPSULES if c.link == f"panda_{link}"]
+        for link in LINKS
+    }
     print("the shipped capsules (protorch/robots/panda.yaml):")
     coverage(a.meshes, shipped)
     if a.fit:
@@ -152,8 +177,17 @@ def main() -> None:
         for link in LINKS:
             pts = link_points(a.meshes, link, rng)
             init = [(np.array(c[0]), np.array(c[1])) for c in shipped[link]]
-            fitted[link] = fit(np.concatenate([pts["visual"], stl_triangles(
-                a.meshes / f"meshes/robot_arms/fer/collision/{link}.stl").reshape(-1, 3)]), init)
+            fitted[link] = fit(
+                np.concatenate(
+                    [
+                        pts["visual"],
+                        stl_triangles(
+                            a.meshes / f"meshes/robot_arms/fer/collision/{link}.stl"
+                        ).reshape(-1, 3),
+                    ]
+                ),
+                init,
+            )
             for ca, cb, r in fitted[link]:
                 print(f'    Capsule("panda_{link}", {ca}, {cb}, {r}),')
         print("\nrefitted:")

@@ -31,18 +31,35 @@ PARTS = [
     ("whole run", [("protorch/__main__.py", "<module>")]),
     ("imports and config (before the experiment)", []),
     ("both loops (PRO, RWR)", [("protorch/loop/__init__.py", "self_improve")]),
-    ("  evaluating the samples (loop.phases.sample_costs)", [("protorch/loop/phases.py", "sample_costs")]),
-    ("    trajectories (ProMP basis x weights)", [("protorch/primitives/promp.py", "trajectory"),
-                                                 ("protorch/loop/phases.py", "sample_trajectory")]),
+    (
+        "  evaluating the samples (loop.phases.sample_costs)",
+        [("protorch/loop/phases.py", "sample_costs")],
+    ),
+    (
+        "    trajectories (ProMP basis x weights)",
+        [
+            ("protorch/primitives/promp.py", "trajectory"),
+            ("protorch/loop/phases.py", "sample_trajectory"),
+        ],
+    ),
     ("    the task's costs, every objective", [("protorch/tasks/point_particle.py", "costs")]),
-    ("    the task's cost, one objective alone", [("protorch/tasks/point_particle.py", "objective_cost")]),
-    ("    signed distance to the wall", [("protorch/tasks/point_particle.py", "signed_distance_to_wall")]),
+    (
+        "    the task's cost, one objective alone",
+        [("protorch/tasks/point_particle.py", "objective_cost")],
+    ),
+    (
+        "    signed distance to the wall",
+        [("protorch/tasks/point_particle.py", "signed_distance_to_wall")],
+    ),
     ("  the optimisers' tell (updates, relevance, next ask)", [("protorch/optim/base.py", "tell")]),
     ("    normal draws (the generator)", [("protorch/optim/base.py", "_randn")]),
     ("    relevance (Pearson)", [("protorch/optim/functional.py", "pearson_relevance")]),
     ("    update (Eq. 4-6)", [("protorch/optim/functional.py", "pro_update")]),
     ("  input checks (finite values)", [("protorch/checks.py", "check_tensor")]),
-    ("moving tests (both moving-environment tests, 3 maps)", [("protorch/control/particle.py", "run_episodes")]),
+    (
+        "moving tests (both moving-environment tests, 3 maps)",
+        [("protorch/control/particle.py", "run_episodes")],
+    ),
     ("figures", [("protorch/experiments/point_particle.py", "figures")]),
     ("  animated GIFs", [("protorch/viz/online.py", "write_episode_gif")]),
 ]
@@ -55,7 +72,12 @@ def part_seconds(stats: pstats.Stats) -> dict[str, float | None]:
         cum[key] = max(cum.get(key, 0.0), ct)
     out: dict[str, float | None] = {}
     for label, funcs in PARTS:
-        found = [ct for (file, name), ct in cum.items() for suffix, fn in funcs if file.endswith(suffix) and name == fn]
+        found = [
+            ct
+            for (file, name), ct in cum.items()
+            for suffix, fn in funcs
+            if file.endswith(suffix) and name == fn
+        ]
         out[label] = max(found) if found else None
     run = max((ct for (file, name), ct in cum.items() if name == "run_experiment"), default=None)
     if out["whole run"] is not None and run is not None:
@@ -66,7 +88,9 @@ def part_seconds(stats: pstats.Stats) -> dict[str, float | None]:
 def record(out: str, overrides: list[str]) -> None:
     """Profile ``python -m protorch OVERRIDES`` in this process on a CPU-time clock into ``out``."""
     sys.argv = ["protorch", *overrides]
-    here = Path(__file__).resolve().parent  # benchmarks/ off the path: its modules' names must not shadow others
+    here = (
+        Path(__file__).resolve().parent
+    )  # benchmarks/ off the path: its modules' names must not shadow others
     sys.path[:] = [d for d in sys.path if Path(d or ".").resolve() != here]
     prof = cProfile.Profile(time.process_time)
     prof.enable()
@@ -82,8 +106,16 @@ def record(out: str, overrides: list[str]) -> None:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--record", metavar="OUT", help="profile a run of the app (the arguments: its overrides) into OUT")
-    p.add_argument("profiles", nargs="+", help="cProfile output files of whole runs, or with --record the overrides")
+    p.add_argument(
+        "--record",
+        metavar="OUT",
+        help="profile a run of the app (the arguments: its overrides) into OUT",
+    )
+    p.add_argument(
+        "profiles",
+        nargs="+",
+        help="cProfile output files of whole runs, or with --record the overrides",
+    )
     args = p.parse_args()
     if args.record:
         record(args.record, args.profiles)

@@ -15,15 +15,22 @@ import logging
 import time
 from pathlib import Path
 
-ARMS = (("xArm 6", "xarm/xarm6_robot.urdf", None), ("KUKA iiwa", "kuka_iiwa/model.urdf", None),
-        ("Panda", "franka_panda/panda.urdf", "panda_grasptarget"))
+ARMS = (
+    ("xArm 6", "xarm/xarm6_robot.urdf", None),
+    ("KUKA iiwa", "kuka_iiwa/model.urdf", None),
+    ("Panda", "franka_panda/panda.urdf", "panda_grasptarget"),
+)
 
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--png", default=None, help="write the frames of the three arms here")
-    parser.add_argument("--inertia", action="store_true", help="the joint-space inertia at home of pybullet's Panda: "
-                        "the file's inertials, repaired, and the shipped Panda's")
+    parser.add_argument(
+        "--inertia",
+        action="store_true",
+        help="the joint-space inertia at home of pybullet's Panda: "
+        "the file's inertials, repaired, and the shipped Panda's",
+    )
     args = parser.parse_args(argv)
     if args.inertia:
         return joint_inertia()
@@ -46,10 +53,23 @@ def main(argv=None) -> None:
         seconds = time.perf_counter() - t
         found = {k: v for k, v in robot.found.items() if k not in ("layout", "converted")}
         found["converted"] = len(robot.found.get("converted", []))
-        print(json.dumps({"arm": label, "dof": robot.num_joints, "end_link": robot.end_link, "seconds": round(seconds, 1),
-                          "can_box": task.can_box, "goal_box": task.goal_box, "table": task.table,
-                          "can": [task.can_radius, task.can_height], "start": [round(v, 4) for v in task.start],
-                          "capsules": len(robot.capsule_list()), "found": found}))
+        print(
+            json.dumps(
+                {
+                    "arm": label,
+                    "dof": robot.num_joints,
+                    "end_link": robot.end_link,
+                    "seconds": round(seconds, 1),
+                    "can_box": task.can_box,
+                    "goal_box": task.goal_box,
+                    "table": task.table,
+                    "can": [task.can_radius, task.can_height],
+                    "start": [round(v, 4) for v in task.start],
+                    "capsules": len(robot.capsule_list()),
+                    "found": found,
+                }
+            )
+        )
         if args.png:
             scene = build_scene(task)
             (_, x1), (_, y1) = task.goal_box
@@ -61,7 +81,9 @@ def main(argv=None) -> None:
             frames += render_frames(scene, q, can, goal)
             titles += [f"{label}: home", f"{label}: target corner"]
     if args.png:
-        write_strip(args.png, frames, titles, "pybullet_data's arms, unedited, in protorch's MuJoCo scene")
+        write_strip(
+            args.png, frames, titles, "pybullet_data's arms, unedited, in protorch's MuJoCo scene"
+        )
         print(f"wrote {args.png}")
 
 
@@ -93,10 +115,19 @@ def joint_inertia() -> None:
     path = f"{pybullet_data.getDataPath()}/franka_panda/panda.urdf"
     fixed = load_robot({"urdf": path, "end_link": "panda_grasptarget"})
     text = re.sub(r"^\s*<\?xml[^>]*\?>", "", Path(path).read_text())
-    as_is = dataclasses.replace(fixed, inertials={k: v for k, v in urdf_inertials(ET.fromstring(text)).items()
-                                                  if v.mass > 0})
-    for label, robot in (("the file's inertials", as_is), ("repaired", fixed), ("shipped Panda", load_robot("panda"))):
-        print(f"{label}: M(home) diagonal {diagonal(robot)} kg m^2, effort {list(robot.max_torque)} N m")
+    as_is = dataclasses.replace(
+        fixed,
+        inertials={k: v for k, v in urdf_inertials(ET.fromstring(text)).items() if v.mass > 0},
+    )
+    for label, robot in (
+        ("the file's inertials", as_is),
+        ("repaired", fixed),
+        ("shipped Panda", load_robot("panda")),
+    ):
+        print(
+            f"{label}: M(home) diagonal {diagonal(robot)} kg m^2, effort {list(robot.max_torque)} "
+            "N m"
+        )
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
-"""Recordings as a robot logs them, made from the arm's synthetic demonstrations (docs/recordings.md).
+"""Recordings as a robot logs them, made from the arm's synthetic demonstrations
+(docs/recordings.md).
 
     python benchmarks/recordings.py --out DIR [--seed 0] [--bags] [--mixed] [--still]
 
@@ -7,7 +8,8 @@ draws the same with ``seed``) become 60 recordings, ``DIR/csv/demoNN.csv``:
 
 - joint angles at 100, 500 or 1000 Hz (in turn), each interval jittered by +-10 %, time stamps in
   integer nanoseconds as ROS gives them;
-- the motion stretched to 3-6 s at uneven speed (the phase runs at ``1 + a cos(2 pi u) + b cos(4 pi u)``,
+- the motion stretched to 3-6 s at uneven speed (the phase runs at ``1 + a cos(2 pi u) + b cos(4 pi
+  u)``,
   ``|a| + |b| <= 0.6``), idle ends of 0.3-1.5 s before and after;
 - encoder noise (Gaussian, ``--encoder`` rad, default 2e-4), kept inside the joint limits;
 - the can and the target at 120 Hz as motion capture reads them: the true positions plus a
@@ -75,9 +77,22 @@ def mixed_demos(task, seed: int = 0, envs: int = 20, per_env: int = 3):
     return task.demonstrations(e.repeat_interleave(per_env, 0), 1, gen, sides=torch.tensor(sides))
 
 
-def record(demo: np.ndarray, env: np.ndarray, rate: float, rng: np.random.Generator, lower, upper, *,
-           encoder: float = 2e-4, mocap: float = 3e-3, mocap_row: float = 5e-4, duration=(3.0, 6.0),
-           idle=(0.3, 1.5), speed: float = 0.6, pause: tuple[float, float] | None = None):
+def record(
+    demo: np.ndarray,
+    env: np.ndarray,
+    rate: float,
+    rng: np.random.Generator,
+    lower,
+    upper,
+    *,
+    encoder: float = 2e-4,
+    mocap: float = 3e-3,
+    mocap_row: float = 5e-4,
+    duration=(3.0, 6.0),
+    idle=(0.3, 1.5),
+    speed: float = 0.6,
+    pause: tuple[float, float] | None = None,
+):
     """One recording of ``demo (T, D)`` in environment ``env (4,)`` (can x y, goal x y):
     ``(joint_ns (R,), q (R, D), poses {"can"|"goal": (ns (P,), xyz (P, 3))})``. ``pause``:
     ``(phase, seconds)`` the demonstrator stops at that phase for that long."""
@@ -101,11 +116,17 @@ def record(demo: np.ndarray, env: np.ndarray, rate: float, rng: np.random.Genera
         tm = t - pre
         tm = np.where(tm > p_at * motion + hold, tm - hold, np.minimum(tm, p_at * motion))
         u = np.clip(tm / motion, 0, 1)
-    phase = u + a * np.sin(2 * np.pi * u) / (2 * np.pi) + b * np.sin(4 * np.pi * u) / (4 * np.pi)  # (R,) monotone
+    phase = (
+        u + a * np.sin(2 * np.pi * u) / (2 * np.pi) + b * np.sin(4 * np.pi * u) / (4 * np.pi)
+    )  # (R,) monotone
     idx = np.linspace(0, 1, t_len)
     q = np.stack([np.interp(phase, idx, demo[:, d]) for d in range(demo.shape[1])], 1)  # (R, D)
     q = np.clip(q + encoder * rng.standard_normal(q.shape), lower, upper)
-    m_ns = t0_ns - int(rng.integers(0, 10**7)) + np.arange(0, int(total * MOCAP_HZ) + 2) * int(1e9 / MOCAP_HZ)
+    m_ns = (
+        t0_ns
+        - int(rng.integers(0, 10**7))
+        + np.arange(0, int(total * MOCAP_HZ) + 2) * int(1e9 / MOCAP_HZ)
+    )
     poses = {}
     for k, name in enumerate(("can", "goal")):
         true = np.array([env[2 * k], env[2 * k + 1], 0.0])
@@ -116,8 +137,16 @@ def record(demo: np.ndarray, env: np.ndarray, rate: float, rng: np.random.Genera
     return ns, q, poses
 
 
-def make_recordings(out: Path, seed: int = 0, *, encoder: float = 2e-4, mocap: float = 3e-3, bags: bool = False,
-                    count: int | None = None, mixed: bool = False) -> list[dict]:
+def make_recordings(
+    out: Path,
+    seed: int = 0,
+    *,
+    encoder: float = 2e-4,
+    mocap: float = 3e-3,
+    bags: bool = False,
+    count: int | None = None,
+    mixed: bool = False,
+) -> list[dict]:
     """Write ``out/csv`` (and with ``bags`` ``out/bags``): the 60 recordings (``mixed``: of
     :func:`mixed_demos`). Returns what each is."""
     task = ArmReachTask()
@@ -130,15 +159,32 @@ def make_recordings(out: Path, seed: int = 0, *, encoder: float = 2e-4, mocap: f
     n = len(demos) if count is None else int(count)
     for i in range(n):
         rate = RATES[i % len(RATES)]
-        ns, q, poses = record(demos[i].numpy(), envs[i].numpy(), rate, rng, lower, upper, encoder=encoder, mocap=mocap)
+        ns, q, poses = record(
+            demos[i].numpy(), envs[i].numpy(), rate, rng, lower, upper, encoder=encoder, mocap=mocap
+        )
         header, table = recording_table(ns, q, poses, fmt.columns, fmt.env_names, cols)
         write_recording(out / "csv" / f"demo{i:02d}.csv", header, table)
         kind = "ros1" if i == 0 else ("sqlite3" if i % 4 == 1 else "mcap")
-        if bags:  # the names' order drawn from its own generator: the same recordings with or without bags
-            write_bag(out / "bags" / (f"demo{i:02d}.bag" if kind == "ros1" else f"demo{i:02d}"), ns, q,
-                      list(fmt.columns), poses, kind, np.random.default_rng([seed, i]))
-        info.append({"file": f"demo{i:02d}.csv", "rate": rate, "rows": int(ns.size), "bag": kind,
-                     "label": int(labels[i])})
+        # the names' order drawn from its own generator: the same recordings with or without bags
+        if bags:
+            write_bag(
+                out / "bags" / (f"demo{i:02d}.bag" if kind == "ros1" else f"demo{i:02d}"),
+                ns,
+                q,
+                list(fmt.columns),
+                poses,
+                kind,
+                np.random.default_rng([seed, i]),
+            )
+        info.append(
+            {
+                "file": f"demo{i:02d}.csv",
+                "rate": rate,
+                "rows": int(ns.size),
+                "bag": kind,
+                "label": int(labels[i]),
+            }
+        )
     return info
 
 
@@ -161,7 +207,9 @@ def add_motionless(src: Path, dst: Path, seed: int = 0) -> Path:
     return write_recording(dst / "demo60.csv", ["time", *fmt.columns, *fmt.env_names], table)
 
 
-def write_bag(path: Path, joint_ns, q, joint_names, poses, kind: str, rng: np.random.Generator | None = None) -> Path:
+def write_bag(
+    path: Path, joint_ns, q, joint_names, poses, kind: str, rng: np.random.Generator | None = None
+) -> Path:
     """Write one recording as a bag (``kind``: ``mcap`` / ``sqlite3``: ROS 2, ``ros1``): the
     JointState names shuffled (``rng``) and the finger joints added; PoseStamped per pose."""
     from rosbags.typesys import Stores, get_typestore
@@ -171,13 +219,21 @@ def write_bag(path: Path, joint_ns, q, joint_names, poses, kind: str, rng: np.ra
     T = ts.types
     Time, Header = T["builtin_interfaces/msg/Time"], T["std_msgs/msg/Header"]
     JointState, PoseStamped = T["sensor_msgs/msg/JointState"], T["geometry_msgs/msg/PoseStamped"]
-    Pose, Point, Quat = T["geometry_msgs/msg/Pose"], T["geometry_msgs/msg/Point"], T["geometry_msgs/msg/Quaternion"]
+    Pose, Point, Quat = (
+        T["geometry_msgs/msg/Pose"],
+        T["geometry_msgs/msg/Point"],
+        T["geometry_msgs/msg/Quaternion"],
+    )
     names = list(joint_names) + list(FINGERS)
     perm = (rng or np.random.default_rng(0)).permutation(len(names))
 
     def header(ns: int, frame: str):
         stamp = Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
-        return Header(seq=0, stamp=stamp, frame_id=frame) if ros1 else Header(stamp=stamp, frame_id=frame)
+        return (
+            Header(seq=0, stamp=stamp, frame_id=frame)
+            if ros1
+            else Header(stamp=stamp, frame_id=frame)
+        )
 
     serialize = ts.serialize_ros1 if ros1 else ts.serialize_cdr
     if ros1:
@@ -187,25 +243,47 @@ def write_bag(path: Path, joint_ns, q, joint_names, poses, kind: str, rng: np.ra
     else:
         from rosbags.rosbag2 import StoragePlugin, Writer
 
-        writer = Writer(path, version=8, storage_plugin=StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3)
+        writer = Writer(
+            path,
+            version=8,
+            storage_plugin=StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3,
+        )
     path.parent.mkdir(parents=True, exist_ok=True)
     with writer:
         jc = writer.add_connection("/joint_states", JointState.__msgtype__, typestore=ts)
-        pc = {name: writer.add_connection(topic, PoseStamped.__msgtype__, typestore=ts) for name, topic in POSES.items()}
+        pc = {
+            name: writer.add_connection(topic, PoseStamped.__msgtype__, typestore=ts)
+            for name, topic in POSES.items()
+        }
         msgs = []
         fingers = np.full((q.shape[0], len(FINGERS)), 0.04)
         full = np.concatenate([q, fingers], 1)[:, perm]
         empty = np.zeros(0)
         for k in range(q.shape[0]):
-            m = JointState(header=header(int(joint_ns[k]), ""), name=[names[j] for j in perm], position=full[k].copy(),
-                           velocity=empty, effort=empty)
-            msgs.append((int(joint_ns[k]) + 250_000, 0, jc, m))  # logged 0.25 ms after it was stamped
+            m = JointState(
+                header=header(int(joint_ns[k]), ""),
+                name=[names[j] for j in perm],
+                position=full[k].copy(),
+                velocity=empty,
+                effort=empty,
+            )
+            msgs.append(
+                (int(joint_ns[k]) + 250_000, 0, jc, m)
+            )  # logged 0.25 ms after it was stamped
         for name, (p_ns, xyz) in poses.items():
             for k in range(p_ns.size):
-                pose = Pose(position=Point(x=float(xyz[k, 0]), y=float(xyz[k, 1]), z=float(xyz[k, 2])),
-                            orientation=Quat(x=0.0, y=0.0, z=0.0, w=1.0))
-                msgs.append((int(p_ns[k]) + 2_000_000, 1, pc[name], PoseStamped(header=header(int(p_ns[k]), "world"),
-                                                                                 pose=pose)))
+                pose = Pose(
+                    position=Point(x=float(xyz[k, 0]), y=float(xyz[k, 1]), z=float(xyz[k, 2])),
+                    orientation=Quat(x=0.0, y=0.0, z=0.0, w=1.0),
+                )
+                msgs.append(
+                    (
+                        int(p_ns[k]) + 2_000_000,
+                        1,
+                        pc[name],
+                        PoseStamped(header=header(int(p_ns[k]), "world"), pose=pose),
+                    )
+                )
         for log_ns, _, conn, m in sorted(msgs, key=lambda x: (x[0], x[1])):
             writer.write(conn, log_ns, serialize(m, m.__msgtype__))
     return path
@@ -216,15 +294,30 @@ def main() -> None:
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--encoder", type=float, default=2e-4, help="encoder noise, rad")
-    ap.add_argument("--mocap", type=float, default=3e-3, help="per-recording motion-capture offset, m per axis")
+    ap.add_argument(
+        "--mocap", type=float, default=3e-3, help="per-recording motion-capture offset, m per axis"
+    )
     ap.add_argument("--bags", action="store_true", help="also write the bags and import them")
-    ap.add_argument("--mixed", action="store_true",
-                    help="every other environment demonstrated once on the left and twice on the right")
-    ap.add_argument("--still", action="store_true", help="also DIR/csv_still: the recordings and a motionless one")
+    ap.add_argument(
+        "--mixed",
+        action="store_true",
+        help="every other environment demonstrated once on the left and twice on the right",
+    )
+    ap.add_argument(
+        "--still",
+        action="store_true",
+        help="also DIR/csv_still: the recordings and a motionless one",
+    )
     args = ap.parse_args()
     start = time.perf_counter()
-    info = make_recordings(args.out, args.seed, encoder=args.encoder, mocap=args.mocap, bags=args.bags,
-                           mixed=args.mixed)
+    info = make_recordings(
+        args.out,
+        args.seed,
+        encoder=args.encoder,
+        mocap=args.mocap,
+        bags=args.bags,
+        mixed=args.mixed,
+    )
     if args.mixed:  # the same IK demonstrations, not recorded: the authors' format
         from protorch.data.demos import write_demo
 
@@ -234,18 +327,29 @@ def main() -> None:
         print(f"wrote the same {len(demos)} demonstrations unrecorded to {args.out / 'builtin'}")
     if args.still:
         added = add_motionless(args.out / "csv", args.out / "csv_still", args.seed)
-        print(f"copied {args.out / 'csv'} to {args.out / 'csv_still'} and added {added.name} (motionless)")
-    print(f"wrote {len(info)} recordings to {args.out / 'csv'} in {time.perf_counter() - start:.1f} s "
-          f"(rows {min(i['rows'] for i in info)}-{max(i['rows'] for i in info)}; measured sides: "
-          f"{sum(i['label'] == 0 for i in info)} left, {sum(i['label'] != 0 for i in info)} right)")
+        print(
+            f"copied {args.out / 'csv'} to {args.out / 'csv_still'} and added {added.name} "
+            "(motionless)"
+        )
+    print(
+        f"wrote {len(info)} recordings to {args.out / 'csv'} in {time.perf_counter() - start:.1f} "
+        "s "
+        f"(rows {min(i['rows'] for i in info)}-{max(i['rows'] for i in info)}; measured sides: "
+        f"{sum(i['label'] == 0 for i in info)} left, {sum(i['label'] != 0 for i in info)} right)"
+    )
     if args.bags:
         bags = sorted((args.out / "bags").iterdir())
         start = time.perf_counter()
-        written = import_bags(bags, "/joint_states", POSES, args.out / "imported", arm_demo_format(ArmReachTask()))
+        written = import_bags(
+            bags, "/joint_states", POSES, args.out / "imported", arm_demo_format(ArmReachTask())
+        )
         same = [filecmp.cmp(p, args.out / "csv" / p.name, shallow=False) for p in written]
         kinds = {k: sum(i["bag"] == k for i in info) for k in ("mcap", "sqlite3", "ros1")}
-        print(f"imported {len(written)} bags ({kinds}) in {time.perf_counter() - start:.1f} s; identical to the CSV "
-              f"files: {sum(same)} of {len(same)}")
+        print(
+            f"imported {len(written)} bags ({kinds}) in {time.perf_counter() - start:.1f} s; "
+            "identical to the CSV "
+            f"files: {sum(same)} of {len(same)}"
+        )
 
 
 if __name__ == "__main__":

@@ -34,7 +34,8 @@ PANDA = load_robot("panda")
 PANDA_LIMITS = tuple(zip(PANDA.lower, PANDA.upper))
 PANDA_CAPSULES, PANDA_BASE_LINKS = PANDA.capsule_list(), PANDA.base_links
 # Franka Emika's published Craig (modified) DH parameters, one row per joint: (a_{i-1} [m], d_i [m],
-# alpha_{i-1} [rad]); the flange's d after joint 7; the hand's yaw about the flange's z, then the TCP
+# alpha_{i-1} [rad]); the flange's d after joint 7; the hand's yaw about the flange's z, then the
+# TCP
 # along z. The independent reference the URDF is checked against (its header comment lists them).
 PANDA_DH = (
     (0.0, 0.333, 0.0),
@@ -74,7 +75,8 @@ def _trans(x: float, z: float) -> np.ndarray:
 
 
 def dh_frames(q: np.ndarray) -> dict[str, np.ndarray]:
-    """Every link frame of the Panda at ``q (..., 7)`` from Craig's DH parameters: ``{name: (..., 4, 4)}``."""
+    """Every link frame of the Panda at ``q (..., 7)`` from Craig's DH parameters: ``{name: (...,
+    4, 4)}``."""
     frames = {"panda_link0": np.broadcast_to(np.eye(4), q.shape[:-1] + (4, 4))}
     t = frames["panda_link0"]
     for i, (a, d, alpha) in enumerate(PANDA_DH):
@@ -99,7 +101,9 @@ def cylinder_distance(p: np.ndarray, axis: np.ndarray, radius: float, height: fl
     return np.where((rho > 0) | (below > 0) | (above > 0), outside, inside)
 
 
-def capsule_points(frames: dict[str, np.ndarray], step: float = 1e-3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def capsule_points(
+    frames: dict[str, np.ndarray], step: float = 1e-3
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Points every ``step`` along every capsule's segment: ``points (..., P, 3)``, their capsule's
     radius ``(P,)`` and whether it is on a moving link ``(P,)``."""
     pts, radii, moving = [], [], []
@@ -129,36 +133,61 @@ def replay(path: Path) -> dict:
             q = ep["q"][i]  # (T+1, 7)
             frames = dh_frames(q)
             pts, r, moving = capsule_points(frames)  # (T+1, P, 3)
-            d = cylinder_distance(pts, ep["can"][i][:, None, :], float(ep["can_radius"]), float(ep["can_height"])) - r
+            d = (
+                cylinder_distance(
+                    pts, ep["can"][i][:, None, :], float(ep["can_radius"]), float(ep["can_height"])
+                )
+                - r
+            )
             gaps.append(d.min())
             table.append((pts[..., moving, 2] - r[moving]).min())
             limits.append(bool(((q >= lo) & (q <= hi)).all()))
             tcp = frames["panda_hand_tcp"][-1, :3, 3]
             target = np.array([*ep["target"][i, -1], float(ep["ee_height"])])
             goal.append(float(np.linalg.norm(tcp - target)))
-        gaps, table, goal, limits = np.array(gaps), np.array(table), np.array(goal), np.array(limits)
+        gaps, table, goal, limits = (
+            np.array(gaps),
+            np.array(table),
+            np.array(goal),
+            np.array(limits),
+        )
         ok = ep["success"][idx]
         touched = ep["failure_can_contact"][idx]
-        contradicted = ok & ((gaps <= -TOL) | (table <= -TOL) | ~limits | (goal > float(ep["goal_tol"]) + TOL))
-        out[name] = {"episodes": int(idx.size), "successes": int(ok.sum()), "contradicted": int(contradicted.sum()),
-                     "min_gap_of_successes": float(gaps[ok].min()) if ok.any() else None,
-                     "mujoco_can_contacts": int(touched.sum()),
-                     "replayed_depth_where_mujoco_touched": float(gaps[touched].min()) if touched.any() else None,
-                     "touched_but_replay_clear_by_1mm": int((touched & (gaps > 1e-3)).sum())}
+        contradicted = ok & (
+            (gaps <= -TOL) | (table <= -TOL) | ~limits | (goal > float(ep["goal_tol"]) + TOL)
+        )
+        out[name] = {
+            "episodes": int(idx.size),
+            "successes": int(ok.sum()),
+            "contradicted": int(contradicted.sum()),
+            "min_gap_of_successes": float(gaps[ok].min()) if ok.any() else None,
+            "mujoco_can_contacts": int(touched.sum()),
+            "replayed_depth_where_mujoco_touched": float(gaps[touched].min())
+            if touched.any()
+            else None,
+            "touched_but_replay_clear_by_1mm": int((touched & (gaps > 1e-3)).sum()),
+        }
     return out
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("run_dir", type=Path)
     a = p.parse_args(argv)
     res = replay(a.run_dir / "physics" / "episodes.npz")
     bad = 0
     for name, r in res.items():
-        print(f"{name}: {r['episodes']} episodes, {r['successes']} physics successes, {r['contradicted']} contradicted "
-              f"by the replay (smallest capsule-can gap of a success {r['min_gap_of_successes']}); MuJoCo saw the can "
-              f"touched in {r['mujoco_can_contacts']}, replayed deepest {r['replayed_depth_where_mujoco_touched']}, "
-              f"clear by > 1 mm at every control instant in {r['touched_but_replay_clear_by_1mm']}")
+        print(
+            f"{name}: {r['episodes']} episodes, {r['successes']} physics successes, "
+            f"{r['contradicted']} contradicted "
+            f"by the replay (smallest capsule-can gap of a success {r['min_gap_of_successes']}); "
+            "MuJoCo saw the can "
+            f"touched in {r['mujoco_can_contacts']}, replayed deepest "
+            f"{r['replayed_depth_where_mujoco_touched']}, "
+            f"clear by > 1 mm at every control instant in {r['touched_but_replay_clear_by_1mm']}"
+        )
         bad += r["contradicted"]
     return 1 if bad else 0
 

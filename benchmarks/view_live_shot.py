@@ -24,7 +24,12 @@ import torch
 from protorch.view.scene import open_run
 from protorch.view.server import Viewer, info_markdown
 
-CHROMIUM_ARGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+    "--ignore-gpu-blocklist",
+]
 
 
 def main() -> None:
@@ -35,7 +40,9 @@ def main() -> None:
     ap.add_argument("--to-y", type=float, default=0.12)
     ap.add_argument("--move-at", type=float, default=0.8)
     ap.add_argument("--shot-at", type=float, default=1.6)
-    ap.add_argument("--still", action="store_true", help="no play: the page as it opens (the static view)")
+    ap.add_argument(
+        "--still", action="store_true", help="no play: the page as it opens (the static view)"
+    )
     args = ap.parse_args()
     from playwright.sync_api import sync_playwright
 
@@ -56,7 +63,9 @@ def main() -> None:
         page = browser.new_page(viewport={"width": 1100, "height": 700})
         page.goto(viewer.url)
         page.get_by_text("mean trajectory:").wait_for(timeout=60_000)
-        page.add_style_tag(content="[class*=Notification]{display:none !important}")  # the software-WebGL notice
+        page.add_style_tag(
+            content="[class*=Notification]{display:none !important}"
+        )  # the software-WebGL notice
         page.wait_for_timeout(2000)
         if args.still:
             page.wait_for_timeout(1000)
@@ -80,8 +89,11 @@ def main() -> None:
         page.wait_for_timeout(3000)  # the last pose and panel reach the page
         page.screenshot(path=args.out)
         browser.close()
-    print(f"can y {args.from_y} -> {args.to_y} at {moved:.2f} s; captured at {player.t * player.dt:.2f} s: side "
-          f"{player.label}, switches {player.switches}; wrote {args.out}")
+    print(
+        f"can y {args.from_y} -> {args.to_y} at {moved:.2f} s; captured at "
+        f"{player.t * player.dt:.2f} s: side "
+        f"{player.label}, switches {player.switches}; wrote {args.out}"
+    )
 
 
 if __name__ == "__main__":

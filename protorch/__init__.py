@@ -3,20 +3,19 @@
 Core pieces: :class:`ProMP` (demonstrations -> Gaussian over basis weights), the functional PRO
 core (:func:`pearson_relevance`, :func:`pro_update`) and the optimisers :class:`PRO`,
 :class:`EPRO`, :class:`RWR`, :class:`RWPO`, :class:`CEM` and :class:`CMAES` sharing one ask /
-tell contract (:data:`OPTIMIZERS` by name); :class:`ProtorchError`, the base of protorch's errors; the environment -> ProMP map
+tell contract (:data:`OPTIMIZERS` by name); :class:`ProtorchError`, the base of protorch's errors;
+the environment -> ProMP map
 (:func:`make_env_map`, :class:`TrajectoryDataset`, :func:`load`); the self-improvement loop
 (:func:`self_improve`).
 """
 
-from .policy import Policy, Reference
-from .policy.load import load_policy
 from .data.checkpoint import save_model
 from .data.dataset import TrajectoryDataset
 from .data.files import CheckpointError
+from .errors import ProtorchError
 from .gp import load_env_map, make_env_map
 from .gp.model import EnvToProMP
 from .loop import LoopResult, demonstration_dataset, self_improve
-from .errors import ProtorchError
 from .optim import (
     CEM,
     CMAES,
@@ -31,12 +30,16 @@ from .optim import (
     pro_update,
     stable_rewards,
 )
+from .policy import Policy, Reference
+from .policy.load import load_policy
 from .primitives.promp import ProMP
 
 __version__ = "0.1.0"
 
 
-def load(run, *, device=None, dtype=None, backend: str | None = None, warm_up: bool = True, **options) -> Policy:
+def load(
+    run, *, device=None, dtype=None, backend: str | None = None, warm_up: bool = True, **options
+) -> Policy:
     """A trained run as a :class:`Policy` (an :class:`EnvToProMP` that also gives references for a
     control loop): ``run`` is a run folder (its ``config.yaml`` rebuilds the task through the
     experiment's own builder), its ``checkpoint`` folder or the ``.safetensors`` file (the map
@@ -46,9 +49,31 @@ def load(run, *, device=None, dtype=None, backend: str | None = None, warm_up: b
 
 
 __all__ = [
-    "ProMP", "PRO", "EPRO", "RWR", "RWPO", "CEM", "CMAES", "OPTIMIZERS", "BaseOptimizer",
-    "OptimizeResult", "ProtorchError",
-    "pearson_relevance", "pro_update", "stable_rewards", "TrajectoryDataset", "make_env_map",
-    "load_env_map", "EnvToProMP", "Policy", "Reference", "CheckpointError", "load", "save_model", "self_improve", "LoopResult",
-    "demonstration_dataset", "__version__",
+    "ProMP",
+    "PRO",
+    "EPRO",
+    "RWR",
+    "RWPO",
+    "CEM",
+    "CMAES",
+    "OPTIMIZERS",
+    "BaseOptimizer",
+    "OptimizeResult",
+    "ProtorchError",
+    "pearson_relevance",
+    "pro_update",
+    "stable_rewards",
+    "TrajectoryDataset",
+    "make_env_map",
+    "load_env_map",
+    "EnvToProMP",
+    "Policy",
+    "Reference",
+    "CheckpointError",
+    "load",
+    "save_model",
+    "self_improve",
+    "LoopResult",
+    "demonstration_dataset",
+    "__version__",
 ]

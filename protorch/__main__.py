@@ -1,4 +1,5 @@
-"""``python -m protorch experiment=<name> [key=value ...]``: the Hydra app (:mod:`protorch.app.main`)."""
+"""``python -m protorch experiment=<name> [key=value ...]``: the Hydra app
+(:mod:`protorch.app.main`)."""
 
 from protorch.app.main import main
 

@@ -17,7 +17,9 @@ def check_tensor(x, name: str, *, ndim_min: int | None = None, ndim: int | None 
         try:
             x = torch.as_tensor(x)
         except Exception as exc:  # pragma: no cover - torch's own message is kept
-            raise TypeError(f"{name} must be a tensor or array-like, got {type(x).__name__}") from exc
+            raise TypeError(
+                f"{name} must be a tensor or array-like, got {type(x).__name__}"
+            ) from exc
     if ndim is not None and x.ndim != ndim:
         raise ValueError(f"{name} must have {ndim} dimensions, got shape {tuple(x.shape)}")
     if ndim_min is not None and x.ndim < ndim_min:
@@ -73,7 +75,8 @@ def check_same_batch(shapes: Sequence[tuple], names: Sequence[str]) -> None:
 
 
 def check_number(value, name: str, *, positive: bool = True, allow_zero: bool = False) -> float:
-    """``value`` as a finite float; > 0 if ``positive`` (>= 0 with ``allow_zero``), else any sign."""
+    """``value`` as a finite float; > 0 if ``positive`` (>= 0 with ``allow_zero``),
+    else any sign."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ValueError(f"{name} must be a real number, got {value!r}")
     v = float(value)
@@ -92,8 +95,14 @@ def check_keys(given: dict, allowed: set, where: str) -> None:
 
 
 def check_int(v, name: str, lo: int) -> int:
-    """``v`` as an int, refusing bools, fractions, NaN / inf, non-numbers and values below ``lo``."""
-    if isinstance(v, Tensor) and v.numel() == 1 and not v.is_floating_point() and v.dtype != torch.bool:
+    """``v`` as an int, refusing bools, fractions, NaN / inf, non-numbers and values
+    below ``lo``."""
+    if (
+        isinstance(v, Tensor)
+        and v.numel() == 1
+        and not v.is_floating_point()
+        and v.dtype != torch.bool
+    ):
         v = int(v)
     ok = isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(float(v))
     if not ok or int(v) != v or int(v) < lo:

@@ -5,7 +5,8 @@ threads (one per core by default), and the experiments' tensors are small (``(B,
 ``S = 100``), so every op ends in a barrier where the threads wait for each other. When another
 program takes a core, the thread that lost it holds every barrier up until the scheduler gives
 it a slice back (docs/contention.md has the measurements); on an idle machine more threads
-help. ``"auto"`` takes the best of both: it measures how many cores other programs keep busy (``/proc/stat`` between two readings,
+help. ``"auto"`` takes the best of both: it measures how many cores other programs keep busy
+(``/proc/stat`` between two readings,
 minus this process's own CPU time) and uses the cores left, at least one; the loop re-chooses
 before every step (:class:`ThreadGovernor`), so a competitor that starts or stops mid-run is
 followed. Where ``/proc/stat`` cannot be read, ``"auto"`` is one thread.
@@ -24,13 +25,24 @@ import torch
 
 from .checks import check_int
 
-__all__ = ["AUTO", "torch_threads", "one_thread", "ThreadGovernor", "LoadProbe", "available_cores", "threads_for", "core_budget",
-           "beside_workers"]
+__all__ = [
+    "AUTO",
+    "torch_threads",
+    "one_thread",
+    "ThreadGovernor",
+    "LoadProbe",
+    "available_cores",
+    "threads_for",
+    "core_budget",
+    "beside_workers",
+]
 
 AUTO = "auto"
 _PROBE_SECONDS = 0.2  # the first reading's window (later ones: the time since the previous choice)
 _BUSY_MARGIN = 0.3  # cores of other load below which a core still counts as free
-_OUTER: contextvars.ContextVar = contextvars.ContextVar("protorch_threads", default=None)  # the enclosing setting
+_OUTER: contextvars.ContextVar = contextvars.ContextVar(
+    "protorch_threads", default=None
+)  # the enclosing setting
 
 
 def available_cores() -> int:
@@ -44,7 +56,9 @@ def available_cores() -> int:
 def _machine_jiffies() -> tuple[int, int]:
     """``(busy, total)`` CPU jiffies of the whole machine since boot (``/proc/stat``)."""
     with open("/proc/stat") as f:
-        vals = [int(x) for x in f.readline().split()[1:9]]  # user nice system idle iowait irq softirq steal
+        vals = [
+            int(x) for x in f.readline().split()[1:9]
+        ]  # user nice system idle iowait irq softirq steal
     idle = vals[3] + vals[4]
     return sum(vals) - idle, sum(vals)
 
@@ -113,20 +127,29 @@ class ThreadGovernor:
             threads = outer
         self.setting = threads
         self.auto = threads == AUTO
-        self.fixed = None if (self.auto or threads is None or threads == 0) else check_int(threads, "threads", 1)
+        self.fixed = (
+            None
+            if (self.auto or threads is None or threads == 0)
+            else check_int(threads, "threads", 1)
+        )
         self.previous = torch.get_num_threads()
         self.probe: LoadProbe | None = None
 
     def __enter__(self) -> "ThreadGovernor":
         self.previous = torch.get_num_threads()
-        self.token = _OUTER.set(self.setting if (self.auto or self.fixed is not None) else _OUTER.get())
+        self.token = _OUTER.set(
+            self.setting if (self.auto or self.fixed is not None) else _OUTER.get()
+        )
         if self.fixed is not None:
             torch.set_num_threads(self.fixed)
         elif self.auto:
             try:
                 self.probe = LoadProbe()
                 time.sleep(_PROBE_SECONDS)
-            except (OSError, ValueError):  # no /proc/stat (not Linux): one thread is safe everywhere
+            except (
+                OSError,
+                ValueError,
+            ):  # no /proc/stat (not Linux): one thread is safe everywhere
                 self.probe = None
             self.step()
         return self
@@ -134,7 +157,11 @@ class ThreadGovernor:
     def step(self) -> int:
         """Re-choose the number of threads (``"auto"`` only); returns the number in effect."""
         if self.auto:
-            n = 1 if self.probe is None else threads_for(self.probe.other_cores(), available_cores())
+            n = (
+                1
+                if self.probe is None
+                else threads_for(self.probe.other_cores(), available_cores())
+            )
             if n != torch.get_num_threads():
                 torch.set_num_threads(n)
         return torch.get_num_threads()

@@ -1,4 +1,5 @@
-"""Shared fixtures: seeded random sources, so every test is reproducible on its own, and one torch thread."""
+"""Shared fixtures: seeded random sources, so every test is reproducible on its own, and one torch
+thread."""
 
 import numpy as np
 import pytest

@@ -60,7 +60,7 @@ def _comment_above(lines: list[str], i: int) -> str | None:
     k = j
     while k >= 0 and "<!--" not in lines[k]:
         k -= 1
-    return " ".join(line.strip() for line in lines[k:j + 1]) if k >= 0 else None
+    return " ".join(line.strip() for line in lines[k : j + 1]) if k >= 0 else None
 
 
 def tables(page: Path) -> list[Table]:
@@ -97,7 +97,8 @@ def tables(page: Path) -> list[Table]:
 
 # ----------------------------------------------------------------------------- commands
 def _flags_of(path: Path, seen: set[Path] | None = None) -> set[str]:
-    """The ``--flags`` ``path``'s ``add_argument`` calls declare, and those of the sibling modules it imports."""
+    """The ``--flags`` ``path``'s ``add_argument`` calls declare, and those of the sibling modules
+    it imports."""
     seen = set() if seen is None else seen
     if path in seen or not path.is_file():
         return set()
@@ -105,10 +106,19 @@ def _flags_of(path: Path, seen: set[Path] | None = None) -> set[str]:
     tree, flags = ast.parse(path.read_text()), set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Call) and getattr(node.func, "attr", None) == "add_argument":
-            flags |= {a.value for a in node.args if isinstance(a, ast.Constant) and isinstance(a.value, str)
-                      and a.value.startswith("-")}
+            flags |= {
+                a.value
+                for a in node.args
+                if isinstance(a, ast.Constant)
+                and isinstance(a.value, str)
+                and a.value.startswith("-")
+            }
         elif isinstance(node, (ast.Import, ast.ImportFrom)):
-            names = [node.module or ""] if isinstance(node, ast.ImportFrom) else [a.name for a in node.names]
+            names = (
+                [node.module or ""]
+                if isinstance(node, ast.ImportFrom)
+                else [a.name for a in node.names]
+            )
             for name in names:
                 flags |= _flags_of(path.parent / f"{name.split('.')[-1]}.py", seen)
     return flags
@@ -160,8 +170,11 @@ def check_command(command: str) -> tuple[str | None, str | None]:
         origin = Path(spec.origin)
         main = origin.with_name("__main__.py") if origin.name == "__init__.py" else origin
         return _check_flags(main, [w for w in words[3:] if w.startswith("--")]), None
-    overrides = [_first_of_sweep(w) for w in words[3:] if w not in ("-m", "--multirun")
-                 and not w.startswith(("hydra.", "hydra/", "+hydra."))]
+    overrides = [
+        _first_of_sweep(w)
+        for w in words[3:]
+        if w not in ("-m", "--multirun") and not w.startswith(("hydra.", "hydra/", "+hydra."))
+    ]
     try:
         cfg = app_config(overrides)
         from protorch.experiments import check_config
@@ -188,7 +201,9 @@ def record(run_dirs: list[str]) -> dict[str, list[str]]:
             if "baselines" in path.relative_to(d).parts:
                 continue
             metrics = json.loads(path.read_text())
-            flat = flatten_metrics({k: v for k, v in metrics.items() if k not in ("summary", "run")})
+            flat = flatten_metrics(
+                {k: v for k, v in metrics.items() if k not in ("summary", "run")}
+            )
             keys.setdefault(metrics["experiment"], set()).update(flat)
     out = {k: sorted(v) for k, v in sorted(keys.items())}
     KEYS_FILE.write_text(json.dumps(out, indent=1) + "\n")

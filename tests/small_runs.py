@@ -17,19 +17,44 @@ from protorch.experiments import run_experiment
 from protorch.experiments.common import flatten_metrics
 
 SMALL = {
-    "arm_reach": {"optimizer": {"name": "pro", "beta": 200.0, "max_iter": 10, "num_samples": 40, "relevance_samples": 40},
-                  "gp": {"backend": "torch", "alpha": 30.0, "var_floor": 1e-3, "nearest_k": 30},
-                  "task": {"_target_": "protorch.tasks.ArmReachTask", "priors": 200, "demo_envs": 6},
-                  "settings": {"loop": {"num_envs": 40, "batch_size": 20}, "test": {"num_envs": 40},
-                               "dynamic": {"episodes": 6}, "baselines": ["labels_off"], "progress": False}},
-    "point_particle": {"optimizer": {"name": "pro", "beta": 20.0, "max_iter": 15, "num_samples": 30,
-                                     "relevance_samples": 30},
-                       "baseline_optimizer": {"name": "rwr", "beta": 20.0, "num_samples": 30, "max_iter": 15},
-                       "gp": {"backend": "torch", "alpha": 1e-3, "var_floor": 1e-4},
-                       "task": {"_target_": "protorch.tasks.PointParticleTask", "demo_envs": 10},
-                       "settings": {"loop": {"num_envs": 40, "batch_size": 20}, "test": {"num_envs": 40},
-                                    "dynamic": {"episodes": 6}, "dynamic_paper": {"episodes": 6},
-                                    "baselines": ["demos_only", "rwr"], "progress": False}},
+    "arm_reach": {
+        "optimizer": {
+            "name": "pro",
+            "beta": 200.0,
+            "max_iter": 10,
+            "num_samples": 40,
+            "relevance_samples": 40,
+        },
+        "gp": {"backend": "torch", "alpha": 30.0, "var_floor": 1e-3, "nearest_k": 30},
+        "task": {"_target_": "protorch.tasks.ArmReachTask", "priors": 200, "demo_envs": 6},
+        "settings": {
+            "loop": {"num_envs": 40, "batch_size": 20},
+            "test": {"num_envs": 40},
+            "dynamic": {"episodes": 6},
+            "baselines": ["labels_off"],
+            "progress": False,
+        },
+    },
+    "point_particle": {
+        "optimizer": {
+            "name": "pro",
+            "beta": 20.0,
+            "max_iter": 15,
+            "num_samples": 30,
+            "relevance_samples": 30,
+        },
+        "baseline_optimizer": {"name": "rwr", "beta": 20.0, "num_samples": 30, "max_iter": 15},
+        "gp": {"backend": "torch", "alpha": 1e-3, "var_floor": 1e-4},
+        "task": {"_target_": "protorch.tasks.PointParticleTask", "demo_envs": 10},
+        "settings": {
+            "loop": {"num_envs": 40, "batch_size": 20},
+            "test": {"num_envs": 40},
+            "dynamic": {"episodes": 6},
+            "dynamic_paper": {"episodes": 6},
+            "baselines": ["demos_only", "rwr"],
+            "progress": False,
+        },
+    },
 }
 
 
@@ -47,11 +72,18 @@ def small_run(name: str, threads: int, out_dir: Path | None = None, physics: boo
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(out_dir or tmp)
         m = run_experiment(cfg, out)
-        flat = {k: _comparable(v) for k, v in flatten_metrics(m).items()
-                if "seconds" not in k and k != "settings.threads" and not k.startswith(("run.", "summary."))}
+        flat = {
+            k: _comparable(v)
+            for k, v in flatten_metrics(m).items()
+            if "seconds" not in k
+            and k != "settings.threads"
+            and not k.startswith(("run.", "summary."))
+        }
         for path in sorted(out.rglob("dataset.safetensors")):
             tensors = load_file(path)
-            digest = hashlib.sha256(b"".join(tensors[k].numpy().tobytes() for k in sorted(tensors))).hexdigest()
+            digest = hashlib.sha256(
+                b"".join(tensors[k].numpy().tobytes() for k in sorted(tensors))
+            ).hexdigest()
             flat[f"checkpoint:{path.parent.parent.relative_to(out)}"] = digest[:16]
     return flat
 

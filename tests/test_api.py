@@ -22,10 +22,16 @@ def test_every_registered_optimiser_is_exported_at_the_top():
     assert all(hasattr(protorch, name) for name in protorch.__all__)
 
 
-@pytest.mark.parametrize("cls, builtin", [
-    (TaskContractError, (TypeError, ValueError)), (MujocoMissing, (ImportError,)),
-    (SettingsError, (ValueError,)), (CheckpointError, (ValueError,)), (RobotError, (ValueError,)),
-])
+@pytest.mark.parametrize(
+    "cls, builtin",
+    [
+        (TaskContractError, (TypeError, ValueError)),
+        (MujocoMissing, (ImportError,)),
+        (SettingsError, (ValueError,)),
+        (CheckpointError, (ValueError,)),
+        (RobotError, (ValueError,)),
+    ],
+)
 def test_each_error_is_a_protorch_error_and_keeps_its_builtin_base(cls, builtin):
     assert issubclass(cls, ProtorchError) and protorch.ProtorchError is ProtorchError
     for base in builtin:

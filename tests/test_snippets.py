@@ -17,12 +17,18 @@ BLOCK = re.compile(r"^```python\n(.*?)^```", re.S | re.M)
 
 # (page, block index) -> [(text in the block, what the test runs instead)]
 SMALLER = {
-    ("README.md", 0): [("num_envs=1000, batch_size=100", "num_envs=10, batch_size=10"),
-                       ("num_samples=100, max_iter=200),", "num_samples=20, max_iter=5),")],
-    ("docs/library.md", 0): [("num_envs=1000, batch_size=100", "num_envs=10, batch_size=10"),
-                             ("beta=20.0, num_samples=100, max_iter=200, relevance_samples=100",
-                              "beta=20.0, num_samples=20, max_iter=5, relevance_samples=20"),
-                             ("progress=True", "progress=False")],
+    ("README.md", 0): [
+        ("num_envs=1000, batch_size=100", "num_envs=10, batch_size=10"),
+        ("num_samples=100, max_iter=200),", "num_samples=20, max_iter=5),"),
+    ],
+    ("docs/library.md", 0): [
+        ("num_envs=1000, batch_size=100", "num_envs=10, batch_size=10"),
+        (
+            "beta=20.0, num_samples=100, max_iter=200, relevance_samples=100",
+            "beta=20.0, num_samples=20, max_iter=5, relevance_samples=20",
+        ),
+        ("progress=True", "progress=False"),
+    ],
 }
 
 
@@ -50,5 +56,9 @@ def test_a_python_block_runs(page, index, code, tmp_path, monkeypatch, capsys, o
     torch.manual_seed(0)
     exec(compile(code, f"{page}[{index}]", "exec"), {"__name__": "__snippet__"})
     printed = capsys.readouterr().out
-    for claim in re.findall(r"print\(.*\)  # (tensor\(True\))", code):  # what a comment says it prints
-        assert claim in printed, f"{page} block {index} printed {printed!r}, its comment says {claim}"
+    for claim in re.findall(
+        r"print\(.*\)  # (tensor\(True\))", code
+    ):  # what a comment says it prints
+        assert claim in printed, (
+            f"{page} block {index} printed {printed!r}, its comment says {claim}"
+        )

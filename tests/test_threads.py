@@ -35,8 +35,12 @@ def test_none_leaves_torch_alone_and_bad_values_are_refused():
 def test_the_free_cores_rule():
     from protorch.threads import threads_for
 
-    assert threads_for(0.0, 2) == 2 and threads_for(0.2, 2) == 2  # idle (a little noise): every core
-    assert threads_for(0.5, 2) == 1 and threads_for(1.0, 2) == 1  # one competitor on 2 cores: one thread
+    assert (
+        threads_for(0.0, 2) == 2 and threads_for(0.2, 2) == 2
+    )  # idle (a little noise): every core
+    assert (
+        threads_for(0.5, 2) == 1 and threads_for(1.0, 2) == 1
+    )  # one competitor on 2 cores: one thread
     assert threads_for(5.0, 2) == 1  # never fewer than one
     assert threads_for(1.0, 8) == 7 and threads_for(0.0, 1) == 1
 
@@ -66,7 +70,9 @@ def test_the_probe_counts_the_machine_busy_time_minus_its_own(monkeypatch):
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not __import__("os").path.exists("/proc/stat"), reason="the load probe reads /proc/stat")
+@pytest.mark.skipif(
+    not __import__("os").path.exists("/proc/stat"), reason="the load probe reads /proc/stat"
+)
 def test_the_probe_sees_another_busy_process():
     import subprocess
     import sys
@@ -77,7 +83,9 @@ def test_the_probe_sees_another_busy_process():
     spin = subprocess.Popen([sys.executable, "-c", "while True: pass"])
     try:
         t0 = time.perf_counter()
-        while time.perf_counter() - t0 < 0.2:  # the competitor starts; this process's work is its own
+        while (
+            time.perf_counter() - t0 < 0.2
+        ):  # the competitor starts; this process's work is its own
             pass
         probe = LoadProbe()
         t0 = time.perf_counter()
@@ -103,11 +111,15 @@ def test_the_core_budget_and_the_threads_beside_workers():
     from protorch.threads import available_cores, beside_workers, core_budget
 
     with torch_threads(1):
-        assert core_budget() == 1 and beside_workers(1) == 1  # one core: never fewer than one thread
+        assert (
+            core_budget() == 1 and beside_workers(1) == 1
+        )  # one core: never fewer than one thread
     with torch_threads(3):
         assert core_budget() == 3 and beside_workers(1) == 2
     with torch_threads("auto"):
-        assert core_budget() == available_cores() and beside_workers(1) == "auto"  # auto measures the workers
+        assert (
+            core_budget() == available_cores() and beside_workers(1) == "auto"
+        )  # auto measures the workers
     assert core_budget() == available_cores()  # no setting: the available cores
 
 
@@ -145,7 +157,8 @@ print(json.dumps(out))
 @pytest.mark.slow
 def test_the_physics_episodes_are_the_same_at_one_and_two_threads():
     """120 MuJoCo episodes (enough for MKL to split the markers' product differently on two threads
-    under the app's code path) at threads=1 and threads=2 in one process: every array bit for bit."""
+    under the app's code path) at threads=1 and threads=2 in one process: every array bit for
+    bit."""
     import json
     import subprocess
     import sys
@@ -153,8 +166,13 @@ def test_the_physics_episodes_are_the_same_at_one_and_two_threads():
 
     pytest.importorskip("mujoco", minversion="4.0", reason="the physics extra is not installed")
     root = Path(__file__).resolve().parents[1]
-    proc = subprocess.run([sys.executable, "-c", _PHYSICS_RUN, "120"], cwd=root, capture_output=True, text=True,
-                          check=True)
+    proc = subprocess.run(
+        [sys.executable, "-c", _PHYSICS_RUN, "120"],
+        cwd=root,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     runs = json.loads(proc.stdout.strip().splitlines()[-1])
     assert runs["1"] == runs["2"]
 
@@ -211,7 +229,13 @@ def test_the_promp_trajectories_and_weights_are_the_same_at_one_and_two_threads(
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
-    proc = subprocess.run([sys.executable, "-c", _TRAJECTORY_RUN], cwd=root, capture_output=True, text=True, check=True)
+    proc = subprocess.run(
+        [sys.executable, "-c", _TRAJECTORY_RUN],
+        cwd=root,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     runs = json.loads(proc.stdout.strip().splitlines()[-1])
     assert runs["1"] == runs["2"]
 
@@ -254,6 +278,8 @@ def test_the_arm_costs_are_the_same_at_one_and_two_threads():
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
-    proc = subprocess.run([sys.executable, "-c", _ARM_COSTS_RUN], cwd=root, capture_output=True, text=True, check=True)
+    proc = subprocess.run(
+        [sys.executable, "-c", _ARM_COSTS_RUN], cwd=root, capture_output=True, text=True, check=True
+    )
     runs = json.loads(proc.stdout.strip().splitlines()[-1])
     assert runs["1"] == runs["2"]

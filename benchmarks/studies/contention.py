@@ -1,5 +1,6 @@
 """Run time on an idle machine against the same machine with one other CPU-bound process, for
-torch's thread settings side by side in one run (on demand: ``python benchmarks/studies/contention.py
+torch's thread settings side by side in one run (on demand: ``python
+benchmarks/studies/contention.py
 [--threads 1,default] [--envs 100]``).
 
 Two workloads, each in a fresh Python process so no thread pool or cache carries over:
@@ -50,10 +51,21 @@ self_improve(task, promp, data, optimizer=PRO,
 def _command(workload: str, threads: str, envs: int, run_dir: str) -> list[str]:
     n = "null" if threads == "default" else threads
     if workload == "experiment":
-        return [sys.executable, "-m", "protorch", "experiment=point_particle", f"threads={n}", "plot=false",
-                f"settings.loop.num_envs={envs}", "settings.loop.batch_size=50", "optimizer.max_iter=50",
-                "settings.test.num_envs=50", "settings.dynamic.episodes=10", "settings.progress=false",
-                f"hydra.run.dir={run_dir}"]
+        return [
+            sys.executable,
+            "-m",
+            "protorch",
+            "experiment=point_particle",
+            f"threads={n}",
+            "plot=false",
+            f"settings.loop.num_envs={envs}",
+            "settings.loop.batch_size=50",
+            "optimizer.max_iter=50",
+            "settings.test.num_envs=50",
+            "settings.dynamic.episodes=10",
+            "settings.progress=false",
+            f"hydra.run.dir={run_dir}",
+        ]
     loop_threads = {"null": "None", "auto": "'auto'"}.get(n, n)
     return [sys.executable, "-c", LOOP.format(threads=loop_threads, envs=envs, run_dir=run_dir)]
 
@@ -74,9 +86,14 @@ def timed(cmd: list[str], busy: bool) -> float:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--threads", default="auto,1,default",
-                   help="comma-separated settings: 'auto', ints or 'default' (torch's own)")
-    p.add_argument("--envs", type=int, default=100, help="loop environments of both workloads (default 100)")
+    p.add_argument(
+        "--threads",
+        default="auto,1,default",
+        help="comma-separated settings: 'auto', ints or 'default' (torch's own)",
+    )
+    p.add_argument(
+        "--envs", type=int, default=100, help="loop environments of both workloads (default 100)"
+    )
     p.add_argument("--workloads", default="experiment,loop")
     args = p.parse_args()
     settings = args.threads.split(",")
@@ -86,17 +103,27 @@ def main() -> None:
             for load in ("idle", "busy"):
                 for threads in settings:  # back to back, so each pair sees the same other load
                     run_dir = str(Path(tmp) / f"{workload}_{load}_{threads}")
-                    rows[workload, load, threads] = timed(_command(workload, threads, args.envs, run_dir),
-                                                          load == "busy")
-                    print(f"{workload:10s} {load:4s} threads={threads:7s} {rows[workload, load, threads]:7.1f} s",
-                          flush=True)
-    print(f"\n| workload | threads | idle [s] | busy [s] | busy / idle | idle vs threads={settings[0]} "
-          f"| busy vs threads={settings[0]} |\n|---|---|---|---|---|---|---|")
+                    rows[workload, load, threads] = timed(
+                        _command(workload, threads, args.envs, run_dir), load == "busy"
+                    )
+                    print(
+                        f"{workload:10s} {load:4s} threads={threads:7s} "
+                        f"{rows[workload, load, threads]:7.1f} s",
+                        flush=True,
+                    )
+    print(
+        "\n| workload | threads | idle [s] | busy [s] | busy / idle | idle vs threads="
+        f"{settings[0]} "
+        f"| busy vs threads={settings[0]} |\n|---|---|---|---|---|---|---|"
+    )
     for workload in args.workloads.split(","):
         for t in settings:
             idle, busy = rows[workload, "idle", t], rows[workload, "busy", t]
-            print(f"| {workload} | {t} | {idle:.1f} | {busy:.1f} | {busy / idle:.2f} | "
-                  f"{idle / rows[workload, 'idle', settings[0]]:.2f} | {busy / rows[workload, 'busy', settings[0]]:.2f} |")
+            print(
+                f"| {workload} | {t} | {idle:.1f} | {busy:.1f} | {busy / idle:.2f} | "
+                f"{idle / rows[workload, 'idle', settings[0]]:.2f} | "
+                f"{busy / rows[workload, 'busy', settings[0]]:.2f} |"
+            )
 
 
 if __name__ == "__main__":

@@ -1,5 +1,6 @@
 """The point-particle self-improvement loop with each optimiser, side by side in one run
-(on demand: ``python benchmarks/studies/loop_optimizers.py [--envs 1000] [--methods pro,epro,rwr,cem,cmaes]``).
+(on demand: ``python benchmarks/studies/loop_optimizers.py [--envs 1000] [--methods
+pro,epro,rwr,cem,cmaes]``).
 
 Every loop starts from the same 30 x 3 synthetic demonstrations, tries the same pool of random
 environments with the experiment's settings (``experiment=point_particle`` as the app composes
@@ -64,7 +65,9 @@ def optimizers(setup, cfg: dict) -> dict:
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--envs", type=int, default=1000, help="environments tried per loop (default 1000)")
+    p.add_argument(
+        "--envs", type=int, default=1000, help="environments tried per loop (default 1000)"
+    )
     p.add_argument("--methods", default="pro,epro,rwr,cem,cmaes")
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     args = p.parse_args(argv)
@@ -74,8 +77,11 @@ def main(argv=None) -> None:
     cfg = experiment_settings("point_particle", [f"settings.loop.num_envs={args.envs}"])
     setup = prepare(**arguments_of(prepare, cfg))
     table = optimizers(setup, cfg)
-    print(f"point-particle loop, {args.envs} environments, B = {cfg['loop']['batch_size']}, torch threads "
-          f"{torch.get_num_threads()}")
+    print(
+        f"point-particle loop, {args.envs} environments, B = {cfg['loop']['batch_size']}, torch "
+        "threads "
+        f"{torch.get_num_threads()}"
+    )
     print("| optimiser | held-out success | moving success | loop s | rollouts | tried success |")
     print("|---|---|---|---|---|---|")
     for name in args.methods.split(","):
@@ -86,8 +92,12 @@ def main(argv=None) -> None:
         res = setup.run_loop(name)
         loop_s = time.perf_counter() - t0
         test, dyn = setup.evaluate(EnvToProMP(setup.promp, res.env_map, setup.task.name))[:2]
-        print(f"| {cls.__name__} | {test['success_rate']:.3f} | {dyn['success_rate']:.3f} | {loop_s:.1f} "
-              f"| {counter[0]:,} | {res.success_rate:.3f} |", flush=True)
+        print(
+            f"| {cls.__name__} | {test['success_rate']:.3f} | {dyn['success_rate']:.3f} | "
+            f"{loop_s:.1f} "
+            f"| {counter[0]:,} | {res.success_rate:.3f} |",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

@@ -1,6 +1,7 @@
 """What the kept variance buys: conditioning each optimiser's final distribution on a changed
 environment, without further optimisation (docs/peers.md, section 5; on demand:
-``python benchmarks/studies/peers_condition.py [--seed S] [--tasks point_particle,arm] [--json F]``).
+``python benchmarks/studies/peers_condition.py [--seed S] [--tasks point_particle,arm] [--json
+F]``).
 
 The problems, optimisers, budgets and seeds are those of benchmarks/studies/peers.py (stopped by the
 convergence rule). Each optimiser's final ``N(mean, diag(var))`` over the task's weights becomes a
@@ -57,7 +58,9 @@ def load_peers():
     return mod
 
 
-def particle_changes(p: Problem, mean_traj: torch.Tensor, g: torch.Generator) -> list[tuple[str, torch.Tensor, float, torch.Tensor]]:
+def particle_changes(
+    p: Problem, mean_traj: torch.Tensor, g: torch.Generator
+) -> list[tuple[str, torch.Tensor, float, torch.Tensor]]:
     """``(kind, new env (6,), phase, via point (2,))`` for the point particle: the goal moved 1 unit
     (``DRAWS`` directions), the hole moved 1.5 up and 1.5 down."""
     env, out = p.env, []
@@ -78,7 +81,9 @@ def particle_changes(p: Problem, mean_traj: torch.Tensor, g: torch.Generator) ->
     return out
 
 
-def arm_goal_configuration(task, q: torch.Tensor, goal: torch.Tensor, iters: int = 30, damping: float = 1e-4) -> torch.Tensor:
+def arm_goal_configuration(
+    task, q: torch.Tensor, goal: torch.Tensor, iters: int = 30, damping: float = 1e-4
+) -> torch.Tensor:
     """Damped least squares from ``q (7,)`` until the end effector reaches ``goal (3,)``."""
     q = q.clone()
     for _ in range(iters):
@@ -91,7 +96,9 @@ def arm_goal_configuration(task, q: torch.Tensor, goal: torch.Tensor, iters: int
     return q
 
 
-def arm_changes(p: Problem, mean_traj: torch.Tensor, g: torch.Generator) -> list[tuple[str, torch.Tensor, float, torch.Tensor]]:
+def arm_changes(
+    p: Problem, mean_traj: torch.Tensor, g: torch.Generator
+) -> list[tuple[str, torch.Tensor, float, torch.Tensor]]:
     """``(kind, new env (4,), phase 1, goal configuration (7,))``: the goal moved 5 cm (``DRAWS``
     directions, kept on the table)."""
     task, env, out = p.task_obj, p.env, []
@@ -101,11 +108,15 @@ def arm_changes(p: Problem, mean_traj: torch.Tensor, g: torch.Generator) -> list
         new = env.clone()
         new[2] = (env[2] + 0.05 * math.cos(a)).clamp(x0, x1)
         new[3] = (env[3] + 0.05 * math.sin(a)).clamp(y0, y1)
-        out.append(("goal", new, 1.0, arm_goal_configuration(task, mean_traj[-1], task.goal_point(new))))
+        out.append(
+            ("goal", new, 1.0, arm_goal_configuration(task, mean_traj[-1], task.goal_point(new)))
+        )
     return out
 
 
-def adapted(p: Problem, mean: torch.Tensor, var: torch.Tensor, changes, soft: bool) -> list[bool | None]:
+def adapted(
+    p: Problem, mean: torch.Tensor, var: torch.Tensor, changes, soft: bool
+) -> list[bool | None]:
     """Success of the conditioned mean in each changed environment (None: conditioning failed,
     e.g. a zero variance at the via point with ``y_cov = 0``)."""
     n = p.n_task
@@ -134,8 +145,22 @@ def evaluate(p: Problem, mean: torch.Tensor, var: torch.Tensor, seed: int) -> di
     solved = bool(p.task_obj.success(mean_traj, p.env))
     out: dict = {}
     for i, (kind, *_rest) in enumerate(changes):
-        row = out.setdefault(kind, dict.fromkeys(("cases", "not_conditioned", "exact", "soft", "failed", "cases_of_solved",
-                                                  "exact_of_solved", "soft_of_solved"), 0))
+        row = out.setdefault(
+            kind,
+            dict.fromkeys(
+                (
+                    "cases",
+                    "not_conditioned",
+                    "exact",
+                    "soft",
+                    "failed",
+                    "cases_of_solved",
+                    "exact_of_solved",
+                    "soft_of_solved",
+                ),
+                0,
+            ),
+        )
         row["cases"] += 1
         row["not_conditioned"] += plain[i]
         row["exact"] += bool(exact[i])
@@ -164,17 +189,31 @@ def main(argv=None) -> None:
     ap.add_argument("--budget", type=int, default=50_000)
     ap.add_argument("--tasks", default="point_particle,arm")
     ap.add_argument("--optimizers", default="PRO,EPRO,RWR,CEM,CMA-ES")
-    ap.add_argument("--arm-objective", default="skeleton", choices=CAN_OBJECTIVES,
-                    help="the arm's can objective the optimisers read (benchmarks/studies/peers.py --arm-objective)")
+    ap.add_argument(
+        "--arm-objective",
+        default="skeleton",
+        choices=CAN_OBJECTIVES,
+        help="the arm's can objective the optimisers read (benchmarks/studies/peers.py "
+        "--arm-objective)",
+    )
     ap.add_argument("--json", default=None, help="write the counts here (atomically)")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     peers = load_peers()
     peers.ARM_OPTIONS["can_objective"] = args.arm_objective
-    command = shlex.join(["python", "benchmarks/studies/peers_condition.py", *(sys.argv[1:] if argv is None else argv)])
+    command = shlex.join(
+        [
+            "python",
+            "benchmarks/studies/peers_condition.py",
+            *(sys.argv[1:] if argv is None else argv),
+        ]
+    )
     results: dict = {}
-    print("| task | change | distribution | cases | not conditioned | conditioned, exact | conditioned, soft "
-          "| cases whose problem the mean solves | ... conditioned, exact | ... conditioned, soft |")
+    print(
+        "| task | change | distribution | cases | not conditioned | conditioned, exact | "
+        "conditioned, soft "
+        "| cases whose problem the mean solves | ... conditioned, exact | ... conditioned, soft |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|")
     for task in [t for t in args.tasks.split(",") if t]:
         if task not in SHIFTS:
@@ -193,11 +232,20 @@ def main(argv=None) -> None:
             total = merge(rows)
             results.setdefault(task, {})[name] = total
             for kind, c in total.items():
-                print(f"| {task} | {kind} | {name} | {c['cases']} | {c['not_conditioned']} | {c['exact']} | {c['soft']} "
-                      f"| {c['cases_of_solved']} | {c['exact_of_solved']} | {c['soft_of_solved']} |", flush=True)
+                print(
+                    f"| {task} | {kind} | {name} | {c['cases']} | {c['not_conditioned']} | "
+                    f"{c['exact']} | {c['soft']} "
+                    f"| {c['cases_of_solved']} | {c['exact_of_solved']} | {c['soft_of_solved']} |",
+                    flush=True,
+                )
             print(f"{task} {name}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
     if args.json:
-        body = {"command": command, "seed": args.seed, "arm_can_objective": args.arm_objective, "tasks": results}
+        body = {
+            "command": command,
+            "seed": args.seed,
+            "arm_can_objective": args.arm_objective,
+            "tasks": results,
+        }
         atomic_write_bytes(Path(args.json), (json.dumps(body, indent=1) + "\n").encode())
 
 

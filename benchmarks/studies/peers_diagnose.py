@@ -30,12 +30,24 @@ def main(argv=None) -> None:
     ap.add_argument("--iters", type=int, default=40)
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
-    print("| problem | rollouts to success | final costs (start, clearance, goal) | relevant weights per objective "
-          "| relevant nuisance | ESS first 9 | ESS last 9 | task std kept |")
+    print(
+        "| problem | rollouts to success | final costs (start, clearance, goal) | relevant weights "
+        "per objective "
+        "| relevant nuisance | ESS first 9 | ESS last 9 | task std kept |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for p in point_particle_problems(args.problems):
-        opt = PRO(p.mean, p.var, beta=20.0, relevance_samples=200, noise_floor=3.0, num_samples=100,
-                  max_iter=args.iters, tol=0, seed=1000 + p.repeat)
+        opt = PRO(
+            p.mean,
+            p.var,
+            beta=20.0,
+            relevance_samples=200,
+            noise_floor=3.0,
+            num_samples=100,
+            max_iter=args.iters,
+            tol=0,
+            seed=1000 + p.repeat,
+        )
         ess, first, used = [], None, 0
         while not opt.stop():
             w = opt.ask()
@@ -51,9 +63,14 @@ def main(argv=None) -> None:
         f, n = opt.relevance[0], p.n_task  # (O, N)
         costs = ", ".join(f"{v:.3f}" for v in p.costs(opt.mean[0]).tolist())
         kept = float(opt.var[0, :n].sqrt().median() / p.var[:n].sqrt().median())
-        print(f"| {p.repeat} | {first if first is not None else '-'} | {costs} "
-              f"| {[int((f[o, :n] > 0).sum()) for o in range(f.shape[0])]} | {int((f[:, n:] > 0).sum())} "
-              f"| {statistics.median(ess[:9]):.1f} | {statistics.median(ess[-9:]):.1f} | {kept:.3f} |", flush=True)
+        print(
+            f"| {p.repeat} | {first if first is not None else '-'} | {costs} "
+            f"| {[int((f[o, :n] > 0).sum()) for o in range(f.shape[0])]} | "
+            f"{int((f[:, n:] > 0).sum())} "
+            f"| {statistics.median(ess[:9]):.1f} | {statistics.median(ess[-9:]):.1f} | {kept:.3f} "
+            "|",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

@@ -1,5 +1,6 @@
 """``python -m protorch --help``: the experiments and every config group's choices (``optimizer=``,
-``gp=``, ``task=``, ``robot=``, ``tune=``), each with the first sentence of its YAML's header comment, how to
+``gp=``, ``task=``, ``robot=``, ``tune=``), each with the first sentence of its YAML's header
+comment, how to
 see and change settings, and what each key means, read from the YAML comments of ``conf/``
 (``key: value  # meaning``). Lines are wrapped to the terminal, never cut."""
 
@@ -10,20 +11,34 @@ import shutil
 import textwrap
 from pathlib import Path
 
-__all__ = ["wants_help", "experiment_lines", "group_choices", "first_sentence", "key_meanings", "help_text", "GROUPS"]
+__all__ = [
+    "wants_help",
+    "experiment_lines",
+    "group_choices",
+    "first_sentence",
+    "key_meanings",
+    "help_text",
+    "GROUPS",
+]
 
 # the config groups a command line chooses from, in the order the help lists them
-GROUPS = (("experiment", "the experiment (sets every group below to its own choices)"),
-          ("optimizer", "the loop's optimiser; optimizer.<key>=... changes one setting"),
-          ("gp", "the environment map's backend"),
-          ("task", "the task (custom: your own class, task._target_=my_module.MyTask)"),
-          ("robot", "the arm of experiment=arm_reach (custom: your URDF, docs/your_own_robot.md)"),
-          ("tune", "a hyperparameter search preset (with -m)"))
-_SENTENCE_END = re.compile(r"(?<!\bSec)(?<!\bFig)(?<!\be\.g)(?<!\bi\.e)(?<!\bvs)(?<!\bEq)(?<!\bal)\.(?=\s|$)|:$")
+GROUPS = (
+    ("experiment", "the experiment (sets every group below to its own choices)"),
+    ("optimizer", "the loop's optimiser; optimizer.<key>=... changes one setting"),
+    ("gp", "the environment map's backend"),
+    ("task", "the task (custom: your own class, task._target_=my_module.MyTask)"),
+    ("robot", "the arm of experiment=arm_reach (custom: your URDF, docs/your_own_robot.md)"),
+    ("tune", "a hyperparameter search preset (with -m)"),
+)
+_SENTENCE_END = re.compile(
+    r"(?<!\bSec)(?<!\bFig)(?<!\be\.g)(?<!\bi\.e)(?<!\bvs)(?<!\bEq)(?<!\bal)\.(?=\s|$)|:$"
+)
 
 # Hydra's own informational flags: passed through to Hydra, never answered with our help
 HYDRA_FLAGS = ("--hydra-help", "--info", "-i", "--version", "--shell-completion", "-sc")
-_KEY = re.compile(r"^(?P<indent> *)(?P<key>[A-Za-z_][\w-]*):(?P<value>[^#]*?)\s*(#\s?(?P<meaning>.*))?$")
+_KEY = re.compile(
+    r"^(?P<indent> *)(?P<key>[A-Za-z_][\w-]*):(?P<value>[^#]*?)\s*(#\s?(?P<meaning>.*))?$"
+)
 _COMMENT = re.compile(r"^(?P<indent> *)#\s?(?P<text>.*)$")
 
 
@@ -46,7 +61,8 @@ def wants_help(argv: list[str]) -> bool:
 
 def first_sentence(path: Path) -> str:
     """The first sentence of a YAML file's header comment (after ``@package``), whole however many
-    lines it spans (abbreviations such as "Sec." and "Fig." do not end it; a trailing colon does)."""
+    lines it spans (abbreviations such as "Sec." and "Fig." do not end it; a trailing colon
+    does)."""
     text = []
     for line in path.read_text().splitlines():
         m = _COMMENT.match(line)
@@ -72,8 +88,13 @@ def group_choices(conf: Path, group: str) -> dict[str, str]:
 def _wrap(head: str, text: str, width: int, indent: int) -> list[str]:
     """``head`` then ``text`` wrapped to ``width``, continuation lines indented by ``indent``."""
     first = f"{head}{text}"
-    return textwrap.wrap(first, width=width, subsequent_indent=" " * indent, break_long_words=False,
-                         break_on_hyphens=False) or [head.rstrip()]
+    return textwrap.wrap(
+        first,
+        width=width,
+        subsequent_indent=" " * indent,
+        break_long_words=False,
+        break_on_hyphens=False,
+    ) or [head.rstrip()]
 
 
 def key_meanings(path: Path) -> list[tuple[str, str, str]]:
@@ -152,12 +173,16 @@ def help_text(conf: Path, argv: list[str]) -> str:
         "",
         "  python -m protorch experiment=NAME --cfg job      show every setting of NAME (resolved)",
         "  python -m protorch experiment=NAME --help         this help plus what NAME's keys mean",
-        "  python -m protorch experiment=NAME key=value ...  change settings, e.g. seed=1 optimizer.beta=10",
-        "  python -m protorch -m experiment=NAME optimizer.beta=1,10,20   a sweep (one run per value)",
+        "  python -m protorch experiment=NAME key=value ...  change settings, e.g. seed=1 "
+        "optimizer.beta=10",
+        "  python -m protorch -m experiment=NAME optimizer.beta=1,10,20   a sweep (one run per "
+        "value)",
         "  python -m protorch --hydra-help                   Hydra's own options",
         "",
-        "Each run writes metrics.json (headline numbers under \"summary\"), status.json, config.yaml and",
-        "figures into hydra.run.dir (default runs/NAME__SEED__TIME) and prints a summary as its last lines.",
+        'Each run writes metrics.json (headline numbers under "summary"), status.json, config.yaml '
+        "and",
+        "figures into hydra.run.dir (default runs/NAME__SEED__TIME) and prints a summary as its "
+        "last lines.",
         "",
         "shared settings (conf/config.yaml):",
         *_table([r for r in key_meanings(conf / "config.yaml") if r[0] != "name"], width),
@@ -167,14 +192,36 @@ def help_text(conf: Path, argv: list[str]) -> str:
         if not path.is_file():
             lines += ["", f"unknown experiment {chosen!r}; choose one of {sorted(names)}"]
         else:
-            lines += ["", *_wrap(f"settings of experiment={chosen} ({path.relative_to(conf.parent)}; ",
-                                 "keys without a comment are listed by --cfg job):", width, 2),
-                      *_table([r for r in key_meanings(path) if r[2]], width)]
+            lines += [
+                "",
+                *_wrap(
+                    f"settings of experiment={chosen} ({path.relative_to(conf.parent)}; ",
+                    "keys without a comment are listed by --cfg job):",
+                    width,
+                    2,
+                ),
+                *_table([r for r in key_meanings(path) if r[2]], width),
+            ]
             if "override /robot" in path.read_text():
-                lines += ["", *_wrap("robot settings (conf/robot/custom.yaml; with robot=panda each is null, the Panda's ",
-                                     "own value, and robot.KEY=VALUE changes it): python -m protorch "
-                                     "experiment=arm_reach robot=custom robot.urdf=my_arm.urdf robot.end_link=tool0 "
-                                     "robot.home=[...]", width, 2),
-                          *_table([(f"robot.{k}", v, m) for k, v, m in key_meanings(conf / "robot" / "custom.yaml")
-                                   if m], width)]
+                lines += [
+                    "",
+                    *_wrap(
+                        "robot settings (conf/robot/custom.yaml; with robot=panda each is null, "
+                        "the Panda's ",
+                        "own value, and robot.KEY=VALUE changes it): python -m protorch "
+                        "experiment=arm_reach robot=custom robot.urdf=my_arm.urdf "
+                        "robot.end_link=tool0 "
+                        "robot.home=[...]",
+                        width,
+                        2,
+                    ),
+                    *_table(
+                        [
+                            (f"robot.{k}", v, m)
+                            for k, v, m in key_meanings(conf / "robot" / "custom.yaml")
+                            if m
+                        ],
+                        width,
+                    ),
+                ]
     return "\n".join(lines)

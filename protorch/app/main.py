@@ -39,11 +39,14 @@ LOG = logging.getLogger("protorch")
 # ``${protorch.or:${a},default}``: ``a`` unless it is null (a baseline keeps a number where the main
 # optimiser's setting is null, e.g. EPRO's self-set beta)
 if not OmegaConf.has_resolver("protorch.or"):
-    OmegaConf.register_new_resolver("protorch.or", lambda value, default: default if value is None else value)
+    OmegaConf.register_new_resolver(
+        "protorch.or", lambda value, default: default if value is None else value
+    )
 
 
 def config_dir() -> Path:
-    """``conf/`` beside the package in a source checkout, ``protorch/conf`` in an installed wheel."""
+    """``conf/`` beside the package in a source checkout, ``protorch/conf`` in an
+    installed wheel."""
     package = Path(__file__).resolve().parent.parent
     for candidate in (package / "conf", package.parent / "conf"):
         if (candidate / "config.yaml").is_file():
@@ -60,19 +63,30 @@ class BelowWarning(logging.Filter):
 
 
 def _only_hydra_files(out_dir: Path) -> bool:
-    """Whether ``out_dir`` holds nothing but what Hydra wrote for this job (``.hydra/``, the job's log)."""
-    return out_dir.is_dir() and {p.name for p in out_dir.iterdir()} <= {".hydra", f"{HydraConfig.get().job.name}.log"}
+    """Whether ``out_dir`` holds nothing but what Hydra wrote for this job (``.hydra/``, the job's
+    log)."""
+    return out_dir.is_dir() and {p.name for p in out_dir.iterdir()} <= {
+        ".hydra",
+        f"{HydraConfig.get().job.name}.log",
+    }
 
 
-def _refuse(exc: Exception, out_dir: Path, *, remove: bool, config_before: bytes | None = None) -> None:
-    """A value refused before any work: one line on stderr and exit status 2 (``HYDRA_FULL_ERROR=1``:
+def _refuse(
+    exc: Exception, out_dir: Path, *, remove: bool, config_before: bytes | None = None
+) -> None:
+    """A value refused before any work: one line on stderr and exit status 2
+    (``HYDRA_FULL_ERROR=1``:
     the traceback instead); the run folder Hydra made for it removed when it holds nothing else, a
     reused folder's ``config.yaml`` put back as it was."""
     if os.environ.get("HYDRA_FULL_ERROR") == "1":
         raise exc
     if remove:
         shutil.rmtree(out_dir, ignore_errors=True)
-        if out_dir.parent != Path.cwd() and out_dir.parent.is_dir() and not any(out_dir.parent.iterdir()):
+        if (
+            out_dir.parent != Path.cwd()
+            and out_dir.parent.is_dir()
+            and not any(out_dir.parent.iterdir())
+        ):
             out_dir.parent.rmdir()  # e.g. runs/, which Hydra made for this run alone
     elif config_before is not None:
         atomic_write_bytes(out_dir / "config.yaml", config_before)
@@ -97,8 +111,10 @@ def hydra_app(cfg: DictConfig) -> float | None:
     config_before = config_path.read_bytes() if config_path.is_file() else None
     out_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(config_path, OmegaConf.to_yaml(OmegaConf.create(plain)).encode())
-    logging.getLogger("protorch.details").info(f"[protorch] {name}: seed {plain.get('seed')}, threads "
-                                               f"{plain.get('threads')}, run folder {out_dir}")  # main.log only
+    logging.getLogger("protorch.details").info(
+        f"[protorch] {name}: seed {plain.get('seed')}, threads "
+        f"{plain.get('threads')}, run folder {out_dir}"
+    )  # main.log only
     t0 = time.perf_counter()
     try:
         metrics = run_experiment(plain, out_dir)
@@ -108,9 +124,13 @@ def hydra_app(cfg: DictConfig) -> float | None:
         if os.environ.get("HYDRA_FULL_ERROR") == "1":
             raise
         logging.getLogger("protorch.details").error(traceback.format_exc())  # main.log only
-        LOG.error(f"[protorch] {name} FAILED after {time.perf_counter() - t0:.1f} s: {type(exc).__name__}: "
-                  f"{' '.join(str(exc).split())} (traceback in {out_dir / 'main.log'}; {out_dir / 'status.json'}; "
-                  "HYDRA_FULL_ERROR=1 prints it)")
+        LOG.error(
+            f"[protorch] {name} FAILED after {time.perf_counter() - t0:.1f} s: "
+            f"{type(exc).__name__}: "
+            f"{' '.join(str(exc).split())} (traceback in {out_dir / 'main.log'}; "
+            f"{out_dir / 'status.json'}; "
+            "HYDRA_FULL_ERROR=1 prints it)"
+        )
         sys.exit(1)
     LOG.info(format_summary(name, metrics["summary"]))
     objective = metrics.get("objective")

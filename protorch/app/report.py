@@ -44,8 +44,20 @@ from .sweep import (
 )
 
 __all__ = [
-    "METRICS_FILE", "MISSING", "OK", "OUTPUTS", "OVERRIDES_FILE", "SPREAD_FILE", "RunRecord", "SweepReport", "collect",
-    "main", "plot_sweep", "to_csv", "to_markdown", "write_report",
+    "METRICS_FILE",
+    "MISSING",
+    "OK",
+    "OUTPUTS",
+    "OVERRIDES_FILE",
+    "SPREAD_FILE",
+    "RunRecord",
+    "SweepReport",
+    "collect",
+    "main",
+    "plot_sweep",
+    "to_csv",
+    "to_markdown",
+    "write_report",
 ]
 
 OUTPUTS = ("report.csv", "report.md", "report.png")
@@ -59,29 +71,49 @@ def to_csv(report: SweepReport) -> str:
     writer = csv.DictWriter(buf, fieldnames=list(rows[0]), lineterminator="\n")
     writer.writeheader()
     for row in rows:
-        writer.writerow({k: (json.dumps(v) if isinstance(v, (list, dict)) else v) for k, v in row.items()})
+        writer.writerow(
+            {k: (json.dumps(v) if isinstance(v, (list, dict)) else v) for k, v in row.items()}
+        )
     return buf.getvalue()
 
 
 def to_markdown(report: SweepReport, success: Sequence[str], time: Sequence[str]) -> str:
     ok = sum(r.status == OK for r in report.runs)
-    lines = [f"# Sweep report: {report.root}", "",
-             f"{len(report.runs)} runs ({ok} with metrics); swept: {', '.join(report.swept) or 'nothing'}.", ""]
+    lines = [
+        f"# Sweep report: {report.root}",
+        "",
+        f"{len(report.runs)} runs ({ok} with metrics); swept: "
+        f"{', '.join(report.swept) or 'nothing'}.",
+        "",
+    ]
     if report.fixed:
-        lines += ["Fixed overrides: " + " ".join(f"`{k}={format_value(v)}`" for k, v in report.fixed.items()), ""]
+        lines += [
+            "Fixed overrides: "
+            + " ".join(f"`{k}={format_value(v)}`" for k, v in report.fixed.items()),
+            "",
+        ]
     objective = report.objective_metric()
-    metric_cols = (["objective.value"] if objective else []) + [k for k in (*success, *time) if k != objective]
+    metric_cols = (["objective.value"] if objective else []) + [
+        k for k in (*success, *time) if k != objective
+    ]
     names = [f"objective ({objective})" if k == "objective.value" else k for k in metric_cols]
     head = ["run", *report.swept, *names, "status"]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in report.runs:
-        cells = [r.name, *(format_value(r.param(k)) for k in report.swept), *(format_value(r.metrics.get(k)) for k in metric_cols),
-                 r.status]
+        cells = [
+            r.name,
+            *(format_value(r.param(k)) for k in report.swept),
+            *(format_value(r.metrics.get(k)) for k in metric_cols),
+            r.status,
+        ]
         lines.append("| " + " | ".join(cells) + " |")
     if report.optuna:
         best = report.optuna.get("best_params") or {}
-        lines += ["", f"Optuna: best value {format_value(report.optuna.get('best_value'))} at "
-                  + ", ".join(f"`{k}={format_value(v)}`" for k, v in best.items())]
+        lines += [
+            "",
+            f"Optuna: best value {format_value(report.optuna.get('best_value'))} at "
+            + ", ".join(f"`{k}={format_value(v)}`" for k, v in best.items()),
+        ]
     return "\n".join(lines) + "\n"
 
 
@@ -106,7 +138,6 @@ def write_report(
         first = [objective] if objective in report.metric_keys else []
         fig = plot_sweep(report, first + [k for k in (*succ, *tim) if k != objective])
         if fig is not None:
-
             paths["png"] = out / OUTPUTS[2]
             save_figure(fig, paths["png"])
     return paths
@@ -122,25 +153,49 @@ def _keys(values: list[str] | None) -> list[str] | None:
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="python -m protorch.app.report",
-        description="Collect the runs of a sweep (python -m protorch -m ...) into report.csv, report.md and "
-                    "report.png (success and time against each swept parameter).",
+        description="Collect the runs of a sweep (python -m protorch -m ...) into report.csv, "
+        "report.md and "
+        "report.png (success and time against each swept parameter).",
     )
-    ap.add_argument("sweep_dir", help="the sweep's hydra.sweep.dir, e.g. runs/multirun/point_particle__<time>")
-    ap.add_argument("--out", default=None, help="where to write the report (default: the sweep directory)")
-    ap.add_argument("--success", action="append", help="success metric key(s), comma-separated "
-                    "(default: every *success / *success_rate metric, e.g. test.success_rate)")
-    ap.add_argument("--time", action="append", help="time metric key(s) (default: every *seconds metric)")
+    ap.add_argument(
+        "sweep_dir", help="the sweep's hydra.sweep.dir, e.g. runs/multirun/point_particle__<time>"
+    )
+    ap.add_argument(
+        "--out", default=None, help="where to write the report (default: the sweep directory)"
+    )
+    ap.add_argument(
+        "--success",
+        action="append",
+        help="success metric key(s), comma-separated "
+        "(default: every *success / *success_rate metric, e.g. test.success_rate)",
+    )
+    ap.add_argument(
+        "--time", action="append", help="time metric key(s) (default: every *seconds metric)"
+    )
     ap.add_argument("--no-figure", action="store_true", help="write the tables only")
-    ap.add_argument("--spread", action="store_true", help="also spread.md: mean and range over the swept "
-                    "seeds of each headline number (protorch.app.spread)")
+    ap.add_argument(
+        "--spread",
+        action="store_true",
+        help="also spread.md: mean and range over the swept "
+        "seeds of each headline number (protorch.app.spread)",
+    )
     args = ap.parse_args(argv)
     try:
         report = collect(args.sweep_dir)
-        spread = spread_markdown(report) if args.spread else None  # refused (no seed swept) before writing
-        paths = write_report(report, args.out, success=_keys(args.success), time=_keys(args.time),
-                             figure=not args.no_figure)
+        spread = (
+            spread_markdown(report) if args.spread else None
+        )  # refused (no seed swept) before writing
+        paths = write_report(
+            report,
+            args.out,
+            success=_keys(args.success),
+            time=_keys(args.time),
+            figure=not args.no_figure,
+        )
         if spread is not None:
-            paths["spread"] = atomic_write_bytes(Path(args.out or report.root) / SPREAD_FILE, spread.encode())
+            paths["spread"] = atomic_write_bytes(
+                Path(args.out or report.root) / SPREAD_FILE, spread.encode()
+            )
     except (OSError, ValueError) as exc:
         print(f"protorch.app.report: error: {exc}", file=sys.stderr)
         return 2

@@ -63,8 +63,12 @@ def plot_sweep(report: SweepReport, metrics: Sequence[str], *, max_lines: int = 
             if log:
                 ax.set_xscale("log")
             if not numeric_x:
-                ax.set_xticks(range(len(cats)), [json.loads(c) if c.startswith('"') else c for c in cats],
-                              rotation=20, fontsize=7)
+                ax.set_xticks(
+                    range(len(cats)),
+                    [json.loads(c) if c.startswith('"') else c for c in cats],
+                    rotation=20,
+                    fontsize=7,
+                )
             ax.set_xlabel(p)
             ax.set_ylabel(m, fontsize=8)
             if SUCCESS_METRIC.search(m):

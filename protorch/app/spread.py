@@ -61,9 +61,12 @@ def headline_values(run: RunRecord) -> dict[str, tuple[str, str, float]]:
         if not (k.startswith(_PREFIX) and k.endswith(_SUFFIX)) or isinstance(v, bool):
             continue
         if isinstance(v, (int, float)) and not math.isnan(v):
-            key = k[len(_PREFIX):-len(_SUFFIX)]
-            out[key] = (str(run.metrics.get(f"{_PREFIX}{key}.label", key)),
-                        str(run.metrics.get(f"{_PREFIX}{key}.method", "")), v)  # an int stays one (71, not 71.0)
+            key = k[len(_PREFIX) : -len(_SUFFIX)]
+            out[key] = (
+                str(run.metrics.get(f"{_PREFIX}{key}.label", key)),
+                str(run.metrics.get(f"{_PREFIX}{key}.method", "")),
+                v,
+            )  # an int stays one (71, not 71.0)
     return out
 
 
@@ -72,8 +75,10 @@ def seed_spread(report: SweepReport) -> dict[tuple, list[Spread]]:
     parameters other than ``seed`` (``()`` for a sweep over seeds alone). Runs without
     ``metrics.json`` are left out. Raises ``ValueError`` when ``seed`` is not swept."""
     if SEED not in report.swept:
-        raise ValueError(f"the sweep under {str(report.root)!r} does not vary the seed (swept: "
-                         f"{', '.join(report.swept) or 'nothing'}); run it with seed=0,1,2,3,4")
+        raise ValueError(
+            f"the sweep under {str(report.root)!r} does not vary the seed (swept: "
+            f"{', '.join(report.swept) or 'nothing'}); run it with seed=0,1,2,3,4"
+        )
     others = [k for k in report.swept if k != SEED]
     groups: dict[tuple, list[RunRecord]] = {}
     for r in report.runs:
@@ -83,17 +88,31 @@ def seed_spread(report: SweepReport) -> dict[tuple, list[Spread]]:
     for group, runs in groups.items():
         runs = sorted(runs, key=lambda r: int(r.param(SEED)))
         per_run = [headline_values(r) for r in runs]
-        order = [k for row in HEADLINES.get(str(runs[0].param("name")), []) for k in (row.key, *(b[1] for b in row.baselines))]
-        keys = sorted((k for k in per_run[0] if all(k in h for h in per_run)),
-                      key=lambda k: (order.index(k) if k in order else len(order), k))  # as the run's summary
-        out[group] = [Spread(key=k, label=per_run[0][k][0], method=per_run[0][k][1],
-                             seeds=[int(r.param(SEED)) for r in runs], values=[h[k][2] for h in per_run])
-                      for k in keys]
+        order = [
+            k
+            for row in HEADLINES.get(str(runs[0].param("name")), [])
+            for k in (row.key, *(b[1] for b in row.baselines))
+        ]
+        keys = sorted(
+            (k for k in per_run[0] if all(k in h for h in per_run)),
+            key=lambda k: (order.index(k) if k in order else len(order), k),
+        )  # as the run's summary
+        out[group] = [
+            Spread(
+                key=k,
+                label=per_run[0][k][0],
+                method=per_run[0][k][1],
+                seeds=[int(r.param(SEED)) for r in runs],
+                values=[h[k][2] for h in per_run],
+            )
+            for k in keys
+        ]
     return out
 
 
 def spread_markdown(report: SweepReport, spreads: dict[tuple, list[Spread]] | None = None) -> str:
-    """A markdown table per group: metric, method, metrics key, mean, range, the first seed's value."""
+    """A markdown table per group: metric, method, metrics key, mean, range, the first seed's
+    value."""
     spreads = seed_spread(report) if spreads is None else spreads
     lines = [f"# Spread over seeds: {report.root}", ""]
     if report.fixed:
@@ -106,17 +125,25 @@ def spread_markdown(report: SweepReport, spreads: dict[tuple, list[Spread]] | No
             continue
         seeds = rows[0].seeds
         first = min(seeds)
-        lines += [f"{len(seeds)} seeds: {', '.join(map(str, seeds))}", "",
-                  f"| metric | method | key | mean | range | seed {first} |", "|---|---|---|---|---|---|"]
+        lines += [
+            f"{len(seeds)} seeds: {', '.join(map(str, seeds))}",
+            "",
+            f"| metric | method | key | mean | range | seed {first} |",
+            "|---|---|---|---|---|---|",
+        ]
         for s in rows:
-            lines.append(f"| {s.label} | {s.method} | `{s.key}` | {format_value(s.key, s.mean)} | "
-                         f"{format_value(s.key, s.low)} - {format_value(s.key, s.high)} | "
-                         f"{format_value(s.key, s.first)} |")
+            lines.append(
+                f"| {s.label} | {s.method} | `{s.key}` | {format_value(s.key, s.mean)} | "
+                f"{format_value(s.key, s.low)} - {format_value(s.key, s.high)} | "
+                f"{format_value(s.key, s.first)} |"
+            )
         lines.append("")
     return "\n".join(lines)
 
 
-def outside(spreads: list[Spread], run: RunRecord, widen: dict[str, float]) -> dict[str, tuple[float, float, float]]:
+def outside(
+    spreads: list[Spread], run: RunRecord, widen: dict[str, float]
+) -> dict[str, tuple[float, float, float]]:
     """The keys of ``widen`` whose value in ``run`` lies outside ``[low - w, high + w]`` of the
     spread: ``{key: (value, low - w, high + w)}`` (empty: every one inside). A key missing from
     the spreads or the run is a ``KeyError`` naming it."""
@@ -125,7 +152,9 @@ def outside(spreads: list[Spread], run: RunRecord, widen: dict[str, float]) -> d
     out = {}
     for key, w in widen.items():
         if key not in by_key or key not in values:
-            raise KeyError(f"{key!r} is not a headline number of both the spread and the run {run.name!r}")
+            raise KeyError(
+                f"{key!r} is not a headline number of both the spread and the run {run.name!r}"
+            )
         lo, hi = by_key[key].low - w, by_key[key].high + w
         if not lo <= values[key] <= hi:
             out[key] = (values[key], lo, hi)

@@ -17,8 +17,16 @@ from omegaconf import OmegaConf
 from ..experiments.common import flatten_metrics
 
 __all__ = [
-    "METRICS_FILE", "MISSING", "OK", "OVERRIDES_FILE", "SUCCESS_METRIC", "TIME_METRIC", "RunRecord",
-    "SweepReport", "collect", "format_value",
+    "METRICS_FILE",
+    "MISSING",
+    "OK",
+    "OVERRIDES_FILE",
+    "SUCCESS_METRIC",
+    "TIME_METRIC",
+    "RunRecord",
+    "SweepReport",
+    "collect",
+    "format_value",
 ]
 
 METRICS_FILE = "metrics.json"
@@ -81,12 +89,19 @@ class SweepReport:
             seen: list[str] = []
             for r in self.runs:
                 for k, v in r.metrics.items():
-                    if (pattern.search(k) and _scalar(v) and k.count(".") <= 1
-                            and not k.startswith(("baselines.", "objective.")) and k not in seen):
+                    if (
+                        pattern.search(k)
+                        and _scalar(v)
+                        and k.count(".") <= 1
+                        and not k.startswith(("baselines.", "objective."))
+                        and k not in seen
+                    ):
                         seen.append(k)
             return sorted(seen)
 
-        return list(success) if success else auto(SUCCESS_METRIC), list(time) if time else auto(TIME_METRIC)
+        return list(success) if success else auto(SUCCESS_METRIC), list(time) if time else auto(
+            TIME_METRIC
+        )
 
     def rows(self) -> list[dict]:
         """One dict per run: ``run``, ``status``, the swept and fixed parameters, every metric."""
@@ -128,7 +143,9 @@ def _find_runs(root: Path) -> list[Path]:
 def _parse_overrides(path: Path) -> dict[str, str]:
     items = OmegaConf.to_container(OmegaConf.load(path))
     if not isinstance(items, list):
-        raise ValueError(f"{path}: expected a list of Hydra overrides (key=value), got {type(items).__name__}")
+        raise ValueError(
+            f"{path}: expected a list of Hydra overrides (key=value), got {type(items).__name__}"
+        )
     out = {}
     for item in items:
         text = str(item)
@@ -185,30 +202,48 @@ def collect(sweep_dir: str | Path) -> SweepReport:
     dirs = _find_runs(root)
     if not dirs:
         raise ValueError(
-            f"no runs under {str(root)!r}: a sweep directory (python -m protorch -m ...) holds one folder "
-            f"per run with {METRICS_FILE} and {OVERRIDES_FILE}; is this the sweep's hydra.sweep.dir?"
+            f"no runs under {str(root)!r}: a sweep directory (python -m protorch -m ...) holds one "
+            "folder "
+            f"per run with {METRICS_FILE} and {OVERRIDES_FILE}; is this the sweep's "
+            "hydra.sweep.dir?"
         )
     runs = []
     for d in dirs:
         metrics = _read_metrics(d)
         ov = _parse_overrides(d / OVERRIDES_FILE) if (d / OVERRIDES_FILE).is_file() else {}
         name = str(d.relative_to(root)) if d != root else d.name
-        runs.append(RunRecord(name=name, path=d, overrides=ov, config=_read_config(d), metrics=metrics or {},
-                              status=OK if metrics is not None else MISSING))
+        runs.append(
+            RunRecord(
+                name=name,
+                path=d,
+                overrides=ov,
+                config=_read_config(d),
+                metrics=metrics or {},
+                status=OK if metrics is not None else MISSING,
+            )
+        )
     if all(r.status != OK for r in runs):
         raise ValueError(
-            f"none of the {len(runs)} run(s) under {str(root)!r} has a {METRICS_FILE}: they failed, were "
+            f"none of the {len(runs)} run(s) under {str(root)!r} has a {METRICS_FILE}: they "
+            "failed, were "
             "killed or are still running (see each run's log)"
         )
     # parameters: every overridden key, plus config entries that differ between runs
     keys: list[str] = []
     for r in runs:
         keys += [k for k in r.overrides if k not in keys]
-    if len(runs) > 1:  # ... except entries that only follow an overridden key (``${optimizer.beta}``)
+    if (
+        len(runs) > 1
+    ):  # ... except entries that only follow an overridden key (``${optimizer.beta}``)
         config_keys = sorted({k for r in runs for k in r.config})
         followed = [[r.param(k) for r in runs] for k in keys]
-        keys += [k for k in config_keys if k not in keys and not _same([r.config.get(k) for r in runs])
-                 and [r.config.get(k) for r in runs] not in followed]
+        keys += [
+            k
+            for k in config_keys
+            if k not in keys
+            and not _same([r.config.get(k) for r in runs])
+            and [r.config.get(k) for r in runs] not in followed
+        ]
     swept = [k for k in keys if not _same([r.param(k) for r in runs])]
     fixed = {k: runs[0].param(k) for k in keys if k not in swept}
     optuna = None

@@ -31,7 +31,8 @@ The person moves things at once (a jump), which is the hardest case for the cont
 
 Success over the whole episode, at every instant with the environment of that instant: the arm
 more than ``margin`` from the can's surface and above the table (under the task's collision
-model), every joint inside its limits, and, after the hold, the end effector within ``goal_tol`` of the final
+model), every joint inside its limits, and, after the hold, the end effector within ``goal_tol`` of
+the final
 target. The arm starts at rest at the task's start configuration.
 """
 
@@ -64,6 +65,7 @@ from .episodes import (
 
 __all__ = ["ArmEpisodeResult", "arm_follow", "count_switches", "rest_scores", "run_arm_episodes"]
 
+
 def count_switches(labels: Tensor) -> Tensor:
     """Changes of the tracked class per episode: ``labels (E, T+1) -> (E,)`` long."""
     return (labels[:, 1:] != labels[:, :-1]).sum(-1)
@@ -83,9 +85,13 @@ class ArmEpisodeResult:
     within_limits: Tensor  # (E,) bool
     final_goal_distance: Tensor  # (E,)
     min_can_distance: Tensor  # (E,) skeleton to can axis, over the episode
-    min_can_gap: Tensor  # (E,) the arm (task's collision model) to the can's surface, over the episode
+    min_can_gap: (
+        Tensor  # (E,) the arm (task's collision model) to the can's surface, over the episode
+    )
     moves: Tensor  # (E,) long, moves that happened
-    map_queries: int  # (environment, class) answers the map computed; unchanged environments reuse theirs
+    map_queries: (
+        int  # (environment, class) answers the map computed; unchanged environments reuse theirs
+    )
     dt: float
     duration: float
     hold: float
@@ -116,19 +122,22 @@ class ArmEpisodeResult:
             "success_rate": self.success_rate,
             "switches": int(sw.sum()),
             "episodes_with_switch": int(switched.sum()),
-            "success_rate_with_switch": float(self.success[switched].double().mean()) if bool(switched.any())
+            "success_rate_with_switch": float(self.success[switched].double().mean())
+            if bool(switched.any())
             else float("nan"),
             "moves": int(self.moves.sum()),
             "map_queries": self.map_queries,
             "collision_rate": float(self.collided.double().mean()),
             "limit_violation_rate": float((~self.within_limits).double().mean()),
             "final_goal_distance_median": float(d.median()),
-            "goal_reached_rate": float((d <= self.task.goal_tol).double().mean()) if self.task is not None
+            "goal_reached_rate": float((d <= self.task.goal_tol).double().mean())
+            if self.task is not None
             else float("nan"),
         }
 
     def episode(self, i: int) -> dict:
-        """Numpy arrays of episode ``i`` for :mod:`protorch.viz.arm`: ``links (T+1, F, 3)`` the arm's
+        """Numpy arrays of episode ``i`` for :mod:`protorch.viz.arm`: ``links (T+1, F, 3)`` the
+        arm's
         skeleton, ``ee (T+1, 3)``, ``means (T+1, P, 3)`` the end-effector path of the tracked
         mean at each instant (needs ``record=True``), ``envs (T+1, 4)``, ``labels (T+1,)``,
         ``dt``, ``success``."""
@@ -143,8 +152,15 @@ class ArmEpisodeResult:
         def np_(x):
             return x.detach().cpu().numpy()
 
-        return {"links": np_(links), "ee": np_(links[:, -1]), "means": np_(means), "envs": np_(self.envs[i]),
-                "labels": np_(self.labels[i]), "dt": self.dt, "success": bool(self.success[i])}
+        return {
+            "links": np_(links),
+            "ee": np_(links[:, -1]),
+            "means": np_(means),
+            "envs": np_(self.envs[i]),
+            "labels": np_(self.labels[i]),
+            "dt": self.dt,
+            "success": bool(self.success[i]),
+        }
 
 
 def run_arm_episodes(
@@ -203,7 +219,9 @@ def run_arm_episodes(
     """
     env_map, promp = getattr(model, "env_map", None), getattr(model, "promp", None)
     if env_map is None or not callable(getattr(env_map, "predict_mean", None)) or promp is None:
-        raise ValueError("model must have .env_map (a protorch EnvMap) and .promp, e.g. protorch.load(run_dir)")
+        raise ValueError(
+            "model must have .env_map (a protorch EnvMap) and .promp, e.g. protorch.load(run_dir)"
+        )
     if promp.num_dof != task.num_dof:
         raise ValueError(f"the ProMP has {promp.num_dof} DoF but the arm has {task.num_dof} joints")
     timing = check_timing(dt, duration, hold)
@@ -231,12 +249,25 @@ def run_arm_episodes(
         schedule = draw_moves(env0.shape[0], timing.moving, moves, (lo_w, hi_w), generator)
     if max_acceleration is None:
         max_acceleration = task.robot.max_acceleration
-    choice = ArmClassChoice(task, env_map, promp, envs, schedule, timing.total, place_clearance=place_clearance,
-                            switch_margin=switch_margin, generator=generator, reuse_answers=reuse_answers,
-                            check=bool(check), follow=arm_follow(task, kp, max_acceleration, timing, **kw),
-                            switch_clearance=switch_clearance)
+    choice = ArmClassChoice(
+        task,
+        env_map,
+        promp,
+        envs,
+        schedule,
+        timing.total,
+        place_clearance=place_clearance,
+        switch_margin=switch_margin,
+        generator=generator,
+        reuse_answers=reuse_answers,
+        check=bool(check),
+        follow=arm_follow(task, kp, max_acceleration, timing, **kw),
+        switch_clearance=switch_clearance,
+    )
     arm = _KinematicArm(choice, task, timing, kp=kp, max_acceleration=max_acceleration)
-    run = track(arm, promp, timing, envs.shape[0], task.start_config(**kw), record=record, markers=False)
+    run = track(
+        arm, promp, timing, envs.shape[0], task.start_config(**kw), record=record, markers=False
+    )
     q = run.positions  # (E, T+1, J)
     with torch.no_grad():
         kin = task.kinematics
@@ -247,16 +278,38 @@ def run_arm_episodes(
         limits = kin.within_limits(q).all(-1)
         goal = (frames[:, -1, -1, :3, 3] - task.goal_point(envs[:, -1])).norm(dim=-1)
         success = ~collided & limits & above_table(task, frames) & (goal <= task.goal_tol)
-    return ArmEpisodeResult(q=q, qd=run.velocities, envs=envs, labels=choice.labels, weights=run.weights,
-                            success=success, collided=collided, within_limits=limits, final_goal_distance=goal,
-                            min_can_distance=min_dist, min_can_gap=gap, moves=choice.moved,
-                            map_queries=choice.queries, dt=timing.dt,
-                            duration=timing.duration, hold=timing.hold, num_moving_steps=timing.moving,
-                            promp=promp, task=task)
+    return ArmEpisodeResult(
+        q=q,
+        qd=run.velocities,
+        envs=envs,
+        labels=choice.labels,
+        weights=run.weights,
+        success=success,
+        collided=collided,
+        within_limits=limits,
+        final_goal_distance=goal,
+        min_can_distance=min_dist,
+        min_can_gap=gap,
+        moves=choice.moved,
+        map_queries=choice.queries,
+        dt=timing.dt,
+        duration=timing.duration,
+        hold=timing.hold,
+        num_moving_steps=timing.moving,
+        promp=promp,
+        task=task,
+    )
 
 
-def arm_follow(task, kp: float, max_acceleration, timing: Timing, dtype=torch.float64, device=None,
-               tables: dict | None = None) -> Follow:
+def arm_follow(
+    task,
+    kp: float,
+    max_acceleration,
+    timing: Timing,
+    dtype=torch.float64,
+    device=None,
+    tables: dict | None = None,
+) -> Follow:
     """The moving tests' velocity command for the plan check's rollout
     (:class:`~protorch.control.arm_choice.Follow`): gain ``kp``, the robot's velocity limits,
     ``max_acceleration`` (per joint or one number; ``None``: the robot's), the control step and the
@@ -264,8 +317,14 @@ def arm_follow(task, kp: float, max_acceleration, timing: Timing, dtype=torch.fl
     policy's, :attr:`Follow.tables`)."""
     kw = {"dtype": dtype, "device": device}
     amax = task.robot.max_acceleration if max_acceleration is None else max_acceleration
-    return Follow(float(kp), task.kinematics.max_velocity.to(**kw),
-                  torch.as_tensor(amax, **kw).expand(task.num_dof), timing.dt, timing.duration, tables)
+    return Follow(
+        float(kp),
+        task.kinematics.max_velocity.to(**kw),
+        torch.as_tensor(amax, **kw).expand(task.num_dof),
+        timing.dt,
+        timing.duration,
+        tables,
+    )
 
 
 class _KinematicArm:
@@ -273,7 +332,9 @@ class _KinematicArm:
     (:class:`~protorch.control.arm_choice.ArmClassChoice`) answers, the arm moves by the velocity
     command within the joint velocity and acceleration limits."""
 
-    def __init__(self, choice: ArmClassChoice, task, timing: Timing, *, kp: float, max_acceleration) -> None:
+    def __init__(
+        self, choice: ArmClassChoice, task, timing: Timing, *, kp: float, max_acceleration
+    ) -> None:
         kw = {"dtype": choice.envs.dtype, "device": choice.envs.device}
         self.choice, self.dt, self.kp = choice, timing.dt, kp
         self.vmax = task.kinematics.max_velocity.to(**kw)  # (J,)
@@ -283,4 +344,6 @@ class _KinematicArm:
         return self.choice.answer(t, z, q, qd)
 
     def acceleration(self, q: Tensor, qd: Tensor, m: Tensor, m_vel: Tensor) -> Tensor:
-        return velocity_command_acceleration(q, qd, m, m_vel, kp=self.kp, vmax=self.vmax, amax=self.amax, dt=self.dt)
+        return velocity_command_acceleration(
+            q, qd, m, m_vel, kp=self.kp, vmax=self.vmax, amax=self.amax, dt=self.dt
+        )

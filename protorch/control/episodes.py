@@ -24,7 +24,8 @@ Stability of that integrator (checked before any work, :func:`check_pd_stable`,
   ``kp dt^2 / mass + 2 kd dt / mass < 4`` (which implies ``c h < 2``). The authors' gains
   ``kp = 1000, kd = 30, mass = 1, dt = 0.01`` give 0.7.
 * A commanded velocity ``v_cmd = m' + kp (m - q)`` reached in one step (the arm, when neither
-  the velocity nor the acceleration limit binds: ``v_{t+1} = v_cmd``): ``e_{t+1} = (1 - kp dt) e_t``,
+  the velocity nor the acceleration limit binds: ``v_{t+1} = v_cmd``): ``e_{t+1} = (1 - kp dt)
+  e_t``,
   stable iff ``kp dt < 2``.
 
 An episode has at most :data:`MAX_STEPS` control steps (``10^6``: the runner keeps every instant
@@ -63,7 +64,8 @@ MAX_STEPS = 1_000_000  # control steps per episode (moving + hold)
 
 # ----------------------------------------------------------------------------- ProMP at one phase
 def basis_derivative_at(promp, phase: Tensor | float) -> Tensor:
-    """``d Phi / dz`` of a :class:`~protorch.primitives.promp.ProMP`'s normalised Gaussian basis at phases
+    """``d Phi / dz`` of a :class:`~protorch.primitives.promp.ProMP`'s normalised Gaussian basis at
+    phases
     ``(P,)``: ``(P, K)``, ``promp.basis_at(phase, order=1)[:, 1]``
     (:func:`~protorch.primitives.promp.gaussian_basis` has the formula)."""
     return promp.basis_at(phase, order=1)[:, 1]  # (P, K)
@@ -86,7 +88,8 @@ def promp_state_at(promp, w: Tensor, phase: float) -> tuple[Tensor, Tensor]:
 # ----------------------------------------------------------------------------- settings
 @dataclass(frozen=True)
 class Timing:
-    """The time grid of an episode: ``moving`` steps with ``z < 1``, then ``held`` steps at ``z = 1``."""
+    """The time grid of an episode: ``moving`` steps with ``z < 1``, then ``held`` steps at ``z =
+    1``."""
 
     dt: float
     duration: float
@@ -119,7 +122,8 @@ def check_timing(dt, duration, hold) -> Timing:
     moving, held = int(math.ceil(duration / dt - 1e-9)), int(round(hold / dt))
     if moving + held > MAX_STEPS:
         raise ValueError(
-            f"duration + hold = {duration + hold:g} s at dt = {dt:g} s is {moving + held} control steps per episode, "
+            f"duration + hold = {duration + hold:g} s at dt = {dt:g} s is {moving + held} control "
+            "steps per episode, "
             f"over the limit of {MAX_STEPS}: use dt >= {(duration + hold) / MAX_STEPS:.3g}"
         )
     return Timing(dt=dt, duration=duration, moving=moving, held=held)
@@ -131,8 +135,10 @@ def check_pd_stable(kp: float, kd: float, mass: float, dt: float) -> None:
     s = (kp * dt * dt + 2.0 * kd * dt) / mass
     if not s < 4.0:
         raise ValueError(
-            f"dt = {dt:g} with kp = {kp:g}, kd = {kd:g}, mass = {mass:g} is unstable: the semi-implicit Euler "
-            f"PD step needs kp dt^2 / mass + 2 kd dt / mass < 4, got {s:.4g}; use a smaller dt or smaller gains"
+            f"dt = {dt:g} with kp = {kp:g}, kd = {kd:g}, mass = {mass:g} is unstable: the "
+            "semi-implicit Euler "
+            f"PD step needs kp dt^2 / mass + 2 kd dt / mass < 4, got {s:.4g}; use a smaller dt or "
+            "smaller gains"
         )
 
 
@@ -141,29 +147,35 @@ def check_velocity_loop_stable(kp: float, dt: float) -> None:
     ``kp dt < 2`` (module docstring)."""
     if not kp * dt < 2.0:
         raise ValueError(
-            f"dt = {dt:g} with kp = {kp:g} is unstable: the commanded joint velocity kp (m - q) reached in one step "
+            f"dt = {dt:g} with kp = {kp:g} is unstable: the commanded joint velocity kp (m - q) "
+            "reached in one step "
             f"needs kp dt < 2, got {kp * dt:.4g}; use a smaller dt or a smaller kp"
         )
 
 
 def check_episode_envs(task, env0, name: str = "env0") -> Tensor:
-    """``env0 (E, task.env_dim)``, finite, ``E >= 1``, as a floating tensor (float64 if it was not)."""
+    """``env0 (E, task.env_dim)``, finite, ``E >= 1``, as a floating tensor (float64 if it was
+    not)."""
     env0 = check_tensor(env0, name, ndim=2)
     if not env0.is_floating_point():
         env0 = env0.to(torch.float64)
     d = int(task.env_dim)
     if env0.shape[1] != d:
         raise ValueError(
-            f"{name} must be (E, {d}) for {type(task).__name__} (env_dim {d}), got shape {tuple(env0.shape)}"
+            f"{name} must be (E, {d}) for {type(task).__name__} (env_dim {d}), got shape "
+            f"{tuple(env0.shape)}"
         )
     if env0.shape[0] < 1:
         raise ValueError(f"{name} holds no environment: shape {tuple(env0.shape)}")
     return env0
 
 
-def episode_walk(env0: Tensor | None, walk: Tensor | None, timing: Timing, env_dim: int) -> Tensor | None:
+def episode_walk(
+    env0: Tensor | None, walk: Tensor | None, timing: Timing, env_dim: int
+) -> Tensor | None:
     """Exactly one of ``env0 (E, d)`` and ``walk (E, M + 1, d)``; returns ``walk`` checked (finite,
-    3-D, ``M + 1`` instants, ``E >= 1``), or ``None`` when ``env0`` is given (checked by the caller)."""
+    3-D, ``M + 1`` instants, ``E >= 1``), or ``None`` when ``env0`` is given (checked by the
+    caller)."""
     if walk is None:
         if env0 is None:
             raise ValueError(f"give env0 (E, {env_dim}), the initial environments, or walk")
@@ -173,14 +185,16 @@ def episode_walk(env0: Tensor | None, walk: Tensor | None, timing: Timing, env_d
     walk = check_tensor(walk, "walk", ndim=3)
     if walk.shape[1] != timing.moving + 1 or walk.shape[0] < 1:
         raise ValueError(
-            f"walk must be (E, {timing.moving + 1}, {env_dim}) for duration {timing.duration} and dt {timing.dt} "
+            f"walk must be (E, {timing.moving + 1}, {env_dim}) for duration {timing.duration} and "
+            f"dt {timing.dt} "
             f"({timing.moving} moving steps, E >= 1), got shape {tuple(walk.shape)}"
         )
     return walk
 
 
 def hold_last(walk: Tensor, held: int) -> Tensor:
-    """``walk (E, M + 1, d)`` with its last environment repeated for the hold: ``(E, M + 1 + H, d)``."""
+    """``walk (E, M + 1, d)`` with its last environment repeated for the hold: ``(E, M + 1 + H,
+    d)``."""
     return torch.cat([walk, walk[:, -1:].expand(-1, held, -1)], 1)
 
 
@@ -193,7 +207,8 @@ class TrackedSystem(Protocol):
         ``x, v (E, D)``: update the environment, query the map, record."""
 
     def acceleration(self, x: Tensor, v: Tensor, m: Tensor, m_vel: Tensor) -> Tensor:
-        """``(E, D)`` acceleration at state ``x, v`` towards the marker ``m`` moving at ``m_vel``."""
+        """``(E, D)`` acceleration at state ``x, v`` towards the marker ``m`` moving
+        at ``m_vel``."""
 
 
 @dataclass
@@ -206,8 +221,16 @@ class Tracked:
     weights: Tensor | None  # (E, T+1, N)
 
 
-def track(system: TrackedSystem, promp, timing: Timing, num_episodes: int, start: Tensor | None, *,
-          record: bool = True, markers: bool = True) -> Tracked:
+def track(
+    system: TrackedSystem,
+    promp,
+    timing: Timing,
+    num_episodes: int,
+    start: Tensor | None,
+    *,
+    record: bool = True,
+    markers: bool = True,
+) -> Tracked:
     """Run the time loop (module docstring) for ``num_episodes`` episodes starting at rest at
     ``start (E, D)`` (or ``(D,)``), or at the first marker when ``start`` is ``None``.
     Simulates in the ProMP's dtype and device."""

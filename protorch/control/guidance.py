@@ -5,7 +5,8 @@ The force at phase ``z`` on the device pose ``x`` (7-D: position and quaternion)
 
     F(z) = K(z) (mu(z) - x),    K_d(z) = clip(gain / sigma_d(z), k_min, k_max)   (per coordinate d)
 
-with ``mu`` and ``sigma`` the ProMP's mean and marginal std at the phase (:meth:`PoseProMP.std_trajectory`).
+with ``mu`` and ``sigma`` the ProMP's mean and marginal std at the phase
+(:meth:`PoseProMP.std_trajectory`).
 Where the optimised ProMP is sure (small std: the window, the start and end), the fixture is stiff;
 where many trajectories are good (large std), the operator moves freely. The clip keeps the
 stiffness in what a haptic device renders stably (and finite where the std is 0). The position
@@ -54,7 +55,9 @@ def stiffness_law(std: Tensor, gain, k_max, k_min=0.0) -> Tensor:
     std = check_tensor(std, "std")
     if bool((std < 0).any()):
         raise ValueError("std must be >= 0")
-    gain, k_max, k_min = (torch.as_tensor(v, dtype=std.dtype, device=std.device) for v in (gain, k_max, k_min))
+    gain, k_max, k_min = (
+        torch.as_tensor(v, dtype=std.dtype, device=std.device) for v in (gain, k_max, k_min)
+    )
     for v, name in ((gain, "gain"), (k_max, "k_max"), (k_min, "k_min")):
         check_tensor(v, name)
         if bool((v < 0).any()):
@@ -87,7 +90,8 @@ class GuidedTrials:
 
 
 class HapticGuidance(nn.Module):
-    """The virtual fixture of a :class:`~protorch.primitives.pose.PoseProMP` (see the module docstring).
+    """The virtual fixture of a :class:`~protorch.primitives.pose.PoseProMP` (see the module
+    docstring).
 
     Args:
         promp: the (optimised) pose ProMP; its mean and std on the phase grid are copied.
@@ -108,9 +112,14 @@ class HapticGuidance(nn.Module):
         rotation_min: float = 0.0,
     ) -> None:
         super().__init__()
-        cfg = self.check_settings(position_gain=position_gain, position_max=position_max,
-                                  position_min=position_min, rotation_gain=rotation_gain,
-                                  rotation_max=rotation_max, rotation_min=rotation_min)
+        cfg = self.check_settings(
+            position_gain=position_gain,
+            position_max=position_max,
+            position_min=position_min,
+            rotation_gain=rotation_gain,
+            rotation_max=rotation_max,
+            rotation_min=rotation_min,
+        )
         gains = [cfg["position_gain"], cfg["rotation_gain"]]
         maxes = [cfg["position_max"], cfg["rotation_max"]]
         mins = [cfg["position_min"], cfg["rotation_min"]]
@@ -122,14 +131,22 @@ class HapticGuidance(nn.Module):
         self.register_buffer("gain", per(*gains))  # (7,)
         self.register_buffer("k_max", per(*maxes))  # (7,)
         self.register_buffer("k_min", per(*mins))  # (7,)
-        self.register_buffer("stiffness", stiffness_law(std, self.gain, self.k_max, self.k_min))  # (T, 7)
+        self.register_buffer(
+            "stiffness", stiffness_law(std, self.gain, self.k_max, self.k_min)
+        )  # (T, 7)
 
     @staticmethod
     def check_settings(**settings) -> dict:
         """Validate the keyword arguments of the constructor (without a ProMP); return them with
         the defaults filled in. Raises a ``ValueError`` naming the bad setting."""
-        defaults = dict(position_gain=30.0, position_max=3000.0, position_min=0.0, rotation_gain=0.3,
-                        rotation_max=30.0, rotation_min=0.0)
+        defaults = dict(
+            position_gain=30.0,
+            position_max=3000.0,
+            position_min=0.0,
+            rotation_gain=0.3,
+            rotation_max=30.0,
+            rotation_min=0.0,
+        )
         unknown = sorted(set(settings) - set(defaults))
         if unknown:
             raise ValueError(f"unknown guidance setting(s) {unknown}; allowed: {sorted(defaults)}")
@@ -138,7 +155,9 @@ class HapticGuidance(nn.Module):
             cfg[key] = _nonneg(cfg[key], key)
         for n in ("position", "rotation"):
             if cfg[f"{n}_min"] > cfg[f"{n}_max"]:
-                raise ValueError(f"{n}_min ({cfg[f'{n}_min']}) must be <= {n}_max ({cfg[f'{n}_max']})")
+                raise ValueError(
+                    f"{n}_min ({cfg[f'{n}_min']}) must be <= {n}_max ({cfg[f'{n}_max']})"
+                )
         return cfg
 
     @property
@@ -165,7 +184,8 @@ class HapticGuidance(nn.Module):
         return guidance_force(self.stiffness[i], self.mean[i], pose)
 
     def phase_indices(self, intended: Tensor, *, lengths: Tensor | None = None) -> Tensor:
-        """Grid index of the phase at every step of trials ``intended (B, T, ...)``: ``(B, T)`` long.
+        """Grid index of the phase at every step of trials ``intended (B, T, ...)``: ``(B, T)``
+        long.
 
         The phase runs with the clock over each trial's duration, ``z_t = t / (L - 1)`` (``lengths
         (B,)``, default ``T``; steps after a trial's end stay at ``z = 1``)."""
@@ -175,7 +195,9 @@ class HapticGuidance(nn.Module):
             lengths = torch.full((b,), steps, device=dev)
         lengths = torch.as_tensor(lengths, device=dev).reshape(-1)
         if lengths.shape != (b,) or bool((lengths < 2).any()) or bool((lengths > steps).any()):
-            raise ValueError(f"lengths must be ({b},) integers in [2, {steps}], got {lengths.tolist()}")
+            raise ValueError(
+                f"lengths must be ({b},) integers in [2, {steps}], got {lengths.tolist()}"
+            )
         t = torch.arange(steps, device=dev, dtype=self.mean.dtype)  # (T,)
         z = (t / (lengths[:, None].to(self.mean.dtype) - 1)).clamp(max=1)  # (B, T)
         return (z * (self.num_steps - 1)).round().long()
@@ -204,11 +226,16 @@ class HapticGuidance(nn.Module):
         idx = self.phase_indices(x_h, lengths=lengths)  # (B, T)
         k, mu = self.stiffness[idx], self.mean[idx]  # (B, T, 7)
         q_h = x_h[..., 3:]
-        q_h = torch.where((q_h * mu[..., 3:]).sum(-1, keepdim=True) < 0, -q_h, q_h)  # mu's hemisphere
+        q_h = torch.where(
+            (q_h * mu[..., 3:]).sum(-1, keepdim=True) < 0, -q_h, q_h
+        )  # mu's hemisphere
         hand = torch.cat([x_h[..., :3], q_h], -1)  # (B, T, 7)
         total = k + k_h
-        share = torch.where(total > 0, k / torch.where(total > 0, total, torch.ones_like(total)),
-                            torch.zeros_like(total))  # (B, T, 7); K = K_h = 0: the hand alone
+        share = torch.where(
+            total > 0,
+            k / torch.where(total > 0, total, torch.ones_like(total)),
+            torch.zeros_like(total),
+        )  # (B, T, 7); K = K_h = 0: the hand alone
         x = hand + share * (mu - hand)  # (B, T, 7)
         q = x[..., 3:] / torch.linalg.vector_norm(x[..., 3:], dim=-1, keepdim=True).clamp_min(1e-12)
         x = torch.cat([x[..., :3], align_quaternions(q)], -1)

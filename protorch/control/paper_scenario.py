@@ -48,10 +48,14 @@ def _start(task) -> tuple[float, float]:
 
 
 def _layout(task, env: Tensor) -> Tensor:
-    """``(..., d)`` environments of ``task`` -> ``(..., 4)`` ``(wall_x, hole_y, goal_x, goal_y)``."""
+    """``(..., d)`` environments of ``task`` -> ``(..., 4)`` ``(wall_x, hole_y,
+    goal_x, goal_y)``."""
     d = int(task.env_dim)
     if env.shape[-1] != d or d not in (4, 6):
-        raise ValueError(f"environments must be (..., {d}) for {type(task).__name__}, got shape {tuple(env.shape)}")
+        raise ValueError(
+            f"environments must be (..., {d}) for {type(task).__name__}, got shape "
+            f"{tuple(env.shape)}"
+        )
     return env[..., 2:6] if d == 6 else env
 
 
@@ -63,10 +67,12 @@ def _to_task(task, env4: Tensor) -> Tensor:
     return torch.cat([start, env4], -1)  # (..., 6)
 
 
-def sample_paper_envs(task, n: int, generator: torch.Generator | None = None,
-                      dtype: torch.dtype = torch.float64) -> Tensor:
+def sample_paper_envs(
+    task, n: int, generator: torch.Generator | None = None, dtype: torch.dtype = torch.float64
+) -> Tensor:
     """``n`` first environments of the authors' test, ``(n, task.env_dim)``: start fixed
-    (``task.fixed_start``, else ``(0, 5)``), wall, hole and goal drawn as ``main3.py`` draws them."""
+    (``task.fixed_start``, else ``(0, 5)``), wall, hole and goal drawn as ``main3.py`` draws
+    them."""
     n = check_int(n, "n", 0)
     u = torch.rand(n, 4, generator=generator, dtype=torch.float64)  # (n, 4)
     wx = _WALL_X[0] + u[:, 0] * (_WALL_X[1] - _WALL_X[0])
@@ -76,7 +82,9 @@ def sample_paper_envs(task, n: int, generator: torch.Generator | None = None,
     return _to_task(task, torch.stack([wx, wy, gx, gy], -1)).to(dtype)  # (n, d)
 
 
-def paper_walk(task, env0: Tensor, num_steps: int = 200, *, step: float | Sequence[float] = PAPER_STEP) -> Tensor:
+def paper_walk(
+    task, env0: Tensor, num_steps: int = 200, *, step: float | Sequence[float] = PAPER_STEP
+) -> Tensor:
     """The authors' moving environments: ``env0 (E, d) -> (E, num_steps + 1, d)``.
 
     ``walk[:, t]`` is the environment the authors' step ``t`` sees, i.e. ``env0`` changed
@@ -109,19 +117,34 @@ def paper_walk(task, env0: Tensor, num_steps: int = 200, *, step: float | Sequen
         gy, dgy = torch.where(bad, gy - dgy, gy), torch.where(bad, -dgy, dgy)
         out.append(torch.stack([wx, wy, gx, gy], -1))  # (E, 4)
     walk4 = torch.stack(out + [out[-1]], 1)  # (E, num_steps + 1, 4)
-    return _to_task(task, walk4).to(torch.as_tensor(env0).dtype if torch.as_tensor(env0).is_floating_point()
-                                    else torch.float64)
+    return _to_task(task, walk4).to(
+        torch.as_tensor(env0).dtype if torch.as_tensor(env0).is_floating_point() else torch.float64
+    )
 
 
-def run_paper_episodes(model, task, env0: Tensor, *, duration: float = 2.0, dt: float = 0.01,
-                       step: float | Sequence[float] = PAPER_STEP, **kwargs) -> EpisodeResult:
+def run_paper_episodes(
+    model,
+    task,
+    env0: Tensor,
+    *,
+    duration: float = 2.0,
+    dt: float = 0.01,
+    step: float | Sequence[float] = PAPER_STEP,
+    **kwargs,
+) -> EpisodeResult:
     """The authors' moving test from the first environments ``env0 (E, d)``
     (:func:`sample_paper_envs`): :func:`paper_walk` over ``duration / dt`` moving steps, then
     :func:`~protorch.control.particle.run_episodes` (``hold``, ``kp``, ``kd``, ``goal_tol``,
     ``start``, ``record`` pass through; the particle starts at rest at the fixed start)."""
     duration, dt = check_number(duration, "duration"), check_number(dt, "dt")
     if "walk" in kwargs or "step_std" in kwargs:
-        raise ValueError("run_paper_episodes builds the authors' walk itself: no walk= or step_std=")
-    moving = int(-(-duration // dt)) if abs(duration / dt - round(duration / dt)) > 1e-9 else int(round(duration / dt))
+        raise ValueError(
+            "run_paper_episodes builds the authors' walk itself: no walk= or step_std="
+        )
+    moving = (
+        int(-(-duration // dt))
+        if abs(duration / dt - round(duration / dt)) > 1e-9
+        else int(round(duration / dt))
+    )
     walk = paper_walk(task, env0, moving, step=step)
     return run_episodes(model, task, walk=walk, duration=duration, dt=dt, **kwargs)

@@ -80,12 +80,14 @@ __all__ = [
     "WALKED",
 ]
 
+
 # ----------------------------------------------------------------------------- episodes
 @dataclass
 class EpisodeResult:
     """``E`` simulated episodes of ``T`` control steps (``T + 1`` instants ``t dt``).
 
-    Index ``t`` of every per-instant tensor is time ``t * dt``. ``markers[:, t]`` / ``weights[:, t]``
+    Index ``t`` of every per-instant tensor is time ``t * dt``. ``markers[:, t]`` / ``weights[:,
+    t]``
     are what the map answered for ``envs[:, t]`` (the last instant's answer is recorded, not
     applied). ``markers`` and ``weights`` are ``None`` with ``record=False``.
     """
@@ -148,11 +150,15 @@ class EpisodeResult:
         if not -self.num_episodes <= i < self.num_episodes:
             raise IndexError(f"episode {i} out of range for {self.num_episodes} episodes")
         if self.weights is None or self.markers is None:
-            raise ValueError("this result was run with record=False: no markers or mean trajectories to plot")
+            raise ValueError(
+                "this result was run with record=False: no markers or mean trajectories to plot"
+            )
         envs = self.envs[i]
         if self.task is not None and envs.shape[-1] != 6:
             envs = self.task.full_env(envs)
-        means = self.promp.trajectory(self.weights[i]) if self.promp is not None else None  # (T+1, P, D)
+        means = (
+            self.promp.trajectory(self.weights[i]) if self.promp is not None else None
+        )  # (T+1, P, D)
         np_ = lambda x: None if x is None else x.detach().cpu().numpy()  # noqa: E731
         return {
             "positions": np_(self.positions[i]),
@@ -217,7 +223,8 @@ def run_episodes(
 
     Args:
         model: ``model.promp`` (a :class:`~protorch.primitives.promp.ProMP`) and a prediction: an
-            :class:`~protorch.data.checkpoint.EnvToProMP`, anything with ``.env_map.predict_mean`` or
+            :class:`~protorch.data.checkpoint.EnvToProMP`, anything with ``.env_map.predict_mean``
+            or
             ``.predict_mean``, or a callable ``env (E, d) -> (mu (E, N), var)``. A bare callable
             needs ``promp=``.
         task: the task (``env_dim``, ``full_env``, ``collides``), e.g. ``PointParticleTask``.
@@ -235,7 +242,8 @@ def run_episodes(
             walked coordinate moves 1 unit RMS over the motion. 0 freezes the environment.
         walk: ``(E, M + 1, d)`` prescribed environments for the ``M = ceil(duration / dt)``
             moving steps (then frozen for the hold), instead of a random walk from ``env0``.
-        start: ``"env"`` (rest at the environment's start) or ``"marker"`` (rest at the first marker).
+        start: ``"env"`` (rest at the environment's start) or ``"marker"`` (rest at the first
+        marker).
         goal_tol: success radius around the final goal.
         generator: CPU generator of the random walk.
         promp: the ProMP, when ``model`` has no ``.promp``.
@@ -258,9 +266,13 @@ def run_episodes(
         raise ValueError(f"start must be 'env' or 'marker', got {start!r}")
     if promp.num_dof != 2:
         raise ValueError(f"the particle is 2-D: the ProMP must have 2 DoF, got {promp.num_dof}")
-    envs = _episode_envs(task, env0, walk, step_std, timing, generator).to(promp.basis)  # (E, T+1, d)
+    envs = _episode_envs(task, env0, walk, step_std, timing, generator).to(
+        promp.basis
+    )  # (E, T+1, d)
     pd = _ParticlePD(predict, envs, promp.num_weights, kp, kd, mass)
-    first = _start_of(task, envs[:, 0]) if start == "env" else None  # (E, 2), None: the first marker
+    first = (
+        _start_of(task, envs[:, 0]) if start == "env" else None
+    )  # (E, 2), None: the first marker
     run = track(pd, promp, timing, envs.shape[0], first, record=record)
     pos = run.positions  # (E, T+1, 2)
     with torch.no_grad():
@@ -269,10 +281,21 @@ def run_episodes(
         collided = hit.any(-1)  # (E,)
         dist = (pos[:, -1] - _goal_of(task, envs[:, -1])).norm(dim=-1)  # (E,)
     return EpisodeResult(
-        positions=pos, velocities=run.velocities, envs=envs, markers=run.markers, weights=run.weights,
-        success=~collided & (dist <= goal_tol), collided=collided, final_goal_distance=dist,
-        dt=timing.dt, duration=timing.duration, hold=timing.hold, num_moving_steps=timing.moving, goal_tol=goal_tol,
-        promp=promp, task=task,
+        positions=pos,
+        velocities=run.velocities,
+        envs=envs,
+        markers=run.markers,
+        weights=run.weights,
+        success=~collided & (dist <= goal_tol),
+        collided=collided,
+        final_goal_distance=dist,
+        dt=timing.dt,
+        duration=timing.duration,
+        hold=timing.hold,
+        num_moving_steps=timing.moving,
+        goal_tol=goal_tol,
+        promp=promp,
+        task=task,
     )
 
 
@@ -282,7 +305,9 @@ def _episode_envs(task, env0, walk, step_std, timing: Timing, generator) -> Tens
     walk = episode_walk(env0, walk, timing, task.env_dim)
     if walk is not None:
         if step_std is not None:
-            raise ValueError("step_std applies to the random walk from env0; walk prescribes the environments")
+            raise ValueError(
+                "step_std applies to the random walk from env0; walk prescribes the environments"
+            )
         if not walk.is_floating_point():
             walk = walk.to(torch.float64)
         check_episode_envs(task, walk[:, 0], "walk[:, 0]")
@@ -298,7 +323,9 @@ class _ParticlePD:
     """The point particle for :func:`~protorch.control.episodes.track`: the map's answer for the
     environments of each instant, PD acceleration ``(kp (m - x) + kd (m' - v)) / mass``."""
 
-    def __init__(self, predict, envs: Tensor, num_weights: int, kp: float, kd: float, mass: float) -> None:
+    def __init__(
+        self, predict, envs: Tensor, num_weights: int, kp: float, kd: float, mass: float
+    ) -> None:
         self.predict, self.envs, self.num_weights = predict, envs, num_weights  # envs (E, T+1, d)
         self.kp, self.kd, self.mass = kp, kd, mass
 
@@ -307,7 +334,8 @@ class _ParticlePD:
         n_env = self.envs.shape[0]
         if tuple(mu.shape) != (n_env, self.num_weights):
             raise ValueError(
-                f"the model returned mean weights of shape {tuple(mu.shape)}, expected ({n_env}, {self.num_weights})"
+                f"the model returned mean weights of shape {tuple(mu.shape)}, expected ({n_env}, "
+                f"{self.num_weights})"
             )
         return mu.to(self.envs)
 

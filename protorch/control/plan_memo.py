@@ -24,7 +24,8 @@ from torch import Tensor
 
 __all__ = ["SLACK", "ClearanceMemo", "point_reach"]
 
-SLACK = 1e-6  # metres above the margin a carried bound must keep (far above the bounds' round-off, 1e-14)
+# metres above the margin a carried bound must keep (far above the bounds' round-off, 1e-14)
+SLACK = 1e-6
 
 
 def point_reach(kinematics, plan) -> Tensor:
@@ -34,15 +35,20 @@ def point_reach(kinematics, plan) -> Tensor:
     the point's frame plus the point's norm in that frame (rotations keep norms)."""
     maps = torch.tensor(kinematics._maps, dtype=torch.float64)  # (J + 1, 3, 4) G_0 .. G_J
     shift = maps[:, :, 3].norm(dim=-1).tolist()  # (J + 1,) |t(G_i)|
-    size = plan.start.to(torch.float64).norm(dim=-1).tolist()  # (M,) each point in the frame after its joint
+    size = (
+        plan.start.to(torch.float64).norm(dim=-1).tolist()
+    )  # (M,) each point in the frame after its joint
     j = len(plan.after)
-    # point m follows the joints 0 .. last[m] - 1 (plan.after[k]: the first point joint k does not move)
+    # point m follows the joints 0 .. last[m] - 1 (plan.after[k]: the first point joint k does not
+    # move)
     last = [sum(1 for k in range(j) if plan.after[k] <= m) for m in range(len(size))]
     reach = [0.0] * j
     for k in range(j):
         for m, n in enumerate(last):
-            if n > k:  # joint k moves point m: G_{k+1} Rz ... G_{n-1} Rz start_m from joint k's origin
-                reach[k] = max(reach[k], sum(shift[k + 1:n]) + size[m])
+            if (
+                n > k
+            ):  # joint k moves point m: G_{k+1} Rz ... G_{n-1} Rz start_m from joint k's origin
+                reach[k] = max(reach[k], sum(shift[k + 1 : n]) + size[m])
     return torch.tensor(reach, dtype=torch.float64)
 
 
@@ -57,7 +63,9 @@ class ClearanceMemo:
     def __init__(self, reach: Tensor, keep: int = 64) -> None:
         self.reach = reach.to(torch.float64)  # (J,)
         self.keep = int(keep)
-        self.passed = self.checked = 0  # plans passed by the bounds, plans checked in full (over the memo's life)
+        self.passed = self.checked = (
+            0  # plans passed by the bounds, plans checked in full (over the memo's life)
+        )
         self.reset()
 
     def reset(self) -> None:
@@ -73,9 +81,13 @@ class ClearanceMemo:
         if self.q is None:
             return False
         reach = self.reach.to(plan)
-        moved = (plan[:, :, None, :] - self.q).abs() @ reach  # (R, P, M) how far any capsule point can have moved
+        moved = (
+            plan[:, :, None, :] - self.q
+        ).abs() @ reach  # (R, P, M) how far any capsule point can have moved
         can = (env[:, None, 0:2] - self.axis).norm(dim=-1)  # (R, M) how far the can's axis moved
-        bound = (self.lower - moved - can[:, None, :]).amax(-1)  # (R, P) a lower bound of each gap now
+        bound = (self.lower - moved - can[:, None, :]).amax(
+            -1
+        )  # (R, P) a lower bound of each gap now
         m = margin[:, None] if isinstance(margin, Tensor) else margin
         clear = bool((bound > m + SLACK).all())
         self.passed += clear
@@ -89,5 +101,9 @@ class ClearanceMemo:
         axis = env[:, None, 0:2].expand(*plan.shape[:2], 2).reshape(-1, 2)  # (R P, 2)
         low = lower.reshape(-1)  # (R P,)
         if self.q is not None:
-            q, axis, low = torch.cat([self.q, q]), torch.cat([self.axis, axis]), torch.cat([self.lower, low])
-        self.q, self.axis, self.lower = q[-self.keep:], axis[-self.keep:], low[-self.keep:]
+            q, axis, low = (
+                torch.cat([self.q, q]),
+                torch.cat([self.axis, axis]),
+                torch.cat([self.lower, low]),
+            )
+        self.q, self.axis, self.lower = q[-self.keep :], axis[-self.keep :], low[-self.keep :]

@@ -18,7 +18,8 @@ At every control step, for ``B`` trials at once (:meth:`MixtureGuide.step`):
    coordinate over its std plus ``obs_std``, and a floor ``belief_floor``. Both classes start
    equally likely, so the guide follows the way the operator rolls the beam; evidence from the
    device's own pose would let the guide's pull confirm itself.
-4. **The pull**: ``F = sum_k b_k K_k (mu_k(z_k) - x)`` with ``K_k = clip(gain / sigma_k, k_min, k_max)``
+4. **The pull**: ``F = sum_k b_k K_k (mu_k(z_k) - x)`` with ``K_k = clip(gain / sigma_k, k_min,
+k_max)``
    per coordinate (:func:`~protorch.control.guidance.stiffness_law`): firm where the distribution
    is narrow, free where it is wide. A class the operator moves away from loses its weight, so
    the guide does not pull them across to it.
@@ -35,14 +36,23 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ..primitives.pose import quaternion_distance
 from .guidance import stiffness_law
 
 __all__ = ["MixtureGuide", "GuideState", "variance_map", "GUIDE_DEFAULTS"]
 
-GUIDE_DEFAULTS = dict(position_gain=30.0, position_max=3000.0, position_min=0.0, rotation_gain=0.3,
-                      rotation_max=30.0, rotation_min=0.0, hand_position=300.0, hand_rotation=3.0,
-                      tau=0.3, obs_std=0.05, belief_floor=1e-3)
+GUIDE_DEFAULTS = dict(
+    position_gain=30.0,
+    position_max=3000.0,
+    position_min=0.0,
+    rotation_gain=0.3,
+    rotation_max=30.0,
+    rotation_min=0.0,
+    hand_position=300.0,
+    hand_rotation=3.0,
+    tau=0.3,
+    obs_std=0.05,
+    belief_floor=1e-3,
+)
 
 
 def variance_map(env_map_factory, env_map) -> object:
@@ -66,8 +76,10 @@ class MixtureGuide:
     """The guide of the module docstring.
 
     Args:
-        promp: the :class:`~protorch.ProMP` (``D = 7``: position and quaternion components) of the map.
-        env_map, var_map: the map of mean weights and that of their log-variance (:func:`variance_map`).
+        promp: the :class:`~protorch.ProMP` (``D = 7``: position and quaternion components) of the
+        map.
+        env_map, var_map: the map of mean weights and that of their log-variance
+        (:func:`variance_map`).
         labels: the classes to mix (each must be in the map).
         settings: :data:`GUIDE_DEFAULTS` keys (gains in N and N/m, the hand's stiffnesses, the
             progress search, the belief's time constant ``tau`` in s).
@@ -76,7 +88,9 @@ class MixtureGuide:
     def __init__(self, promp, env_map, var_map, labels, axis, **settings) -> None:
         unknown = sorted(set(settings) - set(GUIDE_DEFAULTS))
         if unknown:
-            raise ValueError(f"unknown guide setting(s) {unknown}; allowed: {sorted(GUIDE_DEFAULTS)}")
+            raise ValueError(
+                f"unknown guide setting(s) {unknown}; allowed: {sorted(GUIDE_DEFAULTS)}"
+            )
         self.cfg = {**GUIDE_DEFAULTS, **settings}
         self.promp, self.env_map, self.var_map = promp, env_map, var_map
         self.labels = [int(k) for k in labels]
@@ -87,8 +101,14 @@ class MixtureGuide:
         c = self.cfg
         dev = promp.basis.device
         per = lambda a, b: torch.tensor([a] * 3 + [b] * 4, dtype=dt, device=dev)  # noqa: E731
-        self.gain, self.k_max = per(c["position_gain"], c["rotation_gain"]), per(c["position_max"], c["rotation_max"])
-        self.k_min, self.k_hand = per(c["position_min"], c["rotation_min"]), per(c["hand_position"], c["hand_rotation"])
+        self.gain, self.k_max = (
+            per(c["position_gain"], c["rotation_gain"]),
+            per(c["position_max"], c["rotation_max"]),
+        )
+        self.k_min, self.k_hand = (
+            per(c["position_min"], c["rotation_min"]),
+            per(c["hand_position"], c["hand_rotation"]),
+        )
 
     @property
     def num_classes(self) -> int:
@@ -99,13 +119,20 @@ class MixtureGuide:
         dt = self.promp.basis.dtype
         k = self.num_classes
         kw = dict(dtype=dt, device=self.promp.basis.device)
-        return GuideState(z=torch.zeros(batch, k, **kw), belief=torch.full((batch, k), 1.0 / k, **kw))
+        return GuideState(
+            z=torch.zeros(batch, k, **kw), belief=torch.full((batch, k), 1.0 / k, **kw)
+        )
 
     def infer(self, env: Tensor) -> tuple[Tensor, Tensor]:
         """``env (B, 4)`` -> mean ``(B, K, T, 7)`` (quaternion part unit) and std ``(B, K, T, 7)``;
-        the last answer is kept and given again for the same walls (a wall stands still most of a trial)."""
+        the last answer is kept and given again for the same walls (a wall stands still most of
+        a trial)."""
         env = env.to(self.promp.basis)
-        if self._last is not None and self._last[0].shape == env.shape and torch.equal(self._last[0], env):
+        if (
+            self._last is not None
+            and self._last[0].shape == env.shape
+            and torch.equal(self._last[0], env)
+        ):
             return self._last[1]
         phi2 = self.promp.basis**2  # (T, nb)
         mus, stds = [], []
@@ -127,10 +154,15 @@ class MixtureGuide:
         never before ``z``, the last one)."""
         axis = self.axis.to(mu)
         t = mu.shape[2]
-        s_mu = ((mu[..., :3] - mu[:, :, :1, :3]) * axis).sum(-1).cummax(-1).values.contiguous()  # (B, K, T)
+        s_mu = (
+            ((mu[..., :3] - mu[:, :, :1, :3]) * axis).sum(-1).cummax(-1).values.contiguous()
+        )  # (B, K, T)
         s_x = ((pose[:, None, :3] - mu[:, :, 0, :3]) * axis).sum(-1)  # (B, K)
         hi = torch.searchsorted(s_mu, s_x[..., None].contiguous())[..., 0].clamp(1, t - 1)  # (B, K)
-        s0, s1 = s_mu.gather(-1, (hi - 1)[..., None])[..., 0], s_mu.gather(-1, hi[..., None])[..., 0]
+        s0, s1 = (
+            s_mu.gather(-1, (hi - 1)[..., None])[..., 0],
+            s_mu.gather(-1, hi[..., None])[..., 0],
+        )
         frac = ((s_x - s0) / (s1 - s0).clamp_min(1e-12)).clamp(0, 1)
         return torch.maximum(hi - 1 + frac, z)
 
@@ -138,13 +170,19 @@ class MixtureGuide:
         """The device pose ``(B, 7)`` where the hand's spring and the mixture's pulls balance."""
         q_w = wish[:, None, 3:]
         q_m = mu_z[..., 3:]
-        q_m = torch.where((q_m * q_w).sum(-1, keepdim=True) < 0, -q_m, q_m)  # in the wish's hemisphere
+        q_m = torch.where(
+            (q_m * q_w).sum(-1, keepdim=True) < 0, -q_m, q_m
+        )  # in the wish's hemisphere
         target = torch.cat([mu_z[..., :3], q_m], -1)  # (B, K, 7)
         bk = belief[..., None] * k  # (B, K, 7)
         x = (self.k_hand * wish + (bk * target).sum(1)) / (self.k_hand + bk.sum(1))
-        return torch.cat([x[:, :3], x[:, 3:] / x[:, 3:].norm(dim=-1, keepdim=True).clamp_min(1e-9)], -1)
+        return torch.cat(
+            [x[:, :3], x[:, 3:] / x[:, 3:].norm(dim=-1, keepdim=True).clamp_min(1e-9)], -1
+        )
 
-    def step(self, state: GuideState, wish: Tensor, env: Tensor, dt: float) -> tuple[Tensor, GuideState, Tensor]:
+    def step(
+        self, state: GuideState, wish: Tensor, env: Tensor, dt: float
+    ) -> tuple[Tensor, GuideState, Tensor]:
         """One control step: ``wish (B, 7)`` and the wall ``env (B, 4)`` the guide conditions on ->
         ``(device pose (B, 7), new state, position compliance (B,))``; the compliance
         ``K_h / (K_h + K)`` (mean over x, y, z; 1 = free, 0 = locked) is the freedom measure."""
@@ -152,7 +190,9 @@ class MixtureGuide:
         wish, env = wish.to(self.promp.basis), env.to(self.promp.basis)
         mu, std = self.infer(env)  # (B, K, T, 7)
 
-        def at(z):  # the means and stds at phases z (B, K), linear between grid points: (B, K, 7) each
+        def at(
+            z,
+        ):  # the means and stds at phases z (B, K), linear between grid points: (B, K, 7) each
             lo = z.floor().long().clamp(max=mu.shape[2] - 2)
             f = (z - lo)[..., None]
             idx = lo[..., None, None].expand(*z.shape, 1, 7)
@@ -161,7 +201,11 @@ class MixtureGuide:
 
         # belief: how well each class explains the operator's commanded pose at its own phase
         mu_z, sd_z = at(self._progress(mu, wish, state.z))
-        q_m = torch.where((mu_z[..., 3:] * wish[:, None, 3:]).sum(-1, keepdim=True) < 0, -mu_z[..., 3:], mu_z[..., 3:])
+        q_m = torch.where(
+            (mu_z[..., 3:] * wish[:, None, 3:]).sum(-1, keepdim=True) < 0,
+            -mu_z[..., 3:],
+            mu_z[..., 3:],
+        )
         diff = torch.cat([mu_z[..., :3], q_m], -1) - wish[:, None]  # (B, K, 7)
         d2 = (diff / (sd_z + self.cfg["obs_std"])).pow(2).sum(-1)  # (B, K)
         logb = state.belief.log() - 0.5 * dt / self.cfg["tau"] * (d2 - d2.amin(-1, keepdim=True))

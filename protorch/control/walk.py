@@ -34,7 +34,8 @@ def _walk_columns(task, d: int) -> tuple[int, int, int, int]:
         off = -2
     else:
         raise ValueError(
-            f"random_walk_envs needs the point-particle layout (6-D, or 4-D with fixed_start), got d = {d}"
+            "random_walk_envs needs the point-particle layout (6-D, or 4-D with fixed_start), got "
+            f"d = {d}"
         )
     cw, ch, cgx, cgy = (_COLS6[k] + off for k in ("wall_x", "hole_y", "goal_x", "goal_y"))
     return cw, ch, cgx, cgy
@@ -46,7 +47,9 @@ def walk_bounds(task, env: Tensor) -> tuple[Tensor, Tensor]:
     cw, _, _, _ = _walk_columns(task, env.shape[-1])
     wx = env[..., cw]  # (...)
     lo = torch.stack([torch.ones_like(wx), wx + _GOAL_MARGIN, torch.zeros_like(wx)], -1)  # (..., 3)
-    hi = torch.stack([torch.full_like(wx, 9.0), torch.full_like(wx, 10.0), torch.full_like(wx, 10.0)], -1)
+    hi = torch.stack(
+        [torch.full_like(wx, 9.0), torch.full_like(wx, 10.0), torch.full_like(wx, 10.0)], -1
+    )
     return lo, hi
 
 
@@ -93,7 +96,9 @@ def random_walk_envs(
     scalar = isinstance(step_std, numbers.Real) and not isinstance(step_std, bool)
     stds = [step_std] * 3 if scalar else list(step_std)
     if len(stds) != 3:
-        raise ValueError(f"step_std must be a float or 3 floats (hole_y, goal_x, goal_y), got {step_std!r}")
+        raise ValueError(
+            f"step_std must be a float or 3 floats (hole_y, goal_x, goal_y), got {step_std!r}"
+        )
     stds = [check_number(s, "step_std", allow_zero=True) for s in stds]
     cw, ch, cgx, cgy = _walk_columns(task, env0.shape[1])
     cols = [ch, cgx, cgy]

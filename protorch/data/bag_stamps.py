@@ -38,7 +38,9 @@ class Stream:
     data: np.ndarray
 
 
-def _sort_jitter(ns: np.ndarray, jitter: float, where: str, kind: str, hint: bool) -> tuple[np.ndarray, dict]:
+def _sort_jitter(
+    ns: np.ndarray, jitter: float, where: str, kind: str, hint: bool
+) -> tuple[np.ndarray, dict]:
     """``(order (K,), report)``: the stable sort of ``ns (K,)`` where every step back is jitter."""
     if ns.size < 2:
         return np.arange(ns.size), {"count": 0, "largest_s": 0.0}
@@ -48,13 +50,25 @@ def _sort_jitter(ns: np.ndarray, jitter: float, where: str, kind: str, hint: boo
     if bad.size:
         i = int(bad[0]) + 1
         tip = "; the bag's receive times: --stamp log" if hint else ""
-        raise ValueError(f"{where}: {kind} message {i}: stamp steps back {back[i - 1]:.6g} s below message "
-                         f"{int(np.argmax(ns[:i]))}'s, more than the jitter tolerance {jitter:g} s (not jitter){tip}")
-    return np.argsort(ns, kind="stable"), {"count": int((back > 0).sum()), "largest_s": float(back.max(initial=0))}
+        raise ValueError(
+            f"{where}: {kind} message {i}: stamp steps back {back[i - 1]:.6g} s below message "
+            f"{int(np.argmax(ns[:i]))}'s, more than the jitter tolerance {jitter:g} s (not jitter)"
+            f"{tip}"
+        )
+    return np.argsort(ns, kind="stable"), {
+        "count": int((back > 0).sum()),
+        "largest_s": float(back.max(initial=0)),
+    }
 
 
-def resolve_stamps(streams: dict[str, Stream], mode: str, where: str, *, jitter: float = JITTER,
-                   reference: str | None = None) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict]:
+def resolve_stamps(
+    streams: dict[str, Stream],
+    mode: str,
+    where: str,
+    *,
+    jitter: float = JITTER,
+    reference: str | None = None,
+) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict]:
     """The time of every stream by ``mode`` (``auto``, ``header`` or ``log``; module docs):
     ``({name: (ns (K,) sorted, data (K, k) in that order)}, report)``. ``reference``: the stream
     the others must overlap (the joints). The report: ``mode``, per stream the clock used
@@ -66,8 +80,10 @@ def resolve_stamps(streams: dict[str, Stream], mode: str, where: str, *, jitter:
     for name, s in streams.items():
         zero = np.flatnonzero(s.header <= 0)
         if mode == "header" and zero.size:
-            raise ValueError(f"{where}: {s.kind} message {int(zero[0])} has a zero header stamp; "
-                             "--stamp auto or --stamp log reads the bag's receive times")
+            raise ValueError(
+                f"{where}: {s.kind} message {int(zero[0])} has a zero header stamp; "
+                "--stamp auto or --stamp log reads the bag's receive times"
+            )
         used[name] = "log" if mode == "log" or zero.size else "header"
         if mode == "auto" and zero.size:
             reasons[name] = f"{zero.size} of {s.header.size} header stamps are zero"
@@ -78,8 +94,10 @@ def resolve_stamps(streams: dict[str, Stream], mode: str, where: str, *, jitter:
             ns = pick(name)
             if name != reference and (int(ns.min()) > r1 or int(ns.max()) < r0):
                 gap = (int(ns.min()) - r0) / 1e9
-                reasons["all"] = (f"clock offset: the stamps of {stream.kind} start {gap:+.6g} s from "
-                                  f"those of {streams[reference].kind} and do not overlap them")
+                reasons["all"] = (
+                    f"clock offset: the stamps of {stream.kind} start {gap:+.6g} s from "
+                    f"those of {streams[reference].kind} and do not overlap them"
+                )
                 used = dict.fromkeys(streams, "log")
                 break
     out, sorted_ = {}, {}
@@ -89,18 +107,28 @@ def resolve_stamps(streams: dict[str, Stream], mode: str, where: str, *, jitter:
         if rep["count"]:
             sorted_[name] = rep
         out[name] = (ns[order], s.data[order])
-    return out, {"mode": mode, "used": used, "reason": reasons, "sorted": sorted_, "jitter_s": jitter}
+    return out, {
+        "mode": mode,
+        "used": used,
+        "reason": reasons,
+        "sorted": sorted_,
+        "jitter_s": jitter,
+    }
 
 
 def describe(report: dict) -> str:
     """One line: the clock each stream was read by, why, and what was sorted as jitter (a
     report of :func:`resolve_stamps` whose keys name the streams as errors do)."""
     clocks = sorted(set(report["used"].values()))
-    text = " and ".join({"header": "header stamps", "log": "the bag's receive times"}[c] for c in clocks)
+    text = " and ".join(
+        {"header": "header stamps", "log": "the bag's receive times"}[c] for c in clocks
+    )
     if len(clocks) > 1:
         text += " (" + ", ".join(f"{n}: {u}" for n, u in report["used"].items()) + ")"
     why = [v if k == "all" else f"{k}: {v}" for k, v in report["reason"].items()]
     parts = [f"time from {text} (--stamp {report['mode']})"] + why
-    parts += [f"sorted {r['count']} jittered stamp(s) of {n} (up to {r['largest_s'] * 1e3:.3g} ms back)"
-              for n, r in report["sorted"].items()]
+    parts += [
+        f"sorted {r['count']} jittered stamp(s) of {n} (up to {r['largest_s'] * 1e3:.3g} ms back)"
+        for n, r in report["sorted"].items()
+    ]
     return "; ".join(parts)

@@ -1,4 +1,5 @@
-"""Poses on ``/tf``: a frame's position composed up the transform tree (:mod:`protorch.data.import_bag`).
+"""Poses on ``/tf``: a frame's position composed up the transform tree
+(:mod:`protorch.data.import_bag`).
 
 ``tf2_msgs/TFMessage`` messages on ``/tf`` (and ``/tf_static``) carry ``TransformStamped``
 edges ``header.frame_id`` (the parent) -> ``child_frame_id``. A frame's position in its root
@@ -22,7 +23,9 @@ TF_TOPIC, TF_STATIC = "/tf", "/tf_static"
 
 
 def _ns(stamp) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(getattr(stamp, "nanosec", getattr(stamp, "nsec", 0)))
+    return int(stamp.sec) * 1_000_000_000 + int(
+        getattr(stamp, "nanosec", getattr(stamp, "nsec", 0))
+    )
 
 
 def tf_edges(messages) -> dict[tuple[str, str], list]:
@@ -33,11 +36,15 @@ def tf_edges(messages) -> dict[tuple[str, str], list]:
         for tr in msg.transforms:
             t, q = tr.transform.translation, tr.transform.rotation
             key = (tr.header.frame_id.lstrip("/"), tr.child_frame_id.lstrip("/"))
-            edges.setdefault(key, []).append((_ns(tr.header.stamp), int(log_ns), t.x, t.y, t.z, q.x, q.y, q.z, q.w))
+            edges.setdefault(key, []).append(
+                (_ns(tr.header.stamp), int(log_ns), t.x, t.y, t.z, q.x, q.y, q.z, q.w)
+            )
     return edges
 
 
-def chain(frame: str, dynamic: dict, static: dict, root: str | None, where: str) -> list[tuple[str, str]]:
+def chain(
+    frame: str, dynamic: dict, static: dict, root: str | None, where: str
+) -> list[tuple[str, str]]:
     """The edges from ``frame`` up to ``root`` (or the top of its tree), the frame's own first.
     Errors: a frame the bag never names as a child, a frame with two parents, a ``root`` that is
     not above ``frame``."""
@@ -47,12 +54,16 @@ def chain(frame: str, dynamic: dict, static: dict, root: str | None, where: str)
     frame = frame.lstrip("/")
     if frame not in parents:
         names = sorted(set(parents) | {p for ps in parents.values() for p in ps})
-        raise ValueError(f"{where}: no transform on {TF_TOPIC} or {TF_STATIC} has child_frame_id {frame!r} "
-                         f"(the frames: {names})")
+        raise ValueError(
+            f"{where}: no transform on {TF_TOPIC} or {TF_STATIC} has child_frame_id {frame!r} "
+            f"(the frames: {names})"
+        )
     out, at, seen = [], frame, {frame}
     while at in parents and at != root:
         if len(parents[at]) > 1:
-            raise ValueError(f"{where}: frame {at!r} has two parents on {TF_TOPIC}: {sorted(parents[at])}")
+            raise ValueError(
+                f"{where}: frame {at!r} has two parents on {TF_TOPIC}: {sorted(parents[at])}"
+            )
         (p,) = parents[at]
         out.append((p, at))
         if p in seen:
@@ -60,8 +71,10 @@ def chain(frame: str, dynamic: dict, static: dict, root: str | None, where: str)
         seen.add(p)
         at = p
     if root is not None and at != root.lstrip("/"):
-        raise ValueError(f"{where}: --frame {root!r} is not above {frame!r} (its chain: "
-                         f"{' <- '.join([frame] + [p for p, _ in out])})")
+        raise ValueError(
+            f"{where}: --frame {root!r} is not above {frame!r} (its chain: "
+            f"{' <- '.join([frame] + [p for p, _ in out])})"
+        )
     return out
 
 
@@ -73,15 +86,18 @@ def edge_stream(key: tuple[str, str], rows: list) -> Stream:
     return Stream(f"{TF_TOPIC} {key[0]} -> {key[1]}", ns, log, a[:, 2:])
 
 
-def compose(edges: Sequence[tuple[str, str]], timed: dict, static: dict, start_ns: int
-            ) -> tuple[np.ndarray, np.ndarray]:
+def compose(
+    edges: Sequence[tuple[str, str]], timed: dict, static: dict, start_ns: int
+) -> tuple[np.ndarray, np.ndarray]:
     """The frame's position in the chain's root over time: ``(ns (U,), xyz (U, 3))`` at the union
     ``U`` of the dynamic edges' stamps (one sample at ``start_ns`` when every edge is static).
     ``timed[edge] = (ns (K,), data (K, 7))`` sorted; ``static[edge]``: rows, the last is used."""
     from scipy.spatial.transform import Rotation
 
     stamps = [timed[e][0] for e in edges if e in timed]
-    u = np.unique(np.concatenate(stamps)) if stamps else np.array([start_ns], dtype=np.int64)  # (U,)
+    u = (
+        np.unique(np.concatenate(stamps)) if stamps else np.array([start_ns], dtype=np.int64)
+    )  # (U,)
     p = np.zeros((u.size, 3))  # (U, 3) the frame's origin in its own frame
     for e in edges:
         if e in timed:

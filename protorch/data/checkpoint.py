@@ -40,8 +40,15 @@ from ..gp.model import EnvToProMP
 from .dataset import ORIGINS, TrajectoryDataset
 from .files import CheckpointError
 
-__all__ = ["CheckpointError", "EnvToProMP", "load", "save_model", "checkpoint_path",
-           "CHECKPOINT_DIR", "DATASET_FILE"]
+__all__ = [
+    "CheckpointError",
+    "EnvToProMP",
+    "load",
+    "save_model",
+    "checkpoint_path",
+    "CHECKPOINT_DIR",
+    "DATASET_FILE",
+]
 
 CHECKPOINT_DIR = "checkpoint"
 DATASET_FILE = "dataset.safetensors"
@@ -58,8 +65,15 @@ def checkpoint_path(run_dir_or_checkpoint: str | Path) -> Path:
     return p / CHECKPOINT_DIR / DATASET_FILE
 
 
-def save_model(run_dir_or_checkpoint: str | Path, dataset, *, backend: str = "torch", alpha: float,
-               include_unconverged: bool = False, **options) -> Path:
+def save_model(
+    run_dir_or_checkpoint: str | Path,
+    dataset,
+    *,
+    backend: str = "torch",
+    alpha: float,
+    include_unconverged: bool = False,
+    **options,
+) -> Path:
     """Write ``dataset`` with the environment-map settings that :func:`load` rebuilds it with.
 
     ``options`` are the map's JSON-serialisable options (``nearest_k``, ...); ``dtype`` and
@@ -70,8 +84,12 @@ def save_model(run_dir_or_checkpoint: str | Path, dataset, *, backend: str = "to
     if "dtype" in options or "device" in options:
         raise ValueError("dtype and device are not saved; pass them to load()")
     make_env_map(backend, alpha, **options)  # validates backend, alpha and options now
-    settings = {"backend": backend, "alpha": float(alpha), "options": options,
-                "include_unconverged": bool(include_unconverged)}
+    settings = {
+        "backend": backend,
+        "alpha": float(alpha),
+        "options": options,
+        "include_unconverged": bool(include_unconverged),
+    }
     try:
         json.dumps(settings, allow_nan=False)
     except (TypeError, ValueError) as exc:
@@ -79,8 +97,14 @@ def save_model(run_dir_or_checkpoint: str | Path, dataset, *, backend: str = "to
     return dataset.save(checkpoint_path(run_dir_or_checkpoint), extra={"env_map": settings})
 
 
-def load(run_dir_or_checkpoint: str | Path, *, device=None, dtype: torch.dtype = torch.float64,
-         backend: str | None = None, promp=None) -> EnvToProMP:
+def load(
+    run_dir_or_checkpoint: str | Path,
+    *,
+    device=None,
+    dtype: torch.dtype = torch.float64,
+    backend: str | None = None,
+    promp=None,
+) -> EnvToProMP:
     """Load a run saved by :func:`save_model` as an :class:`EnvToProMP` (no Hydra needed).
 
     Args:
@@ -93,7 +117,9 @@ def load(run_dir_or_checkpoint: str | Path, *, device=None, dtype: torch.dtype =
     ds = TrajectoryDataset.load(path, promp=promp)
     settings = ds.metadata.get("env_map")
     if not settings:
-        raise CheckpointError(f"{path} holds no environment-map settings: write it with protorch.save_model")
+        raise CheckpointError(
+            f"{path} holds no environment-map settings: write it with protorch.save_model"
+        )
     keep = ds.origin != ORIGINS.index("learned")  # (M,) demonstrations and priors always count
     if settings.get("include_unconverged", False):
         keep = torch.ones_like(keep)  # every learned entry too

@@ -12,10 +12,21 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["ALIGN_WINDOW", "Cleaning", "TooShort", "align", "clean", "group_envs", "group_tolerance", "speed",
-           "split_idle"]
+__all__ = [
+    "ALIGN_WINDOW",
+    "Cleaning",
+    "TooShort",
+    "align",
+    "clean",
+    "group_envs",
+    "group_tolerance",
+    "speed",
+    "split_idle",
+]
 
-ALIGN_WINDOW = 0.25  # DTW's Sakoe-Chiba band, a fraction of the samples: no warp moves a sample further
+ALIGN_WINDOW = (
+    0.25  # DTW's Sakoe-Chiba band, a fraction of the samples: no warp moves a sample further
+)
 EQUAL = 1e-9  # relative: environments closer than this are equal (round-off of a mean over rows)
 GAP_RATIO = 3.0  # the derived tolerance needs a gap of this ratio between two merge distances
 
@@ -27,6 +38,7 @@ class TooShort(ValueError):
     def __init__(self, path, reason: str) -> None:
         super().__init__(f"{path}: {reason}")
         self.reason = reason
+
 
 @dataclass(frozen=True)
 class Cleaning:
@@ -64,7 +76,9 @@ class Cleaning:
         if trim is False or trim is None:
             trim = 0.0
         if isinstance(trim, bool) or not isinstance(trim, (int, float)) or not 0 <= trim < 1:
-            raise ValueError(f"{name}.trim must be a fraction of the peak speed in [0, 1) or false, got {trim!r}")
+            raise ValueError(
+                f"{name}.trim must be a fraction of the peak speed in [0, 1) or false, got {trim!r}"
+            )
         out["trim"] = float(trim)
         if not isinstance(cfg.get("align", cls.align), bool):
             raise ValueError(f"{name}.align must be true or false, got {cfg['align']!r}")
@@ -89,6 +103,7 @@ class Cleaning:
     def off(self) -> Cleaning:
         """The same settings with trimming and alignment switched off (resampling by time stays)."""
         return Cleaning(0.0, False, self.samples, self.min_duration, self.group_tol, self.window)
+
 
 def _interp(t_new: np.ndarray, t: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Linear interpolation of every column of ``y (T, D)`` at ``t_new (S,)``: ``(S, D)``."""
@@ -121,8 +136,12 @@ def clean(rec, cleaning: Cleaning) -> tuple[np.ndarray, dict]:
         if above.size:
             i, j = int(above[0]), int(above[-1])
             idle = sp[sp <= cleaning.trim * sp.max()]
-            floor = 2 * float(np.median(idle)) if idle.size else 0.0  # twice the idle parts' typical speed (noise)
-            while i > 0 and sp[i - 1] > floor:  # back to the motion's onset: where the speed meets the noise
+            floor = (
+                2 * float(np.median(idle)) if idle.size else 0.0
+            )  # twice the idle parts' typical speed (noise)
+            while (
+                i > 0 and sp[i - 1] > floor
+            ):  # back to the motion's onset: where the speed meets the noise
                 i -= 1
             while j < sp.size - 1 and sp[j + 1] > floor:
                 j += 1
@@ -130,16 +149,27 @@ def clean(rec, cleaning: Cleaning) -> tuple[np.ndarray, dict]:
         else:
             start, end = t0, t0
         if end - start < cleaning.min_duration:
-            raise TooShort(rec.path, f"it moves for {end - start:.3g} s only (speed above {cleaning.trim:g} of its "
-                                     f"peak), shorter than the minimum {cleaning.min_duration:g} s "
-                                     "(task.recordings.min_duration)")
+            raise TooShort(
+                rec.path,
+                f"it moves for {end - start:.3g} s only (speed above {cleaning.trim:g} of its "
+                f"peak), shorter than the minimum {cleaning.min_duration:g} s "
+                "(task.recordings.min_duration)",
+            )
     tt = np.linspace(start, end, cleaning.samples)  # (S,) equally spaced in time
     demo = _interp(tt, rec.time, rec.values)  # (S, D)
     dt = np.diff(rec.time)
-    report = {"file": rec.path.name, "rows": int(rec.time.size), "seconds": t1 - t0,
-              "rate_hz": float(1.0 / np.median(dt)), "rate_range_hz": [float(1 / dt.max()), float(1 / dt.min())],
-              "trimmed_start_s": start - t0, "trimmed_end_s": t1 - end, "kept_s": end - start,
-              "env": rec.env.tolist(), "ignored_columns": list(rec.ignored)}
+    report = {
+        "file": rec.path.name,
+        "rows": int(rec.time.size),
+        "seconds": t1 - t0,
+        "rate_hz": float(1.0 / np.median(dt)),
+        "rate_range_hz": [float(1 / dt.max()), float(1 / dt.min())],
+        "trimmed_start_s": start - t0,
+        "trimmed_end_s": t1 - end,
+        "kept_s": end - start,
+        "env": rec.env.tolist(),
+        "ignored_columns": list(rec.ignored),
+    }
     if rec.env_rows is not None:
         report["env_spread"] = float(np.linalg.norm(rec.env_rows - rec.env, axis=1).max())
     return demo, report
@@ -164,11 +194,18 @@ def group_tolerance(envs: np.ndarray) -> tuple[float, dict]:
         if r > best:
             best, k = r, i
     if best < GAP_RATIO:
-        return 0.0, {"rule": f"no gap of ratio >= {GAP_RATIO:g} in the merge distances: equal environments only",
-                     "largest_ratio": best}
+        return 0.0, {
+            "rule": f"no gap of ratio >= {GAP_RATIO:g} in the merge distances: equal environments "
+            "only",
+            "largest_ratio": best,
+        }
     tol = float(math.sqrt(pos[k] * pos[k + 1]))
-    return tol, {"rule": "geometric mean across the largest gap of the single-linkage merge distances",
-                 "below": float(pos[k]), "above": float(pos[k + 1]), "ratio": float(best)}
+    return tol, {
+        "rule": "geometric mean across the largest gap of the single-linkage merge distances",
+        "below": float(pos[k]),
+        "above": float(pos[k + 1]),
+        "ratio": float(best),
+    }
 
 
 def group_envs(envs: np.ndarray, tol: float | None) -> tuple[np.ndarray, float, dict]:
@@ -185,7 +222,11 @@ def group_envs(envs: np.ndarray, tol: float | None) -> tuple[np.ndarray, float, 
     n = envs.shape[0]
     if n < 2:
         return np.zeros(n, dtype=np.int64), tol, report
-    raw = fcluster(linkage(envs, "single"), t=max(tol, EQUAL * (1 + float(np.abs(envs).max()))), criterion="distance")
+    raw = fcluster(
+        linkage(envs, "single"),
+        t=max(tol, EQUAL * (1 + float(np.abs(envs).max()))),
+        criterion="distance",
+    )
     order = {}
     group = np.array([order.setdefault(int(g), len(order)) for g in raw], dtype=np.int64)
     return group, tol, report
@@ -203,15 +244,19 @@ def align(demos: Sequence[np.ndarray]) -> tuple[list[np.ndarray], list[dict]]:
     """Align demonstrations ``(S, D)`` of one environment in time (dynamic time warping,
     ``dtaidistance``, within a band of :data:`ALIGN_WINDOW` of the samples) onto their average
     timing: each is warped to the medoid's (the demonstration with the least summed DTW
-    distance), the warps are smoothed (3 samples) and made monotone, and every demonstration is resampled at
+    distance), the warps are smoothed (3 samples) and made monotone, and every demonstration is
+    resampled at
     its warp composed with the inverse of the mean warp. ``(aligned [(S, D)], reports)``: per
     demonstration the largest and mean shift of its phase, its DTW distance to the medoid and its
     pointwise RMS distance to the medoid before and after."""
     try:
         from dtaidistance import dtw_ndim
     except ImportError:
-        raise ImportError("time alignment needs dtaidistance: pip install \"protorch[recordings]\", or switch it off "
-                          "(task.recordings.align=false)") from None
+        raise ImportError(
+            'time alignment needs dtaidistance: pip install "protorch[recordings]", or switch it '
+            "off "
+            "(task.recordings.align=false)"
+        ) from None
 
     n = len(demos)
     if n < 2:
@@ -222,7 +267,9 @@ def align(demos: Sequence[np.ndarray]) -> tuple[list[np.ndarray], list[dict]]:
     dist = np.zeros((n, n))
     for i in range(n):
         for j in range(i + 1, n):
-            dist[i, j] = dist[j, i] = dtw_ndim.distance(series[i], series[j], window=band, use_c=True)
+            dist[i, j] = dist[j, i] = dtw_ndim.distance(
+                series[i], series[j], window=band, use_c=True
+            )
     ref = int(dist.sum(1).argmin())
     idx = np.arange(s, dtype=np.float64)
     warps = []
@@ -230,8 +277,12 @@ def align(demos: Sequence[np.ndarray]) -> tuple[list[np.ndarray], list[dict]]:
         if k == ref:
             warps.append(idx.copy())
             continue
-        path = np.asarray(dtw_ndim.warping_path(series[ref], series[k], window=band, use_c=True))  # (L, 2)
-        w = np.bincount(path[:, 0], weights=path[:, 1], minlength=s) / np.bincount(path[:, 0], minlength=s)
+        path = np.asarray(
+            dtw_ndim.warping_path(series[ref], series[k], window=band, use_c=True)
+        )  # (L, 2)
+        w = np.bincount(path[:, 0], weights=path[:, 1], minlength=s) / np.bincount(
+            path[:, 0], minlength=s
+        )
         warps.append(_smooth_monotone(w, 3))  # reference index -> this demo's index
     mean = np.mean(warps, 0)  # (S,) the average timing, in each demo's index units
     inv = np.interp(idx, mean, idx)  # common index -> reference index
@@ -241,17 +292,28 @@ def align(demos: Sequence[np.ndarray]) -> tuple[list[np.ndarray], list[dict]]:
         aligned = _interp(at, idx, d)
         shift = np.abs(at - idx) / (s - 1)
         out.append(aligned)
-        reports.append({"warp_max": float(shift.max()), "warp_mean": float(shift.mean()), "medoid": k == ref,
-                        "dtw_to_medoid": float(dist[k, ref])})
+        reports.append(
+            {
+                "warp_max": float(shift.max()),
+                "warp_mean": float(shift.mean()),
+                "medoid": k == ref,
+                "dtw_to_medoid": float(dist[k, ref]),
+            }
+        )
     ref_aligned = out[ref]
     for k in range(n):  # the pointwise (RMS over samples) distance to the medoid, before and after
-        reports[k]["rms_to_medoid_before"] = float(np.sqrt(((series[k] - series[ref]) ** 2).sum(1).mean()))
-        reports[k]["rms_to_medoid_after"] = float(np.sqrt(((out[k] - ref_aligned) ** 2).sum(1).mean()))
+        reports[k]["rms_to_medoid_before"] = float(
+            np.sqrt(((series[k] - series[ref]) ** 2).sum(1).mean())
+        )
+        reports[k]["rms_to_medoid_after"] = float(
+            np.sqrt(((out[k] - ref_aligned) ** 2).sum(1).mean())
+        )
     return out, reports
 
 
-def split_idle(time: np.ndarray, values: np.ndarray, idle: float, *, trim: float = 0.05,
-               window: float = 0.05) -> list[tuple[int, int]]:
+def split_idle(
+    time: np.ndarray, values: np.ndarray, idle: float, *, trim: float = 0.05, window: float = 0.05
+) -> list[tuple[int, int]]:
     """A session of several demonstrations, ``time (T,)``, ``values (T, D)``, split at idle
     periods: where the joint-space speed (:func:`speed`) stays at or below ``trim`` times its peak
     for at least ``idle`` seconds between two motions, cut at the middle of that period. Returns

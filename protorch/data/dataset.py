@@ -6,8 +6,10 @@ right of an obstacle), where it came from (``"demonstration"``, ``"prior"`` or `
 whether the PRO run that produced it converged, and its final cost (NaN when unknown).
 
 Saved as one safetensors file with JSON metadata (schema version, ProMP settings, task name; see
-:mod:`protorch.data.checkpoint` for the layout); writes are atomic, loads never unpickle and refuse truncated,
-corrupted, foreign-schema and other-ProMP-size files with a :class:`~protorch.data.checkpoint.CheckpointError`.
+:mod:`protorch.data.checkpoint` for the layout); writes are atomic, loads never unpickle and refuse
+truncated,
+corrupted, foreign-schema and other-ProMP-size files with a
+:class:`~protorch.data.checkpoint.CheckpointError`.
 """
 
 from __future__ import annotations
@@ -23,11 +25,20 @@ from ..checks import check_tensor
 from ..primitives.promp import ProMP
 from .files import CheckpointError, atomic_write_safetensors, read_safetensors
 
-__all__ = ["TrajectoryDataset", "Entry", "ORIGINS", "DATASET_FORMAT", "DATASET_SCHEMA", "promp_settings"]
+__all__ = [
+    "TrajectoryDataset",
+    "Entry",
+    "ORIGINS",
+    "DATASET_FORMAT",
+    "DATASET_SCHEMA",
+    "promp_settings",
+]
 
 ORIGINS = ("demonstration", "prior", "learned")
 DATASET_FORMAT = "protorch.trajectory_dataset"
-DATASET_SCHEMA = 2  # 2: metadata digests (version 1 files are refused: their settings cannot be verified)
+DATASET_SCHEMA = (
+    2  # 2: metadata digests (version 1 files are refused: their settings cannot be verified)
+)
 _KEYS = ("env", "mean", "var", "label", "origin", "converged", "cost")
 _PROMP_KEYS = ("num_dof", "num_basis", "num_steps", "width", "ridge")
 
@@ -76,7 +87,9 @@ class TrajectoryDataset:
         dtype: of env / mean / var / cost (float64 by default).
     """
 
-    def __init__(self, promp, env_dim: int, *, task_name: str = "", dtype: torch.dtype = torch.float64) -> None:
+    def __init__(
+        self, promp, env_dim: int, *, task_name: str = "", dtype: torch.dtype = torch.float64
+    ) -> None:
         self.promp_settings = promp_settings(promp)
         if isinstance(env_dim, bool) or int(env_dim) != env_dim or int(env_dim) < 1:
             raise ValueError(f"env_dim must be an int >= 1, got {env_dim!r}")
@@ -114,24 +127,45 @@ class TrajectoryDataset:
         if not -self._m <= i < self._m:
             raise IndexError(f"entry {i} out of range for {self._m} entries")
         i %= self._m
-        return Entry(self._env[i].clone(), self._mean[i].clone(), self._var[i].clone(), int(self._label[i]),
-                     ORIGINS[int(self._origin[i])], bool(self._converged[i]), float(self._cost[i]))
+        return Entry(
+            self._env[i].clone(),
+            self._mean[i].clone(),
+            self._var[i].clone(),
+            int(self._label[i]),
+            ORIGINS[int(self._origin[i])],
+            bool(self._converged[i]),
+            float(self._cost[i]),
+        )
 
     def __repr__(self) -> str:
-        return (f"TrajectoryDataset(task_name={self.task_name!r}, entries={self._m}, env_dim={self.env_dim}, "
-                f"num_weights={self.num_weights})")
+        return (
+            f"TrajectoryDataset(task_name={self.task_name!r}, entries={self._m}, env_dim="
+            f"{self.env_dim}, "
+            f"num_weights={self.num_weights})"
+        )
 
     def make_promp(self, **kwargs):
-        """A fresh :class:`~protorch.ProMP` with the recorded settings (``dtype``/``device`` kwargs)."""
+        """A fresh :class:`~protorch.ProMP` with the recorded settings (``dtype``/``device``
+        kwargs)."""
 
         s = dict(self.promp_settings)
         return ProMP(s.pop("num_dof"), s.pop("num_basis"), **s, **kwargs)
 
     # ----------------------------------------------------------------- append
-    def append(self, env, mean, var, *, label=0, origin: str = "learned", converged: bool = False,
-               cost=math.nan) -> "TrajectoryDataset":
+    def append(
+        self,
+        env,
+        mean,
+        var,
+        *,
+        label=0,
+        origin: str = "learned",
+        converged: bool = False,
+        cost=math.nan,
+    ) -> "TrajectoryDataset":
         """Add one entry (``env (d,)``, ``mean (N,)``, ``var (N,)``) or a batch of ``B``
-        (``(B, d)``, ``(B, N)``, ``(B, N)``; ``label``, ``converged``, ``cost`` scalars or ``(B,)``).
+        (``(B, d)``, ``(B, N)``, ``(B, N)``; ``label``, ``converged``, ``cost`` scalars or
+        ``(B,)``).
         Everything is validated before anything is stored."""
         env = check_tensor(env, "env")
         single = env.ndim == 1
@@ -140,12 +174,16 @@ class TrajectoryDataset:
         var = check_tensor(var, "var")
         mean, var = (mean[None], var[None]) if single else (mean, var)
         if env.ndim != 2 or env.shape[1] != self.env_dim:
-            raise ValueError(f"env must be ({self.env_dim},) or (B, {self.env_dim}), got {tuple(env.shape)}")
+            raise ValueError(
+                f"env must be ({self.env_dim},) or (B, {self.env_dim}), got {tuple(env.shape)}"
+            )
         b = env.shape[0]
         for x, name in ((mean, "mean"), (var, "var")):
             if x.ndim != 2 or x.shape != (b, self.num_weights):
-                raise ValueError(f"{name} must be ({self.num_weights},) or ({b}, {self.num_weights}) "
-                                 f"to match env, got {tuple(x.shape)}")
+                raise ValueError(
+                    f"{name} must be ({self.num_weights},) or ({b}, {self.num_weights}) "
+                    f"to match env, got {tuple(x.shape)}"
+                )
         if bool((var < 0).any()):
             raise ValueError(f"var must be >= 0, got a minimum of {float(var.min()):.3g}")
         if origin not in ORIGINS:
@@ -164,7 +202,11 @@ class TrajectoryDataset:
                 raise ValueError(f"{name} must be a scalar or have {b} entries, got {x.shape[0]}")
         self._grow(self._m + b)
         s = slice(self._m, self._m + b)
-        self._env[s], self._mean[s], self._var[s] = env.to(self.dtype), mean.to(self.dtype), var.to(self.dtype)
+        self._env[s], self._mean[s], self._var[s] = (
+            env.to(self.dtype),
+            mean.to(self.dtype),
+            var.to(self.dtype),
+        )
         self._label[s], self._converged[s], self._cost[s] = lab.to(torch.long), conv, cost_t
         self._origin[s] = ORIGINS.index(origin)
         self._m += b
@@ -188,20 +230,32 @@ class TrajectoryDataset:
         if extra:
             self.metadata = {**self.metadata, **extra}
         tensors = {k: getattr(self, k) for k in _KEYS}
-        meta = {**self.metadata, "format": DATASET_FORMAT, "schema_version": DATASET_SCHEMA,
-                "task_name": self.task_name, "promp": self.promp_settings, "env_dim": self.env_dim,
-                "num_entries": self._m, "origins": list(ORIGINS)}
+        meta = {
+            **self.metadata,
+            "format": DATASET_FORMAT,
+            "schema_version": DATASET_SCHEMA,
+            "task_name": self.task_name,
+            "promp": self.promp_settings,
+            "env_dim": self.env_dim,
+            "num_entries": self._m,
+            "origins": list(ORIGINS),
+        }
         return atomic_write_safetensors(path, tensors, meta)
 
     @classmethod
-    def load(cls, path: str | Path, *, promp=None, task_name: str | None = None) -> "TrajectoryDataset":
+    def load(
+        cls, path: str | Path, *, promp=None, task_name: str | None = None
+    ) -> "TrajectoryDataset":
         """Read a checkpoint written by :meth:`save`.
 
         ``promp`` (a ProMP or settings dict) and ``task_name``, if given, must match the file's.
-        Raises :class:`~protorch.data.checkpoint.CheckpointError` for anything else than a complete, intact
+        Raises :class:`~protorch.data.checkpoint.CheckpointError` for anything else than a complete,
+        intact
         checkpoint of this schema version.
         """
-        tensors, meta = read_safetensors(path, fmt=DATASET_FORMAT, schema_version=DATASET_SCHEMA, keys=_KEYS)
+        tensors, meta = read_safetensors(
+            path, fmt=DATASET_FORMAT, schema_version=DATASET_SCHEMA, keys=_KEYS
+        )
         try:
             settings = promp_settings(meta["promp"])
             env_dim, m, origins = int(meta["env_dim"]), int(meta["num_entries"]), meta["origins"]
@@ -209,7 +263,9 @@ class TrajectoryDataset:
         except (KeyError, TypeError, ValueError) as exc:
             raise CheckpointError(f"{path}: incomplete metadata ({exc})") from exc
         if list(origins) != list(ORIGINS):
-            raise CheckpointError(f"{path} uses origins {origins}, this protorch knows {list(ORIGINS)}")
+            raise CheckpointError(
+                f"{path} uses origins {origins}, this protorch knows {list(ORIGINS)}"
+            )
         if promp is not None:
             want = promp_settings(promp)
             diff = {k: (settings.get(k), v) for k, v in want.items() if settings.get(k) != v}
@@ -220,26 +276,52 @@ class TrajectoryDataset:
         if task_name is not None and name != task_name:
             raise CheckpointError(f"{path} is for task {name!r}, expected {task_name!r}")
         n = settings["num_dof"] * settings["num_basis"]
-        shapes = {"env": (m, env_dim), "mean": (m, n), "var": (m, n), "label": (m,), "origin": (m,),
-                  "converged": (m,), "cost": (m,)}
+        shapes = {
+            "env": (m, env_dim),
+            "mean": (m, n),
+            "var": (m, n),
+            "label": (m,),
+            "origin": (m,),
+            "converged": (m,),
+            "cost": (m,),
+        }
         for k, shape in shapes.items():
             if tuple(tensors[k].shape) != shape:
                 raise CheckpointError(
-                    f"{path}: tensor {k!r} has shape {tuple(tensors[k].shape)}, the metadata implies {shape} "
+                    f"{path}: tensor {k!r} has shape {tuple(tensors[k].shape)}, the metadata "
+                    f"implies {shape} "
                     f"(N = num_dof * num_basis = {n})"
                 )
-        if tensors["converged"].dtype != torch.bool or tensors["label"].dtype != torch.long \
-                or tensors["origin"].dtype != torch.long:
+        if (
+            tensors["converged"].dtype != torch.bool
+            or tensors["label"].dtype != torch.long
+            or tensors["origin"].dtype != torch.long
+        ):
             raise CheckpointError(f"{path}: label/origin must be int64 and converged bool")
         for k in ("env", "mean", "var"):
             if not tensors[k].is_floating_point() or not bool(torch.isfinite(tensors[k]).all()):
                 raise CheckpointError(f"{path}: tensor {k!r} is not finite floating point")
-        if bool((tensors["var"] < 0).any()) or bool(((tensors["origin"] < 0) | (tensors["origin"] >= len(ORIGINS))).any()):
+        if bool((tensors["var"] < 0).any()) or bool(
+            ((tensors["origin"] < 0) | (tensors["origin"] >= len(ORIGINS))).any()
+        ):
             raise CheckpointError(f"{path}: negative variances or unknown origin codes")
         ds = cls(settings, env_dim, task_name=name, dtype=tensors["mean"].dtype)
-        ds.metadata = {k: v for k, v in meta.items() if k not in
-                       ("format", "schema_version", "task_name", "promp", "env_dim", "num_entries", "origins",
-                        "checksum", "digests")}
+        ds.metadata = {
+            k: v
+            for k, v in meta.items()
+            if k
+            not in (
+                "format",
+                "schema_version",
+                "task_name",
+                "promp",
+                "env_dim",
+                "num_entries",
+                "origins",
+                "checksum",
+                "digests",
+            )
+        }
         ds._grow(m)
         for k in _KEYS:
             getattr(ds, "_" + k)[:m] = tensors[k]

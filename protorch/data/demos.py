@@ -29,9 +29,23 @@ from .files import atomic_write_bytes
 from .formats import DemoFolder, DemoFormat
 from .recordings import is_recordings_folder, read_recordings
 
-__all__ = ["DemoFormat", "DemoFolder", "PARTICLE_FORMAT", "WORKSPACE", "ENV_NAMES", "MARKS_FILE", "LONE_RULE",
-           "accept_demo_folder", "check_demo_groups",
-           "demo_files", "load_human_demos", "read_demo_folder", "read_demos", "read_marks", "write_demo"]
+__all__ = [
+    "DemoFormat",
+    "DemoFolder",
+    "PARTICLE_FORMAT",
+    "WORKSPACE",
+    "ENV_NAMES",
+    "MARKS_FILE",
+    "LONE_RULE",
+    "accept_demo_folder",
+    "check_demo_groups",
+    "demo_files",
+    "load_human_demos",
+    "read_demo_folder",
+    "read_demos",
+    "read_marks",
+    "write_demo",
+]
 
 _NAME = re.compile(r"^(traj|env)(\d+)\.out$")
 # the point-particle task's workspace, both axes (protorch.tasks.point_particle.WORKSPACE; a test
@@ -41,18 +55,23 @@ ENV_NAMES = ("start_x", "start_y", "wall_x", "hole_y", "goal_x", "goal_y")
 MARKS_FILE = "teach.json"  # written by the teach page (protorch.view.teach): quality marks per K
 
 
-PARTICLE_FORMAT = DemoFormat(("x", "y"), ENV_NAMES, (WORKSPACE,) * 2, (WORKSPACE,) * 6, "the workspace",
-                             "the workspace")
+PARTICLE_FORMAT = DemoFormat(
+    ("x", "y"), ENV_NAMES, (WORKSPACE,) * 2, (WORKSPACE,) * 6, "the workspace", "the workspace"
+)
 
 
 def _read_text(path: Path) -> str:
     try:
         return path.read_text()
     except UnicodeDecodeError as exc:
-        raise ValueError(f"{path} is not a text file (byte {exc.start} cannot be decoded: {exc.reason})") from None
+        raise ValueError(
+            f"{path} is not a text file (byte {exc.start} cannot be decoded: {exc.reason})"
+        ) from None
 
 
-def _parse_floats(text: str, path: Path, per_row: int, names, bounds, bound_name: str) -> list[list[float]]:
+def _parse_floats(
+    text: str, path: Path, per_row: int, names, bounds, bound_name: str
+) -> list[list[float]]:
     """Rows of ``per_row`` comma-separated finite floats within ``bounds``; blank lines are
     skipped. ``names(row_index)`` / ``bounds(row_index)`` name and bound a row's values."""
     rows = []
@@ -62,7 +81,9 @@ def _parse_floats(text: str, path: Path, per_row: int, names, bounds, bound_name
             continue
         fields = line.split(",")
         if len(fields) != per_row:
-            raise ValueError(f"{path}:{lineno}: expected {per_row} value(s), got {len(fields)}: {line!r}")
+            raise ValueError(
+                f"{path}:{lineno}: expected {per_row} value(s), got {len(fields)}: {line!r}"
+            )
         try:
             values = [float(f) for f in fields]
         except ValueError:
@@ -71,8 +92,10 @@ def _parse_floats(text: str, path: Path, per_row: int, names, bounds, bound_name
             raise ValueError(f"{path}:{lineno}: NaN or infinite value: {line!r}")
         for v, name, bound in zip(values, names(len(rows)), bounds(len(rows))):
             if bound is not None and not bound[0] <= v <= bound[1]:
-                raise ValueError(f"{path}:{lineno}: {name} = {v:g} lies outside {bound_name} "
-                                 f"[{bound[0]:g}, {bound[1]:g}]")
+                raise ValueError(
+                    f"{path}:{lineno}: {name} = {v:g} lies outside {bound_name} "
+                    f"[{bound[0]:g}, {bound[1]:g}]"
+                )
         rows.append(values)
     return rows
 
@@ -89,11 +112,16 @@ def demo_files(folder: str | Path) -> tuple[dict[int, Path], dict[int, Path]]:
 
 def _pairs(folder: Path) -> tuple[dict[int, Path], dict[int, Path]]:
     if not folder.is_dir():
-        raise FileNotFoundError(f"demonstration folder {folder} does not exist or is not a directory")
+        raise FileNotFoundError(
+            f"demonstration folder {folder} does not exist or is not a directory"
+        )
     trajs, envs = demo_files(folder)
     if not trajs and not envs:
         raise ValueError(f"{folder} holds no trajK.out / envK.out files")
-    missing_env, missing_traj = sorted(trajs.keys() - envs.keys()), sorted(envs.keys() - trajs.keys())
+    missing_env, missing_traj = (
+        sorted(trajs.keys() - envs.keys()),
+        sorted(envs.keys() - trajs.keys()),
+    )
     if missing_env or missing_traj:
         parts = []
         if missing_env:
@@ -104,7 +132,9 @@ def _pairs(folder: Path) -> tuple[dict[int, Path], dict[int, Path]]:
     return trajs, envs
 
 
-def read_demos(folder: str | Path, fmt: DemoFormat, *, dtype: torch.dtype = torch.float64) -> DemoFolder:
+def read_demos(
+    folder: str | Path, fmt: DemoFormat, *, dtype: torch.dtype = torch.float64
+) -> DemoFolder:
     """Read every ``trajK.out`` / ``envK.out`` pair of ``folder`` in increasing ``K``, checked
     against ``fmt``.
 
@@ -125,13 +155,26 @@ def read_demos(folder: str | Path, fmt: DemoFormat, *, dtype: torch.dtype = torc
     out = DemoFolder([], torch.zeros(0, e, dtype=dtype))
     rows_env = []
     for k in sorted(trajs):
-        rows = _parse_floats(_read_text(trajs[k]), trajs[k], d, lambda _: fmt.columns, col_bounds,
-                             fmt.column_bound_name)
+        rows = _parse_floats(
+            _read_text(trajs[k]),
+            trajs[k],
+            d,
+            lambda _: fmt.columns,
+            col_bounds,
+            fmt.column_bound_name,
+        )
         if len(rows) < 2:
             raise ValueError(f"{trajs[k]}: a trajectory needs at least 2 samples, got {len(rows)}")
-        env = [v for (v,) in _parse_floats(_read_text(envs[k]), envs[k], 1, env_name, env_bound, fmt.env_bound_name)]
+        env = [
+            v
+            for (v,) in _parse_floats(
+                _read_text(envs[k]), envs[k], 1, env_name, env_bound, fmt.env_bound_name
+            )
+        ]
         if len(env) != e:
-            raise ValueError(f"{envs[k]}: expected {e} numbers ({' '.join(fmt.env_names)}), got {len(env)}")
+            raise ValueError(
+                f"{envs[k]}: expected {e} numbers ({' '.join(fmt.env_names)}), got {len(env)}"
+            )
         out.demos.append(torch.tensor(rows, dtype=dtype))  # (T_k, D)
         out.files.append((trajs[k], envs[k]))
         out.indices.append(k)
@@ -140,8 +183,14 @@ def read_demos(folder: str | Path, fmt: DemoFormat, *, dtype: torch.dtype = torc
     return out
 
 
-def read_demo_folder(folder: str | Path, fmt: DemoFormat, cleaning=None, *, labeller=None,
-                     dtype: torch.dtype = torch.float64) -> tuple[DemoFolder, Tensor | None]:
+def read_demo_folder(
+    folder: str | Path,
+    fmt: DemoFormat,
+    cleaning=None,
+    *,
+    labeller=None,
+    dtype: torch.dtype = torch.float64,
+) -> tuple[DemoFolder, Tensor | None]:
     """Either format: a folder of timestamped ``*.csv`` recordings
     (:func:`protorch.data.recordings.read_recordings`, cleaned by ``cleaning``, labelled by
     ``labeller``) or of the authors' ``trajK.out`` / ``envK.out`` pairs (:func:`read_demos`,
@@ -149,13 +198,18 @@ def read_demo_folder(folder: str | Path, fmt: DemoFormat, cleaning=None, *, labe
     folder = Path(folder)
     if is_recordings_folder(folder):
         if any(demo_files(folder)):
-            raise ValueError(f"{folder} holds both *.csv recordings and trajK.out / envK.out files: keep one format "
-                             "per folder")
+            raise ValueError(
+                f"{folder} holds both *.csv recordings and trajK.out / envK.out files: keep one "
+                "format "
+                "per folder"
+            )
         return read_recordings(folder, fmt, cleaning, labeller=labeller, dtype=dtype)
     return read_demos(folder, fmt, dtype=dtype), None
 
 
-def load_human_demos(folder: str | Path, *, dtype: torch.dtype = torch.float64, cleaning=None) -> tuple[list[Tensor], Tensor]:
+def load_human_demos(
+    folder: str | Path, *, dtype: torch.dtype = torch.float64, cleaning=None
+) -> tuple[list[Tensor], Tensor]:
     """The point particle's folder (:data:`PARTICLE_FORMAT`: ``x,y`` rows, 6 environment numbers,
     everything inside the workspace ``[0, 10]``), either format (:func:`read_demo_folder`):
     ``(demos, envs)``, a list of ``n`` tensors ``(T_i, 2)`` and ``envs (n, 6)``. Errors as
@@ -177,8 +231,10 @@ def write_demo(folder: str | Path, k: int, traj, env) -> tuple[Path, Path]:
     traj = torch.as_tensor(traj, dtype=torch.float64).detach().cpu()
     env = torch.as_tensor(env, dtype=torch.float64).detach().cpu()
     if traj.ndim != 2 or traj.shape[0] < 2 or env.ndim != 1:
-        raise ValueError(f"write_demo needs traj (T >= 2, D) and env (E,), got {tuple(traj.shape)} and "
-                         f"{tuple(env.shape)}")
+        raise ValueError(
+            f"write_demo needs traj (T >= 2, D) and env (E,), got {tuple(traj.shape)} and "
+            f"{tuple(env.shape)}"
+        )
     if not (bool(torch.isfinite(traj).all()) and bool(torch.isfinite(env).all())):
         raise ValueError("write_demo: traj and env must be finite")
     if int(k) < 0:
@@ -191,9 +247,16 @@ def write_demo(folder: str | Path, k: int, traj, env) -> tuple[Path, Path]:
     return traj_path, env_path
 
 
-def check_demo_groups(envs: Tensor, files: Sequence[tuple[Path, Path]], labels: Tensor | None = None,
-                      *, minimum: int = 2, label_names: dict | None = None, lone: str = "refuse",
-                      excluded: Sequence[dict] | None = None) -> dict:
+def check_demo_groups(
+    envs: Tensor,
+    files: Sequence[tuple[Path, Path]],
+    labels: Tensor | None = None,
+    *,
+    minimum: int = 2,
+    label_names: dict | None = None,
+    lone: str = "refuse",
+    excluded: Sequence[dict] | None = None,
+) -> dict:
     """Refuse an environment (with ``labels``: an environment and label) holding fewer than
     ``minimum`` demonstrations (a weight variance needs 2), naming its files.
 
@@ -208,10 +271,18 @@ def check_demo_groups(envs: Tensor, files: Sequence[tuple[Path, Path]], labels: 
     if labels is not None:
         keyed = torch.cat([keyed, torch.as_tensor(labels).to(torch.float64).reshape(-1, 1)], 1)
     _, group, counts = torch.unique(keyed, dim=0, return_inverse=True, return_counts=True)
-    lab = torch.zeros(len(files), dtype=torch.long) if labels is None else torch.as_tensor(labels).reshape(-1)
+    lab = (
+        torch.zeros(len(files), dtype=torch.long)
+        if labels is None
+        else torch.as_tensor(labels).reshape(-1)
+    )
     name = lambda i: (label_names or {}).get(int(lab[i]), int(lab[i]))
     pooled_from = {int(lab[i]) for i in range(len(files)) if int(counts[group[i]]) >= minimum}
-    gone = "" if not excluded else " (excluded: " + "; ".join(f"{e['file']}: {e['reason']}" for e in excluded) + ")"
+    gone = (
+        ""
+        if not excluded
+        else " (excluded: " + "; ".join(f"{e['file']}: {e['reason']}" for e in excluded) + ")"
+    )
     report, seen = {"rule": LONE_RULE if lone == "pool" else "refused", "lone": []}, set()
     for i in range(len(files)):
         if int(counts[group[i]]) >= minimum or int(group[i]) in seen:
@@ -221,33 +292,55 @@ def check_demo_groups(envs: Tensor, files: Sequence[tuple[Path, Path]], labels: 
         names = ", ".join(files[j][0].name for j in members)
         side = "" if labels is None else f" passing {name(i)}"
         if lone == "pool" and int(lab[i]) in pooled_from:
-            report["lone"].append({"files": [files[j][0].name for j in members], "label": int(lab[i]),
-                                   "side": str(name(i))})
+            report["lone"].append(
+                {
+                    "files": [files[j][0].name for j in members],
+                    "label": int(lab[i]),
+                    "side": str(name(i)),
+                }
+            )
             continue
         if lone == "pool":
             raise ValueError(
-                f"{files[i][1]}: this environment has {len(members)} demonstration(s){side} ({names}) and no "
-                f"environment has >= {minimum} demonstrations{side} to pool a weight variance from{gone}: teach "
-                f"more with python -m protorch.view --teach")
+                f"{files[i][1]}: this environment has {len(members)} demonstration(s){side} ("
+                f"{names}) and no "
+                f"environment has >= {minimum} demonstrations{side} to pool a weight variance from"
+                f"{gone}: teach "
+                f"more with python -m protorch.view --teach"
+            )
         raise ValueError(
-            f"{files[i][1]}: this environment has {len(members)} demonstration(s){side} ({names}); each needs "
-            f">= {minimum} for a weight variance: teach more with python -m protorch.view --teach (it continues "
-            f"the folder's last environment) or remove the pair{gone}")
+            f"{files[i][1]}: this environment has {len(members)} demonstration(s){side} ({names}); "
+            "each needs "
+            f">= {minimum} for a weight variance: teach more with python -m protorch.view --teach "
+            "(it continues "
+            f"the folder's last environment) or remove the pair{gone}"
+        )
     return report
 
 
-LONE_RULE = ("an environment's lone demonstration of a side takes the mean weight variance of the same side's "
-             "environments with >= 2 demonstrations")
+LONE_RULE = (
+    "an environment's lone demonstration of a side takes the mean weight variance of the same "
+    "side's "
+    "environments with >= 2 demonstrations"
+)
 
 
-def accept_demo_folder(folder: DemoFolder, labels: Tensor | None, *, label_names: dict | None = None) -> None:
+def accept_demo_folder(
+    folder: DemoFolder, labels: Tensor | None, *, label_names: dict | None = None
+) -> None:
     """The checks a folder passes before training (:func:`check_demo_groups` with lone sides
     pooled, the excluded recordings named in a refusal); the result goes into
     ``folder.report["sides"]`` and the report's summary lines (excluded recordings, findings)
     are printed, one ``[protorch] recordings:`` line each."""
     report = folder.report or {}
-    sides = check_demo_groups(folder.envs, folder.files, labels, label_names=label_names, lone="pool",
-                              excluded=report.get("excluded"))
+    sides = check_demo_groups(
+        folder.envs,
+        folder.files,
+        labels,
+        label_names=label_names,
+        lone="pool",
+        excluded=report.get("excluded"),
+    )
     if folder.report:
         folder.report["sides"] = sides
         if sides["lone"]:
@@ -264,6 +357,10 @@ def read_marks(folder: str | Path) -> dict[int, list[str]]:
         return {}
     try:
         data = json.loads(path.read_text())
-        return {int(k): list(v.get("flags", [])) for k, v in data.get("demos", {}).items() if v.get("flags")}
+        return {
+            int(k): list(v.get("flags", []))
+            for k, v in data.get("demos", {}).items()
+            if v.get("flags")
+        }
     except (ValueError, AttributeError, TypeError) as exc:
         raise ValueError(f"{path}: not a teach-page record ({exc})") from None

@@ -4,7 +4,8 @@ Every write goes to a temporary file in the same directory, is flushed and fsync
 over the old file (and the directory fsync-ed), so a process killed at any instant leaves either
 the previous or the new complete file. Reading never unpickles: a pickle or a ``torch.save`` zip
 is recognised and refused, as are truncated files, checksum mismatches, metadata that does not
-match its digests (each top-level section has one), other formats and other schema versions (:class:`CheckpointError`, a ``ValueError``).
+match its digests (each top-level section has one), other formats and other schema versions
+(:class:`CheckpointError`, a ``ValueError``).
 """
 
 from __future__ import annotations
@@ -20,8 +21,17 @@ from torch import Tensor
 
 from ..errors import ProtorchError
 
-__all__ = ["CheckpointError", "atomic_write_bytes", "atomic_write_safetensors", "read_safetensors",
-           "tensor_checksum", "metadata_digests", "remove_stale_tmp", "file_mode", "META_KEY"]
+__all__ = [
+    "CheckpointError",
+    "atomic_write_bytes",
+    "atomic_write_safetensors",
+    "read_safetensors",
+    "tensor_checksum",
+    "metadata_digests",
+    "remove_stale_tmp",
+    "file_mode",
+    "META_KEY",
+]
 
 META_KEY = "protorch"
 
@@ -138,9 +148,13 @@ def _sniff(data: bytes, path: Path) -> int:
             "protorch never unpickles checkpoints: refusing to load it"
         )
     if data[:1] == b"\x80":
-        raise CheckpointError(f"{path} is a Python pickle; protorch never unpickles checkpoints: refusing to load it")
+        raise CheckpointError(
+            f"{path} is a Python pickle; protorch never unpickles checkpoints: refusing to load it"
+        )
     if len(data) < 10:
-        raise CheckpointError(f"{path} is truncated or empty ({len(data)} bytes): not a safetensors checkpoint")
+        raise CheckpointError(
+            f"{path} is truncated or empty ({len(data)} bytes): not a safetensors checkpoint"
+        )
     n = int.from_bytes(data[:8], "little")
     if data[8:9] != b"{":
         raise CheckpointError(f"{path} is not a safetensors file (no JSON header)")
@@ -156,22 +170,30 @@ def _verify_digests(meta: dict, path: Path) -> None:
     stored, actual = meta["digests"], metadata_digests(meta)
     for section in sorted(set(stored) | set(actual)):
         if section not in actual:
-            raise CheckpointError(f"{path}: metadata section {section!r} is missing (its digest is recorded)")
+            raise CheckpointError(
+                f"{path}: metadata section {section!r} is missing (its digest is recorded)"
+            )
         if section not in stored:
-            raise CheckpointError(f"{path}: metadata section {section!r} has no digest (added after writing)")
+            raise CheckpointError(
+                f"{path}: metadata section {section!r} has no digest (added after writing)"
+            )
         if stored[section] != actual[section]:
             raise CheckpointError(
-                f"{path}: metadata section {section!r} does not match its digest: it was edited after "
+                f"{path}: metadata section {section!r} does not match its digest: it was edited "
+                "after "
                 "writing, and loading it would change the predictions; re-create the file"
             )
 
 
-def read_safetensors(path: str | Path, *, fmt: str, schema_version: int, keys) -> tuple[dict[str, Tensor], dict]:
+def read_safetensors(
+    path: str | Path, *, fmt: str, schema_version: int, keys
+) -> tuple[dict[str, Tensor], dict]:
     """Read and verify a file written by :func:`atomic_write_safetensors`.
 
     Checks, in order: it is a complete safetensors file (not a pickle / zip, not truncated), its
     metadata says ``format == fmt``, carries digests and says ``schema_version``, every metadata
-    section matches its digest, it holds exactly ``keys``, and the tensor checksum matches. Returns ``(tensors on CPU, metadata)``.
+    section matches its digest, it holds exactly ``keys``, and the tensor checksum matches. Returns
+    ``(tensors on CPU, metadata)``.
     """
     path = Path(path)
     if not path.is_file():
@@ -185,7 +207,9 @@ def read_safetensors(path: str | Path, *, fmt: str, schema_version: int, keys) -
         raise CheckpointError(f"{path} is corrupted or truncated: {exc}") from exc
     raw = (header.get("__metadata__") or {}).get(META_KEY)
     if raw is None:
-        raise CheckpointError(f"{path} is a safetensors file but not a protorch checkpoint (no metadata)")
+        raise CheckpointError(
+            f"{path} is a safetensors file but not a protorch checkpoint (no metadata)"
+        )
     try:
         meta = json.loads(raw)
     except json.JSONDecodeError as exc:
@@ -194,8 +218,10 @@ def read_safetensors(path: str | Path, *, fmt: str, schema_version: int, keys) -
         raise CheckpointError(f"{path} holds {meta.get('format')!r}, expected {fmt!r}")
     if not isinstance(meta.get("digests"), dict):
         raise CheckpointError(
-            f"{path} has schema version {meta.get('schema_version')!r} and no metadata digest, so its "
-            f"settings cannot be verified; this protorch reads version {schema_version} only: re-create it"
+            f"{path} has schema version {meta.get('schema_version')!r} and no metadata digest, so "
+            "its "
+            f"settings cannot be verified; this protorch reads version {schema_version} only: "
+            "re-create it"
         )
     if meta.get("schema_version") != schema_version:
         raise CheckpointError(
@@ -206,5 +232,7 @@ def read_safetensors(path: str | Path, *, fmt: str, schema_version: int, keys) -
     if set(tensors) != set(keys):
         raise CheckpointError(f"{path} holds tensors {sorted(tensors)}, expected {sorted(keys)}")
     if tensor_checksum(tensors) != meta.get("checksum"):
-        raise CheckpointError(f"{path} is corrupted: the tensor checksum does not match its metadata")
+        raise CheckpointError(
+            f"{path} is corrupted: the tensor checksum does not match its metadata"
+        )
     return tensors, meta

@@ -26,10 +26,14 @@ class DemoFormat:
     env_bound_name: str = "its bounds"
 
     def __post_init__(self) -> None:
-        for bounds, names, what in ((self.column_bounds, self.columns, "column_bounds"),
-                                    (self.env_bounds, self.env_names, "env_bounds")):
+        for bounds, names, what in (
+            (self.column_bounds, self.columns, "column_bounds"),
+            (self.env_bounds, self.env_names, "env_bounds"),
+        ):
             if bounds is not None and len(bounds) != len(names):
-                raise ValueError(f"{what} must hold one (lo, hi) per name {list(names)}, got {len(bounds)}")
+                raise ValueError(
+                    f"{what} must hold one (lo, hi) per name {list(names)}, got {len(bounds)}"
+                )
 
 
 @dataclass
@@ -41,5 +45,9 @@ class DemoFolder:
     envs: Tensor  # (n, E)
     files: list[tuple[Path, Path]] = field(default_factory=list)
     indices: list[int] = field(default_factory=list)
-    report: dict = field(default_factory=dict)  # a recordings folder's cleaning report (empty for trajK.out)
-    stages: list = field(default_factory=list)  # a recordings folder's raw / trimmed / aligned arrays, per file
+    report: dict = field(
+        default_factory=dict
+    )  # a recordings folder's cleaning report (empty for trajK.out)
+    stages: list = field(
+        default_factory=list
+    )  # a recordings folder's raw / trimmed / aligned arrays, per file

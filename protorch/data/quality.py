@@ -24,13 +24,23 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["JUMP_MIN", "JUMP_SPEED", "MIN_MOTION", "MOVE_FACTOR", "MOVE_FLOOR", "STREAM_END_S", "exclusion",
-           "flags"]
+__all__ = [
+    "JUMP_MIN",
+    "JUMP_SPEED",
+    "MIN_MOTION",
+    "MOVE_FACTOR",
+    "MOVE_FLOOR",
+    "STREAM_END_S",
+    "exclusion",
+    "flags",
+]
 
 MIN_MOTION = 0.02  # rad: a recording whose every joint spans less than this is motionless
 MOVE_FACTOR = 3.0  # the environment's drift over the recording against its scatter
 MOVE_FLOOR = 1e-3  # the environment's units (m): smaller drifts are never reported
-STREAM_END_S = 1.0  # s: an environment stream held this long (and 10 % of the recording) before the end
+STREAM_END_S = (
+    1.0  # s: an environment stream held this long (and 10 % of the recording) before the end
+)
 JUMP_SPEED = 10.0  # rad/s: 4 times the Panda's fastest joint velocity limit (2.61 rad/s)
 JUMP_MIN = 0.05  # rad: smaller steps are never jumps
 _MAX_LISTED = 10  # jumps and gaps listed per recording
@@ -41,12 +51,17 @@ def exclusion(time: np.ndarray, values: np.ndarray, min_duration: float, names) 
     cleaning, or ``None``."""
     seconds = float(time[-1] - time[0])
     if seconds < min_duration:
-        return (f"the recording lasts {seconds:.3g} s, shorter than the minimum {min_duration:g} s "
-                "(task.recordings.min_duration)")
+        return (
+            f"the recording lasts {seconds:.3g} s, shorter than the minimum {min_duration:g} s "
+            "(task.recordings.min_duration)"
+        )
     span = np.ptp(values, axis=0)  # (D,)
     if float(span.max()) < MIN_MOTION:
-        return (f"motionless: its joints span at most {float(span.max()):.3g} rad ({names[int(span.argmax())]}), "
-                f"less than {MIN_MOTION:g} rad")
+        return (
+            f"motionless: its joints span at most {float(span.max()):.3g} rad ("
+            f"{names[int(span.argmax())]}), "
+            f"less than {MIN_MOTION:g} rad"
+        )
     return None
 
 
@@ -75,11 +90,18 @@ def flags(time: np.ndarray, values: np.ndarray, env_rows: np.ndarray | None, nam
     fast = (step > JUMP_MIN) & (step > JUMP_SPEED * dt[:, None])
     rows, cols = np.nonzero(fast)
     if rows.size:
-        out["jumps"] = [{"time_s": float(t[r + 1]), "joint": str(names[c]),
-                         "step": float(values[r + 1, c] - values[r, c])}
-                        for r, c in list(zip(rows.tolist(), cols.tolist()))[:_MAX_LISTED]]
+        out["jumps"] = [
+            {
+                "time_s": float(t[r + 1]),
+                "joint": str(names[c]),
+                "step": float(values[r + 1, c] - values[r, c]),
+            }
+            for r, c in list(zip(rows.tolist(), cols.tolist()))[:_MAX_LISTED]
+        ]
     med = float(np.median(dt)) if dt.size else 0.0
     gap = np.flatnonzero((dt > 5 * med) & (dt > 0.05))
     if gap.size:
-        out["gaps"] = [{"time_s": float(t[i]), "seconds": float(dt[i])} for i in gap[:_MAX_LISTED].tolist()]
+        out["gaps"] = [
+            {"time_s": float(t[i]), "seconds": float(dt[i])} for i in gap[:_MAX_LISTED].tolist()
+        ]
     return out

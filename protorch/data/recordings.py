@@ -50,8 +50,20 @@ from .files import atomic_write_bytes
 from .formats import DemoFolder
 from .quality import exclusion, flags
 
-__all__ = ["TIME", "Cleaning", "Recording", "align", "clean", "group_envs", "group_tolerance", "is_recordings_folder",
-           "read_recording", "read_recordings", "recording_files", "write_recording"]
+__all__ = [
+    "TIME",
+    "Cleaning",
+    "Recording",
+    "align",
+    "clean",
+    "group_envs",
+    "group_tolerance",
+    "is_recordings_folder",
+    "read_recording",
+    "read_recordings",
+    "recording_files",
+    "write_recording",
+]
 
 TIME = "time"
 IMPORT_SUFFIX = ".import.json"  # the importer's report beside a recording: STEM.import.json
@@ -79,7 +91,8 @@ def recording_files(folder: str | Path) -> list[Path]:
 
 
 def is_recordings_folder(folder: str | Path) -> bool:
-    """Whether ``folder`` holds timestamped recordings (``*.csv``) rather than ``trajK.out`` pairs."""
+    """Whether ``folder`` holds timestamped recordings (``*.csv``) rather than
+    ``trajK.out`` pairs."""
     return Path(folder).is_dir() and bool(recording_files(folder))
 
 
@@ -88,7 +101,9 @@ def write_recording(path: str | Path, header: Sequence[str], table) -> Path:
     (float64 round-trips exactly)."""
     table = np.asarray(table, dtype=np.float64)
     if table.ndim != 2 or table.shape[1] != len(header) or table.shape[0] < 2:
-        raise ValueError(f"write_recording needs a (T >= 2, {len(header)}) table, got {table.shape}")
+        raise ValueError(
+            f"write_recording needs a (T >= 2, {len(header)}) table, got {table.shape}"
+        )
     buf = io.StringIO()
     buf.write(",".join(header) + "\n")
     np.savetxt(buf, table, fmt="%.17g", delimiter=",")
@@ -101,7 +116,10 @@ def _first_bad_line(path: Path, lines: list[str], width: int) -> str:
             continue
         parts = line.split(",")
         if len(parts) != width:
-            return f"{path}:{lineno}: expected {width} value(s) as in the header, got {len(parts)}: {line.strip()!r}"
+            return (
+                f"{path}:{lineno}: expected {width} value(s) as in the header, "
+                f"got {len(parts)}: {line.strip()!r}"
+            )
         try:
             [float(p) for p in parts]
         except ValueError:
@@ -109,12 +127,23 @@ def _first_bad_line(path: Path, lines: list[str], width: int) -> str:
     return f"{path}: unreadable table"
 
 
-def check_table(where: str, names: Sequence[str], data: np.ndarray, fmt, *, row_name: str = "line",
-                first_row: int = 2) -> None:
+def check_table(
+    where: str,
+    names: Sequence[str],
+    data: np.ndarray,
+    fmt,
+    *,
+    row_name: str = "line",
+    first_row: int = 2,
+) -> None:
     """Refuse a recording's table ``data (T, C)`` (columns ``names``): NaN or infinite values,
     time that goes backwards or repeats, values outside the format's bounds. One line naming
     ``where`` and the row (``row_name first_row + i``)."""
-    row = lambda i: f"{where}:{first_row + int(i)}" if row_name == "line" else f"{where}, {row_name} {first_row + int(i)}"
+    row = lambda i: (
+        f"{where}:{first_row + int(i)}"
+        if row_name == "line"
+        else f"{where}, {row_name} {first_row + int(i)}"
+    )
     finite = np.isfinite(data)
     if not finite.all():
         i, c = np.argwhere(~finite)[0]
@@ -126,9 +155,14 @@ def check_table(where: str, names: Sequence[str], data: np.ndarray, fmt, *, row_
     if bad.size:
         i = int(bad[0])
         how = "repeats" if t[i + 1] == t[i] else "goes backwards from"
-        raise ValueError(f"{row(i + 1)}: time {t[i + 1]:.9g} {how} {t[i]:.9g} (the row before); time must increase")
-    for cols, bounds, what in ((fmt.columns, fmt.column_bounds, fmt.column_bound_name),
-                               (fmt.env_names, fmt.env_bounds, fmt.env_bound_name)):
+        raise ValueError(
+            f"{row(i + 1)}: time {t[i + 1]:.9g} {how} {t[i]:.9g} (the row before); time must "
+            "increase"
+        )
+    for cols, bounds, what in (
+        (fmt.columns, fmt.column_bounds, fmt.column_bound_name),
+        (fmt.env_names, fmt.env_bounds, fmt.env_bound_name),
+    ):
         if bounds is None:
             continue
         for col, (lo, hi) in zip(cols, bounds):
@@ -148,10 +182,14 @@ def read_recording(path: str | Path, fmt, *, min_duration: float = 0.0) -> Recor
     try:
         text = path.read_text()
     except UnicodeDecodeError as exc:
-        raise ValueError(f"{path} is not a text file (byte {exc.start} cannot be decoded)") from None
+        raise ValueError(
+            f"{path} is not a text file (byte {exc.start} cannot be decoded)"
+        ) from None
     lines = text.splitlines()
     if not lines or not lines[0].strip():
-        raise ValueError(f"{path}: empty, or no header line (time, the joints' names, the environment's)")
+        raise ValueError(
+            f"{path}: empty, or no header line (time, the joints' names, the environment's)"
+        )
     names = [s.strip() for s in lines[0].split(",")]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
@@ -160,12 +198,16 @@ def read_recording(path: str | Path, fmt, *, min_duration: float = 0.0) -> Recor
         raise ValueError(f"{path}:1: no {TIME!r} column (the header has {names})")
     missing = [c for c in fmt.columns if c not in names]
     if missing:
-        raise ValueError(f"{path}:1: no column for joint {missing[0]!r} (the header has {names}; needed: "
-                         f"{list(fmt.columns)})")
+        raise ValueError(
+            f"{path}:1: no column for joint {missing[0]!r} (the header has {names}; needed: "
+            f"{list(fmt.columns)})"
+        )
     env_cols = [c for c in fmt.env_names if c in names]
     if env_cols and len(env_cols) != len(fmt.env_names):
         gone = [c for c in fmt.env_names if c not in names]
-        raise ValueError(f"{path}:1: environment column(s) {gone} missing (it has {env_cols}; all or none)")
+        raise ValueError(
+            f"{path}:1: environment column(s) {gone} missing (it has {env_cols}; all or none)"
+        )
     try:
         data = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, ndmin=2, dtype=np.float64)
     except ValueError:
@@ -177,12 +219,16 @@ def read_recording(path: str | Path, fmt, *, min_duration: float = 0.0) -> Recor
     check_table(str(path), names, data, fmt)
     t = data[:, names.index(TIME)]
     if t[-1] - t[0] < min_duration:
-        raise ValueError(f"{path}: the recording lasts {t[-1] - t[0]:.3g} s, shorter than the minimum "
-                         f"{min_duration:g} s (task.recordings.min_duration)")
+        raise ValueError(
+            f"{path}: the recording lasts {t[-1] - t[0]:.3g} s, shorter than the minimum "
+            f"{min_duration:g} s (task.recordings.min_duration)"
+        )
     values = data[:, [names.index(c) for c in fmt.columns]]  # (T, D)
     if env_cols:
         env_rows = data[:, [names.index(c) for c in fmt.env_names]]  # (T, E)
-        env = np.where(np.ptp(env_rows, 0) == 0, env_rows[0], env_rows.mean(0))  # a constant column: its value
+        env = np.where(
+            np.ptp(env_rows, 0) == 0, env_rows[0], env_rows.mean(0)
+        )  # a constant column: its value
     else:
         env_rows, env = None, _sidecar_env(path, fmt)
     ignored = [n for n in names if n != TIME and n not in fmt.columns and n not in fmt.env_names]
@@ -200,17 +246,25 @@ def _import_report(path: Path) -> dict | None:
 
 
 def summary_lines(reports: Sequence[dict], excluded: Sequence[dict]) -> list[str]:
-    """One line per excluded recording and per recording with a finding (:mod:`protorch.data.quality`)."""
+    """One line per excluded recording and per recording with a finding
+    (:mod:`protorch.data.quality`)."""
     out = [f"excluded {e['file']}: {e['reason']}" for e in excluded]
     for r in reports:
         if "env_moved" in r:
-            out.append(f"{r['file']}: the environment moved {r['env_moved']['drift'] * 1e3:.1f} mm during it "
-                       f"(scatter {r['env_moved']['scatter'] * 1e3:.1f} mm)")
+            out.append(
+                f"{r['file']}: the environment moved {r['env_moved']['drift'] * 1e3:.1f} mm during "
+                "it "
+                f"(scatter {r['env_moved']['scatter'] * 1e3:.1f} mm)"
+            )
         if "env_stream_ends_s" in r:
-            out.append(f"{r['file']}: the environment stream ends at {r['env_stream_ends_s']:.2f} s of "
-                       f"{r['seconds']:.2f} s (held since)")
+            out.append(
+                f"{r['file']}: the environment stream ends at {r['env_stream_ends_s']:.2f} s of "
+                f"{r['seconds']:.2f} s (held since)"
+            )
         for j in r.get("jumps", []):
-            out.append(f"{r['file']}: {j['joint']} jumps by {j['step']:.3g} rad at {j['time_s']:.3f} s")
+            out.append(
+                f"{r['file']}: {j['joint']} jumps by {j['step']:.3g} rad at {j['time_s']:.3f} s"
+            )
         for g in r.get("gaps", []):
             out.append(f"{r['file']}: no sample for {g['seconds']:.3g} s at {g['time_s']:.3f} s")
     return out
@@ -219,20 +273,30 @@ def summary_lines(reports: Sequence[dict], excluded: Sequence[dict]) -> list[str
 def _sidecar_env(path: Path, fmt) -> np.ndarray:
     side = path.with_suffix(".json")
     if not side.is_file():
-        raise ValueError(f"{path}: no environment columns {list(fmt.env_names)} and no {side.name} beside it "
-                         f"(give one or the other)")
+        raise ValueError(
+            f"{path}: no environment columns {list(fmt.env_names)} and no {side.name} beside it "
+            f"(give one or the other)"
+        )
     try:
         env = json.loads(side.read_text())["env"]
         vals = [float(env[k]) for k in fmt.env_names]
     except (ValueError, KeyError, TypeError) as exc:
-        raise ValueError(f"{side}: expected {{\"env\": {{{', '.join(fmt.env_names)}}}}} ({exc!r})") from None
+        raise ValueError(
+            f'{side}: expected {{"env": {{{", ".join(fmt.env_names)}}}}} ({exc!r})'
+        ) from None
     if not all(math.isfinite(v) for v in vals):
         raise ValueError(f"{side}: NaN or infinite environment value")
     return np.asarray(vals, dtype=np.float64)
 
 
-def read_recordings(folder: str | Path, fmt, cleaning: Cleaning | None = None, *,
-                    labeller: Callable[[Tensor, Tensor], int] | None = None, dtype: torch.dtype = torch.float64):
+def read_recordings(
+    folder: str | Path,
+    fmt,
+    cleaning: Cleaning | None = None,
+    *,
+    labeller: Callable[[Tensor, Tensor], int] | None = None,
+    dtype: torch.dtype = torch.float64,
+):
     """Read, check and clean a recordings folder (:mod:`module docs <protorch.data.recordings>`):
     ``(DemoFolder, labels (n,) or None)``. Every file is checked before anything is computed; a
     recording that does not move or is too short (:mod:`protorch.data.quality`) is excluded and
@@ -262,10 +326,15 @@ def read_recordings(folder: str | Path, fmt, cleaning: Cleaning | None = None, *
                 continue
             except TooShort as exc:
                 why = exc.reason
-        excluded.append({"file": r.path.name, "reason": why, **flags(r.time, r.values, r.env_rows, fmt.columns)})
+        excluded.append(
+            {"file": r.path.name, "reason": why, **flags(r.time, r.values, r.env_rows, fmt.columns)}
+        )
     if not kept:
-        raise ValueError(f"{folder}: no recording remains to train on (excluded: "
-                         + "; ".join(f"{e['file']}: {e['reason']}" for e in excluded) + ")")
+        raise ValueError(
+            f"{folder}: no recording remains to train on (excluded: "
+            + "; ".join(f"{e['file']}: {e['reason']}" for e in excluded)
+            + ")"
+        )
     recs, files = kept, [r.path for r in kept]
     for r, c in zip(recs, cleaned):
         c[1].update(flags(r.time, r.values, r.env_rows, fmt.columns))
@@ -277,13 +346,20 @@ def read_recordings(folder: str | Path, fmt, cleaning: Cleaning | None = None, *
     demos = [c[0] for c in cleaned]
     labels = None
     if labeller is not None:
-        labels = torch.tensor([int(labeller(torch.as_tensor(d, dtype=dtype), torch.as_tensor(e, dtype=dtype)))
-                               for d, e in zip(demos, envs)], dtype=torch.long)  # (n,)
+        labels = torch.tensor(
+            [
+                int(labeller(torch.as_tensor(d, dtype=dtype), torch.as_tensor(e, dtype=dtype)))
+                for d, e in zip(demos, envs)
+            ],
+            dtype=torch.long,
+        )  # (n,)
     reports = [c[1] for c in cleaned]
     aligned = list(demos)
     if cleaning.align:
-        keys = [(int(g), None if labels is None else int(lab)) for g, lab in
-                zip(group, labels if labels is not None else [None] * len(group))]
+        keys = [
+            (int(g), None if labels is None else int(lab))
+            for g, lab in zip(group, labels if labels is not None else [None] * len(group))
+        ]
         for key in dict.fromkeys(keys):
             members = [i for i, k in enumerate(keys) if k == key]
             out, reps = align([demos[i] for i in members])
@@ -297,19 +373,44 @@ def read_recordings(folder: str | Path, fmt, cleaning: Cleaning | None = None, *
         if labels is not None:
             r["label"] = int(labels[i])
     groups = int(group.max()) + 1 if group.size else 0
-    spread = [float(np.linalg.norm(envs[group == g] - envs[group == g].mean(0), axis=1).max()) for g in range(groups)]
-    report = {"format": "recordings", "cleaning": {f.name: getattr(cleaning, f.name) for f in fields(cleaning)},
-              "grouping": {**grouping, "groups": groups, "largest_spread": max(spread) if spread else 0.0},
-              "recordings": reports, "excluded": excluded, "summary": summary_lines(reports, excluded),
-              "trimmed_s": {"mean": float(np.mean([r["trimmed_start_s"] + r["trimmed_end_s"] for r in reports])),
-                            "max": float(np.max([r["trimmed_start_s"] + r["trimmed_end_s"] for r in reports]))}}
+    spread = [
+        float(np.linalg.norm(envs[group == g] - envs[group == g].mean(0), axis=1).max())
+        for g in range(groups)
+    ]
+    report = {
+        "format": "recordings",
+        "cleaning": {f.name: getattr(cleaning, f.name) for f in fields(cleaning)},
+        "grouping": {
+            **grouping,
+            "groups": groups,
+            "largest_spread": max(spread) if spread else 0.0,
+        },
+        "recordings": reports,
+        "excluded": excluded,
+        "summary": summary_lines(reports, excluded),
+        "trimmed_s": {
+            "mean": float(np.mean([r["trimmed_start_s"] + r["trimmed_end_s"] for r in reports])),
+            "max": float(np.max([r["trimmed_start_s"] + r["trimmed_end_s"] for r in reports])),
+        },
+    }
     if cleaning.align:
         report["warp_max"] = float(max(r["warp_max"] for r in reports))
-    out = DemoFolder([torch.as_tensor(a, dtype=dtype) for a in aligned],  # (S, D) each
-                     torch.as_tensor(group_env, dtype=dtype).reshape(-1, len(fmt.env_names)),  # (n, E)
-                     [(p, p) for p in files], list(range(len(files))))
+    out = DemoFolder(
+        [torch.as_tensor(a, dtype=dtype) for a in aligned],  # (S, D) each
+        torch.as_tensor(group_env, dtype=dtype).reshape(-1, len(fmt.env_names)),  # (n, E)
+        [(p, p) for p in files],
+        list(range(len(files))),
+    )
     out.report = report
-    out.stages = [{"time": r.time, "raw": r.values, "trimmed": c[0], "aligned": a,
-                   "start": c[1]["trimmed_start_s"] + r.time[0], "end": r.time[-1] - c[1]["trimmed_end_s"]}
-                  for r, c, a in zip(recs, cleaned, aligned)]
+    out.stages = [
+        {
+            "time": r.time,
+            "raw": r.values,
+            "trimmed": c[0],
+            "aligned": a,
+            "start": c[1]["trimmed_start_s"] + r.time[0],
+            "end": r.time[-1] - c[1]["trimmed_end_s"],
+        }
+        for r, c, a in zip(recs, cleaned, aligned)
+    ]
     return out, labels

@@ -22,13 +22,21 @@ from ..data.files import atomic_write_bytes
 from ..gp import BACKENDS
 from ..optim import OPTIMIZERS, BaseOptimizer
 from ..tasks import TASKS, TaskContractError, task_class
-from . import arm_reach, beam_window, fig3_toy, fig4_window, point_particle, self_improve, teleop_window
+from ..threads import torch_threads
+from . import (
+    arm_reach,
+    beam_window,
+    fig3_toy,
+    fig4_window,
+    point_particle,
+    self_improve,
+    teleop_window,
+)
 from .arm_physics import check_physics, skip_reason
 from .arm_reach import check_robot
 from .common import metric_value, per_method_form, resolve_device, resolve_dtype, write_json
-from .settings import GP, OPTIMIZER_SCHEMAS, SETTINGS_SCHEMAS, TASK_SCHEMAS, SettingsError, validate
-from ..threads import torch_threads
 from .run_folder import STATUS_FILE, check_run_folder, write_config, write_status
+from .settings import GP, OPTIMIZER_SCHEMAS, SETTINGS_SCHEMAS, TASK_SCHEMAS, SettingsError, validate
 from .summary import baseline_settings, build_summary
 
 EXPERIMENTS: dict[str, Callable[..., dict]] = {
@@ -41,8 +49,14 @@ EXPERIMENTS: dict[str, Callable[..., dict]] = {
     "teleop_window": teleop_window.run,
 }
 # the task each fixed experiment runs (its conf/task group); self_improve takes any
-EXPERIMENT_TASKS = {"fig3_toy": "line_toy", "fig4_window": "window", "point_particle": "point_particle",
-                    "beam_window": "beam_window", "arm_reach": "arm_reach", "teleop_window": "teleop_window"}
+EXPERIMENT_TASKS = {
+    "fig3_toy": "line_toy",
+    "fig4_window": "window",
+    "point_particle": "point_particle",
+    "beam_window": "beam_window",
+    "arm_reach": "arm_reach",
+    "teleop_window": "teleop_window",
+}
 # experiments taking the optimizer group as it is ({"name": ..., keys}); the others take the
 # per-method form {shared keys, "<name>": {...}} (common.per_method_form)
 GROUP_OPTIMIZER = {"point_particle", "arm_reach", "self_improve", "teleop_window"}
@@ -53,8 +67,15 @@ _DOTTED = re.compile(r"[A-Za-z_][\w-]*(\.[\w-]+)*")
 # success return (checked on the demonstrations); the app prints its one line, with no traceback
 REFUSED = (SettingsError, TaskContractError)
 
-__all__ = ["EXPERIMENTS", "run_experiment", "check_config", "metric_value", "SettingsError", "TaskContractError",
-           "REFUSED"]
+__all__ = [
+    "EXPERIMENTS",
+    "run_experiment",
+    "check_config",
+    "metric_value",
+    "SettingsError",
+    "TaskContractError",
+    "REFUSED",
+]
 
 
 def _check_optimizer_group(group: dict, where: str) -> dict:
@@ -64,7 +85,11 @@ def _check_optimizer_group(group: dict, where: str) -> dict:
     if name in OPTIMIZER_SCHEMAS:
         return validate(OPTIMIZER_SCHEMAS[name], group, where)
     cls = OPTIMIZERS[name]  # a registered optimiser without a schema: its keyword arguments
-    known = {p for c in (cls, BaseOptimizer) for p in inspect.signature(c.__init__).parameters} - {"self", "mean", "var"}
+    known = {p for c in (cls, BaseOptimizer) for p in inspect.signature(c.__init__).parameters} - {
+        "self",
+        "mean",
+        "var",
+    }
     unknown = sorted(set(group) - known - {"name"})
     if unknown:
         raise SettingsError(f"{where}.{unknown[0]} is not a setting of optimizer {name!r}")
@@ -81,12 +106,16 @@ def _check_task(name: str, task: dict) -> dict:
             except ValueError as exc:
                 raise SettingsError(str(exc)) from None
             if cls is not expected:
-                raise SettingsError(f"task._target_={target!r}: experiment {name!r} runs "
-                                    f"{expected.__module__}.{expected.__name__}; run your own task with "
-                                    "experiment=self_improve")
+                raise SettingsError(
+                    f"task._target_={target!r}: experiment {name!r} runs "
+                    f"{expected.__module__}.{expected.__name__}; run your own task with "
+                    "experiment=self_improve"
+                )
         return validate(TASK_SCHEMAS[name], task, "task") if name in TASK_SCHEMAS else task
     if target in (None, "???"):
-        raise SettingsError("task._target_ must name the task class, e.g. task._target_=my_module.MyTask")
+        raise SettingsError(
+            "task._target_ must name the task class, e.g. task._target_=my_module.MyTask"
+        )
     return {"_target_": target, **task}
 
 
@@ -98,10 +127,16 @@ def check_config(cfg: dict) -> dict:
         raise SettingsError(f"experiment={name!r} must be one of {', '.join(sorted(EXPERIMENTS))}")
     objective = cfg.get("objective")
     if objective is not None and not (isinstance(objective, str) and _DOTTED.fullmatch(objective)):
-        raise SettingsError(f"objective={objective!r} must be a dotted metrics key such as 'test.success_rate' or null")
+        raise SettingsError(
+            f"objective={objective!r} must be a dotted metrics key such as 'test.success_rate' or "
+            "null"
+        )
     threads = cfg.get("threads", "auto")
-    if not (threads is None or threads == "auto" or (isinstance(threads, int) and not isinstance(threads, bool)
-                                                     and threads >= 0)):
+    if not (
+        threads is None
+        or threads == "auto"
+        or (isinstance(threads, int) and not isinstance(threads, bool) and threads >= 0)
+    ):
         raise SettingsError(f"threads={threads!r} must be auto, an int >= 1 or null")
     seed = cfg.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
@@ -110,12 +145,17 @@ def check_config(cfg: dict) -> dict:
         if not isinstance(cfg.get(key, key == "plot"), bool):
             raise SettingsError(f"{key}={cfg.get(key)!r} must be true or false")
     try:
-        device, dtype = resolve_device(cfg.get("device", "cpu")), resolve_dtype(cfg.get("dtype", "float64"))
+        device, dtype = (
+            resolve_device(cfg.get("device", "cpu")),
+            resolve_dtype(cfg.get("dtype", "float64")),
+        )
     except (ValueError, RuntimeError) as exc:
         raise SettingsError(f"device / dtype: {exc}") from None
     fn = EXPERIMENTS[name]
     accepted = inspect.signature(fn).parameters
-    opt = _check_optimizer_group({"name": "pro", **dict(cfg.get("optimizer") or {})}, "optimizer")  # PRO unless named
+    opt = _check_optimizer_group(
+        {"name": "pro", **dict(cfg.get("optimizer") or {})}, "optimizer"
+    )  # PRO unless named
     base = cfg.get("baseline_optimizer")
     base = None if base is None else _check_optimizer_group(dict(base), "baseline_optimizer")
     settings = dict(cfg.get("settings") or {})
@@ -125,37 +165,53 @@ def check_config(cfg: dict) -> dict:
         try:
             check_physics(settings.get("physics"), dict(settings.get("dynamic") or {}))
         except (ValueError, ImportError) as exc:
-            raise SettingsError(f"settings.{exc}" if str(exc).startswith("physics.") else str(exc)) from None
+            raise SettingsError(
+                f"settings.{exc}" if str(exc).startswith("physics.") else str(exc)
+            ) from None
     gp = dict(cfg.get("gp") or {})
     if gp:
         validate(GP, gp, "gp")
         if gp.get("backend", "torch") not in BACKENDS:
-            raise SettingsError(f"gp.backend={gp['backend']!r} must be one of {', '.join(sorted(BACKENDS))}")
+            raise SettingsError(
+                f"gp.backend={gp['backend']!r} must be one of {', '.join(sorted(BACKENDS))}"
+            )
     if name == "arm_reach" and "urdf" in dict(cfg.get("task") or {}):
-        raise SettingsError("task.urdf is now robot.urdf: robot=custom robot.urdf=PATH robot.end_link=LINK "
-                            "robot.home=[...] (docs/your_own_robot.md)")
+        raise SettingsError(
+            "task.urdf is now robot.urdf: robot=custom robot.urdf=PATH robot.end_link=LINK "
+            "robot.home=[...] (docs/your_own_robot.md)"
+        )
     task = _check_task(name, dict(cfg.get("task") or {}))
     # top-level groups (``task.demos=...``, ``gp.alpha=...``) overlay the experiment's own settings
     for key, top in (("task", task), ("gp", gp)):
         if top:
             if key not in accepted:
-                raise SettingsError(f"experiment {name!r} takes no {key}.* settings, got {', '.join(sorted(top))}")
+                raise SettingsError(
+                    f"experiment {name!r} takes no {key}.* settings, got {', '.join(sorted(top))}"
+                )
             settings[key] = {**dict(settings.get(key) or {}), **top}
     robot = cfg.get("robot")
-    if name == "arm_reach":  # the robot and the workspace, before any work (protorch.robots.load_robot)
+    if (
+        name == "arm_reach"
+    ):  # the robot and the workspace, before any work (protorch.robots.load_robot)
         try:
             phys = check_physics(settings.get("physics"), dict(settings.get("dynamic") or {}))
-            task_cfg = {k: v for k, v in dict(settings.get("task") or {}).items() if k != "_target_"}
+            task_cfg = {
+                k: v for k, v in dict(settings.get("task") or {}).items() if k != "_target_"
+            }
             check_robot(robot, task_cfg, skip_reason(phys) is None)
         except (ValueError, ImportError) as exc:
             raise SettingsError(" ".join(str(exc).split())) from None
         if robot is not None:
             settings["robot"] = dict(robot)
     elif robot is not None:
-        raise SettingsError(f"robot=...: experiment {name!r} takes no robot (experiment=arm_reach does)")
+        raise SettingsError(
+            f"robot=...: experiment {name!r} takes no robot (experiment=arm_reach does)"
+        )
     if cfg.get("resume", False):
         if "resume" not in accepted:
-            raise SettingsError(f"resume=true: experiment {name!r} cannot resume; run it again instead")
+            raise SettingsError(
+                f"resume=true: experiment {name!r} cannot resume; run it again instead"
+            )
         settings["resume"] = True
     if name in GROUP_OPTIMIZER:
         settings["optimizer"] = opt
@@ -163,7 +219,9 @@ def check_config(cfg: dict) -> dict:
             settings["baseline_optimizer"] = base
     else:
         settings["optimizer"] = per_method_form(opt, base)
-    return dict(seed=int(seed), device=device, dtype=dtype, plot=bool(cfg.get("plot", True)), **settings)
+    return dict(
+        seed=int(seed), device=device, dtype=dtype, plot=bool(cfg.get("plot", True)), **settings
+    )
 
 
 def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
@@ -189,12 +247,17 @@ def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
     out_dir = Path(out_dir)
     check_run_folder(out_dir, name)  # another experiment's results are refused before any work
     created = not out_dir.exists()
-    status_before = (out_dir / STATUS_FILE).read_bytes() if (out_dir / STATUS_FILE).is_file() else None
+    status_before = (
+        (out_dir / STATUS_FILE).read_bytes() if (out_dir / STATUS_FILE).is_file() else None
+    )
     out_dir.mkdir(parents=True, exist_ok=True)
     baseline = baseline_settings(cfg.get("optimizer"), cfg.get("baseline_optimizer"))
     # provenance, so a sweep's report can tell where and when each run ran (host, process)
-    run_info = {"host": socket.gethostname(), "pid": os.getpid(),
-                "started": datetime.now(timezone.utc).isoformat(timespec="milliseconds")}
+    run_info = {
+        "host": socket.gethostname(),
+        "pid": os.getpid(),
+        "started": datetime.now(timezone.utc).isoformat(timespec="milliseconds"),
+    }
     t0 = time.perf_counter()
     try:
         with torch_threads(cfg.get("threads")):
@@ -210,19 +273,30 @@ def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
         raise
     except BaseException as exc:  # the folder says the run failed, and why
         error = f"{type(exc).__name__}: {exc}"
-        summary = build_summary(name, {}, run_dir=out_dir, wall_seconds=time.perf_counter() - t0,
-                                status="failed", error=error)
-        write_status(out_dir, name, "failed", error=error, traceback=traceback.format_exc(), summary=summary)
+        summary = build_summary(
+            name,
+            {},
+            run_dir=out_dir,
+            wall_seconds=time.perf_counter() - t0,
+            status="failed",
+            error=error,
+        )
+        write_status(
+            out_dir, name, "failed", error=error, traceback=traceback.format_exc(), summary=summary
+        )
         raise
     run_info["finished"] = datetime.now(timezone.utc).isoformat(timespec="milliseconds")
-    write_config(out_dir, cfg)  # what protorch.load rebuilds the run's task from (the app wrote it already)
+    write_config(
+        out_dir, cfg
+    )  # what protorch.load rebuilds the run's task from (the app wrote it already)
     metrics = {"experiment": name, **metrics, "run": run_info}
     try:
         if objective is not None:
             metrics["objective"] = {"metric": objective, "value": metric_value(metrics, objective)}
     finally:  # the run's results are kept even when the objective key is wrong
-        metrics["summary"] = build_summary(name, metrics, run_dir=out_dir, wall_seconds=time.perf_counter() - t0,
-                                           baseline=baseline)
+        metrics["summary"] = build_summary(
+            name, metrics, run_dir=out_dir, wall_seconds=time.perf_counter() - t0, baseline=baseline
+        )
         write_json(out_dir / "metrics.json", metrics)
         write_status(out_dir, name, "ok", summary=metrics["summary"])
     return metrics

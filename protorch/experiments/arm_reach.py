@@ -51,25 +51,32 @@ from ..gp.model import label_aware_mean
 from ..loop import LoopResult, demonstration_dataset
 from ..primitives.promp import resample
 from ..robots import check_inertials, load_robot
+from ..sim.scene import build_scene
 from ..tasks.arm.demos import read_arm_demos
+from ..tasks.arm.priors import check_detours, grid_priors
 from ..tasks.arm.reach import LEFT, RIGHT, SIDES, ArmReachTask
 from ..tasks.arm.workspace import REGIONS, check_reach, check_region
-from ..sim.scene import build_scene
 from ..threads import torch_threads
 from ..viz.arm import experiment_figures
 from ..viz.recordings import recordings_figure
-from .common import demo_source
 from .arm_physics import check_physics, physics_section
-from ..tasks.arm.priors import check_detours, grid_priors
+from .common import demo_source
 from .self_improvement import (
     DYNAMIC_SEED,
     TEST_SEED,
     Outcome,
     SelfImprovementExperiment,
-    loop_summary,
 )
 
-__all__ = ["run", "prepare", "check_robot", "Setup", "ArmReachExperiment", "TEST_SEED", "DYNAMIC_SEED"]
+__all__ = [
+    "run",
+    "prepare",
+    "check_robot",
+    "Setup",
+    "ArmReachExperiment",
+    "TEST_SEED",
+    "DYNAMIC_SEED",
+]
 
 _BASELINES = ("labels_off", "labels_off_loop")
 
@@ -80,14 +87,52 @@ class ArmReachExperiment(SelfImprovementExperiment):
     target, the labels-off baselines, the figures, the per-phase timings. ``benchmarks/arm.py``
     times :meth:`run_loop`."""
 
-    task_keys = frozenset({"_target_", "demos", "demo_envs", "demos_per_env", "priors", "cost_steps", "margin",
-                           "goal_tol", "start_tol", "can_radius", "can_height", "clearance", "deviation",
-                           "collision", "can_objective", "prior_clear", "prior_detours", "plan_margin",
-                           "prior_grid", "region", "reach", "can_box", "goal_box", "table",
-                           "recordings"})
+    task_keys = frozenset(
+        {
+            "_target_",
+            "demos",
+            "demo_envs",
+            "demos_per_env",
+            "priors",
+            "cost_steps",
+            "margin",
+            "goal_tol",
+            "start_tol",
+            "can_radius",
+            "can_height",
+            "clearance",
+            "deviation",
+            "collision",
+            "can_objective",
+            "prior_clear",
+            "prior_detours",
+            "plan_margin",
+            "prior_grid",
+            "region",
+            "reach",
+            "can_box",
+            "goal_box",
+            "table",
+            "recordings",
+        }
+    )
     loop_keys = frozenset({"labels", "each_label"})
-    dynamic_keys = frozenset({"seed", "episodes", "duration", "hold", "dt", "kp", "moves", "move_window",
-                              "place_clearance", "switch_margin", "check", "switch_clearance"})
+    dynamic_keys = frozenset(
+        {
+            "seed",
+            "episodes",
+            "duration",
+            "hold",
+            "dt",
+            "kp",
+            "moves",
+            "move_window",
+            "place_clearance",
+            "switch_margin",
+            "check",
+            "switch_clearance",
+        }
+    )
     gp_defaults = {"alpha": 30.0, "var_floor": 1e-3, "nearest_k": 30}
     num_envs = 2024
     baseline_names = _BASELINES
@@ -105,15 +150,21 @@ class ArmReachExperiment(SelfImprovementExperiment):
         return super().run(out_dir, **kw)
 
     def extra_tests(self, model) -> dict:
-        """The physics section (:mod:`protorch.experiments.arm_physics`): the trained map's motions in MuJoCo."""
+        """The physics section (:mod:`protorch.experiments.arm_physics`): the trained map's motions
+        in MuJoCo."""
         out = {"physics": physics_section(self, model, self.out_dir, self.plot)}
         for key in ("seconds", "render_seconds"):
             if key in out["physics"]:
-                self.seconds["physics" if key == "seconds" else "physics_render"] = out["physics"][key]
+                self.seconds["physics" if key == "seconds" else "physics_render"] = out["physics"][
+                    key
+                ]
         return out
 
     def configure(self, task_cfg: dict, loop_cfg: dict) -> None:
-        self.labels, self.each_label = loop_cfg.get("labels", True), loop_cfg.get("each_label", True)
+        self.labels, self.each_label = (
+            loop_cfg.get("labels", True),
+            loop_cfg.get("each_label", True),
+        )
         for name, v in (("labels", self.labels), ("each_label", self.each_label)):
             if not isinstance(v, bool):
                 raise ValueError(f"loop.{name} must be true or false, got {v!r}")
@@ -125,7 +176,9 @@ class ArmReachExperiment(SelfImprovementExperiment):
         self.prior_over = check_region(task_cfg.pop("prior_grid", "rectangles"), "task.prior_grid")
         self.prior_clear = task_cfg.pop("prior_clear", "auto")
         if self.prior_clear not in (True, False, "auto"):
-            raise ValueError(f"task.prior_clear must be true, false or auto, got {self.prior_clear!r}")
+            raise ValueError(
+                f"task.prior_clear must be true, false or auto, got {self.prior_clear!r}"
+            )
         detours = task_cfg.pop("prior_detours", "auto")
         plan_margin = task_cfg.pop("plan_margin", None)
         check_region(task_cfg.get("region", "rectangles"), "task.region")
@@ -135,9 +188,17 @@ class ArmReachExperiment(SelfImprovementExperiment):
         if self.prior_clear == "auto":
             self.prior_clear = self.task.collision == "volume"
         self.prior_detours = check_detours(detours, self.task.collision)
-        if plan_margin is not None:  # the loop accepts a solution only this far from the can; the tests keep `margin`
-            if isinstance(plan_margin, bool) or not isinstance(plan_margin, (int, float)) or not plan_margin >= 0:
-                raise ValueError(f"task.plan_margin must be null or a distance >= 0 (m), got {plan_margin!r}")
+        if (
+            plan_margin is not None
+        ):  # the loop accepts a solution only this far from the can; the tests keep `margin`
+            if (
+                isinstance(plan_margin, bool)
+                or not isinstance(plan_margin, (int, float))
+                or not plan_margin >= 0
+            ):
+                raise ValueError(
+                    f"task.plan_margin must be null or a distance >= 0 (m), got {plan_margin!r}"
+                )
             self.loop_task = copy.copy(self.task)
             self.loop_task.margin = float(plan_margin)
 
@@ -147,25 +208,48 @@ class ArmReachExperiment(SelfImprovementExperiment):
         if self.source != "synthetic":
             folder, self.demo_labels = read_arm_demos(self.task, self.source, self.cleaning)
             accept_demo_folder(folder, self.demo_labels, label_names=SIDES)
-            self.demos, self.demo_envs, self.demo_marked = folder.demos, folder.envs, len(read_marks(self.source))
+            self.demos, self.demo_envs, self.demo_marked = (
+                folder.demos,
+                folder.envs,
+                len(read_marks(self.source)),
+            )
             self.recordings = folder
             return
         self.demo_marked, self.recordings = 0, None
         gen = self.demo_generator()
         envs = self.task.sample_envs(self.demo_envs_n, gen, region="rectangles")
-        self.demos, self.demo_envs, self.demo_labels = self.task.demonstrations(envs, self.per_env, gen)
+        self.demos, self.demo_envs, self.demo_labels = self.task.demonstrations(
+            envs, self.per_env, gen
+        )
 
     def make_priors(self) -> None:
         self.prior_envs, self.prior_mean, self.prior_labels, self.prior_report = grid_priors(
-            self.task, self.promp, self.n_priors, self.prior_over, clear=self.prior_clear, detours=self.prior_detours)
+            self.task,
+            self.promp,
+            self.n_priors,
+            self.prior_over,
+            clear=self.prior_clear,
+            detours=self.prior_detours,
+        )
 
     def build(self) -> "ArmReachExperiment":
         """The skeleton's build, plus the held-out environments of the other region when either
         the priors' grid or the task's region is the table (drawn with the same test seed)."""
         super().build()
-        others = [r for r in REGIONS if r != self.task.region] if "table" in (self.prior_over, self.task.region) else []
-        self.region_tests = {r: self.task.sample_envs(self.test_n, torch.Generator().manual_seed(self.test_seed),
-                                                      dtype=self.dtype, region=r).to(self.device) for r in others}
+        others = (
+            [r for r in REGIONS if r != self.task.region]
+            if "table" in (self.prior_over, self.task.region)
+            else []
+        )
+        self.region_tests = {
+            r: self.task.sample_envs(
+                self.test_n,
+                torch.Generator().manual_seed(self.test_seed),
+                dtype=self.dtype,
+                region=r,
+            ).to(self.device)
+            for r in others
+        }
         return self
 
     def loop_options(self) -> dict:
@@ -175,45 +259,92 @@ class ArmReachExperiment(SelfImprovementExperiment):
         """A fresh data set: the demonstrations (one entry per environment and side) and the
         priors (average demonstrated variance); every label 0 with ``labels=False``."""
         labels = self.labels if labels is None else labels
-        ds = demonstration_dataset(self.promp, self.demos, self.demo_envs, task_name=self.task.name,
-                                   var_floor=self.var_floor, dtype=self.promp.basis.dtype,
-                                   labels=self.demo_labels if labels else None, lone="pool")
+        ds = demonstration_dataset(
+            self.promp,
+            self.demos,
+            self.demo_envs,
+            task_name=self.task.name,
+            var_floor=self.var_floor,
+            dtype=self.promp.basis.dtype,
+            labels=self.demo_labels if labels else None,
+            lone="pool",
+        )
         if self.prior_envs.shape[0]:
-            vbar = ds.var.mean(0).expand_as(self.prior_mean)  # (P, N) the average demonstrated variance
-            ds.append(self.prior_envs, self.prior_mean, vbar, label=self.prior_labels if labels else 0,
-                      origin="prior", converged=True)
+            vbar = ds.var.mean(0).expand_as(
+                self.prior_mean
+            )  # (P, N) the average demonstrated variance
+            ds.append(
+                self.prior_envs,
+                self.prior_mean,
+                vbar,
+                label=self.prior_labels if labels else 0,
+                origin="prior",
+                converged=True,
+            )
         return ds
 
     def loop_arguments(self, variant: str | None) -> dict:
         """PRO with the labeller, or ``variant="labels_off_loop"``: the same loop without labels."""
         labels = self.labels and variant != "labels_off_loop"
         cls, kwargs = self.optimizer
-        return {"optimizer": cls, "optimizer_kwargs": kwargs, "dataset": self.initial_data(labels),
-                "labeler": self.task.side if labels else None, "each_label": labels and self.each_label}
+        return {
+            "optimizer": cls,
+            "optimizer_kwargs": kwargs,
+            "dataset": self.initial_data(labels),
+            "labeler": self.task.side if labels else None,
+            "each_label": labels and self.each_label,
+        }
 
     def describe(self) -> dict:
         lk, opt, data0 = self.loop_kwargs, self.optimizer_cfg, self.initial_data()
         return {
             "robot": self.robot.summary(),
-            "demos": {"source": str(self.source), "marked": self.demo_marked, "count": len(self.demos),
-                      "envs": int(self.demo_envs.unique(dim=0).shape[0]),
-                      "entries": int((data0.origin == 0).sum()), "left": int((self.demo_labels == LEFT).sum()),
-                      "right": int((self.demo_labels == RIGHT).sum()), "success_rate": self.demo_success(),
-                      **({"recordings": self.recordings.report} if self.recordings and self.recordings.report else {})},
-            "priors": {"count": int(self.prior_envs.shape[0]), "left": int((self.prior_labels == LEFT).sum()),
-                       "right": int((self.prior_labels == RIGHT).sum()), "grid": self.prior_report},
-            "settings": {"num_envs": lk["num_envs"], "batch_size": lk["batch_size"], "add_only": lk["add_only"],
-                         "choice": lk["choice"], "alpha": self.alpha, "nearest_k": self.nearest_k,
-                         "beta": None if opt.get("beta") is None else float(opt["beta"]), "var_floor": self.var_floor,
-                         "labels": self.labels, "each_label": self.each_label, "max_iter": opt.get("max_iter"),
-                         "num_samples": opt.get("num_samples"), "threads": torch.get_num_threads(),
-                         "optimizer": opt.get("name", "pro"), "prior_grid": self.prior_over,
-                         "region": self.task.region},
+            "demos": {
+                "source": str(self.source),
+                "marked": self.demo_marked,
+                "count": len(self.demos),
+                "envs": int(self.demo_envs.unique(dim=0).shape[0]),
+                "entries": int((data0.origin == 0).sum()),
+                "left": int((self.demo_labels == LEFT).sum()),
+                "right": int((self.demo_labels == RIGHT).sum()),
+                "success_rate": self.demo_success(),
+                **(
+                    {"recordings": self.recordings.report}
+                    if self.recordings and self.recordings.report
+                    else {}
+                ),
+            },
+            "priors": {
+                "count": int(self.prior_envs.shape[0]),
+                "left": int((self.prior_labels == LEFT).sum()),
+                "right": int((self.prior_labels == RIGHT).sum()),
+                "grid": self.prior_report,
+            },
+            "settings": {
+                "num_envs": lk["num_envs"],
+                "batch_size": lk["batch_size"],
+                "add_only": lk["add_only"],
+                "choice": lk["choice"],
+                "alpha": self.alpha,
+                "nearest_k": self.nearest_k,
+                "beta": None if opt.get("beta") is None else float(opt["beta"]),
+                "var_floor": self.var_floor,
+                "labels": self.labels,
+                "each_label": self.each_label,
+                "max_iter": opt.get("max_iter"),
+                "num_samples": opt.get("num_samples"),
+                "threads": torch.get_num_threads(),
+                "optimizer": opt.get("name", "pro"),
+                "prior_grid": self.prior_over,
+                "region": self.task.region,
+            },
         }
 
     def demo_success(self) -> float:
         """Success of the demonstrations themselves (resampled to the ProMP's steps)."""
-        traj = torch.stack([resample(d, self.promp.num_steps) for d in self.demos]).to(self.promp.basis)
+        traj = torch.stack([resample(d, self.promp.num_steps) for d in self.demos]).to(
+            self.promp.basis
+        )
         return float(self.task.success(traj, self.demo_envs.to(traj)).double().mean())
 
     def test_metrics(self, model) -> dict:
@@ -227,11 +358,17 @@ class ArmReachExperiment(SelfImprovementExperiment):
         return out
 
     def moving_test(self, model) -> tuple[dict, object]:
-        """The can or the target moved while the arm moves (:func:`protorch.control.arm.run_arm_episodes`)."""
+        """The can or the target moved while the arm moves
+        (:func:`protorch.control.arm.run_arm_episodes`)."""
         if self.dyn_env0.shape[0] == 0:
             return {"success_rate": float("nan"), "episodes": 0, "switches": 0}, None
-        res = run_arm_episodes(model, self.task, self.dyn_env0,
-                               generator=torch.Generator().manual_seed(self.dyn_seed), **self.dyn_cfg)
+        res = run_arm_episodes(
+            model,
+            self.task,
+            self.dyn_env0,
+            generator=torch.Generator().manual_seed(self.dyn_seed),
+            **self.dyn_cfg,
+        )
         self.last_moving = res  # the physics section replays the trained map's episodes
         geometric = geometric_switch_summary(res, self.task) if res.weights is not None else {}
         return {**res.summary(), **geometric, "seed": self.dyn_seed}, res
@@ -239,8 +376,12 @@ class ArmReachExperiment(SelfImprovementExperiment):
     def loop_metrics(self, res: LoopResult) -> dict:
         learned = res.dataset.origin == 2
         lab = res.dataset.label[learned]
-        return {**super().loop_metrics(res), "added": int(learned.sum()), "added_left": int((lab == LEFT).sum()),
-                "added_right": int((lab == RIGHT).sum())}
+        return {
+            **super().loop_metrics(res),
+            "added": int(learned.sum()),
+            "added_left": int((lab == LEFT).sum()),
+            "added_right": int((lab == RIGHT).sum()),
+        }
 
     def baseline(self, name: str, out_dir: Path, model) -> tuple[dict, object]:
         """``labels_off``: the trained map's data with every label 0 (left and right averaged)."""
@@ -254,9 +395,20 @@ class ArmReachExperiment(SelfImprovementExperiment):
 
     def figures(self, out_dir: Path, outcome: Outcome, metrics: dict) -> None:
         if self.recordings is not None and self.recordings.stages:
-            recordings_figure(out_dir / "recordings.png", self.recordings, self.task.kinematics.joint_names)
-        experiment_figures(out_dir, self.task, outcome.model, outcome.baselines.get("labels_off"), self.test_envs,
-                           outcome.result, outcome.baselines.get("labels_off_loop"), outcome.episodes, metrics)
+            recordings_figure(
+                out_dir / "recordings.png", self.recordings, self.task.kinematics.joint_names
+            )
+        experiment_figures(
+            out_dir,
+            self.task,
+            outcome.model,
+            outcome.baselines.get("labels_off"),
+            self.test_envs,
+            outcome.result,
+            outcome.baselines.get("labels_off_loop"),
+            outcome.episodes,
+            metrics,
+        )
 
     def seconds_metrics(self) -> dict:
         return dict(self.seconds)
@@ -282,9 +434,20 @@ def prepare(
 ) -> ArmReachExperiment:
     """Validate every setting (clear errors, before any work), make the demonstrations and the
     priors and draw the test environments; see :func:`run` for the settings."""
-    return ArmReachExperiment(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp,
-                              promp=promp, loop=loop, test=test, dynamic=dynamic, physics=physics,
-                              robot=robot).build()
+    return ArmReachExperiment(
+        seed=seed,
+        device=device,
+        dtype=dtype,
+        optimizer=optimizer,
+        task=task,
+        gp=gp,
+        promp=promp,
+        loop=loop,
+        test=test,
+        dynamic=dynamic,
+        physics=physics,
+        robot=robot,
+    ).build()
 
 
 def run(
@@ -310,12 +473,15 @@ def run(
 ) -> dict:
     """Run the experiment into ``out_dir``; return the metrics (module docstring).
 
-    ``task``: ``demos`` (``synthetic``, or a folder of ``trajK.out`` joint-angle rows and ``envK.out``
+    ``task``: ``demos`` (``synthetic``, or a folder of ``trajK.out`` joint-angle rows and
+    ``envK.out``
     ``can_x can_y goal_x goal_y`` files, e.g. written by ``python -m protorch.view --teach
     arm_reach``), ``demo_envs``, ``demos_per_env`` (synthetic only), ``priors`` (number of grid
     priors), ``prior_clear`` (keep only the priors that succeed under ``collision``; ``auto``: with
-    ``volume``), ``prior_detours`` (distances of the detour priors, :mod:`~protorch.tasks.arm.priors`;
-    ``auto``: 0.18 and 0.24 m with ``volume``, none with the skeleton), ``prior_grid`` (``rectangles`` or ``table``: the region the priors' grid spans) and the
+    ``volume``), ``prior_detours`` (distances of the detour priors,
+    :mod:`~protorch.tasks.arm.priors`;
+    ``auto``: 0.18 and 0.24 m with ``volume``, none with the skeleton), ``prior_grid``
+    (``rectangles`` or ``table``: the region the priors' grid spans) and the
     :class:`~protorch.tasks.ArmReachTask` options (``cost_steps``, ``margin``, ``goal_tol``,
     ``region``, ``reach``, ...).
     ``gp``: ``backend``, ``alpha``, ``var_floor``, ``nearest_k``. ``loop``: ``num_envs``,
@@ -332,11 +498,25 @@ def run(
     top-level ``threads``, :mod:`protorch.threads`). Every setting is validated before any work
     starts.
     """
-    if threads is not None and (isinstance(threads, bool) or int(threads) != threads or int(threads) < 1):
+    if threads is not None and (
+        isinstance(threads, bool) or int(threads) != threads or int(threads) < 1
+    ):
         raise ValueError(f"threads must be None or an int >= 1, got {threads!r}")
     with torch_threads(threads):
-        exp = ArmReachExperiment(seed=seed, device=device, dtype=dtype, optimizer=optimizer, task=task, gp=gp,
-                                 promp=promp, loop=loop, test=test, dynamic=dynamic, physics=physics, robot=robot)
+        exp = ArmReachExperiment(
+            seed=seed,
+            device=device,
+            dtype=dtype,
+            optimizer=optimizer,
+            task=task,
+            gp=gp,
+            promp=promp,
+            loop=loop,
+            test=test,
+            dynamic=dynamic,
+            physics=physics,
+            robot=robot,
+        )
         return exp.run(out_dir, baselines=baselines, resume=resume, progress=progress, plot=plot)
 
 
@@ -349,20 +529,35 @@ def check_robot(robot, task_cfg: dict, physics_runs: bool):
     robot = load_robot(robot)
     if physics_runs:
         check_inertials(robot)
-    keys = ArmReachExperiment.task_keys - {"_target_", "demos", "recordings", "demo_envs", "demos_per_env", "priors",
-                                            "prior_clear", "prior_detours", "prior_grid", "plan_margin"}
+    keys = ArmReachExperiment.task_keys - {
+        "_target_",
+        "demos",
+        "recordings",
+        "demo_envs",
+        "demos_per_env",
+        "priors",
+        "prior_clear",
+        "prior_detours",
+        "prior_grid",
+        "plan_margin",
+    }
     task = ArmReachTask(robot=robot, **{k: v for k, v in task_cfg.items() if k in keys})
     check_reach(task, check_region(task_cfg.get("prior_grid", "rectangles"), "task.prior_grid"))
     if physics_runs:
         if not robot.capsule_list():
-            raise ValueError(f"robot.capsules: the {robot.name} arm has no collision volumes, which the MuJoCo test "
-                             "collides with the can and the table; give robot.capsules (or auto) or set "
-                             "settings.physics.run=never")
+            raise ValueError(
+                f"robot.capsules: the {robot.name} arm has no collision volumes, which the MuJoCo "
+                "test "
+                "collides with the can and the table; give robot.capsules (or auto) or set "
+                "settings.physics.run=never"
+            )
 
         try:
             build_scene(task)
         except Exception as exc:  # MuJoCo's own compiler errors
-            raise ValueError(f"robot: MuJoCo cannot build the scene of robot.urdf={robot.urdf}: {exc}") from None
+            raise ValueError(
+                f"robot: MuJoCo cannot build the scene of robot.urdf={robot.urdf}: {exc}"
+            ) from None
     return task
 
 
@@ -370,7 +565,9 @@ def check_robot(robot, task_cfg: dict, physics_runs: bool):
 def _test(task: ArmReachTask, model, envs: torch.Tensor, seed: int) -> dict:
     """Success of the label-aware mean trajectories on the held-out environments."""
     with torch.no_grad():
-        best = label_aware_mean(model.env_map, model.promp, task, envs, dtype=model.promp.basis.dtype, check=True)
+        best = label_aware_mean(
+            model.env_map, model.promp, task, envs, dtype=model.promp.basis.dtype, check=True
+        )
         traj = model.promp.trajectory(best.mean)  # (Q, T, 7)
         ok = task.success(traj, envs)  # (Q,)
         c = task.costs(traj, envs)  # (Q, 3)
@@ -378,10 +575,17 @@ def _test(task: ArmReachTask, model, envs: torch.Tensor, seed: int) -> dict:
         ee = task.ee_path(traj[:, -1])
         goal_err = (ee - task.goal_point(envs)).norm(dim=-1)
         side = task.side(traj, envs)  # (Q,) the side the chosen mean actually passes on
-    return {"success_rate": float(ok.double().mean()), "num_envs": int(envs.shape[0]), "seed": int(seed),
-            "collision_rate": float((~clear).double().mean()),
-            "limit_violation_rate": float((~task.kinematics.within_limits(traj).all(-1)).double().mean()),
-            "goal_error_median": float(goal_err.median()), "goal_reached_rate": float((goal_err <= task.goal_tol)
-                                                                                     .double().mean()),
-            "left": int((side == LEFT).sum()), "right": int((side == RIGHT).sum()),
-            "cost_median": float(c.sum(-1).median())}
+    return {
+        "success_rate": float(ok.double().mean()),
+        "num_envs": int(envs.shape[0]),
+        "seed": int(seed),
+        "collision_rate": float((~clear).double().mean()),
+        "limit_violation_rate": float(
+            (~task.kinematics.within_limits(traj).all(-1)).double().mean()
+        ),
+        "goal_error_median": float(goal_err.median()),
+        "goal_reached_rate": float((goal_err <= task.goal_tol).double().mean()),
+        "left": int((side == LEFT).sum()),
+        "right": int((side == RIGHT).sum()),
+        "cost_median": float(c.sum(-1).median()),
+    }

@@ -35,12 +35,22 @@ from ..optim import CEM, CMAES, EPRO, RWR
 from ..primitives.pose import PoseProMP
 from ..tasks.beam_window import BeamWindowTask
 
-__all__ = ["PEERS", "compare_settings", "pro_stage_rollouts", "free_phase_mask", "free_force", "optimize_with", "compare_guidance"]
+__all__ = [
+    "PEERS",
+    "compare_settings",
+    "pro_stage_rollouts",
+    "free_phase_mask",
+    "free_force",
+    "optimize_with",
+    "compare_guidance",
+]
 
 PEERS = ("EPRO", "RWR", "CEM", "CMA-ES")  # optimised here; "PRO" is the experiment's distribution
 
 
-def free_phase_mask(phase_index: Tensor, num_steps: int, via_phases: Tensor, margin: float) -> Tensor:
+def free_phase_mask(
+    phase_index: Tensor, num_steps: int, via_phases: Tensor, margin: float
+) -> Tensor:
     """``(B, T)`` bool: steps whose phase (grid index ``phase_index (B, T)`` of ``num_steps``) is
     more than ``margin`` from each of ``via_phases (K,)``."""
     if not 0 <= margin < 0.5:
@@ -74,8 +84,10 @@ def pro_stage_rollouts(optimizer: dict, num_objectives: int = 4) -> int:
     """Rollouts PRO may spend on one beam stage with the experiment's ``optimizer`` settings:
     ``max_iter * (relevance_samples + O * num_samples)`` (PRO's defaults where a key is unset)."""
     pro = dict(optimizer.get("pro") or {})
-    return int(optimizer.get("max_iter", 200)) * (int(pro.get("relevance_samples", 200))
-                                                 + num_objectives * int(optimizer.get("num_samples", 100)))
+    return int(optimizer.get("max_iter", 200)) * (
+        int(pro.get("relevance_samples", 200))
+        + num_objectives * int(optimizer.get("num_samples", 100))
+    )
 
 
 def _make(name: str, mean: Tensor, var: Tensor, beta: float, seed: int, num_samples: int):
@@ -87,21 +99,34 @@ def _make(name: str, mean: Tensor, var: Tensor, beta: float, seed: int, num_samp
     if name == "CEM":
         return CEM(mean, var, elite_frac=0.1, num_samples=num_samples, **common)
     if name == "CMA-ES":
-        return CMAES(mean, var, num_samples=4 + int(3 * math.log(mean.shape[-1])), **common)  # pycma's default popsize
+        return CMAES(
+            mean, var, num_samples=4 + int(3 * math.log(mean.shape[-1])), **common
+        )  # pycma's default popsize
     raise ValueError(f"unknown optimiser {name!r}; choose from {list(PEERS)}")
 
 
 def _minimize(opt, costs, budget: int) -> tuple[Tensor, Tensor]:
     used = 0
-    while not opt.stop() and used + opt.num_samples <= budget:  # one ask of num_samples per iteration
+    while (
+        not opt.stop() and used + opt.num_samples <= budget
+    ):  # one ask of num_samples per iteration
         w = opt.ask()  # (S, N)
         opt.tell(costs(w))
         used += w.shape[0]
     return opt.mean[0].clone(), opt.var[0].clone()
 
 
-def optimize_with(name: str, task: BeamWindowTask, demo_model: PoseProMP, *, beta: float, budget: int, seed: int,
-                  num_samples: int = 200, eval_dtype: torch.dtype = torch.float32) -> PoseProMP:
+def optimize_with(
+    name: str,
+    task: BeamWindowTask,
+    demo_model: PoseProMP,
+    *,
+    beta: float,
+    budget: int,
+    seed: int,
+    num_samples: int = 200,
+    eval_dtype: torch.dtype = torch.float32,
+) -> PoseProMP:
     """Both beam stages with optimiser ``name`` from ``demo_model`` (not changed): a new ProMP."""
     model = demo_model.copy()
     ev = model.copy().to(eval_dtype)
@@ -110,34 +135,57 @@ def optimize_with(name: str, task: BeamWindowTask, demo_model: PoseProMP, *, bet
     model.set_distribution(position=_minimize(opt, pos, budget))
     z = task.window_phases(model.position.mean_trajectory()).to(eval_dtype)  # (4,)
     ev = model.copy().to(eval_dtype)
-    rot = lambda w: task.orientation_costs(ev.orientation.trajectory(w.to(eval_dtype)), z).to(w.dtype)  # noqa: E731
+    rot = lambda w: task.orientation_costs(ev.orientation.trajectory(w.to(eval_dtype)), z).to(
+        w.dtype
+    )  # noqa: E731
     opt = _make(name, model.orientation.mean, model.orientation.var, beta, seed + 1, num_samples)
     model.set_distribution(orientation=_minimize(opt, rot, budget))
     return model
 
 
-def compare_guidance(task: BeamWindowTask, demo_model: PoseProMP, pro_model: PoseProMP, intended: Tensor,
-                     lengths: Tensor, *, guidance: dict, hand: dict, beta: float, budget: int, seed: int,
-                     margin: float = 0.1, names=PEERS, eval_dtype: torch.dtype = torch.float32) -> dict:
-    """``{name: {"assisted_success_rate", "free_force", "free_stiffness", "max_std_position"}}`` for PRO
-    (``pro_model``, the experiment's) and each of ``names`` optimised here (see the module docstring);
+def compare_guidance(
+    task: BeamWindowTask,
+    demo_model: PoseProMP,
+    pro_model: PoseProMP,
+    intended: Tensor,
+    lengths: Tensor,
+    *,
+    guidance: dict,
+    hand: dict,
+    beta: float,
+    budget: int,
+    seed: int,
+    margin: float = 0.1,
+    names=PEERS,
+    eval_dtype: torch.dtype = torch.float32,
+) -> dict:
+    """``{name: {"assisted_success_rate", "free_force", "free_stiffness", "max_std_position"}}``
+    for PRO
+    (``pro_model``, the experiment's) and each of ``names`` optimised here (see the module
+    docstring);
     ``free_stiffness`` is the mean position stiffness (N/m) over the same free steps."""
     compare_settings({"budget": budget, "margin": margin})
     models = {"PRO": pro_model}
     for name in names:
-        models[name] = optimize_with(name, task, demo_model, beta=beta, budget=budget, seed=seed,
-                                     eval_dtype=eval_dtype)
+        models[name] = optimize_with(
+            name, task, demo_model, beta=beta, budget=budget, seed=seed, eval_dtype=eval_dtype
+        )
     out = {}
     for name, model in models.items():
         guide = HapticGuidance(model, **guidance)
         trials = guide.assist(intended, lengths=lengths, **hand)
         vias = task.window_phases(model.position.mean_trajectory()).to(trials.force.dtype)  # (4,)
         mask = free_phase_mask(trials.phase_index, guide.num_steps, vias, margin)  # (B, T)
-        in_trial = torch.arange(intended.shape[1], device=intended.device) < lengths.to(intended.device)[:, None]
+        in_trial = (
+            torch.arange(intended.shape[1], device=intended.device)
+            < lengths.to(intended.device)[:, None]
+        )
         out[name] = {
             "assisted_success_rate": float(task.success(trials.poses).double().mean()),
             "free_force": free_force(trials.force, mask & in_trial),
-            "free_stiffness": float(trials.stiffness[..., :3][mask & in_trial].mean()),  # N/m, position
+            "free_stiffness": float(
+                trials.stiffness[..., :3][mask & in_trial].mean()
+            ),  # N/m, position
             "max_std_position": float(model.std_trajectory()[:, :3].max()),
         }
     return out

@@ -11,7 +11,8 @@
    points.
 4. **Evaluation**: the optimised mean and 1000 samples (position and orientation weights drawn
    independently) checked for collisions along the densely resampled trajectory.
-5. **Haptic guidance** (:class:`~protorch.control.guidance.HapticGuidance`): ``F = K(z) (mu(z) - x)``,
+5. **Haptic guidance** (:class:`~protorch.control.guidance.HapticGuidance`): ``F = K(z) (mu(z) -
+x)``,
    ``K`` inversely proportional to the optimised ProMP's std (clipped); 100 simulated operator
    trials without and the same 100 with guidance (paired: the same intentions).
 6. **Figures** (``fig5_beam_window.png``, ``teleop.png``).
@@ -73,20 +74,30 @@ def optimize_pose_promp(
     ev = promp.copy().to(eval_dtype)
     opt = PRO(promp.position.mean, promp.position.var, seed=seed, **kwargs)
     t0 = time.perf_counter()
-    res = opt.minimize(lambda w: task.position_costs(ev.position.trajectory(w.to(eval_dtype))).to(w.dtype),
-                       progress=progress)
+    res = opt.minimize(
+        lambda w: task.position_costs(ev.position.trajectory(w.to(eval_dtype))).to(w.dtype),
+        progress=progress,
+    )
     out["position"] = {"result": res, "seconds": time.perf_counter() - t0}
-    promp.set_distribution(position=(res.mean.to(promp.position.mean), res.var.to(promp.position.mean)))
+    promp.set_distribution(
+        position=(res.mean.to(promp.position.mean), res.var.to(promp.position.mean))
+    )
     # ---- stage 2: orientation, its window via points where the optimised position passes them
     phases = task.window_phases(promp.position.mean_trajectory())  # (4,)
     ev = promp.copy().to(eval_dtype)
     z = phases.to(eval_dtype)
     opt = PRO(promp.orientation.mean, promp.orientation.var, seed=seed + 1, **kwargs)
     t0 = time.perf_counter()
-    res = opt.minimize(lambda w: task.orientation_costs(ev.orientation.trajectory(w.to(eval_dtype)), z).to(w.dtype),
-                       progress=progress)
+    res = opt.minimize(
+        lambda w: task.orientation_costs(ev.orientation.trajectory(w.to(eval_dtype)), z).to(
+            w.dtype
+        ),
+        progress=progress,
+    )
     out["orientation"] = {"result": res, "seconds": time.perf_counter() - t0}
-    promp.set_distribution(orientation=(res.mean.to(promp.orientation.mean), res.var.to(promp.orientation.mean)))
+    promp.set_distribution(
+        orientation=(res.mean.to(promp.orientation.mean), res.var.to(promp.orientation.mean))
+    )
     out["phases"] = phases
     return out
 
@@ -126,10 +137,24 @@ def run(
     if num_threads is not None:
         num_threads = check_int(num_threads, "num_threads", 1)
     with torch_threads(num_threads):
-        return _run(out_dir, seed=seed, device=device, dtype=dtype, optimizer=optimizer, plot=plot, task=task,
-                    operator=operator, num_demos=num_demos, promp=promp, eval_dtype=eval_dtype,
-                    eval_samples=eval_samples, guidance=guidance, teleop=teleop, progress=progress,
-                    guidance_compare=guidance_compare)
+        return _run(
+            out_dir,
+            seed=seed,
+            device=device,
+            dtype=dtype,
+            optimizer=optimizer,
+            plot=plot,
+            task=task,
+            operator=operator,
+            num_demos=num_demos,
+            promp=promp,
+            eval_dtype=eval_dtype,
+            eval_samples=eval_samples,
+            guidance=guidance,
+            teleop=teleop,
+            progress=progress,
+            guidance_compare=guidance_compare,
+        )
 
 
 @dataclass
@@ -147,8 +172,20 @@ class _Setup:
     eval_dtype: torch.dtype
 
 
-def _setup(*, dtype, device, optimizer, task, operator, num_demos, promp, eval_dtype, eval_samples, guidance,
-           teleop) -> _Setup:
+def _setup(
+    *,
+    dtype,
+    device,
+    optimizer,
+    task,
+    operator,
+    num_demos,
+    promp,
+    eval_dtype,
+    eval_samples,
+    guidance,
+    teleop,
+) -> _Setup:
     """Validate every setting (naming the bad one) and build the task, person and ProMP."""
     promp_cfg, guide_cfg, tele_cfg = dict(promp or {}), dict(guidance or {}), dict(teleop or {})
     check_keys(promp_cfg, _PROMP_KEYS, "promp")
@@ -164,55 +201,134 @@ def _setup(*, dtype, device, optimizer, task, operator, num_demos, promp, eval_d
     ev_dtype = resolve_dtype(eval_dtype)
     beam = BeamWindowTask(**_tuples(dict(task or {})))
     person = SimulatedOperator(**_tuples(dict(operator or {})))
-    model = PoseProMP(**{"num_basis": 10, "num_steps": 250, **promp_cfg}, dtype=dtype, device=device)
+    model = PoseProMP(
+        **{"num_basis": 10, "num_steps": 250, **promp_cfg}, dtype=dtype, device=device
+    )
     guide_cfg = HapticGuidance.check_settings(**guide_cfg)
     for k in ("human_position_stiffness", "human_rotation_stiffness"):
         if k in tele_cfg and not float(tele_cfg[k]) >= 0:
             raise ValueError(f"teleop.{k} must be >= 0, got {tele_cfg[k]}")
-    return _Setup(beam=beam, person=person, model=model, guide_cfg=guide_cfg,
-                  hand={k: float(v) for k, v in tele_cfg.items()}, trials=trials, num_demos=num_demos,
-                  eval_samples=eval_samples, eval_dtype=ev_dtype)
+    return _Setup(
+        beam=beam,
+        person=person,
+        model=model,
+        guide_cfg=guide_cfg,
+        hand={k: float(v) for k, v in tele_cfg.items()},
+        trials=trials,
+        num_demos=num_demos,
+        eval_samples=eval_samples,
+        eval_dtype=ev_dtype,
+    )
 
 
-def _run(out_dir, *, seed, device, dtype, optimizer, plot, task, operator, num_demos, promp, eval_dtype,
-         eval_samples, guidance, teleop, progress, guidance_compare=None) -> dict:
+def _run(
+    out_dir,
+    *,
+    seed,
+    device,
+    dtype,
+    optimizer,
+    plot,
+    task,
+    operator,
+    num_demos,
+    promp,
+    eval_dtype,
+    eval_samples,
+    guidance,
+    teleop,
+    progress,
+    guidance_compare=None,
+) -> dict:
     """Build task and demonstrations -> optimise (two-stage PRO) -> evaluate (teleoperation, and
     guidance from each optimiser's distribution) -> figures."""
     t_start = time.perf_counter()
     out_dir = Path(out_dir)
-    cfg = _setup(dtype=dtype, device=device, optimizer=optimizer, task=task, operator=operator,
-                 num_demos=num_demos, promp=promp, eval_dtype=eval_dtype, eval_samples=eval_samples,
-                 guidance=guidance, teleop=teleop)
+    cfg = _setup(
+        dtype=dtype,
+        device=device,
+        optimizer=optimizer,
+        task=task,
+        operator=operator,
+        num_demos=num_demos,
+        promp=promp,
+        eval_dtype=eval_dtype,
+        eval_samples=eval_samples,
+        guidance=guidance,
+        teleop=teleop,
+    )
     compare = compare_settings(guidance_compare)
     gen = torch.Generator(device=cfg.model.phase.device).manual_seed(int(seed) + _EVAL_SEED)
-    demos, demo_hits, demo_model, metrics_demos = _demonstrations(cfg, seed, gen, dtype=dtype, device=device)
+    demos, demo_hits, demo_model, metrics_demos = _demonstrations(
+        cfg, seed, gen, dtype=dtype, device=device
+    )
     metrics: dict = {"demos": metrics_demos}
-    stages = optimize_pose_promp(cfg.beam, cfg.model, optimizer=optimizer, seed=int(seed),
-                                 eval_dtype=cfg.eval_dtype, progress=progress)
+    stages = optimize_pose_promp(
+        cfg.beam,
+        cfg.model,
+        optimizer=optimizer,
+        seed=int(seed),
+        eval_dtype=cfg.eval_dtype,
+        progress=progress,
+    )
     samples, metrics["optimized"] = _optimized_metrics(cfg, stages, gen)
-    tele, metrics["teleop"] = _teleoperation(cfg, demo_model, stages["phases"], seed, dtype=dtype, device=device)
-    if compare.pop("enabled"):  # guidance from each optimiser's distribution (protorch.experiments.beam_guidance)
-        compare["budget"] = min(compare["budget"], pro_stage_rollouts(optimizer))  # never more than PRO's
-        metrics["guidance"] = compare_guidance(cfg.beam, demo_model, cfg.model, tele["intended"], tele["lengths"],
-                                               guidance=cfg.guide_cfg, hand=cfg.hand, beta=float(optimizer["beta"]),
-                                               seed=int(seed), eval_dtype=cfg.eval_dtype, **compare)
+    tele, metrics["teleop"] = _teleoperation(
+        cfg, demo_model, stages["phases"], seed, dtype=dtype, device=device
+    )
+    if compare.pop(
+        "enabled"
+    ):  # guidance from each optimiser's distribution (protorch.experiments.beam_guidance)
+        compare["budget"] = min(
+            compare["budget"], pro_stage_rollouts(optimizer)
+        )  # never more than PRO's
+        metrics["guidance"] = compare_guidance(
+            cfg.beam,
+            demo_model,
+            cfg.model,
+            tele["intended"],
+            tele["lengths"],
+            guidance=cfg.guide_cfg,
+            hand=cfg.hand,
+            beta=float(optimizer["beta"]),
+            seed=int(seed),
+            eval_dtype=cfg.eval_dtype,
+            **compare,
+        )
     if plot:
         if "guidance" in metrics:
             guidance_figure(out_dir / "guidance.png", metrics["guidance"])
-        fig5_figure(out_dir / "fig5_beam_window.png", cfg.beam, demos, demo_hits, demo_model, cfg.model,
-                    samples[:30], stages["phases"])
-        teleop_figure(out_dir / "teleop.png", cfg.beam, tele["guide"], tele["intended"], tele["assisted"],
-                      tele["free_ok"], tele["guided_ok"], tele["lengths"])
+        fig5_figure(
+            out_dir / "fig5_beam_window.png",
+            cfg.beam,
+            demos,
+            demo_hits,
+            demo_model,
+            cfg.model,
+            samples[:30],
+            stages["phases"],
+        )
+        teleop_figure(
+            out_dir / "teleop.png",
+            cfg.beam,
+            tele["guide"],
+            tele["intended"],
+            tele["assisted"],
+            tele["free_ok"],
+            tele["guided_ok"],
+            tele["lengths"],
+        )
     metrics["seconds"] = round(time.perf_counter() - t_start, 3)
     return metrics
 
 
 def _demonstrations(cfg: _Setup, seed: int, gen: torch.Generator, *, dtype, device):
     """The person's trials, the ProMP fitted to them (``cfg.model``, and a copy kept) and their
-    metrics; ``gen`` draws the copy's samples. Returns ``(demos, hits (n,), demo_model, metrics)``."""
+    metrics; ``gen`` draws the copy's samples. Returns ``(demos, hits (n,), demo_model,
+    metrics)``."""
     beam, model = cfg.beam, cfg.model
-    demos = cfg.person.trials(beam, cfg.num_demos, torch.Generator().manual_seed(int(seed) + _DEMO_SEED),
-                              dtype=dtype)
+    demos = cfg.person.trials(
+        beam, cfg.num_demos, torch.Generator().manual_seed(int(seed) + _DEMO_SEED), dtype=dtype
+    )
     demos = [d.to(device) for d in demos]
     demo_hits = torch.stack([beam.collides(d) for d in demos])  # (n,)
     demo_ok = torch.stack([beam.success(d) for d in demos])  # (n,)
@@ -231,7 +347,9 @@ def _demonstrations(cfg: _Setup, seed: int, gen: torch.Generator, *, dtype, devi
     return demos, demo_hits, demo_model, metrics
 
 
-def _optimized_metrics(cfg: _Setup, stages: dict, gen: torch.Generator) -> tuple[torch.Tensor, dict]:
+def _optimized_metrics(
+    cfg: _Setup, stages: dict, gen: torch.Generator
+) -> tuple[torch.Tensor, dict]:
     """The optimised ProMP's mean and ``eval_samples`` samples (drawn with ``gen``) checked by the
     task, and each stage's iterations and costs. Returns ``(samples (S, T, 7), metrics)``."""
     beam, model = cfg.beam, cfg.model
@@ -253,8 +371,10 @@ def _optimized_metrics(cfg: _Setup, stages: dict, gen: torch.Generator) -> tuple
     for name in ("position", "orientation"):
         res = stages[name]["result"]
         metrics[name] = {
-            "iterations": res.iterations, "seconds": round(stages[name]["seconds"], 3),
-            "final_cost": res.history["cost"][-1].tolist(), "initial_cost": res.history["cost"][0].tolist(),
+            "iterations": res.iterations,
+            "seconds": round(stages[name]["seconds"], 3),
+            "final_cost": res.history["cost"][-1].tolist(),
+            "initial_cost": res.history["cost"][0].tolist(),
         }
     return samples, metrics
 
@@ -264,8 +384,9 @@ def _teleoperation(cfg: _Setup, demo_model, phases: torch.Tensor, seed: int, *, 
     demonstrations' ProMP. Returns ``(what the figure needs, metrics)``."""
     beam, person, trials = cfg.beam, cfg.person, cfg.trials
     guide = HapticGuidance(cfg.model, **cfg.guide_cfg)
-    intended, lengths = person.intentions(beam, trials, torch.Generator().manual_seed(int(seed) + _TELEOP_SEED),
-                                          dtype=dtype)
+    intended, lengths = person.intentions(
+        beam, trials, torch.Generator().manual_seed(int(seed) + _TELEOP_SEED), dtype=dtype
+    )
     intended = intended.to(device)  # (B, T_max, 7)
     t0 = time.perf_counter()
     assisted = guide.assist(intended, lengths=lengths, **cfg.hand)
@@ -273,7 +394,9 @@ def _teleoperation(cfg: _Setup, demo_model, phases: torch.Tensor, seed: int, *, 
     free_ok, free_hit = beam.success(intended), beam.collides(intended)  # (B,)
     guided_ok, guided_hit = beam.success(assisted.poses), beam.collides(assisted.poses)  # (B,)
     # the same guidance from the demonstrations' ProMP (before PRO): what the optimisation adds
-    demo_guided = HapticGuidance(demo_model, **cfg.guide_cfg).assist(intended, lengths=lengths, **cfg.hand)
+    demo_guided = HapticGuidance(demo_model, **cfg.guide_cfg).assist(
+        intended, lengths=lengths, **cfg.hand
+    )
     i_front, i_back = (phases[1:3] * (guide.num_steps - 1)).round().long().tolist()
     unassisted_rate = float(free_ok.double().mean())
     assisted_rate = float(guided_ok.double().mean())
@@ -284,16 +407,30 @@ def _teleoperation(cfg: _Setup, demo_model, phases: torch.Tensor, seed: int, *, 
         "unassisted_collision_rate": float(free_hit.double().mean()),
         "assisted_collision_rate": float(guided_hit.double().mean()),
         "success_ratio": assisted_rate / unassisted_rate if unassisted_rate > 0 else None,
-        "assisted_by_demos_promp_success_rate": float(beam.success(demo_guided.poses).double().mean()),
-        "paired": {"fixed_by_guidance": int((guided_ok & ~free_ok).sum()),
-                   "broken_by_guidance": int((~guided_ok & free_ok).sum())},
-        "stiffness_at_window": {"position": float(guide.stiffness[i_front:i_back + 1, :3].mean()),
-                                "quaternion": float(guide.stiffness[i_front:i_back + 1, 3:].mean())},
-        "stiffness_median": {"position": float(guide.stiffness[:, :3].median()),
-                             "quaternion": float(guide.stiffness[:, 3:].median())},
+        "assisted_by_demos_promp_success_rate": float(
+            beam.success(demo_guided.poses).double().mean()
+        ),
+        "paired": {
+            "fixed_by_guidance": int((guided_ok & ~free_ok).sum()),
+            "broken_by_guidance": int((~guided_ok & free_ok).sum()),
+        },
+        "stiffness_at_window": {
+            "position": float(guide.stiffness[i_front : i_back + 1, :3].mean()),
+            "quaternion": float(guide.stiffness[i_front : i_back + 1, 3:].mean()),
+        },
+        "stiffness_median": {
+            "position": float(guide.stiffness[:, :3].median()),
+            "quaternion": float(guide.stiffness[:, 3:].median()),
+        },
         "max_force_position": float(assisted.force[..., :3].norm(dim=-1).max()),
         "seconds": round(assist_seconds, 3),
     }
-    tele = {"guide": guide, "intended": intended, "assisted": assisted.poses, "free_ok": free_ok,
-            "guided_ok": guided_ok, "lengths": lengths}
+    tele = {
+        "guide": guide,
+        "intended": intended,
+        "assisted": assisted.poses,
+        "free_ok": free_ok,
+        "guided_ok": guided_ok,
+        "lengths": lengths,
+    }
     return tele, metrics

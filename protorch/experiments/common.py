@@ -31,8 +31,10 @@ def demo_source(value) -> str | Path:
         return "synthetic"
     folder = Path(str(value)).expanduser()
     if not folder.is_dir():
-        raise FileNotFoundError(f"task.demos={str(value)!r}: no such folder (resolved to {folder.resolve()}); "
-                                "give 'synthetic' or a folder of trajK.out / envK.out files")
+        raise FileNotFoundError(
+            f"task.demos={str(value)!r}: no such folder (resolved to {folder.resolve()}); "
+            "give 'synthetic' or a folder of trajK.out / envK.out files"
+        )
     return folder
 
 
@@ -79,7 +81,8 @@ def flatten_metrics(data: dict, prefix: str = "") -> dict:
 
 def metric_value(metrics: dict, key: str) -> float:
     """The number at the dotted ``key`` of a (nested) metrics dict, e.g. ``"test.success_rate"``;
-    a bool counts as 0 / 1. A missing or non-numeric entry raises an error listing the numeric keys."""
+    a bool counts as 0 / 1. A missing or non-numeric entry raises an error listing the numeric
+    keys."""
     node = metrics
     for part in key.split("."):
         if not isinstance(node, dict) or part not in node:
@@ -88,9 +91,13 @@ def metric_value(metrics: dict, key: str) -> float:
         node = node[part]
     if isinstance(node, (bool, int, float)) and not isinstance(node, str):
         return float(node)
-    numeric = sorted(k for k, v in flatten_metrics(metrics).items() if isinstance(v, (bool, int, float)))
+    numeric = sorted(
+        k for k, v in flatten_metrics(metrics).items() if isinstance(v, (bool, int, float))
+    )
     what = "no such metric" if node is None else f"not a number ({type(node).__name__})"
-    raise ValueError(f"objective {key!r}: {what}; numeric metrics of this run: {', '.join(numeric)}")
+    raise ValueError(
+        f"objective {key!r}: {what}; numeric metrics of this run: {', '.join(numeric)}"
+    )
 
 
 def optimizer_kwargs(common: dict, specific: dict | None) -> dict:
@@ -104,7 +111,8 @@ SHARED_OPTIMIZER_KEYS = ("beta", "num_samples", "max_iter", "tol", "window")
 
 
 def optimizer_label(name: str) -> str:
-    """How summaries and figures name the optimiser registered as ``name`` (``"epro"`` -> ``"EPRO"``):
+    """How summaries and figures name the optimiser registered as ``name`` (``"epro"`` ->
+    ``"EPRO"``):
     its class name, CMA-ES spelled so; an unregistered name as it is."""
     cls = OPTIMIZERS.get(name)
     return "CMA-ES" if cls is CMAES else (str(name) if cls is None else cls.__name__)
@@ -127,7 +135,9 @@ def optimizer_spec(optimizer: dict, default: type = PRO) -> tuple[type, dict]:
     (``conf/optimizer/<name>.yaml``), or the per-method form ``{shared keys, "pro": {...}, ...}``
     for ``default`` (PRO)."""
     if "name" in optimizer:
-        return optimizer_class(optimizer["name"]), {k: v for k, v in optimizer.items() if k != "name"}
+        return optimizer_class(optimizer["name"]), {
+            k: v for k, v in optimizer.items() if k != "name"
+        }
     return default, optimizer_kwargs(optimizer, optimizer.get(default.__name__.lower()))
 
 
@@ -136,7 +146,9 @@ def baseline_spec(optimizer: dict, baseline: dict | None, default: type = RWR) -
     with ``optimizer``'s shared settings and its per-method section."""
     if baseline:
         return optimizer_spec(baseline, default)
-    shared = {k: v for k, v in optimizer.items() if k in SHARED_OPTIMIZER_KEYS or not isinstance(v, dict)}
+    shared = {
+        k: v for k, v in optimizer.items() if k in SHARED_OPTIMIZER_KEYS or not isinstance(v, dict)
+    }
     shared.pop("name", None)
     if "name" in optimizer:
         shared = {k: v for k, v in shared.items() if k in SHARED_OPTIMIZER_KEYS}
@@ -148,9 +160,14 @@ def per_method_form(optimizer: dict, baseline: dict | None) -> dict:
     the form of the paper-figure experiments' ``optimizer`` argument."""
     out = {k: v for k, v in optimizer.items() if k in SHARED_OPTIMIZER_KEYS}
     for group in (optimizer, baseline or {}):
-        if "name" in group:  # its own keys, and the shared ones where they differ from the optimizer's
-            own = {k: v for k, v in group.items()
-                   if k != "name" and (k not in SHARED_OPTIMIZER_KEYS or out.get(k, object()) != v)}
+        if (
+            "name" in group
+        ):  # its own keys, and the shared ones where they differ from the optimizer's
+            own = {
+                k: v
+                for k, v in group.items()
+                if k != "name" and (k not in SHARED_OPTIMIZER_KEYS or out.get(k, object()) != v)
+            }
             out[group["name"]] = {**out.get(group["name"], {}), **own}
     return out
 
@@ -168,8 +185,11 @@ def check_optimizer(optimizer: dict) -> None:
             check_int(optimizer[k], f"optimizer.{k}", lo)
 
 
-def gp_settings(gp_cfg: dict, *, alpha: float, var_floor: float, nearest_k: int | None) -> tuple[str, float, float, dict]:
-    """``(backend, alpha, var_floor, map options)`` of an experiment's ``gp`` group, with defaults."""
+def gp_settings(
+    gp_cfg: dict, *, alpha: float, var_floor: float, nearest_k: int | None
+) -> tuple[str, float, float, dict]:
+    """``(backend, alpha, var_floor, map options)`` of an experiment's ``gp`` group,
+    with defaults."""
     a = float(gp_cfg.get("alpha", alpha))
     if not a > 0:
         raise ValueError(f"gp.alpha must be > 0, got {gp_cfg.get('alpha')}")
@@ -211,16 +231,22 @@ def loop_settings(loop_cfg: dict, *, num_envs: int) -> dict:
     return out
 
 
-def evaluation_settings(test_cfg: dict, dyn_cfg: dict, *, seed: int, demo_seed: int, test_seed: int,
-                        dynamic_seed: int) -> tuple[int, int, int]:
+def evaluation_settings(
+    test_cfg: dict, dyn_cfg: dict, *, seed: int, demo_seed: int, test_seed: int, dynamic_seed: int
+) -> tuple[int, int, int]:
     """``(number of held-out environments, their seed, the moving episodes' seed)`` from
     ``test.{num_envs, seed}`` and ``dynamic.seed`` (popped from ``dyn_cfg``, the rest of which
     goes to the episodes); the defaults are ``test_seed`` and ``dynamic_seed``, and neither seed
     may be a training seed (``seed`` and the demonstrations' ``demo_seed``)."""
     n = check_int(test_cfg.get("num_envs", 200), "test.num_envs", 1)
     training = (int(seed), int(demo_seed))
-    seeds = [_held_out_seed(cfg.get("seed", default), where, seed=seed, training_seeds=training)
-             for cfg, where, default in ((test_cfg, "test", test_seed), (dyn_cfg, "dynamic", dynamic_seed))]
+    seeds = [
+        _held_out_seed(cfg.get("seed", default), where, seed=seed, training_seeds=training)
+        for cfg, where, default in (
+            (test_cfg, "test", test_seed),
+            (dyn_cfg, "dynamic", dynamic_seed),
+        )
+    ]
     dyn_cfg.pop("seed", None)
     return n, seeds[0], seeds[1]
 
@@ -229,5 +255,7 @@ def _held_out_seed(value, where: str, *, seed: int, training_seeds: tuple[int, .
     if isinstance(value, bool) or not isinstance(value, int):
         raise ValueError(f"{where}.seed must be an integer, got {value!r}")
     if value in training_seeds:
-        raise ValueError(f"{where}.seed ({value}) must differ from the training seeds (seed={seed})")
+        raise ValueError(
+            f"{where}.seed ({value}) must differ from the training seeds (seed={seed})"
+        )
     return int(value)

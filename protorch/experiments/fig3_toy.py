@@ -37,7 +37,10 @@ def run(
     mean = torch.tensor(init_mean, dtype=dtype, device=device)
     std = torch.tensor(init_std, dtype=dtype, device=device)
     if mean.shape != (2,) or std.shape != (2,):
-        raise ValueError(f"init_mean and init_std must have 2 entries, got {list(init_mean)} and {list(init_std)}")
+        raise ValueError(
+            f"init_mean and init_std must have 2 entries, got {list(init_mean)} and "
+            f"{list(init_std)}"
+        )
     if bool((std <= 0).any()):
         raise ValueError(f"init_std must be > 0, got {list(init_std)}")
     common = dict(optimizer, tol=0.0)  # the figure runs the full budget
@@ -50,10 +53,14 @@ def run(
         results[name] = opt.minimize(task.costs)
         seconds[name] = time.perf_counter() - t0
         res = results[name]
-        w = res.mean + res.var.sqrt() * torch.randn(eval_samples, 2, generator=gen, dtype=dtype, device=device)
+        w = res.mean + res.var.sqrt() * torch.randn(
+            eval_samples, 2, generator=gen, dtype=dtype, device=device
+        )
         finals[name] = w
     beta = float(optimizer["beta"])
-    finals["initial"] = mean + std * torch.randn(eval_samples, 2, generator=gen, dtype=dtype, device=device)
+    finals["initial"] = mean + std * torch.randn(
+        eval_samples, 2, generator=gen, dtype=dtype, device=device
+    )
     metrics = {"initial_std": std.tolist()}
     for name, res in results.items():
         w = finals[name]  # (eval_samples, 2)
@@ -65,8 +72,12 @@ def run(
             "iterations": res.iterations,
             "seconds": seconds[name],
         }
-    metrics["pro"]["irrelevant_std_ratio"] = metrics["pro"]["final_std"][0] / metrics["initial_std"][0]
-    metrics["rwr"]["irrelevant_std_ratio"] = metrics["rwr"]["final_std"][0] / metrics["initial_std"][0]
+    metrics["pro"]["irrelevant_std_ratio"] = (
+        metrics["pro"]["final_std"][0] / metrics["initial_std"][0]
+    )
+    metrics["rwr"]["irrelevant_std_ratio"] = (
+        metrics["rwr"]["final_std"][0] / metrics["initial_std"][0]
+    )
     if plot:
         _figure(Path(out_dir) / "fig3_toy.png", task, results, finals, beta, std)
     return metrics
@@ -77,7 +88,6 @@ def _figure(path, task, results, finals, beta, std) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
 
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
     ax = axes[0]
@@ -97,6 +107,8 @@ def _figure(path, task, results, finals, beta, std) -> None:
         curves[f"{name.upper()} std w1"] = s[:, 0] / std[0]
         curves[f"{name.upper()} std w2"] = s[:, 1] / std[1]
     plot_curves(axes[1], curves, ylabel="std / initial std", logy=True)
-    rewards = {f"{n.upper()}": torch.exp(-beta * r.history["cost"][:, 0]) for n, r in results.items()}
+    rewards = {
+        f"{n.upper()}": torch.exp(-beta * r.history["cost"][:, 0]) for n, r in results.items()
+    }
     plot_curves(axes[2], rewards, ylabel="exp(-beta * mean sample cost)")
     save_figure(fig, path)

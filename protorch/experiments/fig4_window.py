@@ -34,7 +34,9 @@ def run(
     optimizer: dict,
     plot: bool = True,
 ) -> dict:
-    task_obj = WindowTask(**{k: tuple(v) if isinstance(v, list) else v for k, v in (task or {}).items()})
+    task_obj = WindowTask(
+        **{k: tuple(v) if isinstance(v, list) else v for k, v in (task or {}).items()}
+    )
     gen = torch.Generator().manual_seed(seed)
     demos = task_obj.demonstrations(num_demos, generator=gen, dtype=dtype)
     model = ProMP(2, **(promp or {}), dtype=dtype, device=device).fit([d.to(device) for d in demos])
@@ -45,7 +47,9 @@ def run(
     metrics: dict = {"demos": {"count": num_demos}}
     demo_w = model.weights([d.to(device) for d in demos])  # (n, N)
     metrics["demos"]["mean_trajectory"] = _distances(task_obj, model.mean_trajectory())
-    metrics["demos"]["success_rate"] = float(task_obj.success(model.trajectory(demo_w)).double().mean())
+    metrics["demos"]["success_rate"] = float(
+        task_obj.success(model.trajectory(demo_w)).double().mean()
+    )
     results, opts = {}, {}
     for name, cls in (("pro", PRO), ("rwpo", RWPO)):
         kwargs = optimizer_kwargs(optimizer, optimizer.get(name))
@@ -68,7 +72,9 @@ def run(
             "seconds": seconds,
             "relevance": opt.relevance[0].tolist(),
         }
-    metrics["relevance_speedup"] = metrics["rwpo"]["relevance_seconds"] / metrics["pro"]["relevance_seconds"]
+    metrics["relevance_speedup"] = (
+        metrics["rwpo"]["relevance_seconds"] / metrics["pro"]["relevance_seconds"]
+    )
     if plot:
         _figure(Path(out_dir) / "fig4_window.png", task_obj, model, demos, results, opts)
     return metrics
@@ -85,7 +91,6 @@ def _figure(path, task, model, demos, results, opts) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-
     fig, axes = plt.subplots(1, 4, figsize=(18, 4.2))
     ax = axes[0]
     plot_window(ax, task)
@@ -93,23 +98,36 @@ def _figure(path, task, model, demos, results, opts) -> None:
         plot_trajectories(ax, d, color="0.5", lw=1)
     plot_trajectories(ax, model.mean_trajectory(), color="k", lw=2, label="demonstrations' mean")
     ax.set_title("demonstrations")
-    ax.legend(fontsize=7, loc="upper left")  # a free corner: the paths run lower left to upper right
+    ax.legend(
+        fontsize=7, loc="upper left"
+    )  # a free corner: the paths run lower left to upper right
     colors = {"pro": "tab:blue", "rwpo": "tab:orange"}
     ax = axes[1]
     plot_window(ax, task)
     gen = torch.Generator(device=model.mean.device).manual_seed(0)
     for name, res in results.items():
-        samples = res.mean + res.var.sqrt() * torch.randn(20, res.mean.shape[-1], generator=gen,
-                                                          dtype=res.mean.dtype, device=res.mean.device)
+        samples = res.mean + res.var.sqrt() * torch.randn(
+            20, res.mean.shape[-1], generator=gen, dtype=res.mean.dtype, device=res.mean.device
+        )
         plot_trajectories(ax, model.trajectory(samples), color=colors[name], lw=0.5, alpha=0.4)
-        plot_trajectories(ax, model.trajectory(res.mean), color=colors[name], lw=2, label=name.upper())
+        plot_trajectories(
+            ax, model.trajectory(res.mean), color=colors[name], lw=2, label=name.upper()
+        )
     ax.set_title("solutions (mean and samples)")
-    ax.legend(fontsize=7, loc="upper left")  # a free corner: the paths run lower left to upper right
+    ax.legend(
+        fontsize=7, loc="upper left"
+    )  # a free corner: the paths run lower left to upper right
     k = model.num_basis
     for ax, name in zip(axes[2:], ("pro", "rwpo")):
         first = results[name].history["relevance"][0]  # relevance at the first iteration (O, N)
         t = results[name].relevance_seconds
         # the paper's Fig. 4 (c, d): the K weights of the x coordinate, (O, K)
-        plot_relevance(ax, first[:, :k], task.objective_names, xlabel="x weight index (basis function)",
-                       title=f"{name.upper()} relevance (first iteration), {t[0]:.3g} s", legend_loc="below")
+        plot_relevance(
+            ax,
+            first[:, :k],
+            task.objective_names,
+            xlabel="x weight index (basis function)",
+            title=f"{name.upper()} relevance (first iteration), {t[0]:.3g} s",
+            legend_loc="below",
+        )
     save_figure(fig, path)

@@ -72,17 +72,40 @@ class LoopWorker:
     :meth:`wait` returns once it finished (``RuntimeError`` with its last error lines if it
     failed); :meth:`stop` ends it."""
 
-    def __init__(self, experiment, settings: dict, variant: str, run_dir: Path, resume: bool) -> None:
+    def __init__(
+        self, experiment, settings: dict, variant: str, run_dir: Path, resume: bool
+    ) -> None:
         cls = type(experiment)
-        spec = {"class": f"{cls.__module__}:{cls.__qualname__}", "settings": encode_settings(settings),
-                "variant": variant, "run_dir": str(run_dir), "resume": bool(resume), "parent": os.getpid()}
+        spec = {
+            "class": f"{cls.__module__}:{cls.__qualname__}",
+            "settings": encode_settings(settings),
+            "variant": variant,
+            "run_dir": str(run_dir),
+            "resume": bool(resume),
+            "parent": os.getpid(),
+        }
         self.variant = variant
-        self.log = tempfile.TemporaryFile(mode="w+b")  # its stderr: warnings are passed on, errors reported
-        env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": os.pathsep.join(
-            [str(Path(__file__).resolve().parents[2]), *filter(None, [os.environ.get("PYTHONPATH")])])}
+        self.log = tempfile.TemporaryFile(
+            mode="w+b"
+        )  # its stderr: warnings are passed on, errors reported
+        env = {
+            **os.environ,
+            "OMP_NUM_THREADS": "1",
+            "PYTHONPATH": os.pathsep.join(
+                [
+                    str(Path(__file__).resolve().parents[2]),
+                    *filter(None, [os.environ.get("PYTHONPATH")]),
+                ]
+            ),
+        }
         code = "from protorch.experiments.loop_worker import main; main()"
-        self.proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     stderr=self.log, env=env)
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", code],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=self.log,
+            env=env,
+        )
         self.proc.stdin.write(json.dumps(spec).encode())
         self.proc.stdin.close()
 
@@ -96,7 +119,9 @@ class LoopWorker:
         self.log.close()
         if rc != 0:
             tail = "\n".join(err.strip().splitlines()[-15:])
-            raise RuntimeError(f"the {self.variant} loop's worker process failed (exit code {rc}):\n{tail}")
+            raise RuntimeError(
+                f"the {self.variant} loop's worker process failed (exit code {rc}):\n{tail}"
+            )
         if err.strip():
             sys.stderr.write(err)
         return json.loads(out.decode().strip().splitlines()[-1])
@@ -138,6 +163,11 @@ def main() -> None:
 
     with torch_threads(1):
         exp = cls(**decode_settings(spec["settings"])).build()
-        res = exp.run_loop(spec["variant"], run_dir=Path(spec["run_dir"]), resume=spec["resume"], progress=False,
-                           on_step=parent_alive)
+        res = exp.run_loop(
+            spec["variant"],
+            run_dir=Path(spec["run_dir"]),
+            resume=spec["resume"],
+            progress=False,
+            on_step=parent_alive,
+        )
     print(json.dumps({"resumed_from": res.resumed_from}), flush=True)

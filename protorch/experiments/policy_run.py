@@ -18,8 +18,11 @@ POLICY_EXPERIMENTS = ("arm_reach", "point_particle", "self_improve")
 
 
 def _experiment_class(name: str):
-    return {"arm_reach": ArmReachExperiment, "point_particle": PointParticleExperiment,
-            "self_improve": GenericExperiment}[name]
+    return {
+        "arm_reach": ArmReachExperiment,
+        "point_particle": PointParticleExperiment,
+        "self_improve": GenericExperiment,
+    }[name]
 
 
 def rebuild_experiment(cfg: dict, where: str = "run"):
@@ -28,13 +31,17 @@ def rebuild_experiment(cfg: dict, where: str = "run"):
     ``configure``), without its demonstrations or loop: what the policy needs of it."""
     name = cfg.get("name") if isinstance(cfg, dict) else None
     if name not in POLICY_EXPERIMENTS:
-        raise ValueError(f"{where}: experiment {name!r} is not a self-improvement run with a policy "
-                         f"(one of {', '.join(POLICY_EXPERIMENTS)})")
+        raise ValueError(
+            f"{where}: experiment {name!r} is not a self-improvement run with a policy "
+            f"(one of {', '.join(POLICY_EXPERIMENTS)})"
+        )
     try:
         kwargs = check_config(cfg)
     except SettingsError as exc:
-        raise ValueError(f"{where}: its config.yaml is refused by this protorch ({exc}); an older format? "
-                         "re-run it") from None
+        raise ValueError(
+            f"{where}: its config.yaml is refused by this protorch ({exc}); an older format? "
+            "re-run it"
+        ) from None
     cls = _experiment_class(name)
     accepted = set()
     for c in cls.__mro__:

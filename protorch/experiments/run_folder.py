@@ -30,8 +30,10 @@ def _owner(path: Path) -> str | None:
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError):
-        raise ValueError(f"{path} exists but is not readable JSON: refusing to run into {path.parent}; "
-                         "choose another hydra.run.dir") from None
+        raise ValueError(
+            f"{path} exists but is not readable JSON: refusing to run into {path.parent}; "
+            "choose another hydra.run.dir"
+        ) from None
     return data.get("experiment") if isinstance(data, dict) else None
 
 
@@ -44,16 +46,28 @@ def check_run_folder(out_dir: str | Path, name: str) -> None:
         owner = _owner(out_dir / file)
         if owner is not None and owner != name:
             raise ValueError(
-                f"{out_dir} holds results of experiment {owner!r} ({file}); refusing to write {name!r} "
-                "there and replace them: choose another hydra.run.dir")
+                f"{out_dir} holds results of experiment {owner!r} ({file}); refusing to write "
+                f"{name!r} "
+                "there and replace them: choose another hydra.run.dir"
+            )
     remove_stale_tmp(out_dir)
 
 
 def write_status(out_dir: str | Path, name: str, status: str, **extra) -> Path:
-    """``status.json`` = ``{"experiment", "status", "host", "pid", "time", **extra}``, atomically."""
+    """``status.json`` = ``{"experiment", "status", "host", "pid", "time", **extra}``,
+    atomically."""
     path = Path(out_dir) / STATUS_FILE
-    write_json(path, {"experiment": name, "status": status, "host": socket.gethostname(), "pid": os.getpid(),
-                      "time": datetime.now(timezone.utc).isoformat(timespec="milliseconds"), **extra})
+    write_json(
+        path,
+        {
+            "experiment": name,
+            "status": status,
+            "host": socket.gethostname(),
+            "pid": os.getpid(),
+            "time": datetime.now(timezone.utc).isoformat(timespec="milliseconds"),
+            **extra,
+        },
+    )
     return path
 
 

@@ -39,19 +39,44 @@ from ..loop import LoopResult, can_refill, demonstration_dataset, self_improve
 from ..primitives.promp import ProMP, resample
 from ..tasks import check_task_outputs
 from ..threads import beside_workers, core_budget
-from .common import (check_optimizer, evaluation_settings, gp_settings, loop_settings, optimizer_spec,
-                     problem_arguments)
+from .common import (
+    check_optimizer,
+    evaluation_settings,
+    gp_settings,
+    loop_settings,
+    optimizer_spec,
+    problem_arguments,
+)
 from .loop_worker import LoopWorker, encode_settings
 
-__all__ = ["SelfImprovementExperiment", "Outcome", "TEST_SEED", "DYNAMIC_SEED", "DEMO_SEED_OFFSET",
-           "GP_KEYS", "LOOP_KEYS", "loop_summary"]
+__all__ = [
+    "SelfImprovementExperiment",
+    "Outcome",
+    "TEST_SEED",
+    "DYNAMIC_SEED",
+    "DEMO_SEED_OFFSET",
+    "GP_KEYS",
+    "LOOP_KEYS",
+    "loop_summary",
+]
 
 TEST_SEED = 2_000_003  # the held-out test environments: fixed, never a training seed
 DYNAMIC_SEED = 3_000_017  # the moving-environment episodes (start environments and moves)
 DEMO_SEED_OFFSET = 10_007  # generated demonstrations: seed + offset (the loop's pool uses seed)
 GP_KEYS = frozenset({"backend", "alpha", "var_floor", "nearest_k", "neighbours"})
-LOOP_KEYS = frozenset({"num_envs", "batch_size", "add_only", "choice", "checkpoint_every", "eval_dtype", "min_var",
-                       "refill", "refill_group"})
+LOOP_KEYS = frozenset(
+    {
+        "num_envs",
+        "batch_size",
+        "add_only",
+        "choice",
+        "checkpoint_every",
+        "eval_dtype",
+        "min_var",
+        "refill",
+        "refill_group",
+    }
+)
 
 
 @dataclass
@@ -70,61 +95,109 @@ def loop_summary(res: LoopResult) -> dict:
     """The loop's metrics entry: time, environments tried, rollouts (the optimiser's samples
     evaluated), solutions added, success rates."""
     last = res.metrics[-1]
-    return {"seconds": round(res.seconds, 3), "envs_tried": len(res.tried),
-            "rollouts": sum(int(r.get("rollouts") or 0) for r in res.metrics),
-            "added": sum(int(r.get("added") or 0) for r in res.metrics), "dataset_size": len(res.dataset),
-            "success_rate": res.success_rate, "final_eval_success": last.get("eval_success"),
-            "steps": int(last["step"]), "resumed_from": res.resumed_from}
+    return {
+        "seconds": round(res.seconds, 3),
+        "envs_tried": len(res.tried),
+        "rollouts": sum(int(r.get("rollouts") or 0) for r in res.metrics),
+        "added": sum(int(r.get("added") or 0) for r in res.metrics),
+        "dataset_size": len(res.dataset),
+        "success_rate": res.success_rate,
+        "final_eval_success": last.get("eval_success"),
+        "steps": int(last["step"]),
+        "resumed_from": res.resumed_from,
+    }
 
 
 class SelfImprovementExperiment:
     """One self-improvement experiment: its settings (checked by the constructor, before any
     work), what it builds (:meth:`build`) and the run (:meth:`run`). See the module docstring."""
 
-    task_keys: frozenset | None = None  # the task.* settings accepted (None: any; configure checks them)
+    task_keys: frozenset | None = (
+        None  # the task.* settings accepted (None: any; configure checks them)
+    )
     loop_keys: frozenset = frozenset()  # loop.* settings beyond LOOP_KEYS
-    dynamic_keys: frozenset | None = None  # the moving test's dynamic.* settings (None: no moving test)
+    dynamic_keys: frozenset | None = (
+        None  # the moving test's dynamic.* settings (None: no moving test)
+    )
     gp_defaults: dict = {"alpha": 1.0, "var_floor": 1e-4, "nearest_k": None}
     num_envs = 1000  # the loop's default number of environments
     test_seed_default, dynamic_seed_default = TEST_SEED, DYNAMIC_SEED
     baseline_names: tuple = ()  # in the order they run
     pre_loop_baselines: frozenset = frozenset()  # baselines computed before the loop
-    loop_baselines: frozenset = frozenset()  # baselines with a loop of their own (<out_dir>/baselines/<name>)
+    loop_baselines: frozenset = (
+        frozenset()
+    )  # baselines with a loop of their own (<out_dir>/baselines/<name>)
     baseline_section: str | None = "baselines"  # where their metrics go (None: the top level)
-    loop_task = None  # the task the loop optimises and accepts with, where it differs from the tests' (None: task)
+    # the task the loop optimises and accepts with, where it differs from the tests' (None: task)
+    loop_task = None
 
     def __new__(cls, *args, **settings):
         self = super().__new__(cls)
-        self.constructed_with = copy.deepcopy(settings)  # what a worker process rebuilds the experiment from
+        self.constructed_with = copy.deepcopy(
+            settings
+        )  # what a worker process rebuilds the experiment from
         return self
 
-    def __init__(self, *, seed: int = 0, device: str | torch.device = "cpu", dtype: torch.dtype = torch.float64,
-                 optimizer: dict, task: dict | None = None, gp: dict | None = None, promp: dict | None = None,
-                 loop: dict | None = None, test: dict | None = None, dynamic: dict | None = None):
+    def __init__(
+        self,
+        *,
+        seed: int = 0,
+        device: str | torch.device = "cpu",
+        dtype: torch.dtype = torch.float64,
+        optimizer: dict,
+        task: dict | None = None,
+        gp: dict | None = None,
+        promp: dict | None = None,
+        loop: dict | None = None,
+        test: dict | None = None,
+        dynamic: dict | None = None,
+    ):
         task_cfg, gp_cfg, loop_cfg = dict(task or {}), dict(gp or {}), dict(loop or {})
         test_cfg, dyn_cfg = dict(test or {}), dict(dynamic or {})
-        for cfg, keys, where in ((task_cfg, self.task_keys, "task"), (gp_cfg, GP_KEYS, "gp"),
-                                 (loop_cfg, LOOP_KEYS | self.loop_keys, "loop"), (test_cfg, {"num_envs", "seed"}, "test"),
-                                 (dyn_cfg, self.dynamic_keys or frozenset(), "dynamic")):
+        for cfg, keys, where in (
+            (task_cfg, self.task_keys, "task"),
+            (gp_cfg, GP_KEYS, "gp"),
+            (loop_cfg, LOOP_KEYS | self.loop_keys, "loop"),
+            (test_cfg, {"num_envs", "seed"}, "test"),
+            (dyn_cfg, self.dynamic_keys or frozenset(), "dynamic"),
+        ):
             if keys is not None:
                 check_keys(cfg, keys, where)
         check_optimizer(optimizer)
         self.seed, self.device, self.dtype, self.optimizer_cfg = int(seed), device, dtype, optimizer
-        self.backend, self.alpha, self.var_floor, self.map_options = gp_settings(gp_cfg, **self.gp_defaults)
-        self.loop_kwargs = loop_settings(loop_cfg, num_envs=self.num_envs)  # self_improve's keyword arguments
+        self.backend, self.alpha, self.var_floor, self.map_options = gp_settings(
+            gp_cfg, **self.gp_defaults
+        )
+        self.loop_kwargs = loop_settings(
+            loop_cfg, num_envs=self.num_envs
+        )  # self_improve's keyword arguments
         self.loop_settings = dict(self.loop_kwargs)  # the loop group's values, as checked
         self.test_n, self.test_seed, self.dyn_seed = evaluation_settings(
-            test_cfg, dyn_cfg, seed=seed, demo_seed=int(seed) + DEMO_SEED_OFFSET, test_seed=self.test_seed_default,
-            dynamic_seed=self.dynamic_seed_default)
-        self.episodes = check_int(dyn_cfg.pop("episodes", 100), "dynamic.episodes", 0) if self.dynamic_keys else 0
+            test_cfg,
+            dyn_cfg,
+            seed=seed,
+            demo_seed=int(seed) + DEMO_SEED_OFFSET,
+            test_seed=self.test_seed_default,
+            dynamic_seed=self.dynamic_seed_default,
+        )
+        self.episodes = (
+            check_int(dyn_cfg.pop("episodes", 100), "dynamic.episodes", 0)
+            if self.dynamic_keys
+            else 0
+        )
         self.dyn_cfg = dyn_cfg  # the moving test's options
-        make_env_map(self.backend, self.alpha, **self.map_options)  # refuses a bad backend or option now
+        make_env_map(
+            self.backend, self.alpha, **self.map_options
+        )  # refuses a bad backend or option now
         self.promp_cfg = {"num_basis": 10, "num_steps": 100, **dict(promp or {})}
         self.optimizer = optimizer_spec(optimizer)  # (class, kwargs)
         if self.loop_kwargs["refill"] is True and not can_refill(*self.optimizer):
-            raise ValueError(f"loop.refill=true needs an optimiser that restarts single problems (pro with "
-                             f"relevance_every=1, rwr, cem), not {optimizer.get('name', self.optimizer[0].__name__)}: "
-                             f"set loop.refill=auto or false")
+            raise ValueError(
+                f"loop.refill=true needs an optimiser that restarts single problems (pro with "
+                "relevance_every=1, rwr, cem), not "
+                f"{optimizer.get('name', self.optimizer[0].__name__)}: "
+                f"set loop.refill=auto or false"
+            )
         self.seconds: dict = {}
         self.refill_used: bool | None = None  # loop.refill as the method's loop ran it (run_loop)
         self.configure(task_cfg, loop_cfg)
@@ -135,7 +208,8 @@ class SelfImprovementExperiment:
         raise NotImplementedError
 
     def make_demonstrations(self) -> None:
-        """Set ``self.demos`` (a list of ``(T, D)`` trajectories) and ``self.demo_envs`` ``(n, E)``."""
+        """Set ``self.demos`` (a list of ``(T, D)`` trajectories) and ``self.demo_envs`` ``(n,
+        E)``."""
         raise NotImplementedError
 
     def make_priors(self) -> None:
@@ -146,16 +220,24 @@ class SelfImprovementExperiment:
         return torch.Generator().manual_seed(self.seed + DEMO_SEED_OFFSET)
 
     def loop_options(self) -> dict:
-        """Extra :func:`~protorch.loop.self_improve` keyword arguments of the task (none by default)."""
+        """Extra :func:`~protorch.loop.self_improve` keyword arguments of the task (none by
+        default)."""
         return {}
 
     def initial_data(self):
         """A fresh data set of the demonstrations (each loop grows its own)."""
-        return demonstration_dataset(self.promp, self.demos, self.demo_envs, task_name=self.task.name,
-                                     var_floor=self.var_floor, dtype=self.promp.basis.dtype)
+        return demonstration_dataset(
+            self.promp,
+            self.demos,
+            self.demo_envs,
+            task_name=self.task.name,
+            var_floor=self.var_floor,
+            dtype=self.promp.basis.dtype,
+        )
 
     def loop_arguments(self, variant: str | None) -> dict:
-        """``optimizer``, ``optimizer_kwargs`` and ``dataset`` (plus e.g. ``labeler``) of the method's
+        """``optimizer``, ``optimizer_kwargs`` and ``dataset`` (plus e.g. ``labeler``) of the
+        method's
         loop (``variant=None``) or of the loop baseline ``variant``."""
         cls, kwargs = self.optimizer
         return {"optimizer": cls, "optimizer_kwargs": kwargs, "dataset": self.initial_data()}
@@ -169,7 +251,8 @@ class SelfImprovementExperiment:
         raise NotImplementedError
 
     def moving_test(self, model) -> tuple[dict | None, object]:
-        """``(metrics, episodes)`` of the moving test on ``self.dyn_env0`` (``(None, None)``: none)."""
+        """``(metrics, episodes)`` of the moving test on ``self.dyn_env0`` (``(None, None)``:
+        none)."""
         return None, None
 
     def loop_metrics(self, res: LoopResult) -> dict:
@@ -200,20 +283,26 @@ class SelfImprovementExperiment:
         """Draw the experiment's figures into ``out_dir`` (none by default)."""
 
     def seconds_metrics(self) -> float | dict:
-        """The metrics' ``seconds`` entry: the run's total by default (``self.seconds`` has the phases)."""
+        """The metrics' ``seconds`` entry: the run's total by default (``self.seconds`` has the
+        phases)."""
         return self.seconds["total"]
 
     # ------------------------------------------------------------------ the skeleton
     def build(self) -> "SelfImprovementExperiment":
         """Demonstrations, priors, the ProMP, the test environments and the loop's options."""
         self.promp = ProMP(self.num_dof(), **self.promp_cfg, dtype=self.dtype, device=self.device)
-        for name, make in (("demonstrations", self.make_demonstrations), ("task_check", self.check_task),
-                           ("priors", self.make_priors)):
+        for name, make in (
+            ("demonstrations", self.make_demonstrations),
+            ("task_check", self.check_task),
+            ("priors", self.make_priors),
+        ):
             t0 = time.perf_counter()
             make()
             self.seconds[name] = round(time.perf_counter() - t0, 3)
         self.test_envs = self.sample(self.test_n, self.test_seed)  # (Q, E)
-        self.dyn_env0 = self.sample(self.episodes, self.dyn_seed) if self.dynamic_keys else None  # (episodes, E)
+        self.dyn_env0 = (
+            self.sample(self.episodes, self.dyn_seed) if self.dynamic_keys else None
+        )  # (episodes, E)
         self.loop_kwargs.update(seed=self.seed, var_floor=self.var_floor, **self.loop_options())
         self.loop_kwargs["eval_envs"] = self.test_envs
         return self
@@ -223,10 +312,16 @@ class SelfImprovementExperiment:
         demonstrations (resampled to the ProMP's ``T`` steps) and once in the loop's batched form
         and evaluation dtype (:func:`~protorch.tasks.check_task_outputs`; a
         :class:`~protorch.tasks.TaskContractError` names the method and both shapes)."""
-        traj = torch.stack([resample(torch.as_tensor(d), self.promp.num_steps) for d in self.demos])  # (n, T, D)
+        traj = torch.stack(
+            [resample(torch.as_tensor(d), self.promp.num_steps) for d in self.demos]
+        )  # (n, T, D)
         traj = traj.to(self.promp.basis)
-        check_task_outputs(self.task, traj, torch.as_tensor(self.demo_envs).to(traj),
-                           dtype=self.loop_kwargs["eval_dtype"])
+        check_task_outputs(
+            self.task,
+            traj,
+            torch.as_tensor(self.demo_envs).to(traj),
+            dtype=self.loop_kwargs["eval_dtype"],
+        )
 
     def num_dof(self) -> int:
         return self.task.num_dof
@@ -237,13 +332,18 @@ class SelfImprovementExperiment:
 
     def env_map(self):
         """A fresh (unfitted) GP map with the experiment's settings."""
-        return make_env_map(self.backend, self.alpha, dtype=self.dtype, device=self.device, **self.map_options)
+        return make_env_map(
+            self.backend, self.alpha, dtype=self.dtype, device=self.device, **self.map_options
+        )
 
     def run_loop(self, variant: str | None = None, **overrides) -> LoopResult:
         """:func:`~protorch.loop.self_improve` of the method (``variant=None``) or of the loop
-        baseline ``variant``; ``overrides`` replace loop settings (``batch_size``, ``run_dir``, ...)."""
+        baseline ``variant``; ``overrides`` replace loop settings (``batch_size``, ``run_dir``,
+        ...)."""
         args = self.loop_arguments(variant)
-        args["optimizer_kwargs"] = problem_arguments(args["optimizer"], args["optimizer_kwargs"], self.task, self.promp)
+        args["optimizer_kwargs"] = problem_arguments(
+            args["optimizer"], args["optimizer_kwargs"], self.task, self.promp
+        )
         data = args.pop("dataset")
         desc = f"{args['optimizer'].__name__} loop" + ("" if variant is None else f" ({variant})")
         kw = {"desc": desc, **self.loop_kwargs, **args, **overrides}
@@ -270,13 +370,24 @@ class SelfImprovementExperiment:
         return [b for b in self.baseline_names if b in chosen]
 
     def refuse_finished(self, out_dir: Path, chosen: list[str]) -> None:
-        for d in [out_dir] + [out_dir / "baselines" / b for b in chosen if b in self.loop_baselines]:
+        for d in [out_dir] + [
+            out_dir / "baselines" / b for b in chosen if b in self.loop_baselines
+        ]:
             if checkpoint_path(d).is_file():
-                raise FileExistsError(f"{checkpoint_path(d)} already exists: add resume=true to continue that run, "
-                                      "or choose another hydra.run.dir")
+                raise FileExistsError(
+                    f"{checkpoint_path(d)} already exists: add resume=true to continue that run, "
+                    "or choose another hydra.run.dir"
+                )
 
-    def run_baseline(self, name: str, out_dir: Path, model, resume: bool, progress: bool,
-                     worker: LoopWorker | None = None) -> tuple[dict, object]:
+    def run_baseline(
+        self,
+        name: str,
+        out_dir: Path,
+        model,
+        resume: bool,
+        progress: bool,
+        worker: LoopWorker | None = None,
+    ) -> tuple[dict, object]:
         """A baseline's metrics entry and artefact; a loop baseline whose ``worker`` ran its loop
         is read back from the worker's finished checkpoint."""
         if name not in self.loop_baselines:
@@ -291,23 +402,40 @@ class SelfImprovementExperiment:
         test_m, dyn_m, _ = self.evaluate(load(run_dir, device=self.device, dtype=self.dtype))
         return self.entry(test_m, dyn_m, loop=self.loop_metrics(res)), res
 
-    def start_workers(self, out_dir: Path, chosen: list[str], resume: bool) -> dict[str, LoopWorker]:
+    def start_workers(
+        self, out_dir: Path, chosen: list[str], resume: bool
+    ) -> dict[str, LoopWorker]:
         """One :class:`~protorch.experiments.loop_worker.LoopWorker` per chosen loop baseline when
         the run may use more than one core (:func:`~protorch.threads.core_budget`) on the CPU and
         the experiment's settings can be passed to a process; none otherwise (they run here,
         after the method's loop)."""
         names = [b for b in chosen if b in self.loop_baselines]
-        if not names or core_budget() < 2 or torch.device(self.device).type != "cpu" \
-                or type(self).__module__ == "__main__" or "<locals>" in type(self).__qualname__:
+        if (
+            not names
+            or core_budget() < 2
+            or torch.device(self.device).type != "cpu"
+            or type(self).__module__ == "__main__"
+            or "<locals>" in type(self).__qualname__
+        ):
             return {}  # (a class a child process cannot import runs its baselines here)
         try:
             encode_settings(self.constructed_with)
         except TypeError:
             return {}
-        return {b: LoopWorker(self, self.constructed_with, b, out_dir / "baselines" / b, resume) for b in names}
+        return {
+            b: LoopWorker(self, self.constructed_with, b, out_dir / "baselines" / b, resume)
+            for b in names
+        }
 
-    def run(self, out_dir: Path, *, baselines: Sequence[str] | None = (), resume: bool = False,
-            progress: bool = False, plot: bool = True) -> dict:
+    def run(
+        self,
+        out_dir: Path,
+        *,
+        baselines: Sequence[str] | None = (),
+        resume: bool = False,
+        progress: bool = False,
+        plot: bool = True,
+    ) -> dict:
         """Run the experiment into ``out_dir`` (module docstring); return the metrics."""
         t0 = time.perf_counter()
         out_dir = Path(out_dir)
@@ -316,24 +444,35 @@ class SelfImprovementExperiment:
             self.refuse_finished(out_dir, chosen)
         self.build()
         metrics = self.describe()
-        section = metrics.setdefault(self.baseline_section, {}) if self.baseline_section else metrics
+        section = (
+            metrics.setdefault(self.baseline_section, {}) if self.baseline_section else metrics
+        )
         artefacts: dict = {}
 
-        workers = self.start_workers(out_dir, chosen, resume)  # loop baselines beside the method's loop
+        workers = self.start_workers(
+            out_dir, chosen, resume
+        )  # loop baselines beside the method's loop
 
         def baseline(name, model):
             t1 = time.perf_counter()
-            section[name], artefacts[name] = self.run_baseline(name, out_dir, model, resume, progress,
-                                                               workers.get(name))
+            section[name], artefacts[name] = self.run_baseline(
+                name, out_dir, model, resume, progress, workers.get(name)
+            )
             self.seconds[name] = round(time.perf_counter() - t1, 3)
 
         try:
             for name in (b for b in chosen if b in self.pre_loop_baselines):
                 baseline(name, None)
-            res = self.run_loop(run_dir=out_dir, resume=resume, progress=progress,
-                                **({"threads": beside_workers(len(workers))} if workers else {}))
+            res = self.run_loop(
+                run_dir=out_dir,
+                resume=resume,
+                progress=progress,
+                **({"threads": beside_workers(len(workers))} if workers else {}),
+            )
             self.seconds["loop"] = round(res.seconds, 3)
-            model = load(out_dir, device=self.device, dtype=self.dtype)  # the checkpoint is what gets evaluated
+            model = load(
+                out_dir, device=self.device, dtype=self.dtype
+            )  # the checkpoint is what gets evaluated
             t1 = time.perf_counter()
             test_m, dyn_m, episodes = self.evaluate(model)
             self.seconds["evaluation"] = round(time.perf_counter() - t1, 3)

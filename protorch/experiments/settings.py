@@ -16,27 +16,46 @@ from typing import Any
 
 from ..errors import ProtorchError
 
-__all__ = ["SettingsError", "setting", "validate", "describe", "OPTIMIZER_SCHEMAS", "SETTINGS_SCHEMAS", "TASK_SCHEMAS",
-           "GP", "Loop", "Test", "ProMPSettings"]
+__all__ = [
+    "SettingsError",
+    "setting",
+    "validate",
+    "describe",
+    "OPTIMIZER_SCHEMAS",
+    "SETTINGS_SCHEMAS",
+    "TASK_SCHEMAS",
+    "GP",
+    "Loop",
+    "Test",
+    "ProMPSettings",
+]
 
 
 class SettingsError(ProtorchError, ValueError):
     """A setting of the wrong type or out of range; its message is one line."""
 
 
-def setting(default=dataclasses.MISSING, help: str = "", *, ge=None, gt=None, le=None, choices=None) -> Any:
+def setting(
+    default=dataclasses.MISSING, help: str = "", *, ge=None, gt=None, le=None, choices=None
+) -> Any:
     """A schema field with its meaning and allowed range (``Any``: a ``dataclasses.field`` that
     stands for a value of the field's annotated type)."""
     meta = {"help": help, "ge": ge, "gt": gt, "le": le, "choices": choices}
     if isinstance(default, (list, dict)):
         return dataclasses.field(default_factory=lambda d=default: type(d)(d), metadata=meta)
     if dataclasses.is_dataclass(default):
-        return dataclasses.field(default_factory=lambda d=default: dataclasses.replace(d), metadata=meta)
+        return dataclasses.field(
+            default_factory=lambda d=default: dataclasses.replace(d), metadata=meta
+        )
     return dataclasses.field(default=default, metadata=meta)
 
 
 def _range_text(meta: dict) -> str:
-    parts = [f"{op} {meta[k]}" for k, op in (("ge", ">="), ("gt", ">"), ("le", "<=")) if meta.get(k) is not None]
+    parts = [
+        f"{op} {meta[k]}"
+        for k, op in (("ge", ">="), ("gt", ">"), ("le", "<="))
+        if meta.get(k) is not None
+    ]
     return " and ".join(parts)
 
 
@@ -62,7 +81,11 @@ def _check_scalar(tp, value, meta: dict) -> str | None:
     else:
         return None
     if ok:
-        checks = (("ge", lambda a, b: a >= b), ("gt", lambda a, b: a > b), ("le", lambda a, b: a <= b))
+        checks = (
+            ("ge", lambda a, b: a >= b),
+            ("gt", lambda a, b: a > b),
+            ("le", lambda a, b: a <= b),
+        )
         ok = all(meta.get(k) is None or f(value, meta[k]) for k, f in checks)
     return None if ok else what
 
@@ -79,7 +102,10 @@ def _check(tp, value, meta: dict, key: str):
             raise SettingsError(f"{str(exc)} or null") from None
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):
-            raise SettingsError(f"{key}={value!r} must be a group of settings ({', '.join(f.name for f in dataclasses.fields(tp))})")
+            raise SettingsError(
+                f"{key}={value!r} must be a group of settings ("
+                f"{', '.join(f.name for f in dataclasses.fields(tp))})"
+            )
         return validate(tp, value, key)
     if origin in (list, tuple):
         if not isinstance(value, (list, tuple)):
@@ -97,13 +123,16 @@ def _check(tp, value, meta: dict, key: str):
 
 def validate(schema: type, data: dict | None, where: str) -> dict:
     """``data`` checked against the dataclass ``schema``: unknown keys, types and ranges; every
-    problem raises :class:`SettingsError` naming ``where.key``. Returns ``data`` (values unchanged)."""
+    problem raises :class:`SettingsError` naming ``where.key``. Returns ``data`` (values
+    unchanged)."""
     data = dict(data or {})
     hints = typing.get_type_hints(schema)
     fields = {f.name: f for f in dataclasses.fields(schema)}
     unknown = sorted(set(data) - set(fields))
     if unknown:
-        raise SettingsError(f"{where}.{unknown[0]} is not a setting of {where}; known: {', '.join(sorted(fields))}")
+        raise SettingsError(
+            f"{where}.{unknown[0]} is not a setting of {where}; known: {', '.join(sorted(fields))}"
+        )
     for name, value in data.items():
         _check(hints[name], value, dict(fields[name].metadata), f"{where}.{name}")
     return data
@@ -127,10 +156,19 @@ class _Shared:
     name: str = setting("pro", "the optimiser (a key of protorch.optim.OPTIMIZERS)")
     num_samples: int = setting(100, "weight samples per iteration", ge=2)
     max_iter: int = setting(200, "iteration limit", ge=1)
-    tol: float = setting(1e-3, "converged: every objective's mean sample cost within tol over `window` iterations; 0 = never", ge=0)
+    tol: float = setting(
+        1e-3,
+        "converged: every objective's mean sample cost within tol over `window` iterations; 0 = "
+        "never",
+        ge=0,
+    )
     window: int = setting(5, "iterations the convergence rule looks back over", ge=1)
-    convergence: str = setting("mean", "stop rule: mean (each objective's mean sample cost) | authors (every "
-                               "sample, plus the task's thresholds; point particle)", choices=("mean", "authors"))
+    convergence: str = setting(
+        "mean",
+        "stop rule: mean (each objective's mean sample cost) | authors (every "
+        "sample, plus the task's thresholds; point particle)",
+        choices=("mean", "authors"),
+    )
 
 
 @dataclass
@@ -143,12 +181,16 @@ class ProSettings(_RewardWeighted):
     relevance_samples: int = setting(100, "samples of the relevance estimate", ge=2)
     relevance_var: float = setting(1e-5, "variance of the relevance samples' perturbation", gt=0)
     relevance_every: int = setting(1, "recompute the relevance every k iterations", ge=1)
-    noise_floor: typing.Optional[float] = setting(None, "|rho| below noise_floor / sqrt(samples) counts as 0; null = as written", ge=0)
+    noise_floor: typing.Optional[float] = setting(
+        None, "|rho| below noise_floor / sqrt(samples) counts as 0; null = as written", ge=0
+    )
 
 
 @dataclass
 class RwrSettings(_RewardWeighted):
-    center: str = setting("new", "variance about the new mean (textbook RWR) or the old one", choices=("new", "old"))
+    center: str = setting(
+        "new", "variance about the new mean (textbook RWR) or the old one", choices=("new", "old")
+    )
 
 
 @dataclass
@@ -173,17 +215,28 @@ class CmaesSettings(_Shared):
     cma_options: typing.Optional[dict] = setting(None, "extra pycma options")
 
 
-OPTIMIZER_SCHEMAS: dict[str, type] = {"pro": ProSettings, "rwr": RwrSettings, "rwpo": RwpoSettings,
-                                      "cem": CemSettings, "cmaes": CmaesSettings}
+OPTIMIZER_SCHEMAS: dict[str, type] = {
+    "pro": ProSettings,
+    "rwr": RwrSettings,
+    "rwpo": RwpoSettings,
+    "cem": CemSettings,
+    "cmaes": CmaesSettings,
+}
 
 
 @dataclass
 class GP:
     backend: str = setting("torch", "the environment map (a key of protorch.gp.BACKENDS)")
     alpha: float = setting(1.0, "kernel exp(-alpha ||e - e'||^2)", gt=0)
-    var_floor: float = setting(0.0, "lower bound on a data-set entry's variance = its GP noise", ge=0)
-    nearest_k: typing.Optional[int] = setting(None, "condition on the k nearest known environments; null = all", ge=1)
-    neighbours: typing.Optional[int] = setting(None, "gp=sparse: environments per solve where nearest_k is null (null: 32)", ge=1)
+    var_floor: float = setting(
+        0.0, "lower bound on a data-set entry's variance = its GP noise", ge=0
+    )
+    nearest_k: typing.Optional[int] = setting(
+        None, "condition on the k nearest known environments; null = all", ge=1
+    )
+    neighbours: typing.Optional[int] = setting(
+        None, "gp=sparse: environments per solve where nearest_k is null (null: 32)", ge=1
+    )
 
 
 @dataclass
@@ -196,14 +249,27 @@ class ProMPSettings:
 class Loop:
     num_envs: int = setting(1000, "environments the self-improvement loop tries", ge=1)
     batch_size: int = setting(100, "B environments inferred and optimised at once", ge=1)
-    add_only: str = setting("success", "which solutions join the data set", choices=("converged", "success", "all"))
-    choice: str = setting("random", "order of the environments: pool order or nearest known first", choices=("random", "nearest", "dataset"))
+    add_only: str = setting(
+        "success", "which solutions join the data set", choices=("converged", "success", "all")
+    )
+    choice: str = setting(
+        "random",
+        "order of the environments: pool order or nearest known first",
+        choices=("random", "nearest", "dataset"),
+    )
     checkpoint_every: int = setting(1, "loop steps between atomic checkpoints", ge=1)
-    eval_dtype: str = setting("float32", "dtype of the optimiser's samples and costs", choices=("float32", "float64"))
+    eval_dtype: str = setting(
+        "float32", "dtype of the optimiser's samples and costs", choices=("float32", "float64")
+    )
     min_var: float = setting(0.0, "floor on the inferred variance the optimiser starts from", ge=0)
-    refill: typing.Any = setting("auto", "give a finished problem's slot the next environment at once (B workers); "
-                                 "auto: where the optimiser can restart single problems (pro, rwr, cem)")
-    refill_group: int = setting(1, "with refill: finished environments added and refilled once this many are done", ge=1)
+    refill: typing.Any = setting(
+        "auto",
+        "give a finished problem's slot the next environment at once (B workers); "
+        "auto: where the optimiser can restart single problems (pro, rwr, cem)",
+    )
+    refill_group: int = setting(
+        1, "with refill: finished environments added and refilled once this many are done", ge=1
+    )
 
 
 @dataclass
@@ -227,7 +293,9 @@ class ParticleDynamic:
     dt: float = setting(0.01, "control step (s)", gt=0)
     kp: float = setting(1000.0, "PD stiffness", gt=0)
     kd: float = setting(30.0, "PD damping", ge=0)
-    step_std: typing.Any = setting(None, "random-walk step of the moving hole and goal (a number or one per entry)")
+    step_std: typing.Any = setting(
+        None, "random-walk step of the moving hole and goal (a number or one per entry)"
+    )
     start: str = setting("env", "where the particle starts")
     goal_tol: float = setting(0.2, "distance to the goal that counts as reached", gt=0)
 
@@ -235,7 +303,9 @@ class ParticleDynamic:
 @dataclass
 class ParticlePaperDynamic:
     seed: int = setting(3_000_029, "seed of the authors' moving test (never a training seed)", ge=0)
-    episodes: int = setting(100, "episodes of the authors' moving test (start fixed; wall, hole, goal moving)", ge=0)
+    episodes: int = setting(
+        100, "episodes of the authors' moving test (start fixed; wall, hole, goal moving)", ge=0
+    )
     duration: float = setting(2.0, "seconds of motion", gt=0)
     hold: float = setting(0.5, "seconds held at the end", ge=0)
     dt: float = setting(0.01, "control step (s)", gt=0)
@@ -251,8 +321,12 @@ class PointParticleSettings:
     loop: ParticleLoop = setting(ParticleLoop(), "the self-improvement loop")
     test: Test = setting(Test(), "the held-out test")
     dynamic: ParticleDynamic = setting(ParticleDynamic(), "the moving-environment episodes")
-    dynamic_paper: ParticlePaperDynamic = setting(ParticlePaperDynamic(), "the authors' moving test (main3.py)")
-    baselines: list[str] = setting(["demos_only", "rwr"], "baselines run alongside", choices=("demos_only", "rwr"))
+    dynamic_paper: ParticlePaperDynamic = setting(
+        ParticlePaperDynamic(), "the authors' moving test (main3.py)"
+    )
+    baselines: list[str] = setting(
+        ["demos_only", "rwr"], "baselines run alongside", choices=("demos_only", "rwr")
+    )
     progress: bool = setting(True, "show progress bars")
 
 
@@ -271,28 +345,53 @@ class ArmDynamic:
     dt: float = setting(0.02, "control step (s); the map is queried every step", gt=0)
     kp: float = setting(10.0, "joint-space stiffness", gt=0)
     moves: list[int] = setting([1, 2], "the can or the target is moved this many times per episode")
-    move_window: list[float] = setting([0.1, 0.6], "fraction of the motion in which the moves happen")
+    move_window: list[float] = setting(
+        [0.1, 0.6], "fraction of the motion in which the moves happen"
+    )
     place_clearance: float = setting(0.05, "clearance of a moved object to the arm (m)", ge=0)
     switch_margin: float = setting(0.02, "cost margin before the arm switches class", ge=0)
-    check: bool = setting(True, "pass over a class whose plan for the rest of the motion touches the can "
-                          "(false: the summed objectives alone choose)")
-    switch_clearance: float = setting(0.01, "the check's hysteresis (m): another class than the tracked one counts "
-                                      "as clear only with this much more than the margin (0: none)", ge=0)
+    check: bool = setting(
+        True,
+        "pass over a class whose plan for the rest of the motion touches the can "
+        "(false: the summed objectives alone choose)",
+    )
+    switch_clearance: float = setting(
+        0.01,
+        "the check's hysteresis (m): another class than the tracked one counts "
+        "as clear only with this much more than the margin (0: none)",
+        ge=0,
+    )
 
 
 @dataclass
 class ArmPhysics:
-    run: str = setting("auto", "execute the map's motions in MuJoCo: auto (where mujoco is installed; else one line "
-                       "naming the extra) | always (refuse to start without it) | never", choices=("auto", "always", "never"))
-    timestep: float = setting(0.002, "MuJoCo's physics step (s); the control step dynamic.dt is a whole multiple", gt=0)
-    kp: float = setting(400.0, "computed-torque stiffness (1/s^2); kp h^2 + 2 kd h < 4 at the timestep h", gt=0)
+    run: str = setting(
+        "auto",
+        "execute the map's motions in MuJoCo: auto (where mujoco is installed; else one line "
+        "naming the extra) | always (refuse to start without it) | never",
+        choices=("auto", "always", "never"),
+    )
+    timestep: float = setting(
+        0.002, "MuJoCo's physics step (s); the control step dynamic.dt is a whole multiple", gt=0
+    )
+    kp: float = setting(
+        400.0, "computed-torque stiffness (1/s^2); kp h^2 + 2 kd h < 4 at the timestep h", gt=0
+    )
     kd: float = setting(40.0, "computed-torque damping (1/s)", ge=0)
-    mass_scale: float = setting(1.0, "the controller model's link masses and inertias / the simulated arm's", gt=0)
-    feasible: bool = setting(True, "torque-feasible reference: its acceleration scaled down where the command would "
-                             "pass feasible_scale of the torque limits (false: tracked as planned)")
-    feasible_scale: float = setting(0.9, "the fraction of the torque limits the feasible reference keeps within",
-                                    gt=0, le=1)
-    render: bool = setting(True, "render a held-out reach and a switching episode (GIF + frames; needs EGL or OSMesa)")
+    mass_scale: float = setting(
+        1.0, "the controller model's link masses and inertias / the simulated arm's", gt=0
+    )
+    feasible: bool = setting(
+        True,
+        "torque-feasible reference: its acceleration scaled down where the command would "
+        "pass feasible_scale of the torque limits (false: tracked as planned)",
+    )
+    feasible_scale: float = setting(
+        0.9, "the fraction of the torque limits the feasible reference keeps within", gt=0, le=1
+    )
+    render: bool = setting(
+        True, "render a held-out reach and a switching episode (GIF + frames; needs EGL or OSMesa)"
+    )
 
 
 @dataclass
@@ -302,10 +401,15 @@ class ArmReachSettings:
     test: Test = setting(Test(), "the held-out test")
     dynamic: ArmDynamic = setting(ArmDynamic(), "the moving episodes")
     physics: ArmPhysics = setting(ArmPhysics(), "the held-out and moving tests executed in MuJoCo")
-    baselines: list[str] = setting(["labels_off", "labels_off_loop"], "baselines run alongside",
-                                   choices=("labels_off", "labels_off_loop"))
+    baselines: list[str] = setting(
+        ["labels_off", "labels_off_loop"],
+        "baselines run alongside",
+        choices=("labels_off", "labels_off_loop"),
+    )
     progress: bool = setting(True, "show progress bars")
-    threads: typing.Optional[int] = setting(None, "torch threads inside the experiment; null = the top-level threads setting", ge=1)
+    threads: typing.Optional[int] = setting(
+        None, "torch threads inside the experiment; null = the top-level threads setting", ge=1
+    )
 
 
 @dataclass
@@ -313,73 +417,148 @@ class SelfImproveSettings:
     promp: ProMPSettings = setting(ProMPSettings(), "the ProMP's basis")
     loop: Loop = setting(Loop(), "the self-improvement loop")
     test: Test = setting(Test(), "the held-out test")
-    baselines: list[str] = setting(["demos_only"], "baselines run alongside", choices=("demos_only",))
+    baselines: list[str] = setting(
+        ["demos_only"], "baselines run alongside", choices=("demos_only",)
+    )
     progress: bool = setting(False, "show progress bars")
 
 
-SETTINGS_SCHEMAS: dict[str, type] = {"point_particle": PointParticleSettings, "arm_reach": ArmReachSettings,
-                                     "self_improve": SelfImproveSettings}
+SETTINGS_SCHEMAS: dict[str, type] = {
+    "point_particle": PointParticleSettings,
+    "arm_reach": ArmReachSettings,
+    "self_improve": SelfImproveSettings,
+}
 
 
 @dataclass
 class RecordingsSettings:
-    trim: typing.Any = setting(0.05, "idle ends: speed below this fraction of the recording's peak is cut (false: off)")
-    align: bool = setting(True, "DTW time alignment of the recordings of one environment (and side)")
+    trim: typing.Any = setting(
+        0.05, "idle ends: speed below this fraction of the recording's peak is cut (false: off)"
+    )
+    align: bool = setting(
+        True, "DTW time alignment of the recordings of one environment (and side)"
+    )
     samples: int = setting(200, "points per demonstration, equally spaced in time", ge=2)
-    min_duration: float = setting(0.5, "s a recording (and its motion after trimming) lasts at least", gt=0)
-    group_tol: typing.Any = setting("auto", "recordings whose environments are closer are one environment "
-                                    "(auto: derived from the data)")
+    min_duration: float = setting(
+        0.5, "s a recording (and its motion after trimming) lasts at least", gt=0
+    )
+    group_tol: typing.Any = setting(
+        "auto",
+        "recordings whose environments are closer are one environment "
+        "(auto: derived from the data)",
+    )
     window: float = setting(0.05, "s of smoothing before the speed is measured", gt=0)
 
 
 @dataclass
 class PointParticleTaskSettings:
     objectives: str = setting("clearance", "the middle objective", choices=("clearance", "hole"))
-    fixed_start: typing.Optional[list[float]] = setting(None, "a fixed start point instead of a random one")
+    fixed_start: typing.Optional[list[float]] = setting(
+        None, "a fixed start point instead of a random one"
+    )
     infinite_wall: bool = setting(True, "the wall continues beyond y = 0 and y = 10")
-    demos: str = setting("synthetic", "synthetic, or a folder of trajK.out / envK.out or of *.csv recordings")
-    recordings: RecordingsSettings = setting(RecordingsSettings(), "a *.csv folder's cleaning (docs/recordings.md)")
+    demos: str = setting(
+        "synthetic", "synthetic, or a folder of trajK.out / envK.out or of *.csv recordings"
+    )
+    recordings: RecordingsSettings = setting(
+        RecordingsSettings(), "a *.csv folder's cleaning (docs/recordings.md)"
+    )
     demo_envs: int = setting(30, "synthetic only: demonstrated environments", ge=1)
     demos_per_env: int = setting(3, "synthetic only: demonstrations per environment", ge=2)
 
 
 @dataclass
 class ArmReachTaskSettings:
-    demos: str = setting("synthetic", "synthetic, or a folder of trajK.out (one angle per joint per row) / envK.out, "
-                         "or of *.csv recordings")
-    recordings: RecordingsSettings = setting(RecordingsSettings(), "a *.csv folder's cleaning (docs/recordings.md)")
+    demos: str = setting(
+        "synthetic",
+        "synthetic, or a folder of trajK.out (one angle per joint per row) / envK.out, "
+        "or of *.csv recordings",
+    )
+    recordings: RecordingsSettings = setting(
+        RecordingsSettings(), "a *.csv folder's cleaning (docs/recordings.md)"
+    )
     demo_envs: int = setting(20, "synthetic only: demonstrated environments", ge=1)
     demos_per_env: int = setting(3, "synthetic only: demonstrations per environment", ge=2)
     priors: int = setting(2004, "straight-path prior ProMPs on a regular grid", ge=0)
-    prior_grid: str = setting("rectangles", "the priors' grid spans the sampler's rectangles or the table",
-                              choices=("rectangles", "table"))
-    region: str = setting("rectangles", "where the loop's pool and the tests draw", choices=("rectangles", "table"))
-    reach: typing.Optional[list[float]] = setting(None, "(r_min, r_max) the hand-down arm reaches on the table")
-    cost_steps: typing.Optional[int] = setting(25, "time steps the objectives are evaluated on; null = all", ge=2)
-    margin: typing.Optional[float] = setting(None, "clearance of the arm to the can's surface, for success; "
-                                             "null = 0.02 for the skeleton, 0.01 for the volumes", ge=0)
+    prior_grid: str = setting(
+        "rectangles",
+        "the priors' grid spans the sampler's rectangles or the table",
+        choices=("rectangles", "table"),
+    )
+    region: str = setting(
+        "rectangles", "where the loop's pool and the tests draw", choices=("rectangles", "table")
+    )
+    reach: typing.Optional[list[float]] = setting(
+        None, "(r_min, r_max) the hand-down arm reaches on the table"
+    )
+    cost_steps: typing.Optional[int] = setting(
+        25, "time steps the objectives are evaluated on; null = all", ge=2
+    )
+    margin: typing.Optional[float] = setting(
+        None,
+        "clearance of the arm to the can's surface, for success; "
+        "null = 0.02 for the skeleton, 0.01 for the volumes",
+        ge=0,
+    )
     goal_tol: float = setting(0.02, "success radius at the target (m)", gt=0)
     start_tol: float = setting(0.02, "success radius at the start (m)", gt=0)
-    can_radius: typing.Any = setting("auto", "the can's radius (m); auto: the Panda's 0.0375, scaled to a custom arm")
-    can_height: typing.Any = setting("auto", "the can's height (m); auto: the Panda's 0.23, scaled to a custom arm")
-    clearance: float = setting(0.2, "the 0.2 of the can objective max(-min_t ||p - can||, -0.2)", gt=0)
-    can_box: typing.Any = setting("auto", "where the can is drawn: [[x_min, x_max], [y_min, y_max]] (m); auto: the "
-                                  "Panda's [[0.50, 0.62], [-0.12, 0.12]], placed on a custom arm's reach")
-    goal_box: typing.Any = setting("auto", "where the target is drawn; within the arm's reach (auto: as can_box)")
-    table: typing.Any = setting("auto", "the table top; an environment off it is refused (auto: as can_box)")
-    deviation: str = setting("segment", "d of the objectives: distance to the segment s -> g, or to tau_direct(t)",
-                             choices=("segment", "time"))
-    collision: str = setting("volume", "the arm in planning and the success check: the robot's link capsules (as "
-                             "MuJoCo collides them), or segments between frame origins", choices=("skeleton", "volume"))
-    can_objective: str = setting("auto", "the can objective's distance: the end effector's (the paper's), the "
-                                 "capsules rigid with the end link and the forearm's, the arm's skeleton, or auto (volume "
-                                 "with collision=volume)", choices=("auto", "ee", "volume", "skeleton"))
-    prior_clear: typing.Any = setting("auto", "keep only the priors whose straight path succeeds under "
-                                      "collision (true, false, auto: with collision=volume)")
-    prior_detours: typing.Any = setting("auto", "distances (m) beside the can of the detour priors on both sides; "
-                                        "auto: [0.18, 0.24] with collision=volume, [] with the skeleton")
-    plan_margin: typing.Optional[float] = setting(None, "the loop's margin: it accepts a solution only this far "
-                                                  "from the can (the tests keep margin); null: margin", ge=0)
+    can_radius: typing.Any = setting(
+        "auto", "the can's radius (m); auto: the Panda's 0.0375, scaled to a custom arm"
+    )
+    can_height: typing.Any = setting(
+        "auto", "the can's height (m); auto: the Panda's 0.23, scaled to a custom arm"
+    )
+    clearance: float = setting(
+        0.2, "the 0.2 of the can objective max(-min_t ||p - can||, -0.2)", gt=0
+    )
+    can_box: typing.Any = setting(
+        "auto",
+        "where the can is drawn: [[x_min, x_max], [y_min, y_max]] (m); auto: the "
+        "Panda's [[0.50, 0.62], [-0.12, 0.12]], placed on a custom arm's reach",
+    )
+    goal_box: typing.Any = setting(
+        "auto", "where the target is drawn; within the arm's reach (auto: as can_box)"
+    )
+    table: typing.Any = setting(
+        "auto", "the table top; an environment off it is refused (auto: as can_box)"
+    )
+    deviation: str = setting(
+        "segment",
+        "d of the objectives: distance to the segment s -> g, or to tau_direct(t)",
+        choices=("segment", "time"),
+    )
+    collision: str = setting(
+        "volume",
+        "the arm in planning and the success check: the robot's link capsules (as "
+        "MuJoCo collides them), or segments between frame origins",
+        choices=("skeleton", "volume"),
+    )
+    can_objective: str = setting(
+        "auto",
+        "the can objective's distance: the end effector's (the paper's), the "
+        "capsules rigid with the end link and the forearm's, the arm's skeleton, or auto (volume "
+        "with collision=volume)",
+        choices=("auto", "ee", "volume", "skeleton"),
+    )
+    prior_clear: typing.Any = setting(
+        "auto",
+        "keep only the priors whose straight path succeeds under "
+        "collision (true, false, auto: with collision=volume)",
+    )
+    prior_detours: typing.Any = setting(
+        "auto",
+        "distances (m) beside the can of the detour priors on both sides; "
+        "auto: [0.18, 0.24] with collision=volume, [] with the skeleton",
+    )
+    plan_margin: typing.Optional[float] = setting(
+        None,
+        "the loop's margin: it accepts a solution only this far "
+        "from the can (the tests keep margin); null: margin",
+        ge=0,
+    )
 
 
-TASK_SCHEMAS: dict[str, type] = {"point_particle": PointParticleTaskSettings, "arm_reach": ArmReachTaskSettings}
+TASK_SCHEMAS: dict[str, type] = {
+    "point_particle": PointParticleTaskSettings,
+    "arm_reach": ArmReachTaskSettings,
+}

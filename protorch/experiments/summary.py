@@ -21,8 +21,15 @@ from typing import NamedTuple
 
 from .common import SHARED_OPTIMIZER_KEYS, flatten_metrics, optimizer_label
 
-__all__ = ["Headline", "HEADLINES", "build_summary", "format_summary", "format_value", "baseline_settings",
-           "process_seconds"]
+__all__ = [
+    "Headline",
+    "HEADLINES",
+    "build_summary",
+    "format_summary",
+    "format_value",
+    "baseline_settings",
+    "process_seconds",
+]
 
 
 class Headline(NamedTuple):
@@ -35,75 +42,184 @@ class Headline(NamedTuple):
 
 HEADLINES: dict[str, list[Headline]] = {
     "fig3_toy": [
-        Headline("irrelevant std, final / initial", "pro.irrelevant_std_ratio", "PRO",
-                 (("RWR", "rwr.irrelevant_std_ratio"),)),
+        Headline(
+            "irrelevant std, final / initial",
+            "pro.irrelevant_std_ratio",
+            "PRO",
+            (("RWR", "rwr.irrelevant_std_ratio"),),
+        ),
         Headline("final reward", "pro.final_reward", "PRO", (("RWR", "rwr.final_reward"),)),
     ],
     "fig4_window": [
-        Headline("relevance time", "pro.relevance_seconds", "PRO", (("RWPO", "rwpo.relevance_seconds"),),
-                 {"PRO": 0.02, "RWPO": 84.47}),
-        Headline("mean passes start, window, end", "pro.success", "PRO", (("RWPO", "rwpo.success"),
-                                                                           ("demos", "demos.success_rate"))),
+        Headline(
+            "relevance time",
+            "pro.relevance_seconds",
+            "PRO",
+            (("RWPO", "rwpo.relevance_seconds"),),
+            {"PRO": 0.02, "RWPO": 84.47},
+        ),
+        Headline(
+            "mean passes start, window, end",
+            "pro.success",
+            "PRO",
+            (("RWPO", "rwpo.success"), ("demos", "demos.success_rate")),
+        ),
         Headline("iterations", "pro.iterations", "PRO", (("RWPO", "rwpo.iterations"),)),
     ],
     "beam_window": [
-        Headline("success rate", "optimized.samples_success_rate", "PRO samples",
-                 (("demonstrations", "demos.success_rate"),), {"demonstrations": 0.0}),
-        Headline("teleoperation success", "teleop.assisted_success_rate", "guided by PRO",
-                 (("unassisted", "teleop.unassisted_success_rate"),
-                  ("guided by demos", "teleop.assisted_by_demos_promp_success_rate"))),
+        Headline(
+            "success rate",
+            "optimized.samples_success_rate",
+            "PRO samples",
+            (("demonstrations", "demos.success_rate"),),
+            {"demonstrations": 0.0},
+        ),
+        Headline(
+            "teleoperation success",
+            "teleop.assisted_success_rate",
+            "guided by PRO",
+            (
+                ("unassisted", "teleop.unassisted_success_rate"),
+                ("guided by demos", "teleop.assisted_by_demos_promp_success_rate"),
+            ),
+        ),
     ],
     "teleop_window": [
-        Headline(label, f"teleop.adaptive.{key}", "adaptive guide",
-                 (("fixed guide", f"teleop.fixed.{key}"), ("no guide", f"teleop.none.{key}")))
-        for label, key in (("success rate", "success_rate"), ("collision rate", "collision_rate"),
-                           ("median trial time (s)", "time"), ("effort (m s)", "effort"),
-                           ("freedom (compliance)", "freedom"))
-    ] + [
-        Headline("adaptive guide's freedom, by the map's optimiser", "freedom.pro.freedom", "PRO",
-                 (("CEM", "freedom.cem.freedom"), ("CMA-ES", "freedom.cmaes.freedom"))),
-        Headline("adaptive guide's success, by the map's optimiser", "freedom.pro.success_rate", "PRO",
-                 (("CEM", "freedom.cem.success_rate"), ("CMA-ES", "freedom.cmaes.success_rate"))),
+        Headline(
+            label,
+            f"teleop.adaptive.{key}",
+            "adaptive guide",
+            (("fixed guide", f"teleop.fixed.{key}"), ("no guide", f"teleop.none.{key}")),
+        )
+        for label, key in (
+            ("success rate", "success_rate"),
+            ("collision rate", "collision_rate"),
+            ("median trial time (s)", "time"),
+            ("effort (m s)", "effort"),
+            ("freedom (compliance)", "freedom"),
+        )
+    ]
+    + [
+        Headline(
+            "adaptive guide's freedom, by the map's optimiser",
+            "freedom.pro.freedom",
+            "PRO",
+            (("CEM", "freedom.cem.freedom"), ("CMA-ES", "freedom.cmaes.freedom")),
+        ),
+        Headline(
+            "adaptive guide's success, by the map's optimiser",
+            "freedom.pro.success_rate",
+            "PRO",
+            (("CEM", "freedom.cem.success_rate"), ("CMA-ES", "freedom.cmaes.success_rate")),
+        ),
     ],
     "point_particle": [
-        Headline("held-out success", "test.success_rate", "{optimizer} loop",
-                 (("demos only", "baselines.demos_only.test.success_rate"),
-                  ("{baseline} loop", "baselines.rwr.test.success_rate"))),
-        Headline("moving-environment success", "dynamic.success_rate", "{optimizer} loop",
-                 (("demos only", "baselines.demos_only.dynamic.success_rate"),
-                  ("{baseline} loop", "baselines.rwr.dynamic.success_rate"))),
-        Headline("the authors' moving test (wall, hole, goal moving)", "dynamic_paper.success_rate",
-                 "{optimizer} loop"),
-        Headline("rollouts (samples evaluated)", "loop.rollouts", "{optimizer} loop",
-                 (("{baseline} loop", "baselines.rwr.loop.rollouts"),)),
-        Headline("loop time", "loop.seconds", "{optimizer} loop", (("{baseline} loop", "baselines.rwr.loop.seconds"),)),
+        Headline(
+            "held-out success",
+            "test.success_rate",
+            "{optimizer} loop",
+            (
+                ("demos only", "baselines.demos_only.test.success_rate"),
+                ("{baseline} loop", "baselines.rwr.test.success_rate"),
+            ),
+        ),
+        Headline(
+            "moving-environment success",
+            "dynamic.success_rate",
+            "{optimizer} loop",
+            (
+                ("demos only", "baselines.demos_only.dynamic.success_rate"),
+                ("{baseline} loop", "baselines.rwr.dynamic.success_rate"),
+            ),
+        ),
+        Headline(
+            "the authors' moving test (wall, hole, goal moving)",
+            "dynamic_paper.success_rate",
+            "{optimizer} loop",
+        ),
+        Headline(
+            "rollouts (samples evaluated)",
+            "loop.rollouts",
+            "{optimizer} loop",
+            (("{baseline} loop", "baselines.rwr.loop.rollouts"),),
+        ),
+        Headline(
+            "loop time",
+            "loop.seconds",
+            "{optimizer} loop",
+            (("{baseline} loop", "baselines.rwr.loop.seconds"),),
+        ),
     ],
     "self_improve": [
-        Headline("held-out success", "test.success_rate", "{optimizer} loop",
-                 (("demos only", "demos_only.test.success_rate"),)),
+        Headline(
+            "held-out success",
+            "test.success_rate",
+            "{optimizer} loop",
+            (("demos only", "demos_only.test.success_rate"),),
+        ),
         Headline("rollouts (samples evaluated)", "loop.rollouts", "{optimizer} loop"),
         Headline("loop time", "loop.seconds", "{optimizer} loop"),
     ],
     "arm_reach": [
-        Headline("held-out success", "test.success_rate", "{optimizer} loop, labels",
-                 (("labels dropped", "baselines.labels_off.test.success_rate"),
-                  ("loop without labels", "baselines.labels_off_loop.test.success_rate"))),
-        Headline("moving-environment success", "dynamic.success_rate", "{optimizer} loop, labels",
-                 (("labels dropped", "baselines.labels_off.dynamic.success_rate"),
-                  ("loop without labels", "baselines.labels_off_loop.dynamic.success_rate"))),
-        Headline("side switches (labels)", "dynamic.switches", "{optimizer} loop, labels",
-                 (("labels dropped", "baselines.labels_off.dynamic.switches"),
-                  ("loop without labels", "baselines.labels_off_loop.dynamic.switches"))),
-        Headline("side switches (geometric)", "dynamic.switches_geometric", "{optimizer} loop, labels",
-                 (("labels dropped", "baselines.labels_off.dynamic.switches_geometric"),
-                  ("loop without labels", "baselines.labels_off_loop.dynamic.switches_geometric"))),
-        Headline("rollouts (samples evaluated)", "loop.rollouts", "{optimizer} loop, labels",
-                 (("loop without labels", "baselines.labels_off_loop.loop.rollouts"),)),
-        Headline("loop time", "loop.seconds", "{optimizer} loop, labels",
-                 (("loop without labels", "baselines.labels_off_loop.loop.seconds"),)),
-        Headline("held-out success in MuJoCo", "physics.test.success_rate", "{optimizer} loop, labels"),
-        Headline("moving success in MuJoCo", "physics.dynamic.success_rate", "{optimizer} loop, labels"),
-        Headline("moving episodes touching in MuJoCo", "physics.dynamic.contacts", "{optimizer} loop, labels"),
+        Headline(
+            "held-out success",
+            "test.success_rate",
+            "{optimizer} loop, labels",
+            (
+                ("labels dropped", "baselines.labels_off.test.success_rate"),
+                ("loop without labels", "baselines.labels_off_loop.test.success_rate"),
+            ),
+        ),
+        Headline(
+            "moving-environment success",
+            "dynamic.success_rate",
+            "{optimizer} loop, labels",
+            (
+                ("labels dropped", "baselines.labels_off.dynamic.success_rate"),
+                ("loop without labels", "baselines.labels_off_loop.dynamic.success_rate"),
+            ),
+        ),
+        Headline(
+            "side switches (labels)",
+            "dynamic.switches",
+            "{optimizer} loop, labels",
+            (
+                ("labels dropped", "baselines.labels_off.dynamic.switches"),
+                ("loop without labels", "baselines.labels_off_loop.dynamic.switches"),
+            ),
+        ),
+        Headline(
+            "side switches (geometric)",
+            "dynamic.switches_geometric",
+            "{optimizer} loop, labels",
+            (
+                ("labels dropped", "baselines.labels_off.dynamic.switches_geometric"),
+                ("loop without labels", "baselines.labels_off_loop.dynamic.switches_geometric"),
+            ),
+        ),
+        Headline(
+            "rollouts (samples evaluated)",
+            "loop.rollouts",
+            "{optimizer} loop, labels",
+            (("loop without labels", "baselines.labels_off_loop.loop.rollouts"),),
+        ),
+        Headline(
+            "loop time",
+            "loop.seconds",
+            "{optimizer} loop, labels",
+            (("loop without labels", "baselines.labels_off_loop.loop.seconds"),),
+        ),
+        Headline(
+            "held-out success in MuJoCo", "physics.test.success_rate", "{optimizer} loop, labels"
+        ),
+        Headline(
+            "moving success in MuJoCo", "physics.dynamic.success_rate", "{optimizer} loop, labels"
+        ),
+        Headline(
+            "moving episodes touching in MuJoCo",
+            "physics.dynamic.contacts",
+            "{optimizer} loop, labels",
+        ),
     ],
 }
 
@@ -113,7 +229,9 @@ def process_seconds() -> float | None:
     ``/proc``; ``None`` where it cannot be read."""
     try:
         with open("/proc/self/stat") as f:
-            start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])  # field 22: start time after boot
+            start_ticks = int(
+                f.read().rsplit(")", 1)[1].split()[19]
+            )  # field 22: start time after boot
         with open("/proc/uptime") as f:
             uptime = float(f.read().split()[0])
         return max(0.0, uptime - start_ticks / os.sysconf("SC_CLK_TCK"))
@@ -130,32 +248,57 @@ def baseline_settings(optimizer: dict | None, baseline: dict | None) -> dict | N
     optimizer = optimizer or {}
     keys = [k for k in SHARED_OPTIMIZER_KEYS if k in baseline]
     same = {k: baseline[k] for k in keys if k in optimizer and optimizer[k] == baseline[k]}
-    return {"name": baseline.get("name", "rwr"), "optimizer": optimizer.get("name", "pro"), "same": same,
-            "own": {k: baseline[k] for k in keys if k not in same}}
+    return {
+        "name": baseline.get("name", "rwr"),
+        "optimizer": optimizer.get("name", "pro"),
+        "same": same,
+        "own": {k: baseline[k] for k in keys if k not in same},
+    }
 
 
-def build_summary(name: str, metrics: dict, *, run_dir, wall_seconds: float, status: str = "ok",
-                  error: str | None = None, baseline: dict | None = None) -> dict:
+def build_summary(
+    name: str,
+    metrics: dict,
+    *,
+    run_dir,
+    wall_seconds: float,
+    status: str = "ok",
+    error: str | None = None,
+    baseline: dict | None = None,
+) -> dict:
     """``{"status", "run_dir", "wall_seconds" (the run), "process_seconds" (the Python process so
     far, ``None`` where unknown), "headline": {metrics key: {label, method, value, paper}},
     "baseline" (:func:`baseline_settings`, where the run has a baseline optimiser)}``; a key the
     run did not produce (a baseline switched off, a failed run) is left out. The headline is keyed
     by metrics key, so a timing row's keys name it as one."""
     flat = flatten_metrics(metrics)
-    names = {"optimizer": optimizer_label(flat.get("settings.optimizer") or "pro"),
-             "baseline": optimizer_label(flat.get("settings.baseline_optimizer") or "rwr")}
+    names = {
+        "optimizer": optimizer_label(flat.get("settings.optimizer") or "pro"),
+        "baseline": optimizer_label(flat.get("settings.baseline_optimizer") or "rwr"),
+    }
     headline = {}
     for row in HEADLINES.get(name, []):
         for method, key in ((row.method, row.key), *row.baselines):
             method = method.format(**names)
             if key in flat:
-                headline[key] = {"label": row.label, "method": method, "value": flat[key],
-                                 "paper": row.paper.get(method)}
+                headline[key] = {
+                    "label": row.label,
+                    "method": method,
+                    "value": flat[key],
+                    "paper": row.paper.get(method),
+                }
     process = process_seconds()
-    if baseline is not None and not any(optimizer_label(baseline["name"]) in r["method"] for r in headline.values()):
+    if baseline is not None and not any(
+        optimizer_label(baseline["name"]) in r["method"] for r in headline.values()
+    ):
         baseline = None  # its runs are not in this summary (e.g. settings.baselines=[demos_only])
-    out = {"status": status, "run_dir": str(run_dir), "wall_seconds": round(float(wall_seconds), 3),
-           "process_seconds": None if process is None else round(process, 3), "headline": headline}
+    out = {
+        "status": status,
+        "run_dir": str(run_dir),
+        "wall_seconds": round(float(wall_seconds), 3),
+        "process_seconds": None if process is None else round(process, 3),
+        "headline": headline,
+    }
     if baseline is not None:
         out["baseline"] = baseline
     if error is not None:
@@ -190,7 +333,9 @@ def format_value(key: str, v) -> str:
     if abs(v) >= 1000:
         return f"{v:,.0f}"
     out = f"{v:#.3g}"  # 3 significant digits, trailing zeros kept (1.00) ...
-    return out[:-1] if out.endswith(".") else out  # ... but 114, not "114." (a mean of iteration counts)
+    return (
+        out[:-1] if out.endswith(".") else out
+    )  # ... but 114, not "114." (a mean of iteration counts)
 
 
 def _baseline_line(b: dict) -> str:
@@ -211,8 +356,12 @@ def format_summary(name: str, summary: dict) -> str:
     head = summary["headline"]
     paper = any(r["paper"] is not None for r in head.values())
     rows = [("metric", "method", "value", "paper")[: 4 if paper else 3]]
-    rows += [(r["label"], r["method"], format_value(k, r["value"]), format_value(k, r["paper"]))[: 4 if paper else 3]
-             for k, r in head.items()]
+    rows += [
+        (r["label"], r["method"], format_value(k, r["value"]), format_value(k, r["paper"]))[
+            : 4 if paper else 3
+        ]
+        for k, r in head.items()
+    ]
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     lines = [f"[protorch] {name} summary"]
     if head:
@@ -224,7 +373,8 @@ def format_summary(name: str, summary: dict) -> str:
         status += f": {summary['error']}"
     times = f"run {_seconds(summary['wall_seconds'])}"
     if summary.get("process_seconds") is not None:
-        times += f", process {_seconds(summary['process_seconds'])} (Python's start and imports included)"
+        process = _seconds(summary["process_seconds"])
+        times += f", process {process} (Python's start and imports included)"
     lines.append(f"  status {status}; wall time: {times}")
     lines.append(f"  run folder {summary['run_dir']}")
     return "\n".join(lines)

@@ -16,9 +16,24 @@ from .closed_form import TorchEnvMap
 from .gpytorch_exact import GPyTorchEnvMap
 from .sparse import SparseEnvMap
 
-__all__ = ["EnvMap", "BestPrediction", "EnvMapWarning", "TorchEnvMap", "GPyTorchEnvMap", "SparseEnvMap", "BACKENDS", "make_env_map", "load_env_map", "rbf"]
+__all__ = [
+    "EnvMap",
+    "BestPrediction",
+    "EnvMapWarning",
+    "TorchEnvMap",
+    "GPyTorchEnvMap",
+    "SparseEnvMap",
+    "BACKENDS",
+    "make_env_map",
+    "load_env_map",
+    "rbf",
+]
 
-BACKENDS: dict[str, type[EnvMap]] = {"torch": TorchEnvMap, "gpytorch": GPyTorchEnvMap, "sparse": SparseEnvMap}
+BACKENDS: dict[str, type[EnvMap]] = {
+    "torch": TorchEnvMap,
+    "gpytorch": GPyTorchEnvMap,
+    "sparse": SparseEnvMap,
+}
 
 
 def make_env_map(backend: str = "torch", alpha: float = 1.0, **options) -> EnvMap:

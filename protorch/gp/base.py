@@ -30,8 +30,16 @@ from ..data.files import atomic_write_safetensors
 from .kernels import EnvMapWarning, posdef_cholesky, rbf, sq_dist
 from .storage import GrowingRows
 
-__all__ = ["EnvMap", "BestPrediction", "EnvMapWarning", "rbf", "sq_dist", "posdef_cholesky", "ENV_MAP_FORMAT",
-           "ENV_MAP_SCHEMA"]
+__all__ = [
+    "EnvMap",
+    "BestPrediction",
+    "EnvMapWarning",
+    "rbf",
+    "sq_dist",
+    "posdef_cholesky",
+    "ENV_MAP_FORMAT",
+    "ENV_MAP_SCHEMA",
+]
 
 ENV_MAP_FORMAT = "protorch.env_map"
 ENV_MAP_SCHEMA = 2  # 2: metadata digests
@@ -47,7 +55,9 @@ def _as_labels(labels, m: int, device) -> Tensor:
     if lab.ndim == 0:
         lab = lab.expand(m)
     if lab.ndim != 1 or lab.shape[0] != m:
-        raise ValueError(f"labels must be an int or have shape ({m},), got shape {tuple(lab.shape)}")
+        raise ValueError(
+            f"labels must be an int or have shape ({m},), got shape {tuple(lab.shape)}"
+        )
     if lab.is_floating_point():
         if not bool(torch.isfinite(lab).all()) or not bool((lab == lab.round()).all()):
             raise ValueError("labels must be integers")
@@ -108,7 +118,9 @@ class EnvMap(nn.Module, ABC):
         # the data in blocks that are never copied, so one add never pays for the rows before it
         self._data = GrowingRows((0,), **kw)  # (M, d + 2N) rows [E | MU | VAR]
         self._labels = GrowingRows((), dtype=torch.long, device=device)  # (M,)
-        self.register_buffer("_known", torch.zeros(0, dtype=torch.long, device=device))  # (K,) sorted labels
+        self.register_buffer(
+            "_known", torch.zeros(0, dtype=torch.long, device=device)
+        )  # (K,) sorted labels
 
     # ----------------------------------------------------------------- state
     @property
@@ -126,8 +138,11 @@ class EnvMap(nn.Module, ABC):
 
     def _columns(self, a: int, b: int) -> Tensor:
         """Columns ``a .. b - 1`` of the stored rows ``[E | MU | VAR]``: ``(M, b - a)``, a copy."""
-        return torch.cat([v[:, a:b] for _, v in self._data.segments(0, self._m)]) if self._m \
+        return (
+            torch.cat([v[:, a:b] for _, v in self._data.segments(0, self._m)])
+            if self._m
             else self._data.b0[:0, a:b]
+        )
 
     @property
     def E(self) -> Tensor:
@@ -164,7 +179,10 @@ class EnvMap(nn.Module, ABC):
         return {"nearest_k": self.nearest_k}
 
     def extra_repr(self) -> str:
-        return f"backend={self.backend!r}, alpha={self.alpha:g}, nearest_k={self.nearest_k}, M={self._m}"
+        return (
+            f"backend={self.backend!r}, alpha={self.alpha:g}, nearest_k={self.nearest_k}, "
+            f"M={self._m}"
+        )
 
     # ------------------------------------------------------------ validation
     def _validate(self, E, MU, VAR, labels, *, appending: bool):
@@ -179,18 +197,28 @@ class EnvMap(nn.Module, ABC):
             raise ValueError("E is empty: give at least one environment")
         if MU.shape[0] != m or VAR.shape[0] != m:
             raise ValueError(
-                f"E, MU and VAR must have the same number of rows, got {m}, {MU.shape[0]}, {VAR.shape[0]}"
+                f"E, MU and VAR must have the same number of rows, got {m}, {MU.shape[0]}, "
+                f"{VAR.shape[0]}"
             )
         if MU.shape != VAR.shape:
-            raise ValueError(f"MU and VAR must have the same shape, got {tuple(MU.shape)} and {tuple(VAR.shape)}")
+            raise ValueError(
+                f"MU and VAR must have the same shape, got {tuple(MU.shape)} and {tuple(VAR.shape)}"
+            )
         if E.shape[1] == 0 or MU.shape[1] == 0:
-            raise ValueError(f"E and MU need at least one column, got {tuple(E.shape)} and {tuple(MU.shape)}")
+            raise ValueError(
+                f"E and MU need at least one column, got {tuple(E.shape)} and {tuple(MU.shape)}"
+            )
         check_nonnegative(VAR, "VAR")
         if appending and self._m > 0:
             if E.shape[1] != self.env_dim:
-                raise ValueError(f"E must have {self.env_dim} columns like the stored data, got {E.shape[1]}")
+                raise ValueError(
+                    f"E must have {self.env_dim} columns like the stored data, got {E.shape[1]}"
+                )
             if MU.shape[1] != self.num_weights:
-                raise ValueError(f"MU must have {self.num_weights} columns like the stored data, got {MU.shape[1]}")
+                raise ValueError(
+                    f"MU must have {self.num_weights} columns like the stored data, got "
+                    f"{MU.shape[1]}"
+                )
         kw = dict(dtype=self.dtype, device=self.device)
         lab = _as_labels(labels, m, self.device)
         return E.to(**kw), MU.to(**kw), VAR.to(**kw), lab
@@ -207,21 +235,26 @@ class EnvMap(nn.Module, ABC):
         if labels is None:
             if known.numel() > 1:
                 raise ValueError(
-                    f"the data has several labels {known.tolist()}: pass labels= to predict per label"
+                    f"the data has several labels {known.tolist()}: pass labels= to predict per "
+                    "label"
                 )
             lab = known.expand(E.shape[0])
         else:
             lab = _as_labels(labels, E.shape[0], self.device)
             missing = sorted(set(torch.unique(lab).tolist()) - set(known.tolist()))
             if missing:
-                raise ValueError(f"no known environment has label(s) {missing}; known: {known.tolist()}")
+                raise ValueError(
+                    f"no known environment has label(s) {missing}; known: {known.tolist()}"
+                )
         return E.to(dtype=self.dtype, device=self.device), lab
 
     # ------------------------------------------------------------------ API
     def fit(self, E: Tensor, MU: Tensor, VAR: Tensor, labels=None) -> "EnvMap":
         """Replace the data: ``E (M, d)``, ``MU (M, N)``, ``VAR (M, N) >= 0``, ``labels (M,)``."""
         E, MU, VAR, lab = self._validate(E, MU, VAR, labels, appending=False)
-        before = None if self._m == 0 else (self.E, self.MU, self.VAR, self.labels.clone())  # copies
+        before = (
+            None if self._m == 0 else (self.E, self.MU, self.VAR, self.labels.clone())
+        )  # copies
         try:
             self._m = 0
             self._reset_groups()
@@ -279,8 +312,15 @@ class EnvMap(nn.Module, ABC):
     def forward(self, E: Tensor, labels=None) -> tuple[Tensor, Tensor]:
         return self.predict(E, labels)
 
-    def predict_best(self, E: Tensor, score: Callable[[Tensor, Tensor], Tensor], *, candidates=None,
-                     need_var: bool = True, approx_var: bool = False) -> BestPrediction:
+    def predict_best(
+        self,
+        E: Tensor,
+        score: Callable[[Tensor, Tensor], Tensor],
+        *,
+        candidates=None,
+        need_var: bool = True,
+        approx_var: bool = False,
+    ) -> BestPrediction:
         """Predict every candidate label's Gaussian at each query and keep, per query, the label
         whose mean scores lowest: the label-aware inference for multimodal data (each label a
         homotopy class, say; their means are compared, never averaged).
@@ -304,11 +344,18 @@ class EnvMap(nn.Module, ABC):
         E = check_tensor(E, "E", ndim=2)
         q, k = E.shape[0], cand.numel()
         e_rep = E.repeat(k, 1)  # (K Q, d) label-major
-        mu, var = self._predict(e_rep, cand.repeat_interleave(q), need_var=need_var, approx_var=approx_var)
+        mu, var = self._predict(
+            e_rep, cand.repeat_interleave(q), need_var=need_var, approx_var=approx_var
+        )
         s = torch.as_tensor(score(mu, e_rep))
         if tuple(s.shape) != (k * q,):
-            raise ValueError(f"score must return ({k * q},) values for {k} labels x {q} queries, got {tuple(s.shape)}")
-        s = torch.where(torch.isfinite(s), s, torch.full_like(s, float("inf"))).reshape(k, q).T  # (Q, K)
+            raise ValueError(
+                f"score must return ({k * q},) values for {k} labels x {q} queries, got "
+                f"{tuple(s.shape)}"
+            )
+        s = (
+            torch.where(torch.isfinite(s), s, torch.full_like(s, float("inf"))).reshape(k, q).T
+        )  # (Q, K)
         best = s.argmin(-1).to(self.device)  # (Q,)
         rows = best * q + torch.arange(q, device=self.device)  # (Q,)
         return BestPrediction(mu[rows], None if var is None else var[rows], cand[best], s, cand)
@@ -317,7 +364,9 @@ class EnvMap(nn.Module, ABC):
         E, lab = self._validate_query(E, labels)
         q, n = E.shape[0], self.num_weights
         mu = torch.empty(q, n, dtype=self.dtype, device=self.device)  # (Q, N)
-        var = torch.empty(q, n, dtype=self.dtype, device=self.device) if need_var else None  # (Q, N)
+        var = (
+            torch.empty(q, n, dtype=self.dtype, device=self.device) if need_var else None
+        )  # (Q, N)
         for g in torch.unique(lab).tolist():
             sel = lab == g
             if self._keeps_groups():
@@ -370,7 +419,8 @@ class EnvMap(nn.Module, ABC):
     # -------------------------------------------------------- backend hooks
     def _keeps_groups(self) -> bool:
         """Whether ``fit`` and ``add`` build per-label state (``_group_*``) and queries use it;
-        otherwise (``nearest_k`` set) every query solves on its neighbours (``_predict_subsets``)."""
+        otherwise (``nearest_k`` set) every query solves on its neighbours
+        (``_predict_subsets``)."""
         return self.nearest_k is None
 
     @abstractmethod
@@ -393,7 +443,8 @@ class EnvMap(nn.Module, ABC):
         """``Eq (Q, d)`` -> ``(mu (Q, N), var (Q, N) or None)`` for label ``g``."""
 
     @abstractmethod
-    def _predict_subsets(self, Es: Tensor, MUs: Tensor, VARs: Tensor, Eq: Tensor, *, need_var: bool):
+    def _predict_subsets(
+        self, Es: Tensor, MUs: Tensor, VARs: Tensor, Eq: Tensor, *, need_var: bool
+    ):
         """Query ``q`` uses only its own data ``Es[q] (k, d), MUs[q] (k, N), VARs[q] (k, N)``:
         ``(Q, k, d), (Q, k, N), (Q, k, N), (Q, d)`` -> ``(mu (Q, N), var (Q, N) or None)``."""
-

@@ -13,7 +13,8 @@ Variance: exact (one forward substitution per weight, ``O(N M^2)`` per query), o
 ``r`` pivot environments until the largest residual kernel variance is below ``var_tol`` (at most
 ``var_rank`` pivots), ``k_e ~ F f_e`` with ``F (M, r)`` the pivoted factor and
 ``f_e = R^-1 k(S, e)``; then ``k_e^T A_n^-1 k_e ~ f_e^T H_n f_e`` with ``H_n = F^T A_n^-1 F``
-``(N, r, r)``, cached (in float32 unless ``var_dtype="float64"``). A query then costs ``O(r d + N r^2)``. The approximation is exact when
+``(N, r, r)``, cached (in float32 unless ``var_dtype="float64"``). A query then costs ``O(r d + N
+r^2)``. The approximation is exact when
 ``k_e`` lies in the span of the pivot columns; its error is printed by ``benchmarks/gp.py``.
 The cache is rebuilt (``O(N M^2 r)``) at the first approximate query after a change.
 
@@ -76,8 +77,21 @@ class _CholGroup(nn.Module):
     nys_R: Tensor | None  # (r, r)
     nys_H: Tensor | None  # (N, r, r)
 
-    def __init__(self, alpha: float, d: int, n: int, *, capacity: int, block: int, growth: float,
-                 var_rank: int, var_tol: float, var_dtype, dtype, device) -> None:
+    def __init__(
+        self,
+        alpha: float,
+        d: int,
+        n: int,
+        *,
+        capacity: int,
+        block: int,
+        growth: float,
+        var_rank: int,
+        var_tol: float,
+        var_dtype,
+        dtype,
+        device,
+    ) -> None:
         super().__init__()
         self.alpha, self.block, self.growth = alpha, block, growth
         self.var_rank, self.var_tol, self.var_dtype = var_rank, var_tol, var_dtype
@@ -149,7 +163,9 @@ class _CholGroup(nn.Module):
         if m:
             z_old = torch.stack([self.zy[:, :m], self.z1[:, :m]], -1)  # (N, m, 2)
             rhs = rhs - L[:, m : m + b, :m] @ z_old  # (N, B, 2)
-        z_new = torch.linalg.solve_triangular(L[:, m : m + b, m : m + b], rhs, upper=False)  # (N, B, 2)
+        z_new = torch.linalg.solve_triangular(
+            L[:, m : m + b, m : m + b], rhs, upper=False
+        )  # (N, B, 2)
         self.zy[:, m : m + b], self.z1[:, m : m + b] = z_new[..., 0], z_new[..., 1]
         self.E[m : m + b] = E
         self.m = m + b
@@ -175,7 +191,11 @@ class _CholGroup(nn.Module):
         m = self.m
         kq = rbf(self.E[:m], Eq, self.alpha)  # (M, Q)
         quad = torch.stack(
-            [_solve_lower(self.L[i], m, kq, self.block).square().sum(0) for i in range(self.L.shape[0])], -1
+            [
+                _solve_lower(self.L[i], m, kq, self.block).square().sum(0)
+                for i in range(self.L.shape[0])
+            ],
+            -1,
         )  # (Q, N)
         return (1.0 - quad).clamp_min(0) + self.vbar  # (Q, N)
 
@@ -183,7 +203,9 @@ class _CholGroup(nn.Module):
         if self.nys_H is None:
             self._build_nystrom()
         kS = rbf(self.nys_S, Eq, self.alpha)  # (r, Q)
-        f = torch.linalg.solve_triangular(self.nys_R, kS, upper=False).to(self.nys_H.dtype)  # (r, Q)
+        f = torch.linalg.solve_triangular(self.nys_R, kS, upper=False).to(
+            self.nys_H.dtype
+        )  # (r, Q)
         n, r = self.nys_H.shape[:2]
         hf = (self.nys_H.reshape(n * r, r) @ f).reshape(n, r, -1)  # (N, r, Q): one big matmul
         quad = (hf * f).sum(1).T.to(Eq.dtype)  # (Q, N)
@@ -209,7 +231,10 @@ class _CholGroup(nn.Module):
         self.nys_S = E[piv].clone()  # (r, d)
         self.nys_R = F[piv].clone()  # (r, r), lower triangular: chol(K_SS)
         self.nys_H = torch.stack(
-            [(lambda w: w.T @ w)(_solve_lower(self.L[i], m, F, self.block)) for i in range(self.L.shape[0])]
+            [
+                (lambda w: w.T @ w)(_solve_lower(self.L[i], m, F, self.block))
+                for i in range(self.L.shape[0])
+            ]
         ).to(self.var_dtype)  # (N, r, r)
 
 
@@ -229,9 +254,20 @@ class TorchEnvMap(EnvMap):
 
     backend = "torch"
 
-    def __init__(self, alpha: float, *, nearest_k: int | None = None, capacity: int = 64,
-                 growth: float = 1.5, block: int = 256, var_rank: int = 256, var_tol: float = 1e-10,
-                 var_dtype: str = "float32", dtype: torch.dtype = torch.float64, device=None) -> None:
+    def __init__(
+        self,
+        alpha: float,
+        *,
+        nearest_k: int | None = None,
+        capacity: int = 64,
+        growth: float = 1.5,
+        block: int = 256,
+        var_rank: int = 256,
+        var_tol: float = 1e-10,
+        var_dtype: str = "float32",
+        dtype: torch.dtype = torch.float64,
+        device=None,
+    ) -> None:
         super().__init__(alpha, nearest_k=nearest_k, dtype=dtype, device=device)
         for name, v in (("capacity", capacity), ("block", block), ("var_rank", var_rank)):
             if isinstance(v, bool) or int(v) != v or int(v) < 1:
@@ -247,9 +283,15 @@ class TorchEnvMap(EnvMap):
         self.groups = nn.ModuleDict()
 
     def options(self) -> dict:
-        return {**super().options(), "capacity": self.capacity, "growth": self.growth,
-                "block": self.block, "var_rank": self.var_rank, "var_tol": self.var_tol,
-                "var_dtype": self.var_dtype}
+        return {
+            **super().options(),
+            "capacity": self.capacity,
+            "growth": self.growth,
+            "block": self.block,
+            "var_rank": self.var_rank,
+            "var_tol": self.var_tol,
+            "var_dtype": self.var_dtype,
+        }
 
     @property
     def jitter(self) -> dict[int, Tensor]:
@@ -263,10 +305,19 @@ class TorchEnvMap(EnvMap):
         return str(g) in self.groups
 
     def _group_fit(self, g, E, MU, VAR) -> None:
-        grp = _CholGroup(self.alpha, E.shape[1], MU.shape[1], capacity=max(self.capacity, E.shape[0]),
-                         block=self.block, growth=self.growth, var_rank=self.var_rank,
-                         var_tol=self.var_tol, var_dtype=_VAR_DTYPES[self.var_dtype], dtype=self.dtype,
-                         device=self.device)
+        grp = _CholGroup(
+            self.alpha,
+            E.shape[1],
+            MU.shape[1],
+            capacity=max(self.capacity, E.shape[0]),
+            block=self.block,
+            growth=self.growth,
+            var_rank=self.var_rank,
+            var_tol=self.var_tol,
+            var_dtype=_VAR_DTYPES[self.var_dtype],
+            dtype=self.dtype,
+            device=self.device,
+        )
         grp.extend(E, MU, VAR)
         self.groups[str(g)] = grp
         self._warn_if_amplified(g)

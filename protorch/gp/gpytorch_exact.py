@@ -40,7 +40,9 @@ def exact_settings() -> ExitStack:
     """A context in which GPyTorch computes exact Cholesky-based posteriors with the given noise."""
     stack = ExitStack()
     stack.enter_context(gpytorch.settings.max_cholesky_size(_HUGE))
-    stack.enter_context(gpytorch.settings.min_fixed_noise(float_value=0.0, double_value=0.0, half_value=0.0))
+    stack.enter_context(
+        gpytorch.settings.min_fixed_noise(float_value=0.0, double_value=0.0, half_value=0.0)
+    )
     stack.enter_context(gpytorch.settings.fast_computations(False, False, False))
     stack.enter_context(gpytorch.settings.debug(False))
     return stack
@@ -71,8 +73,15 @@ class GPyTorchEnvMap(EnvMap):
 
     backend = "gpytorch"
 
-    def __init__(self, alpha: float, *, nearest_k: int | None = None, love_rank: int = 100,
-                 dtype: torch.dtype = torch.float64, device=None) -> None:
+    def __init__(
+        self,
+        alpha: float,
+        *,
+        nearest_k: int | None = None,
+        love_rank: int = 100,
+        dtype: torch.dtype = torch.float64,
+        device=None,
+    ) -> None:
         super().__init__(alpha, nearest_k=nearest_k, dtype=dtype, device=device)
         if isinstance(love_rank, bool) or int(love_rank) != love_rank or int(love_rank) < 1:
             raise ValueError(f"love_rank must be an int >= 1, got {love_rank!r}")
@@ -116,18 +125,29 @@ class GPyTorchEnvMap(EnvMap):
         vbar = self.VAR[sel].mean(0)  # (N,)
         n = vbar.shape[0]
         xq = (Eq * self._scale).expand(n, *Eq.shape)  # (N, Q, d)
-        with torch.no_grad(), exact_settings(), gpytorch.settings.fast_pred_var(False), \
-                gpytorch.settings.skip_posterior_variances(not need_var or approx_var):
+        with (
+            torch.no_grad(),
+            exact_settings(),
+            gpytorch.settings.fast_pred_var(False),
+            gpytorch.settings.skip_posterior_variances(not need_var or approx_var),
+        ):
             post = model(xq)
             mu = post.mean.T  # (Q, N), the mean cache is now an exact Cholesky solve
             var = post.variance.T if need_var and not approx_var else None  # (Q, N)
         if need_var and approx_var:
             # LOVE: force the Lanczos root (below max_cholesky_size GPyTorch would use an exact,
             # full-size root, which is no faster); the exact mean cache above is kept.
-            with torch.no_grad(), warnings.catch_warnings(), gpytorch.settings.debug(False), \
-                    gpytorch.settings.fast_pred_var(True), gpytorch.settings.max_cholesky_size(0), \
-                    gpytorch.settings.min_fixed_noise(float_value=0.0, double_value=0.0, half_value=0.0), \
-                    gpytorch.settings.max_root_decomposition_size(self.love_rank):
+            with (
+                torch.no_grad(),
+                warnings.catch_warnings(),
+                gpytorch.settings.debug(False),
+                gpytorch.settings.fast_pred_var(True),
+                gpytorch.settings.max_cholesky_size(0),
+                gpytorch.settings.min_fixed_noise(
+                    float_value=0.0, double_value=0.0, half_value=0.0
+                ),
+                gpytorch.settings.max_root_decomposition_size(self.love_rank),
+            ):
                 warnings.simplefilter("ignore")
                 var = model(xq).variance.T  # (Q, N)
         return mu, var.clamp_min(0) + vbar if var is not None else None
@@ -139,8 +159,12 @@ class GPyTorchEnvMap(EnvMap):
         noise = VARs.transpose(1, 2).contiguous()  # (Q, N, k)
         model = _BatchExactGP(x, y, noise, MUs.mean(1))
         xq = (Eq * self._scale)[:, None, None].expand(q, n, 1, Eq.shape[-1])  # (Q, N, 1, d)
-        with torch.no_grad(), exact_settings(), gpytorch.settings.fast_pred_var(False), \
-                gpytorch.settings.skip_posterior_variances(not need_var):
+        with (
+            torch.no_grad(),
+            exact_settings(),
+            gpytorch.settings.fast_pred_var(False),
+            gpytorch.settings.skip_posterior_variances(not need_var),
+        ):
             post = model(xq)
             mu = post.mean[..., 0]  # (Q, N)
             var = post.variance[..., 0].clamp_min(0) + VARs.mean(1) if need_var else None  # (Q, N)

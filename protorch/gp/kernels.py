@@ -29,11 +29,14 @@ def sq_dist(a: Tensor, b: Tensor) -> Tensor:
 
 
 def rbf(a: Tensor, b: Tensor, alpha: float) -> Tensor:
-    """The paper's kernel ``exp(-alpha ||a - b||^2)``: ``(..., P, d), (..., R, d) -> (..., P, R)``."""
+    """The paper's kernel ``exp(-alpha ||a - b||^2)``: ``(..., P, d), (..., R, d) ->
+    (..., P, R)``."""
     return torch.exp(-alpha * sq_dist(a, b))
 
 
-def posdef_cholesky(a: Tensor, *, scale: Tensor | None = None, max_tries: int = 6) -> tuple[Tensor, Tensor]:
+def posdef_cholesky(
+    a: Tensor, *, scale: Tensor | None = None, max_tries: int = 6
+) -> tuple[Tensor, Tensor]:
     """Cholesky factor of a batch of SPD matrices ``(..., P, P)``.
 
     Exact whenever float64 allows it. A matrix whose factorisation fails (duplicate
@@ -78,19 +81,35 @@ def warn_if_amplified(coef: Tensor, MU: Tensor, mu0: Tensor, where: str) -> None
     floor = 1e-12 * (mu0.abs() + 1.0)  # (N,) a constant weight's round-off
     bad = bound > AMPLIFICATION_LIMIT * torch.maximum(spread, floor)  # (N,)
     if bool(bad.any()):
-        n = int(torch.argmax(torch.where(bad, bound / torch.maximum(spread, floor), torch.zeros_like(bound))))
+        n = int(
+            torch.argmax(
+                torch.where(bad, bound / torch.maximum(spread, floor), torch.zeros_like(bound))
+            )
+        )
         warnings.warn(
-            f"{where}: the GP mean of weight {n} may reach {float(bound[n]):.3g} from its prior mean, far "
+            f"{where}: the GP mean of weight {n} may reach {float(bound[n]):.3g} from its prior "
+            "mean, far "
             f"outside the data (which deviate by at most {float(spread[n]):.3g}): near-duplicate "
             "environments with conflicting means and variances near 0 make K + diag(VAR) "
             "ill-conditioned; give them a variance > 0 or keep one of them",
-            EnvMapWarning, stacklevel=4,
+            EnvMapWarning,
+            stacklevel=4,
         )
 
 
-def local_gp(Es: Tensor, MUs: Tensor, VARs: Tensor, Eq: Tensor, alpha: float, *, need_var: bool,
-             mu0: Tensor | None = None, vbar: Tensor | None = None) -> tuple[Tensor, Tensor | None]:
-    """Eq. 7 and 8 for each query ``q`` on its own data ``Es[q] (k, d), MUs[q] (k, N), VARs[q] (k, N)``:
+def local_gp(
+    Es: Tensor,
+    MUs: Tensor,
+    VARs: Tensor,
+    Eq: Tensor,
+    alpha: float,
+    *,
+    need_var: bool,
+    mu0: Tensor | None = None,
+    vbar: Tensor | None = None,
+) -> tuple[Tensor, Tensor | None]:
+    """Eq. 7 and 8 for each query ``q`` on its own data ``Es[q] (k, d), MUs[q] (k, N), VARs[q] (k,
+    N)``:
     one batched ``k x k`` Cholesky per query and weight (each weight has its own noise).
 
     ``Eq (Q, d)``; ``mu0``, ``vbar`` ``(Q, N)``: the prior mean and average variance, by default

@@ -17,7 +17,9 @@ from torch import Tensor, nn
 
 __all__ = ["EnvToProMP", "label_aware_mean", "class_score", "INFEASIBLE"]
 
-INFEASIBLE = 1e6  # added to the score of a mean that fails the task's check (summed costs are O(1)-O(10))
+INFEASIBLE = (
+    1e6  # added to the score of a mean that fails the task's check (summed costs are O(1)-O(10))
+)
 
 
 class EnvToProMP(nn.Module):
@@ -31,7 +33,8 @@ class EnvToProMP(nn.Module):
         super().__init__()
         if promp.num_weights != env_map.num_weights:
             raise ValueError(
-                f"the ProMP has {promp.num_weights} weights but the environment map predicts {env_map.num_weights}"
+                f"the ProMP has {promp.num_weights} weights but the environment map predicts "
+                f"{env_map.num_weights}"
             )
         self.promp = promp
         self.env_map = env_map
@@ -69,7 +72,9 @@ def class_score(promp, task, dtype=None, check: bool = False):
     return score
 
 
-def label_aware_mean(env_map, promp, task, env: torch.Tensor, dtype=torch.float32, check: bool = False):
+def label_aware_mean(
+    env_map, promp, task, env: torch.Tensor, dtype=torch.float32, check: bool = False
+):
     """The label-aware inference (module docstring): every label's predicted mean scored by
     :func:`class_score` (``check``: the task's check first), the best kept. Returns the
     :class:`~protorch.gp.BestPrediction` (``mean (Q, N)``, ``label (Q,)``, ``scores (Q, K)``)."""

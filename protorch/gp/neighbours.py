@@ -58,8 +58,16 @@ class NeighbourIndex(nn.Module):
         max_tree: no tree is built over more points (a batch add beyond it is split).
     """
 
-    def __init__(self, dim: int, *, kind: str = "kdtree", min_tree: int = 1024, max_tree: int = 65536,
-                 dtype: torch.dtype = torch.float64, device=None) -> None:
+    def __init__(
+        self,
+        dim: int,
+        *,
+        kind: str = "kdtree",
+        min_tree: int = 1024,
+        max_tree: int = 65536,
+        dtype: torch.dtype = torch.float64,
+        device=None,
+    ) -> None:
         super().__init__()
         if kind not in INDEX_KINDS:
             raise ValueError(f"index must be one of {list(INDEX_KINDS)}, got {kind!r}")
@@ -76,7 +84,8 @@ class NeighbourIndex(nn.Module):
 
     @property
     def n_tree(self) -> int:
-        """The first ``n_tree`` points are in trees; the rest (the tail) are searched by brute force."""
+        """The first ``n_tree`` points are in trees; the rest (the tail) are searched by brute
+        force."""
         return self.trees[-1].end if self.trees else 0
 
     def add(self, P: Tensor) -> None:
@@ -85,11 +94,18 @@ class NeighbourIndex(nn.Module):
         while self.kind == "kdtree" and self.n - self.n_tree >= self.min_tree:
             lo = self.n_tree
             hi = min(self.n, lo + self.max_tree)
-            while self.trees and self.trees[-1].end - self.trees[-1].start <= hi - lo \
-                    and hi - self.trees[-1].start <= self.max_tree:
+            while (
+                self.trees
+                and self.trees[-1].end - self.trees[-1].start <= hi - lo
+                and hi - self.trees[-1].start <= self.max_tree
+            ):
                 lo = self.trees.pop().start  # merge the smaller trees before into this one
-            data = self.points.rows(lo, hi).detach().to("cpu", torch.float64).numpy().copy()  # (hi - lo, d)
-            self.trees.append(_Tree(lo, hi, cKDTree(data, balanced_tree=False)))  # unbalanced: builds 2x faster
+            data = (
+                self.points.rows(lo, hi).detach().to("cpu", torch.float64).numpy().copy()
+            )  # (hi - lo, d)
+            self.trees.append(
+                _Tree(lo, hi, cKDTree(data, balanced_tree=False))
+            )  # unbalanced: builds 2x faster
 
     def query(self, Q: Tensor, k: int) -> Tensor:
         """``Q (q, d)`` -> positions ``(q, min(k, n))`` of the nearest stored points, nearest
@@ -110,8 +126,12 @@ class NeighbourIndex(nn.Module):
         """``(q, C)`` candidate positions holding each query's ``k`` nearest, their ``(q, C)``
         squared distances, and ``(q,)`` whether they surely hold every point tied with the
         ``k``-th (else :meth:`_full_sort` decides)."""
-        cands, cuts = [], []  # per part: positions (q, c_p) and points (q, c_p, d); if it returned fewer than all,
-        # the squared distance of its farthest candidate (q,), which must lie beyond the k-th nearest
+        cands, cuts = (
+            [],
+            [],
+        )  # per part: positions (q, c_p) and points (q, c_p, d); if it returned fewer than all,
+        # the squared distance of its farthest candidate (q,), which must lie beyond the k-th
+        # nearest
         if self.trees:  # all trees in numpy, one conversion
             q_np, idx_np, cut_np = Q.detach().to("cpu", torch.float64).numpy(), [], []  # (q, d)
             for t in self.trees:
@@ -130,7 +150,9 @@ class NeighbourIndex(nn.Module):
             cands.append((idx + start, P[idx]))
             if ct < P.shape[0]:
                 cuts.append(d2[:, -1])
-        cand, pts = (torch.cat(x, 1) for x in zip(*cands)) if len(cands) > 1 else cands[0]  # (q, C), (q, C, d)
+        cand, pts = (
+            (torch.cat(x, 1) for x in zip(*cands)) if len(cands) > 1 else cands[0]
+        )  # (q, C), (q, C, d)
         d2c = sq_dist(Q[:, None], pts)[:, 0]  # (q, C)
         if not cuts:
             return cand, d2c, torch.ones(Q.shape[0], dtype=torch.bool, device=Q.device)
@@ -139,7 +161,9 @@ class NeighbourIndex(nn.Module):
         return cand, d2c, cut > rk * (1 + 1e-9) + 1e-300
 
     def _full_sort(self, Q: Tensor, k: int) -> Tensor:
-        return torch.sort(sq_dist(Q, self.points.rows()), dim=1, stable=True).indices[:, :k]  # (b, k)
+        return torch.sort(sq_dist(Q, self.points.rows()), dim=1, stable=True).indices[
+            :, :k
+        ]  # (b, k)
 
 
 def _brute_topk(Q: Tensor, P: Tensor, c: int) -> tuple[Tensor, Tensor]:
@@ -148,7 +172,9 @@ def _brute_topk(Q: Tensor, P: Tensor, c: int) -> tuple[Tensor, Tensor]:
     rows = max(1, _CHUNK // max(P.shape[0], 1))
     vals, idx = [], []
     for s in range(0, Q.shape[0], rows):
-        v, i = torch.topk(sq_dist(Q[s : s + rows], P), c, dim=1, largest=False, sorted=True)  # (rows, c)
+        v, i = torch.topk(
+            sq_dist(Q[s : s + rows], P), c, dim=1, largest=False, sorted=True
+        )  # (rows, c)
         vals.append(v)
         idx.append(i)
     return torch.cat(vals), torch.cat(idx)

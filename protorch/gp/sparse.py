@@ -79,8 +79,16 @@ class SparseEnvMap(EnvMap):
 
     backend = "sparse"
 
-    def __init__(self, alpha: float, *, nearest_k: int | None = None, neighbours: int = 32, index: str = "kdtree",
-                 dtype: torch.dtype = torch.float64, device=None) -> None:
+    def __init__(
+        self,
+        alpha: float,
+        *,
+        nearest_k: int | None = None,
+        neighbours: int = 32,
+        index: str = "kdtree",
+        dtype: torch.dtype = torch.float64,
+        device=None,
+    ) -> None:
         super().__init__(alpha, nearest_k=nearest_k, dtype=dtype, device=device)
         if isinstance(neighbours, bool) or int(neighbours) != neighbours or int(neighbours) < 1:
             raise ValueError(f"neighbours must be an int >= 1, got {neighbours!r}")
@@ -102,26 +110,36 @@ class SparseEnvMap(EnvMap):
         return str(g) in self.groups
 
     def _group_fit(self, g, E, MU, VAR) -> None:
-        grp = _LabelIndex(E.shape[1], MU.shape[1], kind=self.index, dtype=self.dtype, device=self.device)
+        grp = _LabelIndex(
+            E.shape[1], MU.shape[1], kind=self.index, dtype=self.dtype, device=self.device
+        )
         grp.extend(self._new_rows(g), E, MU, VAR)
         self.groups[str(g)] = grp
 
     def _group_add(self, g, E, MU, VAR) -> None:
-        self.groups[str(g)].extend(self._new_rows(g), E, MU, VAR)  # (B_g,) rows the base class stored
+        self.groups[str(g)].extend(
+            self._new_rows(g), E, MU, VAR
+        )  # (B_g,) rows the base class stored
 
     def _group_predict(self, g, Eq, *, need_var, approx_var):
         grp = self.groups[str(g)]
         local = self.nearest_k is not None
         k = self.nearest_k if local else self.neighbours
-        mu = torch.empty(Eq.shape[0], self.num_weights, dtype=self.dtype, device=self.device)  # (Q, N)
+        mu = torch.empty(
+            Eq.shape[0], self.num_weights, dtype=self.dtype, device=self.device
+        )  # (Q, N)
         var = torch.empty_like(mu) if need_var else None  # (Q, N)
         prior = None if local else (grp.mu_sum / grp.count, grp.var_sum / grp.count)  # (N,), (N,)
         chunk = max(1, _WORK // (self.num_weights * min(k, grp.count) ** 2))  # queries per solve
         for s in range(0, Eq.shape[0], chunk):
             e = Eq[s : s + chunk]  # (q, d)
             rows = grp.nearest_rows(e, k)  # (q, k)
-            mu0, vbar = (None, None) if local else (p.expand(e.shape[0], -1) for p in prior)  # (q, N)
-            m_c, v_c = local_gp(*self._take(rows), e, self.alpha, need_var=need_var, mu0=mu0, vbar=vbar)
+            mu0, vbar = (
+                (None, None) if local else (p.expand(e.shape[0], -1) for p in prior)
+            )  # (q, N)
+            m_c, v_c = local_gp(
+                *self._take(rows), e, self.alpha, need_var=need_var, mu0=mu0, vbar=vbar
+            )
             mu[s : s + chunk] = m_c
             if need_var:
                 var[s : s + chunk] = v_c

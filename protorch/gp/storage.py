@@ -5,7 +5,8 @@ map's nearest-neighbour index.
 or copied once allocated: when the last one is full, ``append`` allocates a new block as large as
 all the others together (at least ``min_block`` rows), so ``M`` rows take ``O(log M)`` blocks,
 at most twice their memory in address space (untouched rows of a CPU block are not resident),
-and no add pays for copying the rows before it (a single array that doubles copies them all). Reads: :meth:`rows` (a contiguous range),
+and no add pays for copying the rows before it (a single array that doubles copies them all). Reads:
+:meth:`rows` (a contiguous range),
 :meth:`segments` (the same range as views, one per block) and :meth:`take` (a gather by row).
 """
 
@@ -30,15 +31,23 @@ class GrowingRows(nn.Module):
         min_block: rows of the smallest block.
     """
 
-    def __init__(self, shape: tuple[int, ...] = (), *, dtype: torch.dtype = torch.float64, device=None,
-                 min_block: int = 1024) -> None:
+    def __init__(
+        self,
+        shape: tuple[int, ...] = (),
+        *,
+        dtype: torch.dtype = torch.float64,
+        device=None,
+        min_block: int = 1024,
+    ) -> None:
         super().__init__()
         if int(min_block) < 1:
             raise ValueError(f"min_block must be >= 1, got {min_block!r}")
         self.shape, self.min_block = tuple(int(s) for s in shape), int(min_block)
         self.n = 0  # rows stored
         self.starts = [0]  # the first row of each block
-        self.register_buffer("b0", torch.empty(0, *self.shape, dtype=dtype, device=device))  # (cap_0, *shape)
+        self.register_buffer(
+            "b0", torch.empty(0, *self.shape, dtype=dtype, device=device)
+        )  # (cap_0, *shape)
 
     @property
     def dtype(self) -> torch.dtype:
@@ -57,20 +66,28 @@ class GrowingRows(nn.Module):
         return self.capacity_of(len(self.starts) - 1)
 
     def extra_repr(self) -> str:
-        return f"shape={self.shape}, n={self.n}, blocks={len(self.starts)}, capacity={self.capacity}"
+        return (
+            f"shape={self.shape}, n={self.n}, blocks={len(self.starts)}, capacity={self.capacity}"
+        )
 
     def append(self, *parts: Tensor) -> None:
         """Append rows ``n .. n + B - 1``: ``X (B, *shape)``, or ``(B, w_i)`` parts whose columns
         together make rows of width ``w`` (written in place, never concatenated first)."""
         if len(parts) == 1 and tuple(parts[0].shape[1:]) == self.shape:
             cols = [(0, None, parts[0])]  # whole rows
-        elif len(self.shape) == 1 and all(p.ndim == 2 for p in parts) and sum(p.shape[1] for p in parts) == \
-                self.shape[0] and len({p.shape[0] for p in parts}) == 1:
+        elif (
+            len(self.shape) == 1
+            and all(p.ndim == 2 for p in parts)
+            and sum(p.shape[1] for p in parts) == self.shape[0]
+            and len({p.shape[0] for p in parts}) == 1
+        ):
             edges = [0, *accumulate(p.shape[1] for p in parts)]
             cols = list(zip(edges, edges[1:], parts))  # (first column, end column, (B, w_i))
         else:
-            raise ValueError(f"rows must have shape (B, {', '.join(map(str, self.shape))}), got "
-                             f"{' + '.join(str(tuple(p.shape)) for p in parts)}")
+            raise ValueError(
+                f"rows must have shape (B, {', '.join(map(str, self.shape))}), got "
+                f"{' + '.join(str(tuple(p.shape)) for p in parts)}"
+            )
         done, b = 0, parts[0].shape[0]
         while done < b:
             if self.n == self.capacity:
@@ -85,7 +102,9 @@ class GrowingRows(nn.Module):
 
     def _new_block(self, need: int) -> None:
         size = max(need, self.capacity, self.min_block)
-        block = torch.empty(size, *self.shape, dtype=self.dtype, device=self.device)  # rows past n are never read
+        block = torch.empty(
+            size, *self.shape, dtype=self.dtype, device=self.device
+        )  # rows past n are never read
         if self.capacity == 0:  # the empty first block is replaced
             self.b0 = block
         else:
@@ -114,7 +133,9 @@ class GrowingRows(nn.Module):
         if len(self.starts) > 1 and idx.numel():
             lo, hi = idx.aminmax()
             first = bisect_right(self.starts, int(lo)) - 1
-            if int(hi) < self.capacity_of(first):  # all in one block (the common case): one indexing
+            if int(hi) < self.capacity_of(
+                first
+            ):  # all in one block (the common case): one indexing
                 return self._buffers[f"b{first}"][idx - self.starts[first]]
             return self._take_blocks(idx)
         return self.b0[idx]
@@ -135,6 +156,8 @@ class GrowingRows(nn.Module):
             if c:
                 parts.append(blk[local[a : a + c]])
                 a += c
-        out = torch.empty(flat.shape[0], *self.shape, dtype=self.dtype, device=self.device)  # (I, *shape)
+        out = torch.empty(
+            flat.shape[0], *self.shape, dtype=self.dtype, device=self.device
+        )  # (I, *shape)
         out[order] = torch.cat(parts)
         return out.reshape(*idx.shape, *self.shape)

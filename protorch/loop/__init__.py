@@ -39,7 +39,6 @@ signature, checkpoint, resume), :mod:`.phases` (choose, infer, optimise, accept)
 :mod:`.initial` (the demonstrations' data set); :func:`self_improve` reads as the algorithm above.
 """
 
-
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -209,54 +208,145 @@ def self_improve(
             once this many are done (1: each as it comes; more: fewer adds to the map).
     """
     with ThreadGovernor(threads) as governor:
-        return _improve(task, promp, dataset, optimizer=optimizer, optimizer_kwargs=optimizer_kwargs,
-                        env_map=env_map, num_envs=num_envs, batch_size=batch_size, add_only=add_only,
-                        choice=choice, solved=solved, labeler=labeler, each_label=each_label,
-                        sample_steps=sample_steps, seed=seed, eval_envs=eval_envs, min_var=min_var,
-                        var_floor=var_floor, eval_dtype=eval_dtype, run_dir=run_dir,
-                        checkpoint_every=checkpoint_every, resume=resume, progress=progress, desc=desc,
-                        on_step=on_step, governor=governor, refill=refill,
-                        refill_group=refill_group)
+        return _improve(
+            task,
+            promp,
+            dataset,
+            optimizer=optimizer,
+            optimizer_kwargs=optimizer_kwargs,
+            env_map=env_map,
+            num_envs=num_envs,
+            batch_size=batch_size,
+            add_only=add_only,
+            choice=choice,
+            solved=solved,
+            labeler=labeler,
+            each_label=each_label,
+            sample_steps=sample_steps,
+            seed=seed,
+            eval_envs=eval_envs,
+            min_var=min_var,
+            var_floor=var_floor,
+            eval_dtype=eval_dtype,
+            run_dir=run_dir,
+            checkpoint_every=checkpoint_every,
+            resume=resume,
+            progress=progress,
+            desc=desc,
+            on_step=on_step,
+            governor=governor,
+            refill=refill,
+            refill_group=refill_group,
+        )
 
 
-def _improve(task, promp, dataset, *, optimizer, optimizer_kwargs, env_map, num_envs, batch_size, add_only,
-             choice, solved, labeler, each_label, sample_steps, seed, eval_envs, min_var, var_floor, eval_dtype,
-             run_dir, checkpoint_every, resume, progress, desc, on_step, governor, refill,
-             refill_group) -> LoopResult:
+def _improve(
+    task,
+    promp,
+    dataset,
+    *,
+    optimizer,
+    optimizer_kwargs,
+    env_map,
+    num_envs,
+    batch_size,
+    add_only,
+    choice,
+    solved,
+    labeler,
+    each_label,
+    sample_steps,
+    seed,
+    eval_envs,
+    min_var,
+    var_floor,
+    eval_dtype,
+    run_dir,
+    checkpoint_every,
+    resume,
+    progress,
+    desc,
+    on_step,
+    governor,
+    refill,
+    refill_group,
+) -> LoopResult:
     """The body of :func:`self_improve` (the same arguments), run inside its thread setting."""
-    settings = LoopSettings(num_envs=num_envs, batch_size=batch_size, add_only=add_only, choice=choice,
-                            each_label=each_label, sample_steps=sample_steps, seed=seed, min_var=min_var,
-                            var_floor=var_floor, checkpoint_every=checkpoint_every, refill=refill,
-                            refill_group=refill_group)
-    _check_inputs(dataset, optimizer, optimizer_kwargs, labeler, each_label, run_dir, resume, refill)
+    settings = LoopSettings(
+        num_envs=num_envs,
+        batch_size=batch_size,
+        add_only=add_only,
+        choice=choice,
+        each_label=each_label,
+        sample_steps=sample_steps,
+        seed=seed,
+        min_var=min_var,
+        var_floor=var_floor,
+        checkpoint_every=checkpoint_every,
+        refill=refill,
+        refill_group=refill_group,
+    )
+    _check_inputs(
+        dataset, optimizer, optimizer_kwargs, labeler, each_label, run_dir, resume, refill
+    )
     run_dir = None if run_dir is None else writable_folder(run_dir)
-    ev = Evaluator.build(task, promp, eval_dtype=eval_dtype, sample_steps=settings.sample_steps, labeler=labeler,
-                         dtype=dataset.dtype)
+    ev = Evaluator.build(
+        task,
+        promp,
+        eval_dtype=eval_dtype,
+        sample_steps=settings.sample_steps,
+        labeler=labeler,
+        dtype=dataset.dtype,
+    )
     gp = env_map()
-    state = RunState(run_signature(settings, optimizer, optimizer_kwargs, gp, ev.eval_dtype, solved=solved is not None,
-                                   labels=labeler is not None), run_dir, save=save_model)
+    state = RunState(
+        run_signature(
+            settings,
+            optimizer,
+            optimizer_kwargs,
+            gp,
+            ev.eval_dtype,
+            solved=solved is not None,
+            labels=labeler is not None,
+        ),
+        run_dir,
+        save=save_model,
+    )
     # the pool of environments, fixed by the seed (drawn on the CPU)
     if settings.choice == "dataset":
         pool = dataset_pool(dataset, settings.num_envs, dataset.dtype)  # (n, E)
     else:
-        pool = task.sample_envs(settings.num_envs, torch.Generator().manual_seed(int(seed)), dtype=dataset.dtype)  # (n, E)
+        pool = task.sample_envs(
+            settings.num_envs, torch.Generator().manual_seed(int(seed)), dtype=dataset.dtype
+        )  # (n, E)
     if eval_envs is not None:
         eval_envs = ev.here(torch.as_tensor(eval_envs))  # (Q, E)
     data = state.start(dataset, promp, resume=resume)  # a copy of dataset, or the checkpoint's
     state.fit(gp, data)
     if not state.rows:
-        state.rows.append({"step": 0, "envs_done": 0, "dataset_size": len(data),
-                           "eval_success": ev.eval_success(gp, eval_envs), "seconds": 0.0})
+        state.rows.append(
+            {
+                "step": 0,
+                "envs_done": 0,
+                "dataset_size": len(data),
+                "eval_success": ev.eval_success(gp, eval_envs),
+                "seconds": 0.0,
+            }
+        )
     bar = _progress_bar(progress, settings.num_envs, len(state.tried), desc)
 
     def finish_step(row: dict) -> None:
         """Complete a refill loop's metrics row, checkpoint and report it."""
         governor.step()
         state.step += 1
-        row.update(step=state.step, envs_done=len(state.tried), dataset_size=len(data),
-                   eval_success=ev.eval_success(gp, eval_envs),
-                   success_rate=round((state.successes + row["success"]) / len(state.tried), 6),
-                   seconds=round(state.elapsed(), 3))
+        row.update(
+            step=state.step,
+            envs_done=len(state.tried),
+            dataset_size=len(data),
+            eval_success=ev.eval_success(gp, eval_envs),
+            success_rate=round((state.successes + row["success"]) / len(state.tried), 6),
+            seconds=round(state.elapsed(), 3),
+        )
         state.rows.append(row)
         if settings.is_checkpoint_step(state.step) or len(state.tried) == settings.num_envs:
             state.checkpoint(data, gp)
@@ -265,25 +355,45 @@ def _improve(task, promp, dataset, *, optimizer, optimizer_kwargs, env_map, num_
             on_step(row)
 
     if settings.refill:
-        labels = torch.unique(gp.labels).cpu() if settings.each_label else None  # (K,) fixed for the run
-        refill_loop(ev=ev, gp=gp, data=data, pool=pool, state=state, settings=settings, optimizer=optimizer,
-                    optimizer_kwargs=optimizer_kwargs, solved=solved, labels=labels, finish_step=finish_step)
+        labels = (
+            torch.unique(gp.labels).cpu() if settings.each_label else None
+        )  # (K,) fixed for the run
+        refill_loop(
+            ev=ev,
+            gp=gp,
+            data=data,
+            pool=pool,
+            state=state,
+            settings=settings,
+            optimizer=optimizer,
+            optimizer_kwargs=optimizer_kwargs,
+            solved=solved,
+            labels=labels,
+            finish_step=finish_step,
+        )
     while not settings.refill and state.step < settings.num_steps:
         governor.step()  # "auto": the cores other programs leave free now
         state.step += 1
         pick = choose(pool, state.tried, data.env, settings.batch_size, settings.choice)  # (b,)
-        problems = infer(ev, gp, pool[pick], each_label=settings.each_label, min_var=settings.min_var)
-        opt = optimizer(problems.mu, problems.var, seed=settings.step_seed(state.step), **optimizer_kwargs)
+        problems = infer(
+            ev, gp, pool[pick], each_label=settings.each_label, min_var=settings.min_var
+        )
+        opt = optimizer(
+            problems.mu, problems.var, seed=settings.step_seed(state.step), **optimizer_kwargs
+        )
         if torch.get_num_threads() < core_budget() and callable(getattr(opt, "draw_ahead", None)):
-            opt.draw_ahead()  # a free core makes the next ask's noise while this one's costs are computed
+            # a free core makes the next ask's noise while this one's costs are computed
+            opt.draw_ahead()
         res = optimise(ev, problems, opt, solved)
         solutions = accept(ev, problems, res, settings)
         add(data, gp, problems.env, solutions)
         state.tried.extend(pick.tolist())
         row = step_row(state.step, len(state.tried), len(data), problems, res, solutions)
-        row.update(eval_success=ev.eval_success(gp, eval_envs),
-                   success_rate=round((state.successes + row["success"]) / len(state.tried), 6),
-                   seconds=round(state.elapsed(), 3))
+        row.update(
+            eval_success=ev.eval_success(gp, eval_envs),
+            success_rate=round((state.successes + row["success"]) / len(state.tried), 6),
+            seconds=round(state.elapsed(), 3),
+        )
         state.rows.append(row)
         if settings.is_checkpoint_step(state.step):
             state.checkpoint(data, gp)
@@ -292,26 +402,48 @@ def _improve(task, promp, dataset, *, optimizer, optimizer_kwargs, env_map, num_
             on_step(row)
     if bar is not None:
         bar.close()
-    if run_dir is not None and not state.checkpoint_file.is_file():  # num_envs = 0: still a loadable checkpoint
+    if (
+        run_dir is not None and not state.checkpoint_file.is_file()
+    ):  # num_envs = 0: still a loadable checkpoint
         state.checkpoint(data, gp)
-    return LoopResult(dataset=data, env_map=gp, metrics=state.rows, seconds=state.elapsed(), tried=state.tried,
-                      pool=pool, resumed_from=state.resumed_from)
+    return LoopResult(
+        dataset=data,
+        env_map=gp,
+        metrics=state.rows,
+        seconds=state.elapsed(),
+        tried=state.tried,
+        pool=pool,
+        resumed_from=state.resumed_from,
+    )
 
 
-def _check_inputs(dataset, optimizer, optimizer_kwargs: dict, labeler, each_label: bool, run_dir, resume: bool,
-                  refill: bool) -> None:
+def _check_inputs(
+    dataset,
+    optimizer,
+    optimizer_kwargs: dict,
+    labeler,
+    each_label: bool,
+    run_dir,
+    resume: bool,
+    refill: bool,
+) -> None:
     """Refuse, before any work, what :class:`LoopSettings` cannot see."""
     if each_label and labeler is None:
         raise ValueError("each_label=True needs a labeler")
     if "seed" in optimizer_kwargs:
-        raise ValueError("optimizer_kwargs must not hold 'seed': the loop seeds every step from (seed, step)")
+        raise ValueError(
+            "optimizer_kwargs must not hold 'seed': the loop seeds every step from (seed, step)"
+        )
     if len(dataset) == 0:
         raise ValueError("the initial data set is empty: add demonstrations or priors first")
     if resume and run_dir is None:
         raise ValueError("resume=True needs a run_dir")
     if refill and not can_refill(optimizer, optimizer_kwargs):
-        raise ValueError(f"refill=True needs an optimiser that restarts single problems (PRO with relevance_every=1, "
-                         f"RWR, CEM); {optimizer.__name__} with these settings cannot: set refill=False")
+        raise ValueError(
+            "refill=True needs an optimiser that restarts single problems (PRO with "
+            "relevance_every=1, "
+            f"RWR, CEM); {optimizer.__name__} with these settings cannot: set refill=False"
+        )
 
 
 def can_refill(optimizer: type, optimizer_kwargs: dict) -> bool:

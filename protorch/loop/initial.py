@@ -23,8 +23,15 @@ def group_by_env(envs: Tensor) -> list[Tensor]:
 
 
 def demonstration_dataset(
-    promp, demos: Sequence[Tensor], demo_envs: Tensor, *, task_name: str = "", var_floor: float = 0.0,
-    dtype: torch.dtype = torch.float64, labels: Tensor | None = None, lone: str = "refuse",
+    promp,
+    demos: Sequence[Tensor],
+    demo_envs: Tensor,
+    *,
+    task_name: str = "",
+    var_floor: float = 0.0,
+    dtype: torch.dtype = torch.float64,
+    labels: Tensor | None = None,
+    lone: str = "refuse",
 ) -> TrajectoryDataset:
     """One entry per demonstrated environment (and label): the maximum-likelihood diagonal weight
     Gaussian of its demonstrations (``origin="demonstration"``, ``converged=True``).
@@ -48,13 +55,19 @@ def demonstration_dataset(
         raise ValueError(f"demo_envs must be ({len(demos)}, E), got {tuple(demo_envs.shape)}")
     if not var_floor >= 0:
         raise ValueError(f"var_floor must be >= 0, got {var_floor}")
-    lab = torch.zeros(len(demos), dtype=torch.long) if labels is None else torch.as_tensor(labels).cpu()
+    lab = (
+        torch.zeros(len(demos), dtype=torch.long)
+        if labels is None
+        else torch.as_tensor(labels).cpu()
+    )
     if lab.shape != (len(demos),) or lab.is_floating_point() or lab.dtype == torch.bool:
         raise ValueError(f"labels must be ({len(demos)},) integers, got {labels!r}")
     w = promp.weights(demos).to(dtype).cpu()  # (n, N)
     demo_envs = demo_envs.cpu()
     ds = TrajectoryDataset(promp, demo_envs.shape[1], task_name=task_name, dtype=dtype)
-    keyed = demo_envs if labels is None else torch.cat([demo_envs.to(dtype), lab[:, None].to(dtype)], 1)
+    keyed = (
+        demo_envs if labels is None else torch.cat([demo_envs.to(dtype), lab[:, None].to(dtype)], 1)
+    )
     if lone not in ("refuse", "pool"):
         raise ValueError(f"lone must be 'refuse' or 'pool', got {lone!r}")
     groups = group_by_env(keyed)
@@ -65,7 +78,8 @@ def demonstration_dataset(
             var[g] = (wg - wg.mean(0)).pow(2).mean(0).clamp_min(var_floor)  # (N,)
         elif lone == "refuse":
             raise ValueError(
-                f"environment {demo_envs[idx[0]].tolist()} (label {int(lab[idx[0]])}) has 1 demonstration; "
+                f"environment {demo_envs[idx[0]].tolist()} (label {int(lab[idx[0]])}) has 1 "
+                "demonstration; "
                 "a weight variance needs >= 2"
             )
     measured = dict(var)
@@ -73,11 +87,20 @@ def demonstration_dataset(
         if g not in var:  # a lone demonstration: the mean variance of its label's other entries
             same = [v for h, v in measured.items() if int(lab[groups[h][0]]) == int(lab[idx[0]])]
             if not same:
-                raise ValueError(f"environment {demo_envs[idx[0]].tolist()} (label {int(lab[idx[0]])}) has 1 "
-                                 "demonstration and no environment has >= 2 of that label to pool a variance from")
+                raise ValueError(
+                    f"environment {demo_envs[idx[0]].tolist()} (label {int(lab[idx[0]])}) has 1 "
+                    "demonstration and no environment has >= 2 of that label to pool a variance "
+                    "from"
+                )
             var[g] = torch.stack(same).mean(0)  # (N,)
-        ds.append(demo_envs[idx[0]].to(dtype), w[idx].mean(0), var[g], label=int(lab[idx[0]]),
-                  origin="demonstration", converged=True)
+        ds.append(
+            demo_envs[idx[0]].to(dtype),
+            w[idx].mean(0),
+            var[g],
+            label=int(lab[idx[0]]),
+            origin="demonstration",
+            converged=True,
+        )
     return ds
 
 
@@ -85,8 +108,14 @@ def dataset_pool(dataset: TrajectoryDataset, num_envs: int, dtype) -> Tensor:
     """The first ``num_envs`` distinct environments of the data set, in order: ``(num_envs, E)``
     (``choice="dataset"``: the paper's arm loop iterates its initialisation environments)."""
     env = dataset.env.to(dtype).cpu()  # (M, E)
-    first = torch.stack([g[0] for g in group_by_env(env)]) if env.shape[0] else torch.zeros(0, dtype=torch.long)
+    first = (
+        torch.stack([g[0] for g in group_by_env(env)])
+        if env.shape[0]
+        else torch.zeros(0, dtype=torch.long)
+    )
     if first.numel() < num_envs:
-        raise ValueError(f"choice='dataset' needs num_envs <= the data set's {first.numel()} distinct "
-                         f"environments, got num_envs={num_envs}")
+        raise ValueError(
+            f"choice='dataset' needs num_envs <= the data set's {first.numel()} distinct "
+            f"environments, got num_envs={num_envs}"
+        )
     return env[first[:num_envs]]

@@ -21,7 +21,17 @@ from ..data.dataset import TrajectoryDataset
 from ..threads import one_thread
 from .settings import LoopSettings
 
-__all__ = ["Evaluator", "Problems", "Solutions", "accept", "add", "choose", "infer", "optimise", "step_row"]
+__all__ = [
+    "Evaluator",
+    "Problems",
+    "Solutions",
+    "accept",
+    "add",
+    "choose",
+    "infer",
+    "optimise",
+    "step_row",
+]
 
 
 @dataclass(frozen=True)
@@ -37,15 +47,33 @@ class Evaluator:
     dtype: torch.dtype
 
     @classmethod
-    def build(cls, task, promp, *, eval_dtype: torch.dtype | None, sample_steps: int | None, labeler,
-              dtype: torch.dtype) -> Evaluator:
+    def build(
+        cls,
+        task,
+        promp,
+        *,
+        eval_dtype: torch.dtype | None,
+        sample_steps: int | None,
+        labeler,
+        dtype: torch.dtype,
+    ) -> Evaluator:
         """From the data set's ProMP: a copy in ``eval_dtype`` (default the ProMP's), and one on
         ``sample_steps`` evenly spaced phases (``None``: the same ``T``)."""
         eval_dtype = eval_dtype or promp.basis.dtype
         promp_eval = copy.deepcopy(promp).to(eval_dtype)
-        promp_sample = promp_eval if sample_steps is None else type(promp)(
-            promp.num_dof, promp.num_basis, int(sample_steps), width=promp.width, ridge=promp.ridge,
-            dtype=eval_dtype, device=promp.basis.device)  # the same basis functions on a coarser time grid
+        promp_sample = (
+            promp_eval
+            if sample_steps is None
+            else type(promp)(
+                promp.num_dof,
+                promp.num_basis,
+                int(sample_steps),
+                width=promp.width,
+                ridge=promp.ridge,
+                dtype=eval_dtype,
+                device=promp.basis.device,
+            )
+        )  # the same basis functions on a coarser time grid
         return cls(task, promp_eval, promp_sample, labeler, dtype)
 
     @property
@@ -57,7 +85,8 @@ class Evaluator:
         return self.promp.basis.device
 
     def sample_trajectory(self, w: Tensor, steps: tuple[int, ...] | None = None) -> Tensor:
-        """The optimiser's samples ``w (..., N)`` as trajectories on the sample grid ``(..., T, D)``,
+        """The optimiser's samples ``w (..., N)`` as trajectories on the sample grid ``(..., T,
+        D)``,
         or at the time indices ``steps`` only ``(..., len(steps), D)``. Those rows are taken with
         zero rows up to 16: a BLAS product of two rows takes another code path whose rounding
         differs in the last bit, so padding keeps every number equal to the full trajectory's."""
@@ -65,10 +94,14 @@ class Evaluator:
             return self.promp_sample.trajectory(w)
         basis = self.promp_sample.basis  # (T, K)
         rows = basis.new_zeros(max(16, len(steps)), basis.shape[1])  # (>= 16, K)
-        rows[:len(steps)] = basis[list(steps)]
-        wk = w.to(basis.dtype).unflatten(-1, (self.promp_sample.num_dof, self.promp_sample.num_basis))  # (..., D, K)
+        rows[: len(steps)] = basis[list(steps)]
+        wk = w.to(basis.dtype).unflatten(
+            -1, (self.promp_sample.num_dof, self.promp_sample.num_basis)
+        )  # (..., D, K)
         with one_thread():  # as ProMP.trajectory: the same bits at any thread count
-            return torch.einsum("tk,...dk->...td", rows, wk)[..., :len(steps), :]  # (..., len(steps), D)
+            return torch.einsum("tk,...dk->...td", rows, wk)[
+                ..., : len(steps), :
+            ]  # (..., len(steps), D)
 
     def here(self, x: Tensor) -> Tensor:
         """``x`` in the evaluation dtype, on the ProMP's device."""
@@ -93,7 +126,9 @@ class Evaluator:
         if eval_envs is None:
             return None
         mu_q = self.here(self.predict(env_map, eval_envs, need_var=False)[0])  # (Q, N)
-        return round(float(self.task.success(self.promp.trajectory(mu_q), eval_envs).double().mean()), 6)
+        return round(
+            float(self.task.success(self.promp.trajectory(mu_q), eval_envs).double().mean()), 6
+        )
 
 
 @dataclass(frozen=True)
@@ -107,7 +142,9 @@ class Problems:
     mu: Tensor  # (P, N)
     var: Tensor  # (P, N)
     mean_traj: Tensor  # (P, T, D)
-    initial_success: Tensor  # (b,) the start's mean solves the environment (k > 1: the lowest-cost label's)
+    initial_success: (
+        Tensor  # (b,) the start's mean solves the environment (k > 1: the lowest-cost label's)
+    )
     k: int
 
 
@@ -138,8 +175,15 @@ def choose(pool: Tensor, tried: list[int], known: Tensor, batch_size: int, choic
     return cand[:b]
 
 
-def infer(ev: Evaluator, env_map, env: Tensor, *, each_label: bool, min_var: float,
-          labels: Tensor | None = None) -> Problems:
+def infer(
+    ev: Evaluator,
+    env_map,
+    env: Tensor,
+    *,
+    each_label: bool,
+    min_var: float,
+    labels: Tensor | None = None,
+) -> Problems:
     """The problems at ``env (b, E)``: one per environment, started from the GP map's prediction
     (Eq. 7, 8), or with ``each_label`` one per (known label, environment), label-major (the
     labels ``labels (K,)``, default the map's); the variance floored by ``min_var``."""
@@ -172,23 +216,34 @@ def sample_costs(ev: Evaluator, opt, w: Tensor, env_e: Tensor) -> Tensor:
     if not bool(active.any()):
         return w.new_zeros(*w.shape[:2], opt.num_objectives or 1)  # (b, S, O)
     o = getattr(opt, "asked_objective", None)
-    one_cost = None if o is None else getattr(ev.task, "objective_cost", None)  # optional: one objective alone, (...)
+    one_cost = (
+        None if o is None else getattr(ev.task, "objective_cost", None)
+    )  # optional: one objective alone, (...)
     steps = None
     if one_cost is not None and callable(getattr(ev.task, "objective_steps", None)):
         steps = ev.task.objective_steps(o)
     every = bool(active.all())  # no gather and no scatter
-    w_a, env_a = (w, env_e[:, None]) if every else (w[active], env_e[active][:, None])  # (a, S, N), (a, 1, E)
-    chunk = cost_chunks(w_a.shape[0], w_a.shape[1], ev.promp_sample.num_steps if steps is None else len(steps),
-                        ev.promp_sample.num_dof, w_a.shape[2])
+    w_a, env_a = (
+        (w, env_e[:, None]) if every else (w[active], env_e[active][:, None])
+    )  # (a, S, N), (a, 1, E)
+    chunk = cost_chunks(
+        w_a.shape[0],
+        w_a.shape[1],
+        ev.promp_sample.num_steps if steps is None else len(steps),
+        ev.promp_sample.num_dof,
+        w_a.shape[2],
+    )
     parts = []
     for i in range(0, w_a.shape[0], chunk):
-        traj = ev.sample_trajectory(w_a[i:i + chunk], steps)  # (c, S, T, D)
-        env = env_a[i:i + chunk]  # (c, 1, E)
+        traj = ev.sample_trajectory(w_a[i : i + chunk], steps)  # (c, S, T, D)
+        env = env_a[i : i + chunk]  # (c, 1, E)
         parts.append(one_cost(traj, env, o) if one_cost is not None else ev.task.costs(traj, env))
     c = (parts[0] if len(parts) == 1 else torch.cat(parts)).to(w.dtype)  # (a, S) or (a, S, O)
     if one_cost is None and every:
         return c
-    costs = c.new_zeros(*w.shape[:2], opt.num_objectives if one_cost is not None else c.shape[-1])  # (b, S, O)
+    costs = c.new_zeros(
+        *w.shape[:2], opt.num_objectives if one_cost is not None else c.shape[-1]
+    )  # (b, S, O)
     if one_cost is None:
         costs[active] = c
     elif every:
@@ -198,7 +253,9 @@ def sample_costs(ev: Evaluator, opt, w: Tensor, env_e: Tensor) -> Tensor:
     return costs
 
 
-CHUNK_FLOATS = 1 << 19  # trajectory numbers per cost call (2 MB in float32): the fastest of 2^17 to 2^21
+CHUNK_FLOATS = (
+    1 << 19
+)  # trajectory numbers per cost call (2 MB in float32): the fastest of 2^17 to 2^21
 
 
 def cost_chunks(problems: int, samples: int, steps: int, dof: int, weights: int = 0) -> int:
@@ -213,7 +270,9 @@ def cost_chunks(problems: int, samples: int, steps: int, dof: int, weights: int 
     return min(problems, max(unit, CHUNK_FLOATS // max(samples * steps * dof, 1) // unit * unit))
 
 
-def optimise(ev: Evaluator, problems: Problems, opt, solved: Callable[[Tensor, Tensor], Tensor] | None):
+def optimise(
+    ev: Evaluator, problems: Problems, opt, solved: Callable[[Tensor, Tensor], Tensor] | None
+):
     """Run the batched optimiser ``opt`` (started at ``problems.mu``, ``problems.var``) to its
     stop: ask, evaluate, tell. ``solved`` marks a problem converged when its mean solves it,
     before the first and after every iteration. Returns ``opt.result()``."""
@@ -239,38 +298,74 @@ def accept(ev: Evaluator, problems: Problems, res, settings: LoopSettings) -> So
     final_traj = ev.promp.trajectory(res.mean)  # (P, T, D)
     success = ev.task.success(final_traj, problems.env_e).cpu()  # (P,)
     converged = res.converged.cpu()  # (P,)
-    cost = ev.task.costs(final_traj, problems.env_e).sum(-1).to(device="cpu", dtype=ev.dtype)  # (P,)
-    ok = {"converged": converged, "success": success, "all": torch.ones_like(success)}[settings.add_only]
-    label = (torch.zeros(ok.shape[0], dtype=torch.long) if ev.labeler is None
-             else torch.as_tensor(ev.labeler(final_traj, problems.env_e)).to(device="cpu", dtype=torch.long))
-    if problems.k > 1:  # two problems of one environment that ended in the same class: keep the cheaper
+    cost = (
+        ev.task.costs(final_traj, problems.env_e).sum(-1).to(device="cpu", dtype=ev.dtype)
+    )  # (P,)
+    ok = {"converged": converged, "success": success, "all": torch.ones_like(success)}[
+        settings.add_only
+    ]
+    label = (
+        torch.zeros(ok.shape[0], dtype=torch.long)
+        if ev.labeler is None
+        else torch.as_tensor(ev.labeler(final_traj, problems.env_e)).to(
+            device="cpu", dtype=torch.long
+        )
+    )
+    if (
+        problems.k > 1
+    ):  # two problems of one environment that ended in the same class: keep the cheaper
         ok = one_per_class(ok, label, cost, problems.k)
-    return Solutions(mean=res.mean.to(device="cpu", dtype=ev.dtype),
-                     var=res.var.to(device="cpu", dtype=ev.dtype).clamp_min(settings.var_floor),
-                     label=label, converged=converged, success=success, cost=cost, accept=ok)
+    return Solutions(
+        mean=res.mean.to(device="cpu", dtype=ev.dtype),
+        var=res.var.to(device="cpu", dtype=ev.dtype).clamp_min(settings.var_floor),
+        label=label,
+        converged=converged,
+        success=success,
+        cost=cost,
+        accept=ok,
+    )
 
 
 def add(dataset: TrajectoryDataset, env_map, env: Tensor, sol: Solutions) -> None:
     """Append the accepted solutions at ``env (P, E)`` to the data set and to the map."""
     a = sol.accept
     if bool(a.any()):
-        dataset.append(env[a], sol.mean[a], sol.var[a], label=sol.label[a], origin="learned",
-                       converged=sol.converged[a], cost=sol.cost[a])
+        dataset.append(
+            env[a],
+            sol.mean[a],
+            sol.var[a],
+            label=sol.label[a],
+            origin="learned",
+            converged=sol.converged[a],
+            cost=sol.cost[a],
+        )
         env_map.add(env[a], sol.mean[a], sol.var[a], sol.label[a])
 
 
-def step_row(step: int, envs_done: int, dataset_size: int, problems: Problems, res, sol: Solutions) -> dict:
+def step_row(
+    step: int, envs_done: int, dataset_size: int, problems: Problems, res, sol: Solutions
+) -> dict:
     """The metrics row of a step (``eval_success``, ``success_rate`` and ``seconds`` are the
     caller's). ``initial_success`` and ``success`` count environments: with ``k > 1`` labels,
     each environment's lowest-cost problem; ``rollouts`` the optimiser's samples evaluated."""
     k = problems.k
-    success = sol.success if k == 1 else per_env(sol.success, sol.cost, k)  # (b,) the lowest-cost class's
+    success = (
+        sol.success if k == 1 else per_env(sol.success, sol.cost, k)
+    )  # (b,) the lowest-cost class's
     iters = iterations_per_problem(res, problems.mu)
-    return {"step": step, "envs_done": envs_done, "dataset_size": dataset_size, "batch": problems.env.shape[0] // k,
-            "added": int(sol.accept.sum()), "initial_success": int(problems.initial_success.sum()),
-            "success": int(success.sum()), "converged": int(sol.converged.sum()),
-            "iterations_mean": round(float(iters.double().mean()), 3), "iterations_max": int(iters.max()),
-            "rollouts": None if res.rollouts is None else int(res.rollouts.sum())}
+    return {
+        "step": step,
+        "envs_done": envs_done,
+        "dataset_size": dataset_size,
+        "batch": problems.env.shape[0] // k,
+        "added": int(sol.accept.sum()),
+        "initial_success": int(problems.initial_success.sum()),
+        "success": int(success.sum()),
+        "converged": int(sol.converged.sum()),
+        "iterations_mean": round(float(iters.double().mean()), 3),
+        "iterations_max": int(iters.max()),
+        "rollouts": None if res.rollouts is None else int(res.rollouts.sum()),
+    }
 
 
 def one_per_class(accept: Tensor, label: Tensor, cost: Tensor, k: int) -> Tensor:

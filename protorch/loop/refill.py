@@ -36,7 +36,8 @@ __all__ = ["problem_budget", "refill_loop"]
 
 
 def problem_budget(optimizer: type, optimizer_kwargs: dict) -> int:
-    """The iterations one problem may run: ``optimizer_kwargs["max_iter"]`` or the class's default."""
+    """The iterations one problem may run: ``optimizer_kwargs["max_iter"]`` or the
+    class's default."""
     if "max_iter" in optimizer_kwargs:
         return int(optimizer_kwargs["max_iter"])
     for cls in (optimizer, BaseOptimizer):
@@ -61,7 +62,9 @@ class Slots:
         self.env_e = torch.zeros(k * b, env_dim, dtype=ev.eval_dtype, device=ev.device)  # (K B, E)
         self.initial_success = torch.zeros(b, dtype=torch.bool)  # (B,)
         self.stopped_at = torch.full((k * b,), -1, dtype=torch.long)  # (K B,)
-        self.converged = torch.zeros(k * b, dtype=torch.bool)  # (K B,) whether it converged when it stopped
+        self.converged = torch.zeros(
+            k * b, dtype=torch.bool
+        )  # (K B,) whether it converged when it stopped
 
     def rows(self, slots: Tensor) -> Tensor:
         """Optimiser rows of ``slots (s,)``, label-major: ``(K s,)``."""
@@ -80,8 +83,20 @@ class Slots:
         self.stopped_at[rows] = -1
 
 
-def refill_loop(*, ev, gp, data, pool: Tensor, state, settings, optimizer: type, optimizer_kwargs: dict, solved,
-                labels: Tensor | None, finish_step) -> None:
+def refill_loop(
+    *,
+    ev,
+    gp,
+    data,
+    pool: Tensor,
+    state,
+    settings,
+    optimizer: type,
+    optimizer_kwargs: dict,
+    solved,
+    labels: Tensor | None,
+    finish_step,
+) -> None:
     """Run the refill loop (module docstring) until every untried environment of ``pool`` is
     finished; ``state`` (:class:`~protorch.loop.state.RunState`) holds the finished ones, ``data``
     and ``gp`` grow. ``finish_step(row)`` completes and records a metrics row (``eval_success``,
@@ -103,13 +118,24 @@ def refill_loop(*, ev, gp, data, pool: Tensor, state, settings, optimizer: type,
         free = free[: picks.numel()]
         if picks.numel() == 0:
             return free, None
-        problems = infer(ev, gp, pool[picks], each_label=settings.each_label, min_var=settings.min_var, labels=labels)
+        problems = infer(
+            ev,
+            gp,
+            pool[picks],
+            each_label=settings.each_label,
+            min_var=settings.min_var,
+            labels=labels,
+        )
         slots.fill(free, picks, problems)
         return free, problems
 
     filled, first = start(torch.arange(b))
-    opt = optimizer(first.mu, first.var, seed=settings.step_seed(state.step + 1),
-                    **{**optimizer_kwargs, "max_iter": 2**62})  # the budget is per problem: ``budget``
+    opt = optimizer(
+        first.mu,
+        first.var,
+        seed=settings.step_seed(state.step + 1),
+        **{**optimizer_kwargs, "max_iter": 2**62},
+    )  # the budget is per problem: ``budget``
     opt.history_limit = max(1, opt.convergence.window)
     if torch.get_num_threads() < core_budget() and callable(getattr(opt, "draw_ahead", None)):
         opt.draw_ahead()
@@ -117,7 +143,9 @@ def refill_loop(*, ev, gp, data, pool: Tensor, state, settings, optimizer: type,
         opt.mark_converged(solved(first.mean_traj, slots.env_e))
     acc = _Accumulator()
     while True:
-        _finish_and_refill(ev, gp, data, opt, slots, settings, budget, solved, state, acc, start, finish_step)
+        _finish_and_refill(
+            ev, gp, data, opt, slots, settings, budget, solved, state, acc, start, finish_step
+        )
         if not bool(slots.busy.any()):
             break
         it = opt.iteration
@@ -157,15 +185,35 @@ class _Accumulator:
     def row(self) -> dict:
         """The row's counts (``step``, ``envs_done`` and the rest are the caller's); resets."""
         iters = torch.cat(self.iterations).double()
-        row = {"batch": self.batch, "added": self.added, "initial_success": self.initial, "success": self.success,
-               "converged": self.converged, "iterations_mean": round(float(iters.mean()), 3),
-               "iterations_max": int(iters.max()), "rollouts": self.rollouts, "adds": list(self.adds)}
+        row = {
+            "batch": self.batch,
+            "added": self.added,
+            "initial_success": self.initial,
+            "success": self.success,
+            "converged": self.converged,
+            "iterations_mean": round(float(iters.mean()), 3),
+            "iterations_max": int(iters.max()),
+            "rollouts": self.rollouts,
+            "adds": list(self.adds),
+        }
         self.__init__()
         return row
 
 
-def _finish_and_refill(ev, gp, data, opt, slots: Slots, settings, budget: int, solved, state, acc: _Accumulator,
-                       start, finish_step) -> None:
+def _finish_and_refill(
+    ev,
+    gp,
+    data,
+    opt,
+    slots: Slots,
+    settings,
+    budget: int,
+    solved,
+    state,
+    acc: _Accumulator,
+    start,
+    finish_step,
+) -> None:
     """Finish every busy slot whose rows all stopped, add its accepted solutions, give it the next
     environment (or leave it free, its rows parked), until no busy slot is done."""
     while True:
@@ -175,19 +223,31 @@ def _finish_and_refill(ev, gp, data, opt, slots: Slots, settings, budget: int, s
         first = stopped & (slots.stopped_at < 0)
         slots.stopped_at[first] = age[first]
         slots.converged[first] = conv[first]
-        if bool((first & ~conv).any()):  # out of iterations: frozen while it waits (its flag kept above)
+        if bool(
+            (first & ~conv).any()
+        ):  # out of iterations: frozen while it waits (its flag kept above)
             opt.mark_converged((first & ~conv).to(opt.converged.device))
         done = stopped.reshape(slots.k, slots.b).all(0) & slots.busy  # (B,)
-        group = min(settings.refill_group, int(slots.busy.sum()))  # the last ones finish as they come
+        group = min(
+            settings.refill_group, int(slots.busy.sum())
+        )  # the last ones finish as they come
         if int(done.sum()) < max(group, 1):
             return
         idx = done.nonzero().flatten()  # (s,)
         rows = slots.rows(idx)  # (K s,)
         rows_d = rows.to(opt.mean.device)
-        problems = Problems(env=slots.env[idx].repeat(slots.k, 1), env_e=slots.env_e[rows_d], mu=opt.mean[rows_d],
-                            var=opt.var[rows_d], mean_traj=None, initial_success=slots.initial_success[idx],
-                            k=slots.k)
-        res = SimpleNamespace(mean=opt.mean[rows_d], var=opt.var[rows_d], converged=slots.converged[rows])
+        problems = Problems(
+            env=slots.env[idx].repeat(slots.k, 1),
+            env_e=slots.env_e[rows_d],
+            mu=opt.mean[rows_d],
+            var=opt.var[rows_d],
+            mean_traj=None,
+            initial_success=slots.initial_success[idx],
+            k=slots.k,
+        )
+        res = SimpleNamespace(
+            mean=opt.mean[rows_d], var=opt.var[rows_d], converged=slots.converged[rows]
+        )
         sol = accept(ev, problems, res, settings)
         add(data, gp, problems.env, sol)
         acc.take(problems, sol, slots.stopped_at[rows], int(opt.rollouts[rows].sum()))
@@ -200,14 +260,17 @@ def _finish_and_refill(ev, gp, data, opt, slots: Slots, settings, budget: int, s
             frows = slots.rows(filled)
             opt.restart(frows.to(opt.mean.device), problems.mu, problems.var)
             if solved is not None:
-                opt.mark_converged(_rows_mask(opt, frows, solved(problems.mean_traj, problems.env_e)))
-        parked = idx[filled.numel():]
+                opt.mark_converged(
+                    _rows_mask(opt, frows, solved(problems.mean_traj, problems.env_e))
+                )
+        parked = idx[filled.numel() :]
         if parked.numel():
             opt.mark_converged(_rows_mask(opt, slots.rows(parked), True))
 
 
 def _rows_mask(opt, rows: Tensor, value) -> Tensor:
-    """A ``(K B,)`` bool mask, ``value`` (a bool or ``(r,)`` bools) at ``rows`` and False elsewhere."""
+    """A ``(K B,)`` bool mask, ``value`` (a bool or ``(r,)`` bools) at ``rows`` and False
+    elsewhere."""
     mask = torch.zeros_like(opt.converged)
     mask[rows.to(mask.device)] = torch.as_tensor(value, device=mask.device)
     return mask

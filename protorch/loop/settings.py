@@ -37,7 +37,12 @@ class LoopSettings:
     def __post_init__(self) -> None:
         if not isinstance(self.refill, bool):
             raise ValueError(f"refill must be true or false, got {self.refill!r}")
-        for name, lo in (("num_envs", 0), ("batch_size", 1), ("checkpoint_every", 1), ("refill_group", 1)):
+        for name, lo in (
+            ("num_envs", 0),
+            ("batch_size", 1),
+            ("checkpoint_every", 1),
+            ("refill_group", 1),
+        ):
             object.__setattr__(self, name, check_int(getattr(self, name), name, lo))
         if self.add_only not in ADD_ONLY:
             raise ValueError(f"add_only must be one of {ADD_ONLY}, got {self.add_only!r}")

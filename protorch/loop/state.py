@@ -29,19 +29,39 @@ from ..data.dataset import TrajectoryDataset
 from ..data.files import atomic_write_bytes
 from .settings import LoopSettings
 
-__all__ = ["LOOP_STATE_VERSION", "METRICS_FILE", "METRIC_FIELDS", "RunState", "run_signature", "writable_folder"]
+__all__ = [
+    "LOOP_STATE_VERSION",
+    "METRICS_FILE",
+    "METRIC_FIELDS",
+    "RunState",
+    "run_signature",
+    "writable_folder",
+]
 
 LOOP_STATE_VERSION = 1
 METRICS_FILE = "loop_metrics.csv"
 # one row per step (step 0: the initial data set, before any environment was tried)
 METRIC_FIELDS = (
-    "step", "envs_done", "dataset_size", "batch", "added", "initial_success", "success", "converged",
-    "iterations_mean", "iterations_max", "rollouts", "eval_success", "success_rate", "seconds",
+    "step",
+    "envs_done",
+    "dataset_size",
+    "batch",
+    "added",
+    "initial_success",
+    "success",
+    "converged",
+    "iterations_mean",
+    "iterations_max",
+    "rollouts",
+    "eval_success",
+    "success_rate",
+    "seconds",
 )
 
 
 def jsonable(x):
-    """Settings as the JSON of the checkpoint holds them (tuples as lists, other objects by repr)."""
+    """Settings as the JSON of the checkpoint holds them (tuples as lists, other
+    objects by repr)."""
     if isinstance(x, dict):
         return {str(k): jsonable(v) for k, v in sorted(x.items())}
     if isinstance(x, (list, tuple)):
@@ -55,16 +75,35 @@ def jsonable(x):
     return repr(x)
 
 
-def run_signature(settings: LoopSettings, optimizer: type, optimizer_kwargs: dict, env_map, eval_dtype: torch.dtype,
-                  *, solved: bool, labels: bool) -> dict:
+def run_signature(
+    settings: LoopSettings,
+    optimizer: type,
+    optimizer_kwargs: dict,
+    env_map,
+    eval_dtype: torch.dtype,
+    *,
+    solved: bool,
+    labels: bool,
+) -> dict:
     """Every setting that changes what the loop computes, as JSON: a resumed run must have the
     same one (``env_map``: the empty map, whose backend, alpha and options count)."""
-    sig = {"num_envs": settings.num_envs, "batch_size": settings.batch_size, "seed": int(settings.seed),
-           "choice": settings.choice, "add_only": settings.add_only, "optimizer": optimizer.__name__,
-           "optimizer_kwargs": jsonable(optimizer_kwargs),
-           "env_map": jsonable({"backend": env_map.backend, "alpha": env_map.alpha, **env_map.options()}),
-           "min_var": float(settings.min_var), "var_floor": float(settings.var_floor),
-           "sample_steps": settings.sample_steps, "eval_dtype": str(eval_dtype), "solved": bool(solved)}
+    sig = {
+        "num_envs": settings.num_envs,
+        "batch_size": settings.batch_size,
+        "seed": int(settings.seed),
+        "choice": settings.choice,
+        "add_only": settings.add_only,
+        "optimizer": optimizer.__name__,
+        "optimizer_kwargs": jsonable(optimizer_kwargs),
+        "env_map": jsonable(
+            {"backend": env_map.backend, "alpha": env_map.alpha, **env_map.options()}
+        ),
+        "min_var": float(settings.min_var),
+        "var_floor": float(settings.var_floor),
+        "sample_steps": settings.sample_steps,
+        "eval_dtype": str(eval_dtype),
+        "solved": bool(solved),
+    }
     if labels:
         sig["labels"] = True
     if settings.each_label:
@@ -99,8 +138,9 @@ def same_data(given: TrajectoryDataset, saved: TrajectoryDataset, n: int) -> boo
     if len(given) != n or len(saved) < n:
         return False
     pairs = ((given.env, saved.env[:n]), (given.mean, saved.mean[:n]), (given.var, saved.var[:n]))
-    return all(a.shape == b.shape and torch.allclose(a, b.to(a), rtol=1e-6, atol=1e-9) for a, b in pairs) \
-        and torch.equal(given.label, saved.label[:n].to(given.label))
+    return all(
+        a.shape == b.shape and torch.allclose(a, b.to(a), rtol=1e-6, atol=1e-9) for a, b in pairs
+    ) and torch.equal(given.label, saved.label[:n].to(given.label))
 
 
 def write_metrics_csv(path: Path, rows: list[dict]) -> None:
@@ -155,7 +195,8 @@ class RunState:
             return copy.deepcopy(dataset)
         if not resume:
             raise FileExistsError(
-                f"{ckpt} already exists: pass resume=True to continue that run, or choose another run directory"
+                f"{ckpt} already exists: pass resume=True to continue that run, or choose another "
+                "run directory"
             )
         return self.resume(dataset, promp)
 
@@ -169,12 +210,19 @@ class RunState:
             raise ValueError(f"{ckpt} holds no loop state this protorch can resume from")
         saved, now = state["signature"], self.signature
         if saved != now:
-            diff = {k: (saved.get(k), now.get(k)) for k in {**saved, **now} if saved.get(k) != now.get(k)}
-            raise ValueError(f"cannot resume {ckpt}: it was started with other settings, (saved, now): {diff}")
+            diff = {
+                k: (saved.get(k), now.get(k))
+                for k in {**saved, **now}
+                if saved.get(k) != now.get(k)
+            }
+            raise ValueError(
+                f"cannot resume {ckpt}: it was started with other settings, (saved, now): {diff}"
+            )
         initial = int(state["rows"][0]["dataset_size"]) if state["rows"] else 0
         if not same_data(dataset, loaded, initial):
             raise ValueError(
-                f"cannot resume {ckpt}: its initial data set ({initial} entries) is not the one given now "
+                f"cannot resume {ckpt}: its initial data set ({initial} entries) is not the one "
+                "given now "
                 f"({len(dataset)} entries); were the demonstrations or priors changed?"
             )
         self.tried, self.rows = list(state["tried"]), list(state["rows"])
@@ -191,11 +239,14 @@ class RunState:
             env_map.fit(dataset.env, dataset.mean, dataset.var, dataset.label)
             return
         # a step's adds: one (the step loop) or, with refill, one per finishing iteration ("adds")
-        sizes = [int(self.rows[0]["dataset_size"])] + [int(n) for r in self.rows[1:]
-                                                       for n in r.get("adds", [r.get("added") or 0])]
+        sizes = [int(self.rows[0]["dataset_size"])] + [
+            int(n) for r in self.rows[1:] for n in r.get("adds", [r.get("added") or 0])
+        ]
         if sum(sizes) != len(dataset):
-            raise ValueError(f"{self.checkpoint_file}: the loop state does not match its data set "
-                             f"({sum(sizes)} != {len(dataset)})")
+            raise ValueError(
+                f"{self.checkpoint_file}: the loop state does not match its data set "
+                f"({sum(sizes)} != {len(dataset)})"
+            )
         at = 0
         for k, n in enumerate(sizes):
             if n:
@@ -212,8 +263,20 @@ class RunState:
         atomic; nothing without a ``run_dir``)."""
         if self.run_dir is None:
             return
-        dataset.metadata["loop"] = {"version": LOOP_STATE_VERSION, "signature": self.signature, "step": self.step,
-                                    "tried": self.tried, "rows": self.rows, "seconds": round(self.elapsed(), 3)}
-        self.save(self.run_dir, dataset, backend=env_map.backend, alpha=env_map.alpha, include_unconverged=True,
-                  **env_map.options())
+        dataset.metadata["loop"] = {
+            "version": LOOP_STATE_VERSION,
+            "signature": self.signature,
+            "step": self.step,
+            "tried": self.tried,
+            "rows": self.rows,
+            "seconds": round(self.elapsed(), 3),
+        }
+        self.save(
+            self.run_dir,
+            dataset,
+            backend=env_map.backend,
+            alpha=env_map.alpha,
+            include_unconverged=True,
+            **env_map.options(),
+        )
         write_metrics_csv(self.run_dir / METRICS_FILE, self.rows)

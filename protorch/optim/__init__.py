@@ -18,13 +18,31 @@ from .rwpo import RWPO, rwpo_relevance_basis
 from .rwr import RWR
 
 OPTIMIZERS: dict[str, type[BaseOptimizer]] = {
-    "pro": PRO, "rwr": RWR, "rwpo": RWPO, "cem": CEM, "cmaes": CMAES, "epro": EPRO,
+    "pro": PRO,
+    "rwr": RWR,
+    "rwpo": RWPO,
+    "cem": CEM,
+    "cmaes": CMAES,
+    "epro": EPRO,
 }
 
 __all__ = [
-    "BaseOptimizer", "OptimizeResult", "PRO", "RWR", "RWPO", "CEM", "CMAES", "EPRO", "OPTIMIZERS",
-    "optimizer_class", "make_optimizer", "pearson_relevance", "pro_update", "stable_rewards",
-    "noise_floor_threshold", "rwpo_relevance_basis",
+    "BaseOptimizer",
+    "OptimizeResult",
+    "PRO",
+    "RWR",
+    "RWPO",
+    "CEM",
+    "CMAES",
+    "EPRO",
+    "OPTIMIZERS",
+    "optimizer_class",
+    "make_optimizer",
+    "pearson_relevance",
+    "pro_update",
+    "stable_rewards",
+    "noise_floor_threshold",
+    "rwpo_relevance_basis",
 ]
 
 

@@ -87,18 +87,32 @@ class BaseOptimizer(nn.Module):
         if bool((var < 0).any()):
             raise ValueError("var must be >= 0")
         try:
-            var2 = torch.broadcast_to(var if self.batched or var.ndim < 1 else var[None], mean2.shape)
+            var2 = torch.broadcast_to(
+                var if self.batched or var.ndim < 1 else var[None], mean2.shape
+            )
         except RuntimeError:
-            raise ValueError(f"var of shape {tuple(var.shape)} does not match mean {tuple(mean.shape)}") from None
+            raise ValueError(
+                f"var of shape {tuple(var.shape)} does not match mean {tuple(mean.shape)}"
+            ) from None
         beta_t = torch.as_tensor(beta, dtype=dtype, device=mean.device)
         check_positive(beta_t, "beta")
         if beta_t.ndim > 1 or (beta_t.ndim == 1 and beta_t.shape[0] not in (1, mean2.shape[0])):
-            raise ValueError(f"beta must be a float or ({mean2.shape[0]},), got shape {tuple(beta_t.shape)}")
+            raise ValueError(
+                f"beta must be a float or ({mean2.shape[0]},), got shape {tuple(beta_t.shape)}"
+            )
         for name, v, lo in (("num_samples", num_samples, 2), ("max_iter", max_iter, 1)):
             if isinstance(v, (int, float)) and not isinstance(v, bool) and v < lo:
                 raise ValueError(f"{name} must be >= {lo}, got {v}")
-        num_samples, max_iter = check_int(num_samples, "num_samples", 2), check_int(max_iter, "max_iter", 1)
-        if isinstance(tol, (int, float)) and tol < 0 or isinstance(window, (int, float)) and window < 1:
+        num_samples, max_iter = (
+            check_int(num_samples, "num_samples", 2),
+            check_int(max_iter, "max_iter", 1),
+        )
+        if (
+            isinstance(tol, (int, float))
+            and tol < 0
+            or isinstance(window, (int, float))
+            and window < 1
+        ):
             raise ValueError(f"need tol >= 0 and window >= 1, got tol={tol}, window={window}")
         tol, window = check_number(tol, "tol", allow_zero=True), check_int(window, "window", 1)
         if num_objectives is not None:
@@ -106,7 +120,9 @@ class BaseOptimizer(nn.Module):
         self.register_buffer("mean", mean2.clone())  # (B, N)
         self.register_buffer("var", var2.clone())  # (B, N)
         self.register_buffer("beta", beta_t.expand(mean2.shape[0]).clone())  # (B,)
-        self.register_buffer("converged", torch.zeros(mean2.shape[0], dtype=torch.bool, device=mean.device))
+        self.register_buffer(
+            "converged", torch.zeros(mean2.shape[0], dtype=torch.bool, device=mean.device)
+        )
         self.num_samples = int(num_samples)
         self.max_iter = int(max_iter)
         self.tol = float(tol)
@@ -118,13 +134,27 @@ class BaseOptimizer(nn.Module):
             self.generator.manual_seed(int(seed))
         else:
             self.generator.seed()
-        self.draws = NormalDraws(self.generator)  # every sample's noise comes from here (see draw_ahead)
+        self.draws = NormalDraws(
+            self.generator
+        )  # every sample's noise comes from here (see draw_ahead)
         self.iteration = 0
-        self.history: dict[str, list[Tensor]] = {"cost": [], "cost_min": [], "cost_max": [], "mean": [], "var": []}
+        self.history: dict[str, list[Tensor]] = {
+            "cost": [],
+            "cost_min": [],
+            "cost_max": [],
+            "mean": [],
+            "var": [],
+        }
         self.relevance_seconds: list[float] = []
-        self.rollouts = torch.zeros(mean2.shape[0], dtype=torch.long)  # (B,) samples told while active
-        self.age = torch.zeros(mean2.shape[0], dtype=torch.long)  # (B,) iterations since each row's problem began
-        self.history_limit: int | None = None  # keep only this many iterations of history (None: all)
+        self.rollouts = torch.zeros(
+            mean2.shape[0], dtype=torch.long
+        )  # (B,) samples told while active
+        self.age = torch.zeros(
+            mean2.shape[0], dtype=torch.long
+        )  # (B,) iterations since each row's problem began
+        self.history_limit: int | None = (
+            None  # keep only this many iterations of history (None: all)
+        )
         self._gen: Generator[Tensor, Tensor, None] | None = None
         self._next: Tensor | None = None
         # the objective whose costs the pending ask's update reads (None: it reads all of them);
@@ -149,31 +179,39 @@ class BaseOptimizer(nn.Module):
 
     def draw_ahead(self) -> bool:
         """Draw each next ask's noise in a background thread while the caller evaluates (the same
-        numbers in the same order, :mod:`~protorch.optim.draws`; a CPU generator, ``can_draw_ahead``).
+        numbers in the same order, :mod:`~protorch.optim.draws`; a CPU generator,
+        ``can_draw_ahead``).
         Returns whether it is on; the generator is then busy between asks (use it only here)."""
         if self.can_draw_ahead:
             self.draws.start_ahead()
         return self.draws.ahead
 
     def _sample(self, var: Tensor, num: int) -> Tensor:
-        """``num`` draws from ``N(mean, diag(var))`` per problem: ``var (B, N)`` -> ``(B, num, N)``."""
+        """``num`` draws from ``N(mean, diag(var))`` per problem: ``var (B, N)`` -> ``(B, num,
+        N)``."""
         eps = self._randn(self.batch_size, num, self.num_weights)  # (B, S, N)
-        return eps.mul_(var.clamp_min(0).sqrt()[:, None, :]).add_(self.mean[:, None, :])  # mean + eps std
+        return eps.mul_(var.clamp_min(0).sqrt()[:, None, :]).add_(
+            self.mean[:, None, :]
+        )  # mean + eps std
 
     def _active_rows(self) -> Tensor | None:
-        """Indices ``(r,)`` of the problems to update (``None``: all): every block of ``64 / itemsize``
+        """Indices ``(r,)`` of the problems to update (``None``: all): every block of ``64 /
+        itemsize``
         problems holding a moving one. BLAS rounds by the 64-byte alignment of a problem's matrices,
         which whole blocks keep: the numbers are those of an update over all ``B``."""
         moving = ~self.converged  # (B,)
         if bool(moving.all()):
             return None
         block = max(1, 64 // self.mean.element_size())
-        kept = torch.zeros((self.batch_size + block - 1) // block, dtype=torch.bool, device=moving.device)
+        kept = torch.zeros(
+            (self.batch_size + block - 1) // block, dtype=torch.bool, device=moving.device
+        )
         kept.index_fill_(0, moving.nonzero().flatten() // block, True)  # (blocks,)
         return kept.repeat_interleave(block)[: self.batch_size].nonzero().flatten()
 
     def _apply_rows(self, rows: Tensor | None, new_mean: Tensor, new_var: Tensor) -> None:
-        """Commit an update computed for ``rows`` (``None``: all, :meth:`_apply`) to its moving ones."""
+        """Commit an update computed for ``rows`` (``None``: all, :meth:`_apply`) to its moving
+        ones."""
         if rows is None:
             self._apply(new_mean, new_var)
             return
@@ -186,21 +224,30 @@ class BaseOptimizer(nn.Module):
         ``costs (B, S[, O])``."""
         if self._iter_cost is None:
             self._iter_cost = torch.full(
-                (3, self.batch_size, self.num_objectives), float("nan"), dtype=costs.dtype, device=costs.device
+                (3, self.batch_size, self.num_objectives),
+                float("nan"),
+                dtype=costs.dtype,
+                device=costs.device,
             )  # (3, B, O): mean, min, max over the samples
         self._iter_cost[0][:, objective] = costs.mean(1)
         self._iter_cost[1][:, objective] = costs.amin(1)
         self._iter_cost[2][:, objective] = costs.amax(1)
 
     def _set_objective_weights(self, objective_weights) -> None:
-        """``objective_weights (O,)`` for optimisers that score one total cost (``None``: all ones)."""
+        """``objective_weights (O,)`` for optimisers that score one total cost (``None``: all
+        ones)."""
         if objective_weights is None:
             self.objective_weights = None
             return
-        c = check_tensor(torch.as_tensor(objective_weights, dtype=self.mean.dtype, device=self.mean.device),
-                         "objective_weights", ndim=1)
+        c = check_tensor(
+            torch.as_tensor(objective_weights, dtype=self.mean.dtype, device=self.mean.device),
+            "objective_weights",
+            ndim=1,
+        )
         if self.num_objectives is not None and c.shape[0] != self.num_objectives:
-            raise ValueError(f"objective_weights must be ({self.num_objectives},), got {tuple(c.shape)}")
+            raise ValueError(
+                f"objective_weights must be ({self.num_objectives},), got {tuple(c.shape)}"
+            )
         self.objective_weights = c
 
     def _total_cost(self, costs: Tensor) -> Tensor:
@@ -251,20 +298,31 @@ class BaseOptimizer(nn.Module):
     def _checked_costs(self, costs) -> Tensor:
         """``costs`` as ``(B, S, O)`` in the distribution's dtype (:func:`~.contract.check_costs`);
         nothing changes before every check passed."""
-        cast = check_costs(costs, batched=self.batched, expect=tuple(self._asked.shape[:2]), dtype=self.mean.dtype,
-                           num_objectives=self.num_objectives,
-                           objective_weights=getattr(self, "objective_weights", None))
+        cast = check_costs(
+            costs,
+            batched=self.batched,
+            expect=tuple(self._asked.shape[:2]),
+            dtype=self.mean.dtype,
+            num_objectives=self.num_objectives,
+            objective_weights=getattr(self, "objective_weights", None),
+        )
         if self.num_objectives is None:
             self.num_objectives = cast.shape[-1]
         return cast
 
     def _snapshot(self) -> dict:
         """What an iteration may change, to undo an iteration that failed inside ``tell``."""
-        return {"mean": self.mean.clone(), "var": self.var.clone(), "converged": self.converged.clone(),
-                "rng": self.draws.get_state(), "num_objectives": self.num_objectives,
-                "history": {k: len(v) for k, v in self.history.items()},
-                "relevance_seconds": len(self.relevance_seconds), "relevance": getattr(self, "relevance", None),
-                "rollouts": self.rollouts.clone()}
+        return {
+            "mean": self.mean.clone(),
+            "var": self.var.clone(),
+            "converged": self.converged.clone(),
+            "rng": self.draws.get_state(),
+            "num_objectives": self.num_objectives,
+            "history": {k: len(v) for k, v in self.history.items()},
+            "relevance_seconds": len(self.relevance_seconds),
+            "relevance": getattr(self, "relevance", None),
+            "rollouts": self.rollouts.clone(),
+        }
 
     def _restore(self, snap: dict) -> None:
         self.mean.copy_(snap["mean"])
@@ -274,7 +332,7 @@ class BaseOptimizer(nn.Module):
         self.num_objectives = snap["num_objectives"]
         for k, n in snap["history"].items():
             del self.history[k][n:]
-        del self.relevance_seconds[snap["relevance_seconds"]:]
+        del self.relevance_seconds[snap["relevance_seconds"] :]
         self.rollouts.copy_(snap["rollouts"])
         if hasattr(self, "relevance"):
             self.relevance = snap["relevance"]
@@ -294,11 +352,12 @@ class BaseOptimizer(nn.Module):
         if len(self.history["cost"]) >= self.convergence.window:
             # a restarted row's window must hold its own problem's iterations only (a no-op
             # without restarts: every row's age is then the iteration count)
-            self.converged |= self.convergence(self.history) & (self.age >= self.convergence.window).to(
-                self.converged.device)
+            self.converged |= self.convergence(self.history) & (
+                self.age >= self.convergence.window
+            ).to(self.converged.device)
         if self.history_limit is not None:
             for v in self.history.values():
-                del v[:-self.history_limit]
+                del v[: -self.history_limit]
 
     def restart(self, rows: Tensor, mean: Tensor, var: Tensor) -> None:
         """Give rows ``rows (r,)`` new problems started at ``mean, var (r, N)``, between two
@@ -306,15 +365,20 @@ class BaseOptimizer(nn.Module):
         other rows are untouched (the loop's refill, :func:`protorch.loop.self_improve`). Needs
         ``history_limit`` (a long-lived optimiser keeps only the iterations its rule reads)."""
         if not self.can_restart:
-            raise ValueError(f"{type(self).__name__} cannot restart single problems (its state is not per problem)")
+            raise ValueError(
+                f"{type(self).__name__} cannot restart single problems (its state is not per "
+                "problem)"
+            )
         if self._asked is not None or self._next is not None:
             raise RuntimeError("restart() is only possible between iterations")
         rows = torch.as_tensor(rows, dtype=torch.long, device=self.mean.device).reshape(-1)
         mean = torch.as_tensor(mean, dtype=self.mean.dtype, device=self.mean.device)
         var = torch.as_tensor(var, dtype=self.mean.dtype, device=self.mean.device)
         if tuple(mean.shape) != (rows.numel(), self.num_weights) or mean.shape != var.shape:
-            raise ValueError(f"restart needs mean and var ({rows.numel()}, {self.num_weights}), got "
-                             f"{tuple(mean.shape)} and {tuple(var.shape)}")
+            raise ValueError(
+                f"restart needs mean and var ({rows.numel()}, {self.num_weights}), got "
+                f"{tuple(mean.shape)} and {tuple(var.shape)}"
+            )
         if bool((var < 0).any()):
             raise ValueError("var must be >= 0")
         self.mean[rows] = mean

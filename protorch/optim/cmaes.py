@@ -62,14 +62,19 @@ class CMAES(BaseOptimizer):
         try:
             import cma
         except ImportError as exc:  # pragma: no cover - the test extra installs it
-            raise ImportError('CMAES needs pycma: pip install "protorch[peers]" (or pip install cma)') from exc
+            raise ImportError(
+                'CMAES needs pycma: pip install "protorch[peers]" (or pip install cma)'
+            ) from exc
         if bool((self.var <= 0).any()):
             raise ValueError("CMA-ES needs var > 0 in every weight (a zero std cannot be adapted)")
         self._set_objective_weights(objective_weights)
         options = dict(cma_options or {})
         reserved = {"CMA_stds", "popsize", "randn", "seed"} & set(options)
         if reserved:
-            raise ValueError(f"cma_options may not set {sorted(reserved)}: they come from var, num_samples and seed")
+            raise ValueError(
+                f"cma_options may not set {sorted(reserved)}: they come from var, num_samples and "
+                "seed"
+            )
         self.pycma_stop = bool(pycma_stop)
         self.stop_reasons: list[dict] = [{} for _ in range(self.batch_size)]
         entropy = None if seed is None else [int(seed)]
@@ -80,9 +85,16 @@ class CMAES(BaseOptimizer):
         for b in range(self.batch_size):
             seq = np.random.SeedSequence(None if entropy is None else [*entropy, b])
             rng = np.random.Generator(np.random.PCG64(seq))
-            opts = {"CMA_stds": std64[b], "popsize": self.num_samples, "seed": float("nan"),
-                    "randn": (lambda *shape, rng=rng: rng.standard_normal(shape)),
-                    "verbose": -9, "verb_disp": 0, "verb_log": 0, **options}
+            opts = {
+                "CMA_stds": std64[b],
+                "popsize": self.num_samples,
+                "seed": float("nan"),
+                "randn": (lambda *shape, rng=rng: rng.standard_normal(shape)),
+                "verbose": -9,
+                "verb_disp": 0,
+                "verb_log": 0,
+                **options,
+            }
             self.rngs.append(rng)
             self.strategies.append(cma.CMAEvolutionStrategy(mean64[b], 1.0, opts))
 
@@ -105,8 +117,12 @@ class CMAES(BaseOptimizer):
                 self.stop_reasons[b] = dict(es.stop())
             new_mean[b] = es.mean
             new_var[b] = np.asarray(es.stds) ** 2
-        self._apply(torch.as_tensor(new_mean, device=self.mean.device).to(self.mean.dtype),
-                    torch.as_tensor(new_var, device=self.mean.device).to(self.mean.dtype))
+        self._apply(
+            torch.as_tensor(new_mean, device=self.mean.device).to(self.mean.dtype),
+            torch.as_tensor(new_var, device=self.mean.device).to(self.mean.dtype),
+        )
         if self.pycma_stop:  # after this iteration's update, as the contract's own rule
-            self.converged |= torch.tensor([active[b] and bool(r) for b, r in enumerate(self.stop_reasons)],
-                                           device=self.converged.device)
+            self.converged |= torch.tensor(
+                [active[b] and bool(r) for b, r in enumerate(self.stop_reasons)],
+                device=self.converged.device,
+            )

@@ -34,9 +34,15 @@ class OptimizeResult:
     rollouts: Tensor | None = None
 
 
-
-def check_costs(costs, *, batched: bool, expect: tuple[int, int], dtype: torch.dtype,
-                num_objectives: int | None, objective_weights: Tensor | None) -> Tensor:
+def check_costs(
+    costs,
+    *,
+    batched: bool,
+    expect: tuple[int, int],
+    dtype: torch.dtype,
+    num_objectives: int | None,
+    objective_weights: Tensor | None,
+) -> Tensor:
     """What ``tell`` receives, as ``(B, S, O)`` in ``dtype``, or a ``ValueError`` naming what is
     wrong: ``(B, S) = expect`` (unbatched: ``(S, O)`` or ``(S,)``), ``O`` the objectives told before
     and the length of ``objective_weights``, no overflow in ``dtype``."""
@@ -49,16 +55,23 @@ def check_costs(costs, *, batched: bool, expect: tuple[int, int], dtype: torch.d
         costs = costs[..., None]
     if costs.ndim != 3 or tuple(costs.shape[:2]) != expect:
         raise ValueError(
-            f"costs must be (B, S, O) with (B, S) = {expect} (unbatched: (S, O)), got {tuple(costs.shape)}"
+            f"costs must be (B, S, O) with (B, S) = {expect} (unbatched: (S, O)), got "
+            f"{tuple(costs.shape)}"
         )
     if num_objectives is not None and costs.shape[-1] != num_objectives:
-        raise ValueError(f"expected {num_objectives} objective(s), got costs of shape {tuple(costs.shape)}")
+        raise ValueError(
+            f"expected {num_objectives} objective(s), got costs of shape {tuple(costs.shape)}"
+        )
     c = objective_weights
     if c is not None and tuple(c.shape) != (costs.shape[-1],):
-        raise ValueError(f"objective_weights must be ({costs.shape[-1]},) to match the costs' "
-                         f"{costs.shape[-1]} objective(s), got shape {tuple(c.shape)}")
+        raise ValueError(
+            f"objective_weights must be ({costs.shape[-1]},) to match the costs' "
+            f"{costs.shape[-1]} objective(s), got shape {tuple(c.shape)}"
+        )
     cast = costs.to(dtype)
     if cast is not costs and not all_finite(cast):
-        raise ValueError(f"costs overflow the optimiser's {dtype} (largest |cost| "
-                         f"{float(costs.abs().max()):.3g}): rescale them or use dtype=torch.float64")
+        raise ValueError(
+            f"costs overflow the optimiser's {dtype} (largest |cost| "
+            f"{float(costs.abs().max()):.3g}): rescale them or use dtype=torch.float64"
+        )
     return cast

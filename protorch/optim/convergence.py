@@ -1,4 +1,5 @@
-"""When an optimiser's problem has converged: the stop rules :class:`~protorch.optim.base.BaseOptimizer` applies.
+"""When an optimiser's problem has converged: the stop rules
+:class:`~protorch.optim.base.BaseOptimizer` applies.
 
 After every iteration the optimiser records, per problem and objective, the mean, the minimum
 and the maximum cost of the samples that objective's update saw (``history["cost"]``,
@@ -66,9 +67,12 @@ class MeanWindow:
     def __call__(self, history: Mapping[str, list[Tensor]]) -> Tensor:
         cost = history["cost"]
         if self.tol <= 0 or len(cost) < self.window:
-            return torch.zeros(cost[-1].shape[0] if cost else 0, dtype=torch.bool,
-                               device=cost[-1].device if cost else None)
-        recent = torch.stack(cost[-self.window:])  # (W, B, O)
+            return torch.zeros(
+                cost[-1].shape[0] if cost else 0,
+                dtype=torch.bool,
+                device=cost[-1].device if cost else None,
+            )
+        recent = torch.stack(cost[-self.window :])  # (W, B, O)
         return (_spread(recent, recent) <= self.tol).all(-1)  # (B,)
 
 
@@ -88,22 +92,32 @@ class AuthorsRule:
         for name in ("mean_at_most", "best_at_most"):
             for k, v in dict(getattr(self, name)).items():
                 if isinstance(k, bool) or int(k) != k or int(k) < 0 or not float(v) == float(v):
-                    raise ValueError(f"{name} must map objective indices >= 0 to numbers, got {k!r}: {v!r}")
+                    raise ValueError(
+                        f"{name} must map objective indices >= 0 to numbers, got {k!r}: {v!r}"
+                    )
 
     def __call__(self, history: Mapping[str, list[Tensor]]) -> Tensor:
         cost = history["cost"]
         n = len(cost)
         if self.tol <= 0 or n < self.window:
-            return torch.zeros(cost[-1].shape[0] if cost else 0, dtype=torch.bool,
-                               device=cost[-1].device if cost else None)
-        low = torch.stack(history["cost_min"][-self.window:])  # (W, B, O)
-        high = torch.stack(history["cost_max"][-self.window:])  # (W, B, O)
+            return torch.zeros(
+                cost[-1].shape[0] if cost else 0,
+                dtype=torch.bool,
+                device=cost[-1].device if cost else None,
+            )
+        low = torch.stack(history["cost_min"][-self.window :])  # (W, B, O)
+        high = torch.stack(history["cost_max"][-self.window :])  # (W, B, O)
         ok = (_spread(high, low) <= self.tol).all(-1)  # (B,)
         num_obj = cost[-1].shape[-1]
-        for bounds, last in ((self.mean_at_most, cost[-1]), (self.best_at_most, history["cost_min"][-1])):
+        for bounds, last in (
+            (self.mean_at_most, cost[-1]),
+            (self.best_at_most, history["cost_min"][-1]),
+        ):
             for o, bound in bounds.items():
                 if int(o) >= num_obj:
-                    raise ValueError(f"threshold on objective {o}, but the costs have {num_obj} objective(s)")
+                    raise ValueError(
+                        f"threshold on objective {o}, but the costs have {num_obj} objective(s)"
+                    )
                 ok &= last[:, int(o)].nan_to_num(nan=float("inf")) <= float(bound)  # (B,)
         return ok
 
@@ -116,8 +130,12 @@ def make_rule(convergence, *, tol: float, window: int) -> ConvergenceRule:
             return MeanWindow(tol, window)
         if convergence == "authors":
             return AuthorsRule(tol, window)
-        raise ValueError(f"convergence must be one of {list(RULES)} or a rule object, got {convergence!r}")
+        raise ValueError(
+            f"convergence must be one of {list(RULES)} or a rule object, got {convergence!r}"
+        )
     if not callable(convergence) or not hasattr(convergence, "window"):
-        raise ValueError(f"convergence must be one of {list(RULES)} or a rule (callable with .window), "
-                         f"got {type(convergence).__name__}")
+        raise ValueError(
+            f"convergence must be one of {list(RULES)} or a rule (callable with .window), "
+            f"got {type(convergence).__name__}"
+        )
     return convergence

@@ -40,12 +40,17 @@ class NormalDraws:
     def __init__(self, generator: torch.Generator) -> None:
         self.generator = generator
         self.ahead = False
-        self._pending: tuple[tuple, Tensor, Future] | None = None  # (what, state before it, the draw)
-        self._previous: list[tuple] = []  # what was drawn in the previous iteration: (shape, dtype, device)
+        self._pending: tuple[tuple, Tensor, Future] | None = (
+            None  # (what, state before it, the draw)
+        )
+        self._previous: list[
+            tuple
+        ] = []  # what was drawn in the previous iteration: (shape, dtype, device)
         self._current: list[tuple] = []  # and in this one
 
     def start_ahead(self) -> None:
-        """Draw each next ask's numbers in a background thread from now on (a CPU generator only)."""
+        """Draw each next ask's numbers in a background thread from now on (a CPU
+        generator only)."""
         self.ahead = self.generator.device.type == "cpu"
 
     def new_iteration(self) -> None:
@@ -60,7 +65,11 @@ class NormalDraws:
         self._current.append(what)
         if self.ahead:
             k = len(self._current)
-            guess = self._previous[k] if k < len(self._previous) else (self._previous[0] if self._previous else what)
+            guess = (
+                self._previous[k]
+                if k < len(self._previous)
+                else (self._previous[0] if self._previous else what)
+            )
             state = self.generator.get_state()
             self._pending = (guess, state, _pool().submit(self._randn, guess))
         return eps

@@ -42,7 +42,8 @@ The update, ``read`` the weights shown to be read, ``m0`` and ``s0`` the start's
 
     target = sum_i R_i w_i / sum_i R_i
     mean'  = target                                                   (read)
-           = clip(mean + max(f, c) (target - mean), m0 -+ radius_t s0) (not read; c = provisional_step)
+           = clip(mean + max(f, c) (target - mean), m0 -+ radius_t s0) (not read; c =
+           provisional_step)
     var'   = (1 - g) * var + g * sum_i R_i (w_i - mean)^2 / sum_i R_i  (read; not read: var)
 
 ``evidence_level=None`` turns the test and the trust region off: every weight then counts as
@@ -60,11 +61,23 @@ import torch
 from torch import Tensor
 
 from .base import BaseOptimizer
-from .evidence import NUM_TESTS, accumulate_evidence, batch_log_evidence, evidence_threshold, rank_scores, standard_scores
+from .evidence import (
+    NUM_TESTS,
+    accumulate_evidence,
+    batch_log_evidence,
+    evidence_threshold,
+    rank_scores,
+    standard_scores,
+)
 from .functional import abs_correlation, normalize_rows, stable_rewards
 
 __all__ = [
-    "EPRO", "ess_temperature", "curvature_relevance", "gated_relevance", "effective_pool_size", "standardize_batch",
+    "EPRO",
+    "ess_temperature",
+    "curvature_relevance",
+    "gated_relevance",
+    "effective_pool_size",
+    "standardize_batch",
 ]
 
 
@@ -86,7 +99,9 @@ def ess_temperature(costs: Tensor, ess: float, *, steps: int = 40) -> Tensor:
     shifted = costs - costs.amin(-1, keepdim=True)  # (..., S)
     scale = shifted.amax(-1)  # (...)
     flat = scale <= 0
-    unit = shifted / torch.where(flat, torch.ones_like(scale), scale)[..., None]  # (..., S) in [0, 1]
+    unit = (
+        shifted / torch.where(flat, torch.ones_like(scale), scale)[..., None]
+    )  # (..., S) in [0, 1]
     target = ess * costs.shape[-1]
     lo = torch.full_like(scale, -6.0)  # log10 of beta * scale
     hi = torch.full_like(scale, 6.0)
@@ -101,12 +116,19 @@ def ess_temperature(costs: Tensor, ess: float, *, steps: int = 40) -> Tensor:
     return torch.where(flat, torch.ones_like(beta), beta)
 
 
-def curvature_relevance(w: Tensor, costs: Tensor, center: Tensor, noise_floor: float | None) -> Tensor:
+def curvature_relevance(
+    w: Tensor, costs: Tensor, center: Tensor, noise_floor: float | None
+) -> Tensor:
     """``f (..., O, N)``: per objective, the larger of ``|rho(w_n, o)|`` and
     ``|rho((w_n - center_n)^2, o)|`` over the samples ``w (..., P, N)``, ``costs (..., P, O)``,
     under the noise floor ``z / sqrt(P)``, normalised by the row's maximum: :func:`gated_relevance`
     with every pooled sample counted and no variance gate."""
-    p = torch.full(costs.shape[:-2] + costs.shape[-1:], float(w.shape[-2]), dtype=torch.float64, device=w.device)
+    p = torch.full(
+        costs.shape[:-2] + costs.shape[-1:],
+        float(w.shape[-2]),
+        dtype=torch.float64,
+        device=w.device,
+    )
     return gated_relevance(w, costs, center, p, noise_floor, None)[0]
 
 
@@ -120,12 +142,19 @@ def effective_pool_size(batch_costs: list[Tensor]) -> Tensor:
     s = batch_costs[0].shape[-2]
     full = torch.full_like(total, float(s * len(batch_costs)))
     sq = v.pow(2).sum(0)
-    return torch.where(sq > 0, s * total.pow(2) / torch.where(sq > 0, sq, torch.ones_like(sq)), full)
+    return torch.where(
+        sq > 0, s * total.pow(2) / torch.where(sq > 0, sq, torch.ones_like(sq)), full
+    )
 
 
 def gated_relevance(
-    w: Tensor, costs: Tensor, center: Tensor, p_eff: Tensor, noise_floor: float | None,
-    variance_floor: float | None, curvature: bool = True,
+    w: Tensor,
+    costs: Tensor,
+    center: Tensor,
+    p_eff: Tensor,
+    noise_floor: float | None,
+    variance_floor: float | None,
+    curvature: bool = True,
 ) -> tuple[Tensor, Tensor]:
     """``(f, g)``, each ``(..., O, N)``: the mean's and the variance's relevance from the pooled
     samples ``w (..., P, N)``, ``costs (..., P, O)`` (see the module): ``rho`` the larger of
@@ -139,10 +168,17 @@ def gated_relevance(
     if curvature:
         rho = torch.maximum(rho[..., :n], rho[..., n:])  # (..., O, N)
     root = p_eff.sqrt().unsqueeze(-1)  # (..., O, 1)
-    mean_ok = rho >= noise_floor / root if noise_floor is not None else torch.ones_like(rho, dtype=torch.bool)
+    mean_ok = (
+        rho >= noise_floor / root
+        if noise_floor is not None
+        else torch.ones_like(rho, dtype=torch.bool)
+    )
     f = normalize_rows(torch.where(mean_ok, rho, torch.zeros_like(rho)))
-    var_ok = rho >= variance_floor / root if variance_floor is not None else torch.ones_like(mean_ok)
+    var_ok = (
+        rho >= variance_floor / root if variance_floor is not None else torch.ones_like(mean_ok)
+    )
     return f, torch.where(var_ok, f, torch.zeros_like(f))
+
 
 class EPRO(BaseOptimizer):
     """Sample-efficient PRO over ``B`` problems at once (see the module docstring).
@@ -207,7 +243,9 @@ class EPRO(BaseOptimizer):
         num_samples: int = 20,
         **kwargs,
     ) -> None:
-        super().__init__(mean, var, beta=1.0 if beta is None else beta, num_samples=num_samples, **kwargs)
+        super().__init__(
+            mean, var, beta=1.0 if beta is None else beta, num_samples=num_samples, **kwargs
+        )
         if not 0 < ess <= 1:
             raise ValueError(f"ess must be in (0, 1], got {ess}")
         if int(pool) < 1:
@@ -218,7 +256,10 @@ class EPRO(BaseOptimizer):
         if evidence_level is not None and not 0 < evidence_level < 1:
             raise ValueError(f"evidence_level must be in (0, 1) or None, got {evidence_level}")
         if not trust_radius >= 0 or int(trust_iterations) < 1:
-            raise ValueError(f"need trust_radius >= 0 and trust_iterations >= 1, got {trust_radius}, {trust_iterations}")
+            raise ValueError(
+                f"need trust_radius >= 0 and trust_iterations >= 1, got {trust_radius}, "
+                f"{trust_iterations}"
+            )
         if not 0 <= provisional_step <= 1:
             raise ValueError(f"provisional_step must be in [0, 1], got {provisional_step}")
         if self.num_samples < 3:
@@ -238,9 +279,18 @@ class EPRO(BaseOptimizer):
         self._pool: deque[Batch] = deque(maxlen=self.pool)
         self.register_buffer("start_mean", self.mean.clone())  # (B, N)
         self.register_buffer("start_std", self.var.sqrt())  # (B, N)
-        self.register_buffer("evidence", torch.full((self.batch_size, NUM_TESTS, self.num_weights), -math.inf,
-                                                    dtype=self.mean.dtype, device=self.mean.device))  # (B, 3, N)
-        self.register_buffer("read", torch.zeros_like(self.converged[:, None]).expand(-1, self.num_weights).clone())
+        self.register_buffer(
+            "evidence",
+            torch.full(
+                (self.batch_size, NUM_TESTS, self.num_weights),
+                -math.inf,
+                dtype=self.mean.dtype,
+                device=self.mean.device,
+            ),
+        )  # (B, 3, N)
+        self.register_buffer(
+            "read", torch.zeros_like(self.converged[:, None]).expand(-1, self.num_weights).clone()
+        )
         self.relevance: Tensor | None = None  # (B, O, N), the mean's
         self.variance_relevance: Tensor | None = None  # (B, O, N)
         self.history["relevance"] = []
@@ -251,11 +301,17 @@ class EPRO(BaseOptimizer):
             return self.evidence, torch.ones_like(self.read)
         past = list(self._pool)
         if past:
-            log_e = batch_log_evidence(batch.z, batch.ranks, batch.scores, *(torch.cat(
-                [getattr(b, k) for b in past], 1) for k in ("z", "ranks", "scores")))  # (B, 3, N)
+            log_e = batch_log_evidence(
+                batch.z,
+                batch.ranks,
+                batch.scores,
+                *(torch.cat([getattr(b, k) for b in past], 1) for k in ("z", "ranks", "scores")),
+            )  # (B, 3, N)
         else:
             log_e = batch_log_evidence(batch.z, batch.ranks, batch.scores)
-        h = evidence_threshold(self.iteration + 1, NUM_TESTS * self.num_weights, self.evidence_level)
+        h = evidence_threshold(
+            self.iteration + 1, NUM_TESTS * self.num_weights, self.evidence_level
+        )
         evidence = accumulate_evidence(self.evidence, log_e, h)  # (B, 3, N)
         return evidence, self.read | (evidence >= 0).any(1)
 
@@ -267,23 +323,42 @@ class EPRO(BaseOptimizer):
         else:
             pooled_w = torch.cat([b.w for b in batches], 1)
             center = self.mean
-        centred = [b.costs - b.costs.mean(-2, keepdim=True) for b in batches] if self.standardize else [b.costs for b in batches]
-        p_eff = effective_pool_size([b.costs - b.costs.mean(-2, keepdim=True) for b in batches])  # (B, O)
-        return gated_relevance(pooled_w, torch.cat(centred, 1), center, p_eff, self.noise_floor,
-                               self.variance_floor, self.curvature)
+        centred = (
+            [b.costs - b.costs.mean(-2, keepdim=True) for b in batches]
+            if self.standardize
+            else [b.costs for b in batches]
+        )
+        p_eff = effective_pool_size(
+            [b.costs - b.costs.mean(-2, keepdim=True) for b in batches]
+        )  # (B, O)
+        return gated_relevance(
+            pooled_w,
+            torch.cat(centred, 1),
+            center,
+            p_eff,
+            self.noise_floor,
+            self.variance_floor,
+            self.curvature,
+        )
 
     def _iteration(self) -> Generator[Tensor, Tensor, None]:
         w = self._sample(self.var, self.num_samples)  # (B, S, N)
         self.asked_objective = None
         costs = yield w  # (B, S, O)
         self._record_cost(slice(None), costs)
-        z = standardize_batch(w, self.mean, self.var)  # (B, S, N), i.i.d. N(0, 1) for an unread weight
+        z = standardize_batch(
+            w, self.mean, self.var
+        )  # (B, S, N), i.i.d. N(0, 1) for an unread weight
         batch = Batch(w, costs, z, rank_scores(costs), standard_scores(costs))
         evidence, read = self._gate(batch)  # (B, 3, N), (B, N)
-        kept = list(self._pool)[1 - self.pool:] if self.pool > 1 else []  # the pool once this batch joins it
+        kept = (
+            list(self._pool)[1 - self.pool :] if self.pool > 1 else []
+        )  # the pool once this batch joins it
         relevance, variance_relevance = self._relevance([*kept, batch])
         f = relevance.amax(1)  # (B, N)
-        g = (variance_relevance * read[:, None]).amax(1)  # (B, N): only a read weight's variance moves
+        g = (variance_relevance * read[:, None]).amax(
+            1
+        )  # (B, N): only a read weight's variance moves
         total = self._total_cost(costs)  # (B, S)
         beta = ess_temperature(total, self.ess) if self.adaptive else self.beta  # (B,)
         rewards = stable_rewards(total, beta, dim=-1)  # (B, S)
@@ -293,13 +368,23 @@ class EPRO(BaseOptimizer):
         if self.evidence_level is None:
             new_mean = self.mean + f * (target - self.mean)
         else:
-            radius = self.trust_radius * min(1.0, math.sqrt(self.trust_iterations / (self.iteration + 1)))
-            lo, hi = self.start_mean - radius * self.start_std, self.start_mean + radius * self.start_std
+            radius = self.trust_radius * min(
+                1.0, math.sqrt(self.trust_iterations / (self.iteration + 1))
+            )
+            lo, hi = (
+                self.start_mean - radius * self.start_std,
+                self.start_mean + radius * self.start_std,
+            )
             prov = self.mean + f.clamp_min(self.provisional_step) * (target - self.mean)  # (B, N)
             new_mean = torch.where(read, target, torch.minimum(torch.maximum(prov, lo), hi))
         new_var = (1 - g) * self.var + g * spread
-        flat = (total.amax(-1) <= total.amin(-1))[:, None]  # (B, 1): equal costs say nothing, nothing moves
-        new_mean, new_var = torch.where(flat, self.mean, new_mean), torch.where(flat, self.var, new_var)
+        flat = (total.amax(-1) <= total.amin(-1))[
+            :, None
+        ]  # (B, 1): equal costs say nothing, nothing moves
+        new_mean, new_var = (
+            torch.where(flat, self.mean, new_mean),
+            torch.where(flat, self.var, new_var),
+        )
         # commit (nothing above changed the optimiser's state)
         self._pool.append(batch)
         active = ~self.converged[:, None]  # (B, 1)

@@ -42,19 +42,27 @@ import torch
 from torch import Tensor
 
 __all__ = [
-    "rank_scores", "standard_scores", "fit_surrogate", "batch_log_evidence", "evidence_threshold",
-    "accumulate_evidence", "NUM_TESTS",
+    "rank_scores",
+    "standard_scores",
+    "fit_surrogate",
+    "batch_log_evidence",
+    "evidence_threshold",
+    "accumulate_evidence",
+    "NUM_TESTS",
 ]
 
 NUM_TESTS = 3  # alternatives per weight: linear, scale, surrogate
 
 
 def rank_scores(costs: Tensor) -> Tensor:
-    """``(..., S, O)`` -> ``(..., S, O)``: each objective's costs replaced by the normal quantiles of
+    """``(..., S, O)`` -> ``(..., S, O)``: each objective's costs replaced by the normal quantiles
+    of
     their ranks within the batch (ties share their average rank), scaled to mean 0 and variance 1
     over the batch. A constant objective gives 0."""
     s = costs.shape[-2]
-    below = (costs.unsqueeze(-3) < costs.unsqueeze(-2)).sum(-2)  # (..., S, O): samples with a lower cost
+    below = (costs.unsqueeze(-3) < costs.unsqueeze(-2)).sum(
+        -2
+    )  # (..., S, O): samples with a lower cost
     equal = (costs.unsqueeze(-3) == costs.unsqueeze(-2)).sum(-2)  # (..., S, O), itself included
     u = (below + equal / 2) / s  # (..., S, O), in (0, 1)
     return standard_scores(math.sqrt(2.0) * torch.erfinv((2 * u - 1).to(costs.dtype)))
@@ -84,7 +92,9 @@ def fit_surrogate(eps: Tensor, y: Tensor, ridge: float = 5.0) -> tuple[Tensor, T
     even where ``P < N`` and the fit interpolates."""
     p, n = eps.shape[-2], eps.shape[-1]
     if p < n:  # kernel form: (P, P)
-        k_inv = torch.linalg.inv(eps @ eps.transpose(-1, -2) + ridge * torch.eye(p, dtype=eps.dtype, device=eps.device))
+        k_inv = torch.linalg.inv(
+            eps @ eps.transpose(-1, -2) + ridge * torch.eye(p, dtype=eps.dtype, device=eps.device)
+        )
         alpha = k_inv @ y  # (..., P, O)
         loo = alpha / torch.diagonal(k_inv, dim1=-2, dim2=-1).unsqueeze(-1)  # (..., P, O)
         return eps.transpose(-1, -2) @ alpha, loo.pow(2).mean(-2)
@@ -94,46 +104,76 @@ def fit_surrogate(eps: Tensor, y: Tensor, ridge: float = 5.0) -> tuple[Tensor, T
     return coef, loo.pow(2).mean(-2)
 
 
-def _linear(x: Tensor, eps: Tensor, past_x: Tensor | None, past_eps: Tensor | None, prior: float) -> tuple[Tensor, Tensor]:
+def _linear(
+    x: Tensor, eps: Tensor, past_x: Tensor | None, past_eps: Tensor | None, prior: float
+) -> tuple[Tensor, Tensor]:
     """The linear and the scale alternative's log e-values ``(..., N)`` each."""
     s, o = x.shape[-2], x.shape[-1]
     ridge = 1.0 / prior**2
     if past_x is None:
-        a_inv = torch.eye(o, dtype=x.dtype, device=x.device).expand(*x.shape[:-2], o, o) / ridge  # (..., O, O)
-        beta = torch.zeros(*x.shape[:-2], o, eps.shape[-1], dtype=x.dtype, device=x.device)  # (..., O, N)
+        a_inv = (
+            torch.eye(o, dtype=x.dtype, device=x.device).expand(*x.shape[:-2], o, o) / ridge
+        )  # (..., O, O)
+        beta = torch.zeros(
+            *x.shape[:-2], o, eps.shape[-1], dtype=x.dtype, device=x.device
+        )  # (..., O, N)
         gamma = beta
     else:
-        a_inv, beta = _ridge(past_x, past_eps, ridge)  # the posterior's covariance and mean (..., O, N)
-        gamma = 0.5 * _ridge(past_x, past_eps.pow(2) - 1, ridge)[1]  # (..., O, N): half the fit, a cautious bet
+        a_inv, beta = _ridge(
+            past_x, past_eps, ridge
+        )  # the posterior's covariance and mean (..., O, N)
+        gamma = (
+            0.5 * _ridge(past_x, past_eps.pow(2) - 1, ridge)[1]
+        )  # (..., O, N): half the fit, a cautious bet
     # linear: the batch's eps_n ~ N(x beta_n, I + x A^-1 x^T), the Bayesian predictive density
-    cov = torch.eye(s, dtype=x.dtype, device=x.device) + x @ a_inv @ x.transpose(-1, -2)  # (..., S, S)
+    cov = torch.eye(s, dtype=x.dtype, device=x.device) + x @ a_inv @ x.transpose(
+        -1, -2
+    )  # (..., S, S)
     chol = torch.linalg.cholesky(cov)
     white = torch.linalg.solve_triangular(chol, eps - x @ beta, upper=False)  # (..., S, N)
     logdet = 2 * torch.diagonal(chol, dim1=-2, dim2=-1).log().sum(-1)  # (...)
-    linear = -0.5 * logdet.unsqueeze(-1) - 0.5 * white.pow(2).sum(-2) + 0.5 * eps.pow(2).sum(-2)  # (..., N)
-    # scale: eps_n ~ N(0, exp(eta)), eta = x gamma_n (clipped: the variance at most e^2-fold either way)
+    linear = (
+        -0.5 * logdet.unsqueeze(-1) - 0.5 * white.pow(2).sum(-2) + 0.5 * eps.pow(2).sum(-2)
+    )  # (..., N)
+    # scale: eps_n ~ N(0, exp(eta)), eta = x gamma_n (clipped: the variance at most e^2-fold either
+    # way)
     eta = (x @ gamma).clamp(-2.0, 2.0)  # (..., S, N)
     scale = (-0.5 * eta - 0.5 * eps.pow(2) * torch.expm1(-eta)).sum(-2)  # (..., N)
     return linear, scale
 
 
-def _surrogate(y: Tensor, eps: Tensor, coef: Tensor, noise: Tensor, hedge: float = 0.5, min_noise: float = 0.05) -> Tensor:
+def _surrogate(
+    y: Tensor, eps: Tensor, coef: Tensor, noise: Tensor, hedge: float = 0.5, min_noise: float = 0.05
+) -> Tensor:
     """The surrogate alternative's log e-value ``(..., N)``: per sample and weight, the density of
     ``eps_n`` given the cost scores ``y (..., S, O)`` and the other weights' samples under
     ``y ~ eps b + N(0, noise)`` (prior N(0, 1) times the likelihood of the partial residuals
     ``y - sum_{m != n} eps_m b_m``: Gaussian), as ``hedge q / phi + 1 - hedge``; the noise is
     floored at ``min_noise`` (the model is never trusted to be exact)."""
     s2 = noise.clamp_min(min_noise).unsqueeze(-2)  # (..., 1, O)
-    partial = (y - eps @ coef).unsqueeze(-2) + eps.unsqueeze(-1) * coef.unsqueeze(-3)  # (..., S, N, O)
-    prec = 1 + (coef.pow(2) / s2).sum(-1).unsqueeze(-2)  # (..., 1, N): the posterior precision of eps_n
+    partial = (y - eps @ coef).unsqueeze(-2) + eps.unsqueeze(-1) * coef.unsqueeze(
+        -3
+    )  # (..., S, N, O)
+    prec = 1 + (coef.pow(2) / s2).sum(-1).unsqueeze(
+        -2
+    )  # (..., 1, N): the posterior precision of eps_n
     mu = (coef.unsqueeze(-3) * partial / s2.unsqueeze(-2)).sum(-1) / prec  # (..., S, N)
-    log_q = 0.5 * prec.log() - 0.5 * prec * (eps - mu).pow(2) + 0.5 * eps.pow(2)  # (..., S, N): log q / phi
+    log_q = (
+        0.5 * prec.log() - 0.5 * prec * (eps - mu).pow(2) + 0.5 * eps.pow(2)
+    )  # (..., S, N): log q / phi
     return torch.log1p(hedge * torch.expm1(log_q.clamp(max=50.0))).sum(-2)  # (..., N)
 
 
 def batch_log_evidence(
-    eps: Tensor, ranks: Tensor, scores: Tensor, past_eps: Tensor | None = None, past_ranks: Tensor | None = None,
-    past_scores: Tensor | None = None, *, prior: float = 0.5, ridge: float = 5.0,
+    eps: Tensor,
+    ranks: Tensor,
+    scores: Tensor,
+    past_eps: Tensor | None = None,
+    past_ranks: Tensor | None = None,
+    past_scores: Tensor | None = None,
+    *,
+    prior: float = 0.5,
+    ridge: float = 5.0,
 ) -> Tensor:
     """``log e (..., 3, N)`` of one batch for the linear, the scale and the surrogate alternative.
 

@@ -15,7 +15,12 @@ from torch import Tensor
 from ..checks import check_positive, check_tensor
 
 __all__ = [
-    "stable_rewards", "abs_correlation", "normalize_rows", "pearson_relevance", "pro_update", "noise_floor_threshold",
+    "stable_rewards",
+    "abs_correlation",
+    "normalize_rows",
+    "pearson_relevance",
+    "pro_update",
+    "noise_floor_threshold",
 ]
 
 
@@ -36,12 +41,15 @@ def stable_rewards(costs: Tensor, beta, dim: int = -1) -> Tensor:
     costs = costs if costs.is_floating_point() else costs.to(torch.float64)  # exp of ints: float64
     beta_t = _beta_tensor(beta, costs)
     if beta_t.ndim > 0:
-        per_problem = costs.shape[:dim % costs.ndim] + costs.shape[dim % costs.ndim + 1:]
+        per_problem = costs.shape[: dim % costs.ndim] + costs.shape[dim % costs.ndim + 1 :]
         try:  # numpy's rule: torch.broadcast_shapes imports sympy on first use (~1.5 s per process)
             np.broadcast_shapes(tuple(beta_t.shape), tuple(per_problem))
         except ValueError:
-            raise ValueError(f"beta of shape {tuple(beta_t.shape)} does not broadcast against the costs' problems "
-                             f"{tuple(per_problem)} (costs {tuple(costs.shape)} without the sample dim)") from None
+            raise ValueError(
+                f"beta of shape {tuple(beta_t.shape)} does not broadcast against the costs' "
+                "problems "
+                f"{tuple(per_problem)} (costs {tuple(costs.shape)} without the sample dim)"
+            ) from None
     return _shifted_rewards(costs, beta_t, dim)
 
 
@@ -105,14 +113,18 @@ def abs_correlation(w: Tensor, costs: Tensor) -> Tensor:
     cov = torch.einsum("...sn,...so->...on", wc, cc) / num_samples  # (..., O, N)
     denom = sc[..., :, None] * sw[..., None, :]  # (..., O, N)
     dead = const_c[..., :, None] | const_w[..., None, :]  # (..., O, N)
-    rho = torch.where(dead, torch.zeros_like(cov), cov / torch.where(dead, torch.ones_like(denom), denom))
+    rho = torch.where(
+        dead, torch.zeros_like(cov), cov / torch.where(dead, torch.ones_like(denom), denom)
+    )
     return rho.abs().clamp(max=1.0)  # (..., O, N)
 
 
 def normalize_rows(rho: Tensor) -> Tensor:
     """Each row ``(..., O, N)`` divided by its maximum; an all-zero row stays 0."""
     top = rho.amax(-1, keepdim=True)  # (..., O, 1)
-    return torch.where(top > 0, rho / torch.where(top > 0, top, torch.ones_like(top)), torch.zeros_like(rho))
+    return torch.where(
+        top > 0, rho / torch.where(top > 0, top, torch.ones_like(top)), torch.zeros_like(rho)
+    )
 
 
 def pearson_relevance(w: Tensor, costs: Tensor, *, noise_floor: float | None = None) -> Tensor:
@@ -135,12 +147,21 @@ def pearson_relevance(w: Tensor, costs: Tensor, *, noise_floor: float | None = N
         raise ValueError(f"noise_floor must be >= 0, got {noise_floor}")
     rho = abs_correlation(w, costs)  # (..., O, N)
     if noise_floor is not None:
-        rho = torch.where(rho < noise_floor_threshold(w.shape[-2], noise_floor), torch.zeros_like(rho), rho)
+        rho = torch.where(
+            rho < noise_floor_threshold(w.shape[-2], noise_floor), torch.zeros_like(rho), rho
+        )
     return normalize_rows(rho)
 
 
 def pro_update(
-    mean: Tensor, var: Tensor, samples: Tensor, costs: Tensor, relevance: Tensor, beta, *, validate: bool = True
+    mean: Tensor,
+    var: Tensor,
+    samples: Tensor,
+    costs: Tensor,
+    relevance: Tensor,
+    beta,
+    *,
+    validate: bool = True,
 ) -> tuple[Tensor, Tensor]:
     """One objective's PRO step (Eq. 4, 5 around the old mean, and 6).
 
@@ -172,12 +193,16 @@ def pro_update(
     weights = rewards / rewards.sum(-1, keepdim=True)  # (..., S), sums to 1, max weight > 0
     weights = weights.to(samples.dtype)
     new_mean = torch.einsum("...s,...sn->...n", weights, samples)  # (..., N)
-    spread = torch.einsum("...s,...sn->...n", weights, (samples - mean.unsqueeze(-2)) ** 2)  # (..., N)
+    spread = torch.einsum(
+        "...s,...sn->...n", weights, (samples - mean.unsqueeze(-2)) ** 2
+    )  # (..., N)
     new_var = (1 - relevance) * var + relevance * spread  # (..., N)
     return new_mean, new_var
 
 
-def _checked_update(mean, var, samples, costs, relevance) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+def _checked_update(
+    mean, var, samples, costs, relevance
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
     """:func:`pro_update`'s inputs checked (an error naming the problem) and promoted to floats."""
     mean = check_tensor(mean, "mean", ndim_min=1)
     var = check_tensor(var, "var", ndim_min=1)
@@ -186,7 +211,9 @@ def _checked_update(mean, var, samples, costs, relevance) -> tuple[Tensor, Tenso
     relevance = check_tensor(relevance, "relevance", ndim_min=1)
     if not (mean.is_floating_point() and var.is_floating_point() and samples.is_floating_point()):
         # integer (or bool) inputs are promoted, never truncated: float64 unless one is floating
-        dtype = next((x.dtype for x in (samples, mean, var) if x.is_floating_point()), torch.float64)
+        dtype = next(
+            (x.dtype for x in (samples, mean, var) if x.is_floating_point()), torch.float64
+        )
         mean, var, samples = mean.to(dtype), var.to(dtype), samples.to(dtype)
     relevance = relevance if relevance.is_floating_point() else relevance.to(samples.dtype)
     costs = costs if costs.is_floating_point() else costs.to(samples.dtype)
@@ -199,9 +226,13 @@ def _checked_update(mean, var, samples, costs, relevance) -> tuple[Tensor, Tenso
             f"{tuple(var.shape)}, {tuple(relevance.shape)}"
         )
     if samples.shape[:-2] != batch or samples.shape[-1] != n:
-        raise ValueError(f"samples must be (..., S, {n}) with ... = {tuple(batch)}, got {tuple(samples.shape)}")
+        raise ValueError(
+            f"samples must be (..., S, {n}) with ... = {tuple(batch)}, got {tuple(samples.shape)}"
+        )
     if costs.shape != samples.shape[:-1]:
-        raise ValueError(f"costs must be (..., S) = {tuple(samples.shape[:-1])}, got {tuple(costs.shape)}")
+        raise ValueError(
+            f"costs must be (..., S) = {tuple(samples.shape[:-1])}, got {tuple(costs.shape)}"
+        )
     if bool((var < 0).any()):
         raise ValueError("var must be >= 0")
     if bool(((relevance < 0) | (relevance > 1)).any()):

@@ -82,10 +82,15 @@ class PRO(BaseOptimizer):
         rows = self._active_rows()
         if rows is None:
             return pearson_relevance(w, costs, noise_floor=self.noise_floor)  # (B, O, N)
-        rel = (self.relevance.clone() if self.relevance is not None
-               else w.new_zeros(self.batch_size, costs.shape[-1], self.num_weights))  # (B, O, N)
+        rel = (
+            self.relevance.clone()
+            if self.relevance is not None
+            else w.new_zeros(self.batch_size, costs.shape[-1], self.num_weights)
+        )  # (B, O, N)
         moving = ~self.converged[rows]  # (r,) a converged problem keeps its relevance
-        rel[rows[moving]] = pearson_relevance(w[rows], costs[rows], noise_floor=self.noise_floor)[moving]
+        rel[rows[moving]] = pearson_relevance(w[rows], costs[rows], noise_floor=self.noise_floor)[
+            moving
+        ]
         return rel
 
     def _iteration(self) -> Generator[Tensor, Tensor, None]:
@@ -102,6 +107,13 @@ class PRO(BaseOptimizer):
             self._record_cost(o, costs[..., o])
             rows = self._active_rows()  # the update of the problems still moving (all: no gather)
             pick = (lambda x: x) if rows is None else (lambda x: x[rows])
-            new_mean, new_var = pro_update(pick(self.mean), pick(self.var), pick(w), pick(costs[..., o]), pick(f),
-                                           pick(self.beta), validate=False)
+            new_mean, new_var = pro_update(
+                pick(self.mean),
+                pick(self.var),
+                pick(w),
+                pick(costs[..., o]),
+                pick(f),
+                pick(self.beta),
+                validate=False,
+            )
             self._apply_rows(rows, new_mean, new_var)

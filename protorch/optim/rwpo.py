@@ -70,12 +70,19 @@ class RWPO(PRO):
     ) -> None:
         kwargs.pop("noise_floor", None)
         super().__init__(
-            mean, var, beta=beta, num_objectives=num_objectives, relevance_every=relevance_every,
-            noise_floor=None, **kwargs,
+            mean,
+            var,
+            beta=beta,
+            num_objectives=num_objectives,
+            relevance_every=relevance_every,
+            noise_floor=None,
+            **kwargs,
         )
         k = self.num_weights if num_basis is None else int(num_basis)
         if k < 1 or self.num_weights % k != 0:
-            raise ValueError(f"num_basis = {num_basis} does not divide the {self.num_weights} weights")
+            raise ValueError(
+                f"num_basis = {num_basis} does not divide the {self.num_weights} weights"
+            )
         if min(int(relevance_iters), int(theta_samples), int(trajectory_samples)) < 1:
             raise ValueError("relevance_iters, theta_samples and trajectory_samples must be >= 1")
         if int(trajectory_samples) < 2:
@@ -87,14 +94,18 @@ class RWPO(PRO):
         self.theta_samples = int(theta_samples)
         self.trajectory_samples = int(trajectory_samples)
         self.relevance_beta = float(relevance_beta)
-        self.register_buffer("features", rwpo_relevance_basis(k, dtype=self.mean.dtype, device=self.mean.device))
+        self.register_buffer(
+            "features", rwpo_relevance_basis(k, dtype=self.mean.dtype, device=self.mean.device)
+        )
 
     def _relevance(self) -> Generator[Tensor, Tensor, Tensor]:
         b, n, o_count = self.batch_size, self.num_weights, self.num_objectives
         m, l, dofs = self.theta_samples, self.trajectory_samples, n // self.num_basis
         dt, dev = self.mean.dtype, self.mean.device
         theta_mean = torch.zeros(b, o_count, 3, dtype=dt, device=dev)  # (B, O, 3)
-        theta_cov = torch.eye(3, dtype=dt, device=dev).expand(b, o_count, 3, 3).clone()  # (B, O, 3, 3)
+        theta_cov = (
+            torch.eye(3, dtype=dt, device=dev).expand(b, o_count, 3, 3).clone()
+        )  # (B, O, 3, 3)
         eye3 = torch.eye(3, dtype=dt, device=dev)
         other = 1 - 2 * torch.eye(o_count, dtype=dt, device=dev)  # (O, O): -1 on the diagonal
         for _ in range(self.relevance_iters):
@@ -104,7 +115,9 @@ class RWPO(PRO):
                 root = evecs * evals.clamp_min(0).sqrt()[..., None, :]  # root @ root^T = theta_cov
                 chol = torch.where((info != 0)[..., None, None], root, chol)
             z = torch.randn(b, o_count, m, 3, generator=self.generator, dtype=dt, device=dev)
-            theta = theta_mean[:, :, None] + torch.einsum("boij,bomj->bomi", chol, z)  # (B, O, M, 3)
+            theta = theta_mean[:, :, None] + torch.einsum(
+                "boij,bomj->bomi", chol, z
+            )  # (B, O, M, 3)
             r = (theta @ self.features).clamp(0, 1)  # (B, O, M, K)
             r_full = r.repeat(1, 1, 1, dofs)  # (B, O, M, N): w[d*K + k] has relevance r[k]
             eps = torch.randn(b, o_count, m, l, n, generator=self.generator, dtype=dt, device=dev)
@@ -114,14 +127,20 @@ class RWPO(PRO):
             spread = costs.reshape(b, o_count, m, l, o_count).std(3)  # (B, O, M, O)
             # score of theta_o: + std of objective o, - std of every other objective
             score = torch.einsum("bomp,op->bom", spread, other).neg()  # (B, O, M)
-            rw = stable_rewards(-score, self.relevance_beta)  # (B, O, M): exp(beta * score), shifted
+            rw = stable_rewards(
+                -score, self.relevance_beta
+            )  # (B, O, M): exp(beta * score), shifted
             rw = rw / rw.sum(-1, keepdim=True)
             new_mean = torch.einsum("bom,bomi->boi", rw, theta)  # (B, O, 3)
-            d = theta - theta_mean[:, :, None]  # (B, O, M, 3), around the old mean as the authors do
+            d = (
+                theta - theta_mean[:, :, None]
+            )  # (B, O, M, 3), around the old mean as the authors do
             theta_cov = torch.einsum("bom,bomi,bomj->boij", rw, d, d)
             theta_cov = 0.5 * (theta_cov + theta_cov.transpose(-1, -2))
             theta_mean = new_mean
         rel = r.mean(2)  # (B, O, K)
         top = rel.amax(-1, keepdim=True)
-        rel = torch.where(top > 0, rel / torch.where(top > 0, top, torch.ones_like(top)), torch.zeros_like(rel))
+        rel = torch.where(
+            top > 0, rel / torch.where(top > 0, top, torch.ones_like(top)), torch.zeros_like(rel)
+        )
         return rel.repeat(1, 1, dofs)  # (B, O, N)

@@ -23,7 +23,14 @@ class RWR(BaseOptimizer):
     """
 
     def __init__(
-        self, mean: Tensor, var: Tensor, *, beta: float | Tensor, objective_weights=None, center: str = "new", **kwargs
+        self,
+        mean: Tensor,
+        var: Tensor,
+        *,
+        beta: float | Tensor,
+        objective_weights=None,
+        center: str = "new",
+        **kwargs,
     ):
         super().__init__(mean, var, beta=beta, **kwargs)
         if center not in ("new", "old"):
@@ -39,8 +46,17 @@ class RWR(BaseOptimizer):
         pick = (lambda x: x) if rows is None else (lambda x: x[rows])
         mean = pick(self.mean)  # (a, N)
         total = self._total_cost(pick(costs))  # (a, S)
-        new_mean, new_var = pro_update(mean, pick(self.var), pick(w), total, torch.ones_like(mean), pick(self.beta),
-                                       validate=False)
-        if self.center == "new":  # weighted ML: E_R[(w - mean')^2] = E_R[(w - mean)^2] - (mean' - mean)^2
+        new_mean, new_var = pro_update(
+            mean,
+            pick(self.var),
+            pick(w),
+            total,
+            torch.ones_like(mean),
+            pick(self.beta),
+            validate=False,
+        )
+        if (
+            self.center == "new"
+        ):  # weighted ML: E_R[(w - mean')^2] = E_R[(w - mean)^2] - (mean' - mean)^2
             new_var = new_var - (new_mean - mean) ** 2
         self._apply_rows(rows, new_mean, new_var)

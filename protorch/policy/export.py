@@ -26,15 +26,21 @@ def static_gaps(task, q: Tensor, env: Tensor) -> Tensor:
     capsule searched, the same numbers as the task's pruned search; the skeleton's placed by the
     compiled chain, equal to the task's to round-off)."""
     if getattr(task, "capsule_plan", None) is None:  # the skeleton
-        return task.skeleton_distance(task.kinematics.skeleton(q)[..., None, :, :], env) - task.can_radius
-    a, b = capsule_ends(task.kinematics, q, task.capsule_plan, functional=True)  # (..., C, 3), no slice written in place
+        return (
+            task.skeleton_distance(task.kinematics.skeleton(q)[..., None, :, :], env)
+            - task.can_radius
+        )
+    a, b = capsule_ends(
+        task.kinematics, q, task.capsule_plan, functional=True
+    )  # (..., C, 3), no slice written in place
     axis = env[..., None, 0:2]  # (..., 1, 2)
     d = segment_cylinder_distance(a, b, axis, task.can_radius, 0.0, task.can_height)  # (..., C)
     return (d - task.capsule_radii.to(d)).amin(-1)
 
 
 class ExportProgram(torch.nn.Module):
-    """:meth:`~protorch.policy.policy.Policy.export`'s computation, ``(env (d,), t ()) -> (q, qd, qdd (D,), label ())``,
+    """:meth:`~protorch.policy.policy.Policy.export`'s computation, ``(env (d,), t ()) -> (q, qd,
+    qdd (D,), label ())``,
     written with static shapes only (``torch.export``)."""
 
     def __init__(self, policy) -> None:
@@ -55,8 +61,11 @@ class ExportProgram(torch.nn.Module):
             self.register_buffer("mu0", m.mu0.clone())
             self.register_buffer("mask", m.mask.clone())
         else:
-            raise ValueError(f"export supports maps with nearest_k or the torch backend, not {policy.env_map.backend!r} "
-                             "without nearest_k")
+            raise ValueError(
+                "export supports maps with nearest_k or the torch backend, not "
+                f"{policy.env_map.backend!r} "
+                "without nearest_k"
+            )
         if policy._arm:
             self.register_buffer("grid", policy._grid.clone().to(**kw))  # (P,)
 
@@ -66,11 +75,22 @@ class ExportProgram(torch.nn.Module):
             kq = rbf(env[None], self.E_all, m.alpha)  # (1, M)
             return self.mu0 + (self.mask * kq) @ self.coef  # (K, N)
         for c in range(len(m.E)):
-            E, MU, VAR, k = getattr(self, f"E{c}"), getattr(self, f"MU{c}"), getattr(self, f"VAR{c}"), m.k[c]
-            d2 = (torch.cdist(env[None], E, compute_mode="donot_use_mm_for_euclid_dist") ** 2)[0]  # (Mg,) as sq_dist
-            idx = torch.sort(d2, stable=True).indices[:k]  # (k,) ties by insertion order, as the map
+            E, MU, VAR, k = (
+                getattr(self, f"E{c}"),
+                getattr(self, f"MU{c}"),
+                getattr(self, f"VAR{c}"),
+                m.k[c],
+            )
+            d2 = (torch.cdist(env[None], E, compute_mode="donot_use_mm_for_euclid_dist") ** 2)[
+                0
+            ]  # (Mg,) as sq_dist
+            idx = torch.sort(d2, stable=True).indices[
+                :k
+            ]  # (k,) ties by insertion order, as the map
             Es, MUs, VARs = E[idx], MU[idx], VAR[idx]  # (k, d), (k, N), (k, N)
-            A = rbf(Es, Es, m.alpha)[None].expand(MU.shape[1], k, k) + torch.diag_embed(VARs.T)  # (N, k, k)
+            A = rbf(Es, Es, m.alpha)[None].expand(MU.shape[1], k, k) + torch.diag_embed(
+                VARs.T
+            )  # (N, k, k)
             L = torch.linalg.cholesky(A)  # (N, k, k)
             mu0 = MUs.mean(0)  # (N,)
             coef = torch.cholesky_solve((MUs - mu0).T[..., None], L)[..., 0]  # (N, k)
@@ -85,22 +105,34 @@ class ExportProgram(torch.nn.Module):
         k = means.shape[0]
         if k == 1:
             c = torch.zeros((), dtype=torch.long)
-        elif p._arm:  # rest_scores for every count of the grid's phases still ahead, the right one taken
+        elif (
+            p._arm
+        ):  # rest_scores for every count of the grid's phases still ahead, the right one taken
             task, grid = p.task, self.grid
             pos = means.unflatten(-1, (p._d, p._kb)) @ basis3(p._P, z)[0]  # (K, D)
             ee = task.ee_path(pos)[:, None]  # (K, 1, 3)
             n = grid.shape[0]
-            table = torch.stack([rest_scores(task, p._P, means[:, None], env[None], ee, grid[n - r:])[:, 0]
-                                 for r in range(n + 1)])  # (P + 1, K) scores with the last r phases ahead
+            table = torch.stack(
+                [
+                    rest_scores(task, p._P, means[:, None], env[None], ee, grid[n - r :])[:, 0]
+                    for r in range(n + 1)
+                ]
+            )  # (P + 1, K) scores with the last r phases ahead
             ahead = (grid > z).sum()  # ()
             scores = table[ahead]  # (K,)
-            if p.check:  # rest_blocked: each class's own mean now, then its mean at the phases ahead
-                traj = (p._phi_grid @ means.unflatten(-1, (p._d, p._kb)).transpose(1, 2))  # (K, P, D)
+            if (
+                p.check
+            ):  # rest_blocked: each class's own mean now, then its mean at the phases ahead
+                traj = p._phi_grid @ means.unflatten(-1, (p._d, p._kb)).transpose(1, 2)  # (K, P, D)
                 g = static_gaps(task, traj, env.expand(k, n, env.shape[-1]))  # (K, P)
-                tail = torch.flip(torch.cummin(torch.flip(g, [-1]), -1).values, [-1])  # (K, P) min over phases i..P-1
+                tail = torch.flip(
+                    torch.cummin(torch.flip(g, [-1]), -1).values, [-1]
+                )  # (K, P) min over phases i..P-1
                 tail = torch.cat([tail, torch.full_like(tail[:, :1], torch.inf)], -1)  # (K, P + 1)
-                gap = torch.minimum(static_gaps(task, pos, env.expand(k, env.shape[-1])),
-                                    tail.index_select(1, (n - ahead)[None])[:, 0])  # (K,)
+                gap = torch.minimum(
+                    static_gaps(task, pos, env.expand(k, env.shape[-1])),
+                    tail.index_select(1, (n - ahead)[None])[:, 0],
+                )  # (K,)
                 blocked = gap <= task.margin
                 stuck = blocked.all()  # every class blocked: the largest clearance (checked_choice)
                 scores = torch.where(blocked & ~stuck, torch.inf, scores)
@@ -113,7 +145,9 @@ class ExportProgram(torch.nn.Module):
         w = means[c]  # (N,)
         phi = basis3(p._P, z) * p._scale  # (3, K)
         moving = (z < 1.0).to(torch.float64)
-        phi = torch.cat([phi[:1], phi[1:] * moving])  # held at the end: no velocity, no acceleration
+        phi = torch.cat(
+            [phi[:1], phi[1:] * moving]
+        )  # held at the end: no velocity, no acceleration
         state = phi @ w.unflatten(-1, (p._d, p._kb)).T  # (3, D)
         return state[0], state[1], state[2], self.labels[c]
 
@@ -124,13 +158,18 @@ def write_program(policy, path: Path, aoti: bool = False) -> Path:
     atomically; ``aoti``: compiled by AOTInductor into a package first (its shared library is
     built for this machine's kind of processor, and for the torch version that built it)."""
     program = ExportProgram(policy)
-    args = (policy.env_map.E[0].to(torch.float64), torch.tensor(0.5 * policy.duration, dtype=torch.float64))
+    args = (
+        policy.env_map.E[0].to(torch.float64),
+        torch.tensor(0.5 * policy.duration, dtype=torch.float64),
+    )
     try:
         ep = torch.export.export(program, args, strict=False)
     except Exception as exc:
-        raise RuntimeError(f"torch.export could not trace this policy ({type(exc).__name__}: "
-                           f"{str(exc).splitlines()[0] if str(exc) else ''}); a task's costs must be traceable "
-                           "(no Python branches on tensor values)") from exc
+        raise RuntimeError(
+            f"torch.export could not trace this policy ({type(exc).__name__}: "
+            f"{str(exc).splitlines()[0] if str(exc) else ''}); a task's costs must be traceable "
+            "(no Python branches on tensor values)"
+        ) from exc
     buf = io.BytesIO()
     if aoti:
         torch._inductor.aoti_compile_and_package(ep, package_path=buf)

@@ -24,27 +24,38 @@ import numpy as np
 
 __all__ = ["JerkLimiter", "robot_limits"]
 
-DEFAULT_JERK = 7500.0  # rad/s^3 per joint where a robot states none (Franka's, of the same order as KUKA's)
+DEFAULT_JERK = (
+    7500.0  # rad/s^3 per joint where a robot states none (Franka's, of the same order as KUKA's)
+)
 
 
-def robot_limits(robot, dof: int, *, max_velocity=None, max_acceleration=None, max_jerk=None
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def robot_limits(
+    robot, dof: int, *, max_velocity=None, max_acceleration=None, max_jerk=None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(max_velocity, max_acceleration, max_jerk)``, each ``(dof,)`` float64: the arguments
     where given (a number or one per joint), else the robot's ``max_velocity``,
     ``max_acceleration``, ``max_jerk`` (a robot without ``max_jerk``: :data:`DEFAULT_JERK`).
     Raises ``ValueError`` for a limit that is missing, of the wrong size or not > 0."""
     out = []
-    for name, given in (("max_velocity", max_velocity), ("max_acceleration", max_acceleration),
-                        ("max_jerk", max_jerk)):
+    for name, given in (
+        ("max_velocity", max_velocity),
+        ("max_acceleration", max_acceleration),
+        ("max_jerk", max_jerk),
+    ):
         v = given if given is not None else getattr(robot, name, None)
         if v is None and name == "max_jerk":
             v = DEFAULT_JERK
         if v is None:
             raise ValueError(f"{name}: the robot states none; pass {name}=")
-        a = np.broadcast_to(np.asarray(v, dtype=np.float64), (dof,)).copy() if np.ndim(v) == 0 \
+        a = (
+            np.broadcast_to(np.asarray(v, dtype=np.float64), (dof,)).copy()
+            if np.ndim(v) == 0
             else np.asarray(v, dtype=np.float64)
+        )
         if a.shape != (dof,) or not (np.isfinite(a).all() and (a > 0).all()):
-            raise ValueError(f"{name} must be a number or {dof} numbers, each finite and > 0, got {v!r}")
+            raise ValueError(
+                f"{name} must be a number or {dof} numbers, each finite and > 0, got {v!r}"
+            )
         out.append(a)
     return out[0], out[1], out[2]
 
@@ -64,8 +75,10 @@ class JerkLimiter:
         self.jmax = np.asarray(max_jerk, dtype=np.float64)  # (D,)
         d = self.vmax.shape[0]
         if self.amax.shape != (d,) or self.jmax.shape != (d,):
-            raise ValueError(f"the limits must have one value per joint: {self.vmax.shape}, {self.amax.shape}, "
-                             f"{self.jmax.shape}")
+            raise ValueError(
+                f"the limits must have one value per joint: {self.vmax.shape}, {self.amax.shape}, "
+                f"{self.jmax.shape}"
+            )
         self._otg, self._inp, self._traj = Ruckig(d), InputParameter(d), Trajectory(d)
         self._inp.max_velocity = self.vmax.tolist()
         self._inp.max_acceleration = self.amax.tolist()
@@ -118,11 +131,16 @@ class JerkLimiter:
             if len(self._tests) >= 64:
                 self._tests.clear()
             h = dt * dt
-            M = np.array([[0, 0, -1, 0, 0, 1],  # the change of acceleration
-                          [0, 0, 0, 0, 1, 0],  # the velocity
-                          [0, 0, 0, 0, 0, 1],  # the acceleration
-                          [0, -1, -dt / 2, 0, 1, -dt / 2],  # velocity off a constant jerk's
-                          [-1, -dt, -h / 3, 1, 0, -h / 6]], dtype=np.float64)  # position off it
+            M = np.array(
+                [
+                    [0, 0, -1, 0, 0, 1],  # the change of acceleration
+                    [0, 0, 0, 0, 1, 0],  # the velocity
+                    [0, 0, 0, 0, 0, 1],  # the acceleration
+                    [0, -1, -dt / 2, 0, 1, -dt / 2],  # velocity off a constant jerk's
+                    [-1, -dt, -h / 3, 1, 0, -h / 6],
+                ],
+                dtype=np.float64,
+            )  # position off it
             j = self.jmax
             bound = np.stack([j * dt, self.vmax, self.amax, j * h / 2, j * h * dt / 6])  # (5, D)
             hit = self._tests[dt] = (M, bound)
@@ -139,7 +157,9 @@ class JerkLimiter:
         inp = self._inp
         inp.current_position, inp.current_velocity, inp.current_acceleration = last.tolist()
         ahead, res = dt, None
-        for _ in range(16):  # the first meeting time T at which the wanted state at T can be reached by T
+        for _ in range(
+            16
+        ):  # the first meeting time T at which the wanted state at T can be reached by T
             inp.minimum_duration = None
             res = self._toward(future(ahead))
             if res is None or self._traj.duration <= ahead:

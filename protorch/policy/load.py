@@ -18,7 +18,9 @@ from .settings import policy_settings
 
 __all__ = ["CONFIG_FILE", "load_policy", "read_config"]
 
-CONFIG_FILE = "config.yaml"  # a run folder's resolved settings (protorch.experiments.run_folder.CONFIG_FILE)
+CONFIG_FILE = (
+    "config.yaml"  # a run folder's resolved settings (protorch.experiments.run_folder.CONFIG_FILE)
+)
 
 
 def _loader():
@@ -31,13 +33,17 @@ def _loader():
 
     Loader.add_implicit_resolver(
         "tag:yaml.org,2002:float",
-        re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+        re.compile(
+            r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
                     |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
                     |\.[0-9_]+(?:[eE][-+][0-9]+)?
                     |[-+]?[0-9][0-9_]*(?::[0-5]?[0-9])+\.[0-9_]*
                     |[-+]?\.(?:inf|Inf|INF)
-                    |\.(?:nan|NaN|NAN))$""", re.VERBOSE),
-        list("-+0123456789."))
+                    |\.(?:nan|NaN|NAN))$""",
+            re.VERBOSE,
+        ),
+        list("-+0123456789."),
+    )
     return Loader
 
 
@@ -54,7 +60,9 @@ def read_config(path: Path) -> dict:
     return cfg
 
 
-def load_policy(run, *, device=None, dtype=None, backend: str | None = None, warm_up: bool = True, **options):
+def load_policy(
+    run, *, device=None, dtype=None, backend: str | None = None, warm_up: bool = True, **options
+):
     """A run folder as a :class:`~protorch.policy.policy.Policy` (``protorch.load``): the map
     from ``checkpoint/``, the task, the ProMP's size, the motion's duration and the class choice's
     settings from the run's ``config.yaml`` through the experiment's own builder. A folder without
@@ -74,8 +82,10 @@ def load_policy(run, *, device=None, dtype=None, backend: str | None = None, war
     config = p / CONFIG_FILE if p.is_dir() else None
     if config is None or not config.is_file():
         if not checkpoint_path(p).is_file():
-            raise FileNotFoundError(f"{where} holds no checkpoint ({checkpoint_path(p)}) and no {CONFIG_FILE}: "
-                                    "give a run folder of arm_reach, point_particle or self_improve")
+            raise FileNotFoundError(
+                f"{where} holds no checkpoint ({checkpoint_path(p)}) and no {CONFIG_FILE}: "
+                "give a run folder of arm_reach, point_particle or self_improve"
+            )
         model = load(p, device=device, dtype=dtype, backend=backend)
         return Policy(model.promp, model.env_map, model.task_name, warm_up=warm_up, **options)
     try:
@@ -84,19 +94,36 @@ def load_policy(run, *, device=None, dtype=None, backend: str | None = None, war
         raise ValueError(f"{where}: {exc}") from None
     exp = rebuild_experiment(cfg, where)
     if not checkpoint_path(p).is_file():
-        raise FileNotFoundError(f"{where} holds no checkpoint ({checkpoint_path(p)}): the run did not get to "
-                                "its loop; resume it")
+        raise FileNotFoundError(
+            f"{where} holds no checkpoint ({checkpoint_path(p)}): the run did not get to "
+            "its loop; resume it"
+        )
     try:
-        model = load(p, device=device, dtype=dtype, backend=backend, promp={"num_dof": exp.num_dof(), **exp.promp_cfg})
+        model = load(
+            p,
+            device=device,
+            dtype=dtype,
+            backend=backend,
+            promp={"num_dof": exp.num_dof(), **exp.promp_cfg},
+        )
     except ValueError as exc:
         raise ValueError(f"{where}: {exc}") from None
     task = exp.task
     if model.task_name and getattr(task, "name", model.task_name) != model.task_name:
-        raise ValueError(f"{where}: its checkpoint is of task {model.task_name!r} but config.yaml builds "
-                         f"{getattr(task, 'name', '?')!r}")
+        raise ValueError(
+            f"{where}: its checkpoint is of task {model.task_name!r} but config.yaml builds "
+            f"{getattr(task, 'name', '?')!r}"
+        )
     if hasattr(task, "to"):
         task.to(model.promp.basis.device)
     settings = policy_settings(cfg["name"], getattr(exp, "dyn_cfg", None), **options)
     with torch.no_grad():
-        return Policy(model.promp, model.env_map, model.task_name, task=task, experiment=cfg["name"],
-                      warm_up=warm_up, **settings)
+        return Policy(
+            model.promp,
+            model.env_map,
+            model.task_name,
+            task=task,
+            experiment=cfg["name"],
+            warm_up=warm_up,
+            **settings,
+        )

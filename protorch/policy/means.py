@@ -17,9 +17,15 @@ __all__ = ["ClassMeans", "EndEffector", "basis3", "decay_matrix"]
 
 MAX_UPDATES = 64  # swaps applied to one factorised set before the next new set is factorised afresh
 SPARE = 60  # known environments beyond the k nearest kept as the candidates of the next searches
-MAX_SWAPS = 2  # a new set differing from its source by more environments is factorised afresh (three swaps cost more)
-MAX_RANK = 8  # rank of the pending terms a swap adds to (two per swap) before it writes the inverse itself
-MARGIN = 1e-9  # metres (environment units) of slack in the test that the neighbours cannot have changed
+# a new set differing from its source by more environments is factorised afresh (three swaps cost
+# more)
+MAX_SWAPS = 2
+MAX_RANK = (
+    8  # rank of the pending terms a swap adds to (two per swap) before it writes the inverse itself
+)
+MARGIN = (
+    1e-9  # metres (environment units) of slack in the test that the neighbours cannot have changed
+)
 
 
 class _Set:
@@ -32,8 +38,21 @@ class _Set:
 
     __slots__ = ("rows", "Es", "coef", "mu0", "inv", "U", "V", "chol", "K", "MUs", "VARs", "depth")
 
-    def __init__(self, rows, Es, coef, mu0, inv=None, chol=None, K=None, MUs=None, VARs=None, depth=0,
-                 U=None, V=None) -> None:
+    def __init__(
+        self,
+        rows,
+        Es,
+        coef,
+        mu0,
+        inv=None,
+        chol=None,
+        K=None,
+        MUs=None,
+        VARs=None,
+        depth=0,
+        U=None,
+        V=None,
+    ) -> None:
         self.rows, self.Es, self.coef, self.mu0 = rows, Es, coef, mu0
         self.inv, self.U, self.V, self.chol, self.K, self.depth = inv, U, V, chol, K, depth
         self.MUs, self.VARs = MUs, VARs  # (k, N) the set's data, in slot order
@@ -47,10 +66,22 @@ class _Set:
         """``A^-1 x`` for every weight: ``x (k,)`` (one vector for all) or ``(N, k)`` (one per
         weight) -> ``(N, k)``; one pass over ``inv``, the pending terms by two small products."""
         if x.dim() == 1:
-            out = torch.matmul(self.inv, x)  # (N, k) one matrix-vector product over all weights' rows
-            return out if self.U is None else out + torch.bmm(self.U, torch.matmul(self.V, x)[..., None])[..., 0]
-        out = torch.linalg.vecdot(self.inv, x[:, None, :])  # (N, k) A^-1 is symmetric: row-wise dot products
-        return out if self.U is None else out + torch.bmm(self.U, torch.bmm(self.V, x[..., None]))[..., 0]
+            out = torch.matmul(
+                self.inv, x
+            )  # (N, k) one matrix-vector product over all weights' rows
+            return (
+                out
+                if self.U is None
+                else out + torch.bmm(self.U, torch.matmul(self.V, x)[..., None])[..., 0]
+            )
+        out = torch.linalg.vecdot(
+            self.inv, x[:, None, :]
+        )  # (N, k) A^-1 is symmetric: row-wise dot products
+        return (
+            out
+            if self.U is None
+            else out + torch.bmm(self.U, torch.bmm(self.V, x[..., None]))[..., 0]
+        )
 
     def write(self) -> None:
         """Write the pending terms into a new inverse (one pass over it; sets sharing the old
@@ -60,7 +91,7 @@ class _Set:
     def column(self, j: int) -> Tensor:
         """Column ``j`` of every weight's ``A^-1``: ``(N, k)``."""
         col = self.inv[:, :, j]
-        return col if self.U is None else col + torch.bmm(self.U, self.V[:, :, j:j + 1])[..., 0]
+        return col if self.U is None else col + torch.bmm(self.U, self.V[:, :, j : j + 1])[..., 0]
 
 
 class ClassMeans:
@@ -95,32 +126,47 @@ class ClassMeans:
         self.updates = 0  # of which by a swap update
         self.full_searches = 0  # distance passes over all of a class's environments
         kw = dict(dtype=torch.float64, device=env_map.device)
-        E, MU, VAR, lab = env_map.E.to(**kw), env_map.MU.to(**kw), env_map.VAR.to(**kw), env_map.labels
+        E, MU, VAR, lab = (
+            env_map.E.to(**kw),
+            env_map.MU.to(**kw),
+            env_map.VAR.to(**kw),
+            env_map.labels,
+        )
         k_near = env_map.nearest_k
         groups = getattr(env_map, "groups", None)
         self.mode = "generic"
         if k_near is not None:
             self.mode = "nearest"
-            self.rows = [torch.nonzero(lab == g).flatten() for g in self.labels.tolist()]  # per class
+            self.rows = [
+                torch.nonzero(lab == g).flatten() for g in self.labels.tolist()
+            ]  # per class
             self.E = [E[r].contiguous() for r in self.rows]  # (Mg, d) per class
             self.MU = [MU[r].contiguous() for r in self.rows]  # (Mg, N)
             self.VAR = [VAR[r].contiguous() for r in self.rows]  # (Mg, N)
             self.k = [min(k_near, r.numel()) for r in self.rows]
             self.cache: OrderedDict = OrderedDict()  # (class, sorted rows) -> _Set
-            self.factored: OrderedDict = OrderedDict()  # the sets holding a factor (id -> _Set), newest last
-            self.base: list[_Set | None] = [None] * len(self.rows)  # per class, its newest set holding a factor
+            self.factored: OrderedDict = (
+                OrderedDict()
+            )  # the sets holding a factor (id -> _Set), newest last
+            self.base: list[_Set | None] = [None] * len(
+                self.rows
+            )  # per class, its newest set holding a factor
             self.reset()
         elif getattr(env_map, "backend", "") == "torch" and groups is not None:
             self.mode = "exact"
             grp = [groups[str(g)] for g in self.labels.tolist()]
             sizes = [g.m for g in grp]
             self.E_all = torch.cat([g.E[: g.m] for g in grp]).to(**kw)  # (M, d)
-            self.coef = torch.cat([g.coef[: g.m] for g in grp]).to(**kw)  # (M, N) A^-1 (MU - mu0), the map's own
+            self.coef = torch.cat([g.coef[: g.m] for g in grp]).to(
+                **kw
+            )  # (M, N) A^-1 (MU - mu0), the map's own
             self.mu0 = torch.stack([g.mu0 for g in grp]).to(**kw)  # (K, N)
-            self.mask = torch.zeros(len(grp), sum(sizes), **kw)  # (K, M) block diagonal: each class its rows
+            self.mask = torch.zeros(
+                len(grp), sum(sizes), **kw
+            )  # (K, M) block diagonal: each class its rows
             start = 0
             for c, m in enumerate(sizes):
-                self.mask[c, start:start + m] = 1.0
+                self.mask[c, start : start + m] = 1.0
                 start += m
 
     def reset(self) -> None:
@@ -129,8 +175,12 @@ class ClassMeans:
         if self.mode == "nearest":
             n = len(self.E)
             self.current: list[_Set | None] = [None] * n
-            self.anchor: list[tuple[list[float], float] | None] = [None] * n  # (env, half the gap) of the last search
-            self.cands: list[tuple | None] = [None] * n  # (env, half the gap, rows (C,), E[rows] (C, d)) of the last full search
+            self.anchor: list[tuple[list[float], float] | None] = [
+                None
+            ] * n  # (env, half the gap) of the last search
+            self.cands: list[tuple | None] = [
+                None
+            ] * n  # (env, half the gap, rows (C,), E[rows] (C, d)) of the last full search
 
     # ----------------------------------------------------------------- nearest neighbours
     def _search(self, c: int, env: Tensor, point: list[float]) -> tuple:
@@ -154,9 +204,16 @@ class ClassMeans:
         vals, idx = torch.topk(d2, n, largest=False, sorted=True)  # (n,)
         v = vals.tolist()
         if rows is None:
-            if n > k + SPARE:  # the candidates (sorted rows, so that a stable sort keeps the map's tie order)
-                keep = torch.sort(idx[:k + SPARE]).values
-                self.cands[c] = (point, 0.5 * (math.sqrt(v[-1]) - math.sqrt(v[k - 1])) - MARGIN, keep, E[keep])
+            if (
+                n > k + SPARE
+            ):  # the candidates (sorted rows, so that a stable sort keeps the map's tie order)
+                keep = torch.sort(idx[: k + SPARE]).values
+                self.cands[c] = (
+                    point,
+                    0.5 * (math.sqrt(v[-1]) - math.sqrt(v[k - 1])) - MARGIN,
+                    keep,
+                    E[keep],
+                )
             else:
                 self.cands[c] = None
         if v[k] > v[k - 1]:
@@ -202,17 +259,24 @@ class ClassMeans:
         b = rbf(e[None], old.Es, self.alpha)[0]  # (k,) the new environment's kernel with the set
         b[j] = 0.0
         gj = old.column(j)  # (N, k)
-        u = gj / gj[:, j:j + 1]  # (N, k)
+        u = gj / gj[:, j : j + 1]  # (N, k)
         g = old.times(b)  # (N, k)
-        g -= u * g[:, j:j + 1]  # (A^-1 - u gj^T) b: the set without slot j, times b
+        g -= u * g[:, j : j + 1]  # (A^-1 - u gj^T) b: the set without slot j, times b
         s = 1.0 + self.VAR[c][new] - g @ b  # (N,) the Schur complement (k(e, e) = 1)
         if not bool((s > 0).all()):
             return None
         g[:, j] -= 1.0  # h = g - e_j
-        # slot j removed (- u gj^T) and the new environment added in it (+ g g^T / s): two rank-1 terms
-        U, V = torch.stack([u, g / s[:, None]], -1), torch.stack([-gj, g], 1)  # (N, k, 2), (N, 2, k)
+        # slot j removed (- u gj^T) and the new environment added in it (+ g g^T / s): two rank-1
+        # terms
+        U, V = (
+            torch.stack([u, g / s[:, None]], -1),
+            torch.stack([-gj, g], 1),
+        )  # (N, k, 2), (N, 2, k)
         if old.U is not None:
-            U, V = torch.cat([old.U, U], -1), torch.cat([old.V, V], 1)  # (N, k, r + 2), (N, r + 2, k)
+            U, V = (
+                torch.cat([old.U, U], -1),
+                torch.cat([old.V, V], 1),
+            )  # (N, k, r + 2), (N, r + 2, k)
         rows = list(old.rows)
         rows[j] = new
         Es = old.Es.clone()
@@ -222,7 +286,19 @@ class ClassMeans:
         K[j], K[:, j] = b, b
         MUs, VARs = old.MUs.clone(), old.VARs.clone()  # (k, N)
         MUs[j], VARs[j] = self.MU[c][new], self.VAR[c][new]
-        out_set = _Set(rows, Es, None, None, inv=old.inv, K=K, MUs=MUs, VARs=VARs, depth=old.depth + 1, U=U, V=V)
+        out_set = _Set(
+            rows,
+            Es,
+            None,
+            None,
+            inv=old.inv,
+            K=K,
+            MUs=MUs,
+            VARs=VARs,
+            depth=old.depth + 1,
+            U=U,
+            V=V,
+        )
         if U.shape[-1] > MAX_RANK:  # one pass over the (N, k, k) inverses writes them all
             out_set.write()
         if not solve:
@@ -237,9 +313,14 @@ class ClassMeans:
 
     @staticmethod
     def _invert(s: _Set) -> None:
-        """``s``'s inverses ``(N, k, k)`` from its Cholesky factor (what a swap update starts from)."""
-        if s.inv is None:  # LAPACK's inverse is column-major; A^-1 is symmetric (exactly, on the CPU), so its
-            s.inv = torch.cholesky_inverse(s.chol).mT  # transpose is it in row-major order: products 5x faster
+        """``s``'s inverses ``(N, k, k)`` from its Cholesky factor (what a swap update starts
+        from)."""
+        if (
+            s.inv is None
+        ):  # LAPACK's inverse is column-major; A^-1 is symmetric (exactly, on the CPU), so its
+            s.inv = torch.cholesky_inverse(
+                s.chol
+            ).mT  # transpose is it in row-major order: products 5x faster
             s.chol = None
 
     def prepare(self, c: int) -> bool:
@@ -254,7 +335,9 @@ class ClassMeans:
         if s.inv is None and s.chol is not None:
             self._invert(s)
             return True
-        if s.U is not None and 2 * s.U.shape[-1] > MAX_RANK:  # (written from rank MAX_RANK / 2 + 2 on)
+        if (
+            s.U is not None and 2 * s.U.shape[-1] > MAX_RANK
+        ):  # (written from rank MAX_RANK / 2 + 2 on)
             s.write()
             return True
         return False
@@ -289,11 +372,18 @@ class ClassMeans:
             self.misses += 1
             src = self.base[c]  # the class's newest set holding its inverse or factor
             if src is not None and src.depth < MAX_UPDATES and src.factored:
-                gone, came = sorted(set(src.rows).difference(rows)), sorted(set(rows).difference(src.rows))
+                gone, came = (
+                    sorted(set(src.rows).difference(rows)),
+                    sorted(set(rows).difference(src.rows)),
+                )
                 if len(gone) <= MAX_SWAPS:
                     hit = src
                     for i, (out, new) in enumerate(zip(gone, came)):  # one swap after the other
-                        hit = None if hit is None else self._swap(c, hit, out, new, solve=i == len(gone) - 1)
+                        hit = (
+                            None
+                            if hit is None
+                            else self._swap(c, hit, out, new, solve=i == len(gone) - 1)
+                        )
                     self.updates += hit is not None
             if hit is None:
                 hit = self._factorise(c, rows)
@@ -335,7 +425,7 @@ def basis3(promp, z) -> Tensor:
     (a float, a 0-d or a ``(P,)`` tensor): ``(..., 3, K)``
     (:func:`~protorch.control.episodes.basis_derivative_at` for the first; with ``a_k = -(z -
     c_k) / w^2`` and ``s = sum_j g_j a_j``: ``g'' = g' (a - s) - g sum_j g'_j a_j``)."""
-    c, w2 = promp.centers.to(torch.float64), promp.width ** 2
+    c, w2 = promp.centers.to(torch.float64), promp.width**2
     z = torch.as_tensor(z, dtype=torch.float64, device=c.device)
     d = z[..., None] - c  # (..., K)
     b = torch.exp(-0.5 * (d / promp.width) ** 2)  # (..., K) as gaussian_basis
@@ -347,18 +437,23 @@ def basis3(promp, z) -> Tensor:
 
 
 def decay_matrix(blend: float, s: float, rows: int = 3, device=None) -> Tensor:
-    """The critically damped decay at rate ``blend`` (1/s) of :class:`~protorch.policy.policy.Policy`'s
+    """The critically damped decay at rate ``blend`` (1/s) of
+    :class:`~protorch.policy.policy.Policy`'s
     continuity offset as a matrix ``(rows, 2)``: ``(d0, v0)`` -> position, velocity (and
     acceleration) ``s`` seconds later, ``d(s) = (d0 + (v0 + w d0) s) exp(-w s)``."""
     w, e = blend, math.exp(-blend * s)
-    m = [[(1 + w * s) * e, s * e], [-w * w * s * e, (1 - w * s) * e],
-         [(-w * w + w ** 3 * s) * e, (-2 * w + w * w * s) * e]]
+    m = [
+        [(1 + w * s) * e, s * e],
+        [-w * w * s * e, (1 - w * s) * e],
+        [(-w * w + w**3 * s) * e, (-2 * w + w * w * s) * e],
+    ]
     return torch.tensor(m[:rows], dtype=torch.float64, device=device)
 
 
 class EndEffector:
     """The end effector's position for a few joint configurations in a couple of dozen tensor
-    operations: ``(P, J) -> (P, 3)``, the chain of :class:`~protorch.robots.kinematics.ArmKinematics`
+    operations: ``(P, J) -> (P, 3)``, the chain of
+    :class:`~protorch.robots.kinematics.ArmKinematics`
     folded as it folds it (``G_0 Rz(q_1) G_1 ... Rz(q_J) G_J``), each joint's ``G Rz(q)`` built
     for every configuration at once and the end point carried back through them by one batched
     product per joint. The same numbers as ``ee_position`` to round-off; faster for the ~40
@@ -375,8 +470,14 @@ class EndEffector:
     def __call__(self, q: Tensor) -> Tensor:
         c, s = torch.cos(q.T)[..., None], torch.sin(q.T)[..., None]  # (J, P, 1)
         a0, a1 = self.cols[:, None, :, 0], self.cols[:, None, :, 1]  # (J, 1, 3)
-        m = torch.stack([torch.addcmul(a0 * c, a1, s), torch.addcmul(a1 * c, a0, s, value=-1.0),
-                         self.cols[:, None, :, 2].expand_as(a0 * c)], -1)  # (J, P, 3, 3) G_j[:3, :3] Rz(q_j)
+        m = torch.stack(
+            [
+                torch.addcmul(a0 * c, a1, s),
+                torch.addcmul(a1 * c, a0, s, value=-1.0),
+                self.cols[:, None, :, 2].expand_as(a0 * c),
+            ],
+            -1,
+        )  # (J, P, 3, 3) G_j[:3, :3] Rz(q_j)
         v = (m[-1] @ self.tail)[..., None] + self.shift[-1]  # (P, 3, 1)
         for j in range(self.joints - 2, -1, -1):
             v = torch.baddbmm(self.shift[j], m[j], v)  # (P, 3, 1)

@@ -10,7 +10,8 @@ measured now. What it computes, per call:
    call, a new set solved by rank-2 updates of the last set's inverse or the map's own
    :func:`~protorch.gp.kernels.posdef_cholesky`, and cached). Between decisions only the tracked
    class's mean is computed (one kernel vector, one product); the other classes' sets are brought
-   up to date every ``decision_dt / 4`` and before a decision, which then rarely solves. Without ``nearest_k``
+   up to date every ``decision_dt / 4`` and before a decision, which then rarely solves. Without
+   ``nearest_k``
    (torch backend) the map's own cached solve is used; other maps through ``predict_mean``.
 2. **The class choice with hysteresis of the moving test** (:mod:`protorch.control.arm_choice`,
    the same functions): every ``decision_dt`` seconds (the run's ``settings.dynamic.dt``) each
@@ -18,7 +19,8 @@ measured now. What it computes, per call:
    ``switch_margin``. The arm's score: :func:`~protorch.control.arm_choice.rest_scores`, the
    objectives of the rest of the motion from the end effector of ``q`` (one pass of
    :class:`~protorch.policy.means.EndEffector`; ``q=None``: each class's own mean at
-   ``t``); with ``check`` the plan check from ``q, qd`` (:func:`~protorch.control.arm_choice.checked_choice`;
+   ``t``); with ``check`` the plan check from ``q, qd``
+   (:func:`~protorch.control.arm_choice.checked_choice`;
    a plan that bounds carried from the last full checks show clear is passed without placing the
    arm's capsules, :class:`~protorch.control.plan_memo.ClearanceMemo`: the same verdict).
    A user's own task: the summed objectives of each class's whole mean trajectory
@@ -80,38 +82,65 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         task: the run's task (``None``: only a map with one class can give references).
         duration: seconds from phase 0 to phase 1 (the run's ``settings.dynamic.duration``).
         switch_margin: the class choice's hysteresis (summed objectives).
-        decision_dt: seconds between class decisions (the run's control step ``settings.dynamic.dt``).
+        decision_dt: seconds between class decisions (the run's control step
+        ``settings.dynamic.dt``).
         check: pass over an arm class whose plan for the rest of the motion touches the can while
-            another's is clear (the run's ``settings.dynamic.check``; :func:`~protorch.control.arm_choice.rest_blocked`).
+            another's is clear (the run's ``settings.dynamic.check``;
+            :func:`~protorch.control.arm_choice.rest_blocked`).
         blend: decay rate (1/s) of the offset that keeps the reference continuous (``inf``: no
             offset, the reference is the chosen mean itself and jumps with it).
         kp, max_acceleration: the moving test's velocity command (gain 1/s; limit, ``None``: the
             robot's) that the plan check rolls out from the measured joints (the run's settings).
-        warm_up: call :meth:`reference` a few times now so that the first real call is not slower, then
-            collect Python's garbage: a full collection (~0.1 s over what torch's import leaves) now, not in a call.
+        warm_up: call :meth:`reference` a few times now so that the first real call is not slower,
+        then
+            collect Python's garbage: a full collection (~0.1 s over what torch's import leaves)
+            now, not in a call.
         planner: ``"inline"`` (every call makes its own class choice: the moving test's, exactly) or
-            ``"thread"`` (a planner thread beside the caller makes them every ``plan_period`` seconds,
+            ``"thread"`` (a planner thread beside the caller makes them every ``plan_period``
+            seconds,
             ``decision_dt / 4`` by default, and :meth:`reference` tracks its newest plan:
             :mod:`protorch.policy.two_rate`).
-        limits: keep the reference within the robot's velocity, acceleration and jerk limits at every
+        limits: keep the reference within the robot's velocity, acceleration and jerk limits at
+        every
             call (``planner="thread"`` only: :class:`~protorch.policy.limits.JerkLimiter`'s Ruckig
             hand-overs where the wanted reference leaves them). Off by default: on the default arm
             run a class switch's offset asks for more acceleration than the Panda's limits, and the
-            limited hand-over, slower, lets the arm touch the can (docs/control_loop.md). ``max_velocity``, ``max_jerk`` (and
-            ``max_acceleration``): the limits, ``None``: the robot's (:func:`~protorch.policy.limits.robot_limits`).
+            limited hand-over, slower, lets the arm touch the can (docs/control_loop.md).
+            ``max_velocity``, ``max_jerk`` (and
+            ``max_acceleration``): the limits, ``None``: the robot's
+            (:func:`~protorch.policy.limits.robot_limits`).
     """
 
-    def __init__(self, promp, env_map, task_name: str = "", *, task=None, duration: float = 3.0,
-                 switch_margin: float = 0.0, decision_dt: float = 0.02, blend: float = DEFAULT_BLEND,
-                 warm_up: bool = True, experiment: str = "", check: bool = False, kp: float = 10.0,
-                 max_acceleration=None, switch_clearance: float = 0.0, planner: str = "inline",
-                 limits: bool = False, max_velocity=None, max_jerk=None,
-                 plan_period: float | None = None) -> None:
+    def __init__(
+        self,
+        promp,
+        env_map,
+        task_name: str = "",
+        *,
+        task=None,
+        duration: float = 3.0,
+        switch_margin: float = 0.0,
+        decision_dt: float = 0.02,
+        blend: float = DEFAULT_BLEND,
+        warm_up: bool = True,
+        experiment: str = "",
+        check: bool = False,
+        kp: float = 10.0,
+        max_acceleration=None,
+        switch_clearance: float = 0.0,
+        planner: str = "inline",
+        limits: bool = False,
+        max_velocity=None,
+        max_jerk=None,
+        plan_period: float | None = None,
+    ) -> None:
         super().__init__(promp, env_map, task_name)
         if planner not in ("inline", "thread"):
             raise ValueError(f"planner must be 'inline' or 'thread', got {planner!r}")
         for name, v in (("duration", duration), ("decision_dt", decision_dt), ("blend", blend)):
-            if not (isinstance(v, (int, float)) and (math.isfinite(v) or name == "blend") and v > 0):
+            if not (
+                isinstance(v, (int, float)) and (math.isfinite(v) or name == "blend") and v > 0
+            ):
                 raise ValueError(f"{name} must be a finite number > 0 (blend: or inf), got {v!r}")
         for name, v in (("switch_margin", switch_margin), ("switch_clearance", switch_clearance)):
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
@@ -127,21 +156,37 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         self._P = promp.to(torch.float64) if promp.basis.dtype != torch.float64 else promp
         self._d, self._kb = promp.num_dof, promp.num_basis
         self._device = promp.basis.device
-        arm = task is not None and callable(getattr(task, "ee_path", None)) and callable(getattr(task, "path_costs", None))
+        arm = (
+            task is not None
+            and callable(getattr(task, "ee_path", None))
+            and callable(getattr(task, "path_costs", None))
+        )
         self._follow, self._arm = None, arm
         if arm:
-            self._grid = self._P.phase[task.cost_indices(promp.num_steps)].to(**kw)  # (P,) the objectives' phases
+            self._grid = self._P.phase[task.cost_indices(promp.num_steps)].to(
+                **kw
+            )  # (P,) the objectives' phases
             self._grid_list = self._grid.tolist()
-            self._phi_grid = self._P.basis_at(self._grid).to(**kw)  # (P, K) the basis there, for every decision
+            self._phi_grid = self._P.basis_at(self._grid).to(
+                **kw
+            )  # (P, K) the basis there, for every decision
             kin = getattr(task, "kinematics", None)
             fold = isinstance(task, ArmReachTask) and type(task).ee_path is ArmReachTask.ee_path
-            self._ee = EndEffector(kin, device=self._device) if fold else task.ee_path  # (P, J) -> (P, 3)
+            self._ee = (
+                EndEffector(kin, device=self._device) if fold else task.ee_path
+            )  # (P, J) -> (P, 3)
             robot_amax = getattr(getattr(task, "robot", None), "max_acceleration", None)
-            if kin is not None and (max_acceleration is not None or robot_amax is not None):  # the moving test's
-                timing = check_timing(self.decision_dt, self.duration, 0.0)  # velocity command, for the check's rollout
+            if kin is not None and (
+                max_acceleration is not None or robot_amax is not None
+            ):  # the moving test's
+                timing = check_timing(
+                    self.decision_dt, self.duration, 0.0
+                )  # velocity command, for the check's rollout
                 self._follow = arm_follow(task, kp, max_acceleration, timing, tables={}, **kw)
         self._label_list = self.labels.tolist()
-        plan = getattr(task, "capsule_plan", None) if arm else None  # the plan check's bounds carried between decisions
+        plan = (
+            getattr(task, "capsule_plan", None) if arm else None
+        )  # the plan check's bounds carried between decisions
         self._memo = ClearanceMemo(point_reach(task.kinematics, plan)) if plan is not None else None
         # the other classes' neighbour sets are kept fresh between decisions (a decision then
         # rarely has a new set to solve): every refresh_dt seconds, on calls that solved nothing
@@ -149,7 +194,9 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         # the basis and its derivatives at every whole millisecond of the motion (a 1 kHz loop's
         # calls), scaled to time derivatives: (T_ms + 1, 3, K)
         ms = torch.arange(math.floor(self.duration * 1000) + 1, **kw) * 1e-3
-        self._scale = torch.tensor([1.0, 1.0 / self.duration, 1.0 / self.duration ** 2], **kw)[:, None]  # (3, 1)
+        self._scale = torch.tensor([1.0, 1.0 / self.duration, 1.0 / self.duration**2], **kw)[
+            :, None
+        ]  # (3, 1)
         self._phi_ms = basis3(self._P, ms / self.duration) * self._scale
         self._phi_end = basis3(self._P, 1.0)  # (3, K)
         self._phi_end[1:] = 0.0  # held: no velocity, no acceleration
@@ -158,11 +205,19 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         robot = getattr(task, "robot", None)
         self.planner = planner
         if limits and planner != "thread":
-            raise ValueError("limits=True needs planner='thread' (the inline reference is the moving test's, unlimited)")
+            raise ValueError(
+                "limits=True needs planner='thread' (the inline reference is the moving test's, "
+                "unlimited)"
+            )
         self._limiter = None
         if limits:
-            lim = robot_limits(robot, self._d, max_velocity=max_velocity, max_acceleration=max_acceleration,
-                               max_jerk=max_jerk)
+            lim = robot_limits(
+                robot,
+                self._d,
+                max_velocity=max_velocity,
+                max_acceleration=max_acceleration,
+                max_jerk=max_jerk,
+            )
             self._limiter = JerkLimiter(*lim)
         self._planner = self._tracker = None
         if planner == "thread" and task is None and self.labels.numel() > 1:
@@ -172,8 +227,14 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         if warm_up and (task is not None or self.labels.numel() == 1):
             self._warm_up()  # the inline path, which the planner runs
         if planner == "thread":
-            self._tracker = Tracker(self._phi_ms.cpu().numpy(), self._P.centers.to(torch.float64).cpu().numpy(),
-                                    float(self._P.width), self.duration, self.blend, self._limiter)
+            self._tracker = Tracker(
+                self._phi_ms.cpu().numpy(),
+                self._P.centers.to(torch.float64).cpu().numpy(),
+                float(self._P.width),
+                self.duration,
+                self.blend,
+                self._limiter,
+            )
             period = self.decision_dt / 4 if plan_period is None else float(plan_period)
             self._planner = Planner(self._plan, period)
             self.reset()
@@ -207,7 +268,8 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
 
     @property
     def current(self) -> int | None:
-        """The row (into :attr:`labels`) of the class tracked now (``None`` before the first call)."""
+        """The row (into :attr:`labels`) of the class tracked now (``None`` before the
+        first call)."""
         return self._m.current
 
     def _warm_up(self) -> None:
@@ -222,7 +284,8 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         for i in range(41):  # a walk from one to the next: neighbour sets swapped, decisions made
             self.reference(envs[0] + (envs[1] - envs[0]) * (i / 40), i * 1e-3)
         self.reset()
-        gc.collect()  # the full collection now, not in the loop's first seconds (its counts start afresh)
+        # the full collection now, not in the loop's first seconds (its counts start afresh)
+        gc.collect()
 
     # ----------------------------------------------------------------- checks
     def _joints(self, x, name: str, like: Tensor) -> Tensor | None:
@@ -231,7 +294,9 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         if not isinstance(x, Tensor):
             x = torch.as_tensor(x, dtype=torch.float64)
         if x.shape != (self._d,):
-            raise ValueError(f"{name} must be ({self._d},) joint values, got shape {tuple(x.shape)}")
+            raise ValueError(
+                f"{name} must be ({self._d},) joint values, got shape {tuple(x.shape)}"
+            )
         if x.dtype != like.dtype or x.device != like.device:
             x = x.to(like)
         if not all(map(math.isfinite, x.tolist())):
@@ -243,7 +308,10 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         if not isinstance(env, Tensor):
             env = torch.as_tensor(env, dtype=torch.float64)
         if env.shape != (d,):
-            raise ValueError(f"env must be ({d},) for task {self.task_name!r} (env_dim {d}), got shape {tuple(env.shape)}")
+            raise ValueError(
+                f"env must be ({d},) for task {self.task_name!r} (env_dim {d}), got shape "
+                f"{tuple(env.shape)}"
+            )
         if env.dtype != torch.float64 or env.device != self._device:
             env = env.to(dtype=torch.float64, device=self._device)
         point = env.tolist()
@@ -251,7 +319,9 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
             raise ValueError(f"env holds NaN or inf: {point}")
         t = float(t)
         if not math.isfinite(t) or t < 0:
-            raise ValueError(f"t must be a finite time >= 0 (seconds since the motion started), got {t!r}")
+            raise ValueError(
+                f"t must be a finite time >= 0 (seconds since the motion started), got {t!r}"
+            )
         return env, t, self._joints(q, "q", env), self._joints(qd, "qd", env), point
 
     # ----------------------------------------------------------------- the reference
@@ -262,10 +332,14 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
             env: ``(env_dim,)`` the environment measured now (float64 is used).
             t: seconds since the motion started (:meth:`reset`), ``>= 0``; past ``duration`` the
                 last point of the mean is held (velocity and acceleration 0).
-            q: ``(D,)`` the measured joints (the arm's class choice scores the rest of the motion from
-                their end effector, as the moving test); ``None``: the arm taken to be on each class's mean.
-            qd: ``(D,)`` the measured joint velocities (``None``: 0; the plan check rolls the arm out from
-                ``q, qd``). A motion's first call with ``q`` starts the reference at ``q, qd`` (the gap
+            q: ``(D,)`` the measured joints (the arm's class choice scores the rest of the motion
+            from
+                their end effector, as the moving test); ``None``: the arm taken to be on each
+                class's mean.
+            qd: ``(D,)`` the measured joint velocities (``None``: 0; the plan check rolls the arm
+            out from
+                ``q, qd``). A motion's first call with ``q`` starts the reference at ``q, qd`` (the
+                gap
                 decays as the continuity offset does).
         Returns:
             :class:`Reference` ``(q, qd, qdd (D,), label)``.
@@ -275,13 +349,19 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         env, t, q, qd, point = self._check(env, t, q, qd)
         m = self._m
         t = max(t, m.t)
-        with torch.inference_mode():  # cheaper per operation than no_grad (no version counters, no views tracked)
+        with (
+            torch.inference_mode()
+        ):  # cheaper per operation than no_grad (no version counters, no views tracked)
             phi = self.basis_at(t)  # (3, K)
             c, w = self.choose(env, t, q, point, phi, qd)  # w (1, N)
-            state = torch.mm(phi, w.view(self._d, self._kb).T)  # (3, D) position, velocity, acceleration
+            state = torch.mm(
+                phi, w.view(self._d, self._kb).T
+            )  # (3, D) position, velocity, acceleration
             if self.blend < math.inf:
                 jump = None
-                if m.w is not None:  # the mean's change since the last call (0 at a fixed environment)
+                if (
+                    m.w is not None
+                ):  # the mean's change since the last call (0 at a fixed environment)
                     jump = torch.mm(phi[:2], (m.w - w).view(self._d, self._kb).T)  # (2, D)
                 elif q is not None:  # start where the arm is
                     v = torch.zeros_like(q) if qd is None else qd
@@ -294,9 +374,13 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
                     off = jump
                 if off is not None:
                     m.off = off
-                    state = torch.addmm(state, self._at_jump, off)  # (3, D) the offset now and its acceleration
+                    state = torch.addmm(
+                        state, self._at_jump, off
+                    )  # (3, D) the offset now and its acceleration
             m.w, m.t = w, t
-        state = state.clone()  # an ordinary tensor for the caller (inference tensors refuse in-place updates)
+        state = (
+            state.clone()
+        )  # an ordinary tensor for the caller (inference tensors refuse in-place updates)
         return Reference(state[0], state[1], state[2], self._label_list[c], t)
 
     def basis_at(self, t: float) -> Tensor:
@@ -344,7 +428,9 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         libtorch's ``torch::inductor::AOTIModelPackageLoader`` from C++, on a machine of this
         one's kind (:func:`~protorch.policy.export.write_program`)."""
         if self.labels.numel() > 1 and self.task is None:
-            raise ValueError("this map has several classes: exporting the class choice needs the run's task")
+            raise ValueError(
+                "this map has several classes: exporting the class choice needs the run's task"
+            )
         return write_program(self, Path(path), aoti=aoti)
 
     # ----------------------------------------------------------------- whole trajectories
@@ -362,13 +448,20 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
             labels = None if labels is None else torch.as_tensor(labels).reshape(1)
         if labels is None and self.labels.numel() > 1:
             if self.task is None:
-                raise ValueError(f"the data has several labels {self.labels.tolist()}: pass labels=, or load the "
-                                 "run folder (with its config.yaml) so that the class is chosen by its task")
+                raise ValueError(
+                    f"the data has several labels {self.labels.tolist()}: pass labels=, or load "
+                    "the "
+                    "run folder (with its config.yaml) so that the class is chosen by its task"
+                )
             labels = self.labels[[self.first_class(e) for e in env]].to(env.device)
         out = super().mean_trajectory(env, labels)
         return out[0] if single else out
 
     def extra_repr(self) -> str:
-        return (f"{super().extra_repr()}, experiment={self.experiment!r}, classes={self.labels.tolist()}, "
-                f"duration={self.duration:g}, switch_margin={self.switch_margin:g}, decision_dt={self.decision_dt:g}, "
-                f"check={self.check}, switch_clearance={self.switch_clearance:g}")
+        return (
+            f"{super().extra_repr()}, experiment={self.experiment!r}, classes="
+            f"{self.labels.tolist()}, "
+            f"duration={self.duration:g}, switch_margin={self.switch_margin:g}, decision_dt="
+            f"{self.decision_dt:g}, "
+            f"check={self.check}, switch_clearance={self.switch_clearance:g}"
+        )

@@ -27,7 +27,6 @@ def as_array(x, shape: tuple, name: str):
     return a
 
 
-
 class _Reference(NamedTuple):
     q: Tensor  # (D,) reference position
     qd: Tensor  # (D,) velocity

@@ -21,9 +21,21 @@ def moving_test_defaults(name: str) -> dict:
         fn = run_episodes
     else:
         return {}
-    return {k: p.default for k, p in inspect.signature(fn).parameters.items()
-            if k in ("duration", "dt", "switch_margin", "check", "kp", "max_acceleration", "switch_clearance")
-            and p.default is not inspect.Parameter.empty}
+    return {
+        k: p.default
+        for k, p in inspect.signature(fn).parameters.items()
+        if k
+        in (
+            "duration",
+            "dt",
+            "switch_margin",
+            "check",
+            "kp",
+            "max_acceleration",
+            "switch_clearance",
+        )
+        and p.default is not inspect.Parameter.empty
+    }
 
 
 def policy_settings(name: str, dynamic: dict | None, **options) -> dict:
@@ -33,9 +45,18 @@ def policy_settings(name: str, dynamic: dict | None, **options) -> dict:
     margin, the plan check and, for the arm, the velocity command it rolls out and the check's
     hysteresis. ``options`` override them."""
     dyn = {**moving_test_defaults(name), **dict(dynamic or {})}
-    settings = {"duration": float(dyn.get("duration", 1.0)), "switch_margin": float(dyn.get("switch_margin", 0.0)),
-                "decision_dt": float(dyn.get("dt", 0.01)), "check": bool(dyn.get("check", False)), **options}
+    settings = {
+        "duration": float(dyn.get("duration", 1.0)),
+        "switch_margin": float(dyn.get("switch_margin", 0.0)),
+        "decision_dt": float(dyn.get("dt", 0.01)),
+        "check": bool(dyn.get("check", False)),
+        **options,
+    }
     if name == "arm_reach":  # the velocity command the check rolls out, and the check's hysteresis
-        settings = {"kp": float(dyn.get("kp", 10.0)), "max_acceleration": dyn.get("max_acceleration"),
-                    "switch_clearance": float(dyn.get("switch_clearance", 0.0)), **settings}
+        settings = {
+            "kp": float(dyn.get("kp", 10.0)),
+            "max_acceleration": dyn.get("max_acceleration"),
+            "switch_clearance": float(dyn.get("switch_clearance", 0.0)),
+            **settings,
+        }
     return settings

@@ -52,7 +52,7 @@ def basis3_np(centers: np.ndarray, width: float, z: float) -> np.ndarray:
     d = z - centers  # (K,)
     b = np.exp(-0.5 * (d / width) ** 2)
     g = b / b.sum()
-    a = -d / width ** 2
+    a = -d / width**2
     s = (g * a).sum()
     g1 = g * (a - s)
     g2 = g1 * (a - s) - g * (g1 * a).sum()
@@ -62,8 +62,13 @@ def basis3_np(centers: np.ndarray, width: float, z: float) -> np.ndarray:
 def decay_np(blend: float, s: float) -> np.ndarray:
     """:func:`~protorch.policy.means.decay_matrix` with 3 rows, in NumPy: ``(3, 2)``."""
     w, e = blend, math.exp(-blend * s)
-    return np.array([[(1 + w * s) * e, s * e], [-w * w * s * e, (1 - w * s) * e],
-                     [(-w * w + w ** 3 * s) * e, (-2 * w + w * w * s) * e]])
+    return np.array(
+        [
+            [(1 + w * s) * e, s * e],
+            [-w * w * s * e, (1 - w * s) * e],
+            [(-w * w + w**3 * s) * e, (-2 * w + w * w * s) * e],
+        ]
+    )
 
 
 class Tracker:
@@ -77,11 +82,18 @@ class Tracker:
         limiter: a :class:`~protorch.policy.limits.JerkLimiter` or ``None``.
     """
 
-    def __init__(self, phi_ms: np.ndarray, centers: np.ndarray, width: float, duration: float, blend: float,
-                 limiter=None) -> None:
+    def __init__(
+        self,
+        phi_ms: np.ndarray,
+        centers: np.ndarray,
+        width: float,
+        duration: float,
+        blend: float,
+        limiter=None,
+    ) -> None:
         self.phi_ms, self.centers, self.width = phi_ms, centers, float(width)
         self.duration, self.blend = float(duration), float(blend)
-        self.scale = np.array([1.0, 1.0 / duration, 1.0 / duration ** 2])[:, None]  # (3, 1)
+        self.scale = np.array([1.0, 1.0 / duration, 1.0 / duration**2])[:, None]  # (3, 1)
         self.phi_end = basis3_np(centers, width, 1.0)
         self.phi_end[1:] = 0.0  # held: no velocity, no acceleration
         self.limiter = limiter
@@ -98,7 +110,8 @@ class Tracker:
             self.limiter.reset()
 
     def basis(self, t: float) -> np.ndarray:
-        """``(3, Kb)`` the basis and its time derivatives at ``t`` (the table at whole milliseconds)."""
+        """``(3, Kb)`` the basis and its time derivatives at ``t`` (the table at whole
+        milliseconds)."""
         if t >= self.duration:
             return self.phi_end
         i = round(t * 1000.0)
@@ -154,7 +167,8 @@ class Tracker:
 
 
 def _run(ref, period: float, stop: threading.Event) -> None:
-    """The planner's loop (a weak reference to its :class:`Planner`: a planner nobody holds stops)."""
+    """The planner's loop (a weak reference to its :class:`Planner`: a planner nobody
+    holds stops)."""
     due = time.perf_counter()
     done = None
     while not stop.is_set():
@@ -203,8 +217,12 @@ class Planner:
         self.plans = 0  # plans made
         self.lock = threading.Lock()
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=_run, args=(weakref.ref(self), self.period, self._stop),
-                                        name="protorch-planner", daemon=True)
+        self._thread = threading.Thread(
+            target=_run,
+            args=(weakref.ref(self), self.period, self._stop),
+            name="protorch-planner",
+            daemon=True,
+        )
         self._thread.start()
         _RUNNING.add(self)
 
@@ -235,7 +253,9 @@ class TwoRatePolicy:
         env = as_array(env, (self._env_dim,), "env")
         t = float(t)
         if not math.isfinite(t) or t < 0:
-            raise ValueError(f"t must be a finite time >= 0 (seconds since the motion started), got {t!r}")
+            raise ValueError(
+                f"t must be a finite time >= 0 (seconds since the motion started), got {t!r}"
+            )
         return env, t, as_array(q, (self._d,), "q"), as_array(qd, (self._d,), "qd")
 
     def _plan(self, motion: int, env, t: float, q, qd) -> Plan:
@@ -264,5 +284,10 @@ class TwoRatePolicy:
                 with planner.lock:
                     plan = planner.plan = self._plan(motion, env, t, q, qd)
         state = tr.step(t, plan, q, qd)  # (3, D)
-        return Reference(torch.from_numpy(state[0]), torch.from_numpy(state[1]), torch.from_numpy(state[2]),
-                         plan.label, plan.t)
+        return Reference(
+            torch.from_numpy(state[0]),
+            torch.from_numpy(state[1]),
+            torch.from_numpy(state[2]),
+            plan.label,
+            plan.t,
+        )

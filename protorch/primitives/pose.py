@@ -31,14 +31,21 @@ from .promp import ProMP
 from .quaternions import quaternion_to_matrix
 
 __all__ = [
-    "POSE_DIM", "PoseProMP", "check_unit_quaternion", "normalize_quaternion", "align_quaternions",
-    "quaternion_distance", "quaternion_path_length", "quaternion_slerp", "normalize_poses", "resample_poses",
+    "POSE_DIM",
+    "PoseProMP",
+    "check_unit_quaternion",
+    "normalize_quaternion",
+    "align_quaternions",
+    "quaternion_distance",
+    "quaternion_path_length",
+    "quaternion_slerp",
+    "normalize_poses",
+    "resample_poses",
     "rotation_matrix",
 ]
 
 POSE_DIM = 7  # x, y, z, qw, qx, qy, qz
 _MIN_NORM = 1e-8  # a quaternion shorter than this has no direction: refused, never divided by
-
 
 
 def _norm(x: Tensor) -> Tensor:
@@ -49,7 +56,9 @@ def _norm(x: Tensor) -> Tensor:
 # ----------------------------------------------------------------------------- quaternions
 def _check_last(x: Tensor, size: int, name: str, what: str) -> None:
     if x.ndim < 1 or x.shape[-1] != size:
-        raise ValueError(f"{name} must be {what} with last dimension {size}, got shape {tuple(x.shape)}")
+        raise ValueError(
+            f"{name} must be {what} with last dimension {size}, got shape {tuple(x.shape)}"
+        )
 
 
 def normalize_quaternion(q, name: str = "q") -> Tensor:
@@ -60,7 +69,9 @@ def normalize_quaternion(q, name: str = "q") -> Tensor:
     _check_last(q, 4, name, "quaternions (..., 4) (w, x, y, z)")
     norm = _norm(q)  # (..., 1)
     if q.numel() and bool((norm < _MIN_NORM).any()):
-        raise ValueError(f"{name} contains a zero quaternion (norm < {_MIN_NORM:g}): it is no rotation")
+        raise ValueError(
+            f"{name} contains a zero quaternion (norm < {_MIN_NORM:g}): it is no rotation"
+        )
     return q / norm
 
 
@@ -76,7 +87,8 @@ def check_unit_quaternion(q, name: str = "q", *, tol: float = 1e-6) -> Tensor:
     bad = (norm - 1).abs() > tol
     if bool(bad.any()):
         raise ValueError(
-            f"{name} must be a unit quaternion (w, x, y, z): its norm is {float(norm[bad].reshape(-1)[0]):.6g}, "
+            f"{name} must be a unit quaternion (w, x, y, z): its norm is "
+            f"{float(norm[bad].reshape(-1)[0]):.6g}, "
             f"not 1 (tolerance {tol:g})"
         )
     return q / norm[..., None]
@@ -90,7 +102,9 @@ def align_quaternions(q: Tensor, reference: Tensor | None = None) -> Tensor:
     that ``<q_0, reference> >= 0``. No renormalisation; the rotations are unchanged.
     """
     if q.ndim < 2 or q.shape[-1] != 4:
-        raise ValueError(f"q must be a quaternion trajectory (..., T, 4), got shape {tuple(q.shape)}")
+        raise ValueError(
+            f"q must be a quaternion trajectory (..., T, 4), got shape {tuple(q.shape)}"
+        )
     dots = (q[..., 1:, :] * q[..., :-1, :]).sum(-1)  # (..., T-1)
     step = torch.where(dots < 0, -torch.ones_like(dots), torch.ones_like(dots))  # (..., T-1)
     sign = torch.cat([torch.ones_like(q[..., :1, 0]), step], -1).cumprod(-1)  # (..., T)
@@ -139,7 +153,8 @@ def quaternion_slerp(q0: Tensor, q1: Tensor, t: Tensor | float) -> Tensor:
 
 
 def rotation_matrix(q: Tensor) -> Tensor:
-    """``q (..., 4)`` -> ``(..., 3, 3)`` (pytorch_kinematics' conversion; ``q`` and ``-q`` agree)."""
+    """``q (..., 4)`` -> ``(..., 3, 3)`` (pytorch_kinematics' conversion; ``q`` and
+    ``-q`` agree)."""
     return quaternion_to_matrix(q)
 
 
@@ -153,7 +168,8 @@ def normalize_poses(traj, name: str = "trajectory") -> Tensor:
         traj = traj.to(torch.get_default_dtype())
     if traj.ndim < 2 or traj.shape[-1] != POSE_DIM:
         raise ValueError(
-            f"{name} must be a pose trajectory (..., T, 7) = position (3) + quaternion (w, x, y, z), "
+            f"{name} must be a pose trajectory (..., T, 7) = position (3) + quaternion (w, x, y, "
+            "z), "
             f"got shape {tuple(traj.shape)}"
         )
     q = align_quaternions(normalize_quaternion(traj[..., 3:], f"{name} quaternions"))  # (..., T, 4)
@@ -194,7 +210,8 @@ class PoseProMP(nn.Module):
     problems: each has its own weight vector (``3 K`` and ``4 K`` weights) and diagonal Gaussian.
 
     Args:
-        num_basis, num_steps, width, ridge, dtype, device: as :class:`~protorch.primitives.promp.ProMP`.
+        num_basis, num_steps, width, ridge, dtype, device: as
+        :class:`~protorch.primitives.promp.ProMP`.
     """
 
     def __init__(
@@ -234,18 +251,27 @@ class PoseProMP(nn.Module):
             if demos.ndim == 2:
                 demos = demos[None]
             if demos.ndim != 3:
-                raise ValueError(f"demos must be (n, T, 7) or a list of (T_i, 7), got shape {tuple(demos.shape)}")
+                raise ValueError(
+                    f"demos must be (n, T, 7) or a list of (T_i, 7), got shape {tuple(demos.shape)}"
+                )
             demos = list(demos)
         if len(demos) == 0:
             raise ValueError("demos is empty")
-        out = [normalize_poses(torch.as_tensor(d).to(self.position.basis), f"demos[{i}]") for i, d in enumerate(demos)]
+        out = [
+            normalize_poses(torch.as_tensor(d).to(self.position.basis), f"demos[{i}]")
+            for i, d in enumerate(demos)
+        ]
         if reference is None:
             ref = out[0][0, 3:]
         else:
-            ref = normalize_quaternion(torch.as_tensor(reference).to(self.position.basis), "reference")
+            ref = normalize_quaternion(
+                torch.as_tensor(reference).to(self.position.basis), "reference"
+            )
         return [torch.cat([d[:, :3], align_quaternions(d[:, 3:], ref)], -1) for d in out]
 
-    def fit(self, demos: Tensor | Sequence[Tensor], *, reference=None, min_var: float = 0.0) -> "PoseProMP":
+    def fit(
+        self, demos: Tensor | Sequence[Tensor], *, reference=None, min_var: float = 0.0
+    ) -> "PoseProMP":
         """Fit both ProMPs (diagonal maximum likelihood) to demonstrations ``(T_i, 7)`` of any
         lengths, after :meth:`aligned_demos`."""
         aligned = self.aligned_demos(demos, reference)
@@ -253,8 +279,12 @@ class PoseProMP(nn.Module):
         self.orientation.fit([d[:, 3:] for d in aligned], min_var=min_var)
         return self
 
-    def set_distribution(self, *, position: tuple[Tensor, Tensor] | None = None,
-                         orientation: tuple[Tensor, Tensor] | None = None) -> "PoseProMP":
+    def set_distribution(
+        self,
+        *,
+        position: tuple[Tensor, Tensor] | None = None,
+        orientation: tuple[Tensor, Tensor] | None = None,
+    ) -> "PoseProMP":
         """Replace the ``(mean, var)`` of the position and / or orientation weight Gaussian."""
         if position is not None:
             self.position.set_distribution(position[0], var=position[1])
@@ -267,7 +297,8 @@ class PoseProMP(nn.Module):
 
     # ------------------------------------------------------------------ generating
     def quaternions(self, w_rot: Tensor) -> Tensor:
-        """Orientation weights ``(..., 4K)`` -> unit, sign-continuous quaternions ``(..., T, 4)``."""
+        """Orientation weights ``(..., 4K)`` -> unit, sign-continuous quaternions
+        ``(..., T, 4)``."""
         q = self.orientation.trajectory(w_rot)  # (..., T, 4)
         q = q / _norm(q).clamp_min(_MIN_NORM)
         return align_quaternions(q)
@@ -287,7 +318,11 @@ class PoseProMP(nn.Module):
         """``(T, 7)``: marginal std of the 3 positions and of the 4 raw quaternion components."""
         return torch.cat([self.position.std_trajectory(), self.orientation.std_trajectory()], -1)
 
-    def sample(self, num_samples: int, *, generator: torch.Generator | None = None) -> tuple[Tensor, Tensor]:
+    def sample(
+        self, num_samples: int, *, generator: torch.Generator | None = None
+    ) -> tuple[Tensor, Tensor]:
         """Independent draws of both weight Gaussians: ``(S, 3K)``, ``(S, 4K)``."""
-        return (self.position.sample(num_samples, generator=generator),
-                self.orientation.sample(num_samples, generator=generator))
+        return (
+            self.position.sample(num_samples, generator=generator),
+            self.orientation.sample(num_samples, generator=generator),
+        )

@@ -102,7 +102,9 @@ class ProMP(nn.Module):
                 f"need num_dof >= 1, num_basis >= 2, num_steps >= 2; "
                 f"got {num_dof}, {num_basis}, {num_steps}"
             )
-        self.num_dof, self.num_basis, self.num_steps = (check_int(v, name, lo) for v, name, lo in sizes)
+        self.num_dof, self.num_basis, self.num_steps = (
+            check_int(v, name, lo) for v, name, lo in sizes
+        )
         ridge = check_number(ridge, "ridge", allow_zero=True)  # finite, >= 0
         self.width = float(width) if width is not None else 1.0 / (self.num_basis - 1)
         check_positive(self.width, "width")
@@ -111,7 +113,9 @@ class ProMP(nn.Module):
         n = self.num_weights
         self.register_buffer("phase", torch.linspace(0, 1, self.num_steps, **kw))  # (T,)
         self.register_buffer("centers", torch.linspace(0, 1, self.num_basis, **kw))  # (K,)
-        self.register_buffer("basis", gaussian_basis(self.phase, self.centers, self.width))  # (T, K)
+        self.register_buffer(
+            "basis", gaussian_basis(self.phase, self.centers, self.width)
+        )  # (T, K)
         self.register_buffer("mean", torch.zeros(n, **kw))  # (N,)
         self.register_buffer("cov", torch.zeros(n, n, **kw))  # (N, N)
         self.register_buffer("fitted", torch.zeros((), dtype=torch.bool, device=device))
@@ -141,7 +145,9 @@ class ProMP(nn.Module):
             if demos.ndim == 2:
                 demos = demos[None]
             if demos.ndim != 3:
-                raise ValueError(f"demos must be (n, T, D) or a list of (T_i, D), got {tuple(demos.shape)}")
+                raise ValueError(
+                    f"demos must be (n, T, D) or a list of (T_i, D), got {tuple(demos.shape)}"
+                )
             demos = list(demos)
         if len(demos) == 0:
             raise ValueError("demos is empty")
@@ -165,8 +171,12 @@ class ProMP(nn.Module):
         solve run on one torch thread: the same bits at any thread count."""
         y = self._stack_demos(demos)  # (n, T, D)
         phi = self.basis  # (T, K)
-        with one_thread():  # MKL (under the app's MKL_CBWR) gave other bits on 2 threads, 60 to 4,000 demos
-            gram = phi.T @ phi + self.ridge * torch.eye(self.num_basis, dtype=phi.dtype, device=phi.device)
+        with (
+            one_thread()
+        ):  # MKL (under the app's MKL_CBWR) gave other bits on 2 threads, 60 to 4,000 demos
+            gram = phi.T @ phi + self.ridge * torch.eye(
+                self.num_basis, dtype=phi.dtype, device=phi.device
+            )
             rhs = torch.einsum("tk,ntd->nkd", phi, y)  # (n, K, D)
             w = torch.linalg.solve(gram, rhs)  # (n, K, D)
         return w.transpose(-1, -2).reshape(y.shape[0], self.num_weights)  # (n, N)
@@ -197,7 +207,9 @@ class ProMP(nn.Module):
             cov = cov + min_var * torch.eye(self.num_weights, dtype=cov.dtype, device=cov.device)
         return self.set_distribution(mean, cov=cov)
 
-    def set_distribution(self, mean: Tensor, var: Tensor | None = None, cov: Tensor | None = None) -> "ProMP":
+    def set_distribution(
+        self, mean: Tensor, var: Tensor | None = None, cov: Tensor | None = None
+    ) -> "ProMP":
         """Set the weight Gaussian from ``mean (N,)`` and ``var (N,)`` or ``cov (N, N)``."""
         mean = check_tensor(mean, "mean", ndim=1).to(self.basis)
         if mean.shape[0] != self.num_weights:
@@ -214,13 +226,17 @@ class ProMP(nn.Module):
         else:
             cov = check_tensor(cov, "cov", ndim=2).to(self.basis)
             if cov.shape != (self.num_weights, self.num_weights):
-                raise ValueError(f"cov must be ({self.num_weights}, {self.num_weights}), got {tuple(cov.shape)}")
+                raise ValueError(
+                    f"cov must be ({self.num_weights}, {self.num_weights}), got {tuple(cov.shape)}"
+                )
             tol = _roundoff(cov)
             if float((cov - cov.T).abs().max()) > tol:
                 raise ValueError("cov must be symmetric")
             if bool((torch.diagonal(cov) < -tol).any()):
-                raise ValueError(f"cov must have variances >= 0 on its diagonal, got a minimum of "
-                                 f"{float(torch.diagonal(cov).min()):.3g}")
+                raise ValueError(
+                    f"cov must have variances >= 0 on its diagonal, got a minimum of "
+                    f"{float(torch.diagonal(cov).min()):.3g}"
+                )
         self.mean.copy_(mean)
         self.cov.copy_(0.5 * (cov + cov.T))
         self.fitted.fill_(True)
@@ -234,27 +250,37 @@ class ProMP(nn.Module):
         phase = torch.as_tensor(phase, dtype=self.basis.dtype, device=self.basis.device).reshape(-1)
         return gaussian_basis(phase, self.centers, self.width, order)
 
-    def trajectory(self, w: Tensor, phase: Tensor | None = None, *, basis: Tensor | None = None) -> Tensor:
+    def trajectory(
+        self, w: Tensor, phase: Tensor | None = None, *, basis: Tensor | None = None
+    ) -> Tensor:
         """Weights ``(..., N)`` -> trajectories ``(..., T, D)`` (or ``(..., P, D)`` at ``phase``;
         ``basis``: :meth:`basis_at` ``phase`` where the caller keeps it). The product runs on one
         torch thread: the same bits at any thread count."""
         if w.shape[-1] != self.num_weights:
-            raise ValueError(f"w must end in {self.num_weights} weights, got shape {tuple(w.shape)}")
-        phi = basis if basis is not None else self.basis if phase is None else self.basis_at(phase)  # (T, K)
+            raise ValueError(
+                f"w must end in {self.num_weights} weights, got shape {tuple(w.shape)}"
+            )
+        phi = (
+            basis if basis is not None else self.basis if phase is None else self.basis_at(phase)
+        )  # (T, K)
         w = w.to(phi.dtype).unflatten(-1, (self.num_dof, self.num_basis))  # (..., D, K)
         with one_thread():  # MKL's product (under the app's MKL_CBWR) gives other bits on 2 threads
             return torch.einsum("tk,...dk->...td", phi, w)  # (..., T, D)
 
     def _require_fitted(self) -> None:
         if not bool(self.fitted):
-            raise RuntimeError("the ProMP has no weight distribution yet: call fit() or set_distribution()")
+            raise RuntimeError(
+                "the ProMP has no weight distribution yet: call fit() or set_distribution()"
+            )
 
     def sample(self, num_samples: int, *, generator: torch.Generator | None = None) -> Tensor:
         """Draw weights ``(S, N)`` from the weight Gaussian."""
         num_samples = check_int(num_samples, "num_samples", 0)
         self._require_fitted()
         n = self.num_weights
-        z = torch.randn(num_samples, n, generator=generator, dtype=self.mean.dtype, device=self.mean.device)
+        z = torch.randn(
+            num_samples, n, generator=generator, dtype=self.mean.dtype, device=self.mean.device
+        )
         off_diag = self.cov - torch.diag(self.var)
         if bool((off_diag != 0).any()):
             eye = torch.eye(n, dtype=self.cov.dtype, device=self.cov.device)
@@ -300,7 +326,9 @@ class ProMP(nn.Module):
         if y.ndim == 1:  # (D,) for one via point, or (V,) for a 1-DoF ProMP
             y = y[:, None] if d == 1 else y[None]
         if y.ndim != 2 or y.shape[1] != d:
-            raise ValueError(f"y must be (V, {d}) or ({d},) for a {d}-DoF ProMP, got shape {tuple(y.shape)}")
+            raise ValueError(
+                f"y must be (V, {d}) or ({d},) for a {d}-DoF ProMP, got shape {tuple(y.shape)}"
+            )
         if y.shape[0] != v:
             raise ValueError(f"{v} via phase(s) but y has {y.shape[0]} row(s) of {d} DoF")
         y_cov = torch.as_tensor(y_cov, dtype=self.basis.dtype, device=self.basis.device)
@@ -310,11 +338,15 @@ class ProMP(nn.Module):
         elif y_cov.ndim == 2 and y_cov.shape == (d, d):
             y_cov = y_cov.expand(v, d, d)
         if y_cov.shape != (v, d, d):
-            raise ValueError(f"y_cov must be a float, ({d}, {d}) or ({v}, {d}, {d}), got {tuple(y_cov.shape)}")
+            raise ValueError(
+                f"y_cov must be a float, ({d}, {d}) or ({v}, {d}, {d}), got {tuple(y_cov.shape)}"
+            )
         check_tensor(y_cov, "y_cov")
         sym = 0.5 * (y_cov + y_cov.transpose(-1, -2))  # (V, D, D)
         if float(torch.linalg.eigvalsh(sym).min()) < -_roundoff(y_cov):
-            raise ValueError("y_cov must be positive semi-definite (a covariance of the via points)")
+            raise ValueError(
+                "y_cov must be positive semi-definite (a covariance of the via points)"
+            )
         # Psi maps weights to the V*D observed positions: (V*D, N), block-diagonal per DoF.
         phi = self.basis_at(phase)  # (V, K)
         psi = torch.einsum("vk,de->vdek", phi, eye_d).reshape(v * d, self.num_weights)  # (V*D, N)

@@ -13,5 +13,18 @@ from .description import Capsule, Inertial, PointMass, Robot, capsule_index, cap
 from .kinematics import ArmKinematics, PointPlan
 from .loader import ROBOTS_DIR, RobotError, check_inertials, load_robot, shipped_robots
 
-__all__ = ["ArmKinematics", "PointPlan", "Robot", "Capsule", "Inertial", "PointMass", "RobotError", "ROBOTS_DIR", "load_robot",
-           "shipped_robots", "check_inertials", "capsule_index", "capsule_segments"]
+__all__ = [
+    "ArmKinematics",
+    "PointPlan",
+    "Robot",
+    "Capsule",
+    "Inertial",
+    "PointMass",
+    "RobotError",
+    "ROBOTS_DIR",
+    "load_robot",
+    "shipped_robots",
+    "check_inertials",
+    "capsule_index",
+    "capsule_segments",
+]

@@ -1,9 +1,11 @@
-"""Capsules fitted to a URDF's collision geometry: the link volumes of any arm, from its own description.
+"""Capsules fitted to a URDF's collision geometry: the link volumes of any arm, from its own
+description.
 
 :func:`fit_capsules` reads every ``<collision>`` of a URDF and encloses it in one or a few capsules
 in its link's frame, a segment ``p0 -> p1`` and a radius (metres): the form of
 :class:`~protorch.robots.Robot`'s ``capsules``, which the planner's ``collision=volume`` and the
-MuJoCo scene read (``robot.capsules=auto``: :func:`protorch.robots.loader.auto_capsules`). The result maps a link name to its list of ``(p0, p1, radius)``;
+MuJoCo scene read (``robot.capsules=auto``: :func:`protorch.robots.loader.auto_capsules`). The
+result maps a link name to its list of ``(p0, p1, radius)``;
 :func:`as_capsules` turns it into :class:`~protorch.robots.Capsule` records.
 
 Each geometry is enclosed entirely (every point of it inside the union of its capsules):
@@ -42,10 +44,22 @@ import numpy as np
 from .description import Capsule
 from .urdf import COLLISION_KINDS, CollisionGeometry, collision_geometry
 
-__all__ = ["CollisionGeometry", "Segment", "collision_geometry", "fit_capsules", "fit_geometry", "as_capsules",
-           "protrusion", "surface_points", "coverage", "enclosing_capsule"]
+__all__ = [
+    "CollisionGeometry",
+    "Segment",
+    "collision_geometry",
+    "fit_capsules",
+    "fit_geometry",
+    "as_capsules",
+    "protrusion",
+    "surface_points",
+    "coverage",
+    "enclosing_capsule",
+]
 
-Segment = tuple[tuple[float, float, float], tuple[float, float, float], float]  # (p0, p1, radius), link frame
+Segment = tuple[
+    tuple[float, float, float], tuple[float, float, float], float
+]  # (p0, p1, radius), link frame
 _STEP = 1e-4  # m: end points rounded to it, radii rounded up to it
 _SAVING = 0.8  # one more capsule only where it makes the volume at most this fraction
 
@@ -103,8 +117,9 @@ def _fewest(best_by_k: Mapping[int, tuple[float, list]]) -> list:
     return best_by_k[k][1]
 
 
-def enclosing_capsule(points: np.ndarray, axis: np.ndarray | None = None, through: np.ndarray | None = None
-                      ) -> tuple[np.ndarray, np.ndarray, float]:
+def enclosing_capsule(
+    points: np.ndarray, axis: np.ndarray | None = None, through: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, float]:
     """The capsule of least volume whose segment lies on the line ``through + t axis`` and that
     holds every point ``(n, 3)``; without ``axis``, the line is searched (Nelder-Mead over its
     direction and offset, from the points' principal axis). Returns ``(p0, p1, radius)``."""
@@ -126,7 +141,11 @@ def enclosing_capsule(points: np.ndarray, axis: np.ndarray | None = None, throug
         def vols(radii):  # (m,) radii -> (m,) volumes, (m,) far and (m,) near segment ends
             s = np.sqrt(np.maximum(radii[:, None] ** 2 - rho**2, 0.0))  # (m, n)
             t1, t0 = (t - s).max(1), (t + s).min(1)  # the segment's far end >= .., near end <= ..
-            return math.pi * radii**2 * np.maximum(t1 - t0, 0.0) + 4.0 / 3.0 * math.pi * radii**3, t1, t0
+            return (
+                math.pi * radii**2 * np.maximum(t1 - t0, 0.0) + 4.0 / 3.0 * math.pi * radii**3,
+                t1,
+                t0,
+            )
 
         radii = np.linspace(lo_r, hi_r, 33)
         for _ in range(3):  # a grid, then two finer ones around its best
@@ -140,18 +159,30 @@ def enclosing_capsule(points: np.ndarray, axis: np.ndarray | None = None, throug
         return vol, p + t0 * u, p + t1 * u, radius
 
     if axis is not None:
-        _, p0, p1, radius = on_line(np.asarray(axis, float), centre if through is None else np.asarray(through, float))
+        _, p0, p1, radius = on_line(
+            np.asarray(axis, float), centre if through is None else np.asarray(through, float)
+        )
         return p0, p1, radius
     _, _, vt = np.linalg.svd(pts - centre, full_matrices=False)
     u0 = vt[0] if len(pts) > 1 else np.array([0.0, 0.0, 1.0])
-    e1, e2 = (vt[1], vt[2]) if len(pts) > 2 else (np.cross(u0, [1.0, 0, 0]), np.cross(u0, [0, 1.0, 0]))
+    e1, e2 = (
+        (vt[1], vt[2]) if len(pts) > 2 else (np.cross(u0, [1.0, 0, 0]), np.cross(u0, [0, 1.0, 0]))
+    )
     scale = max(float(np.ptp(pts, axis=0).max()), 1e-6)
 
-    def line(x):  # tilt of the axis (2) and offset of the line (2), from the principal axis through the centre
+    def line(
+        x,
+        # tilt of the axis (2) and offset of the line (2), from the principal axis through the
+        # centre
+    ):
         return u0 + x[0] * e1 + x[1] * e2, centre + scale * (x[2] * e1 + x[3] * e2)
 
-    res = minimize(lambda x: on_line(*line(x))[0], np.zeros(4), method="Nelder-Mead",
-                   options={"xatol": 1e-6, "fatol": 1e-12, "maxiter": 2000})
+    res = minimize(
+        lambda x: on_line(*line(x))[0],
+        np.zeros(4),
+        method="Nelder-Mead",
+        options={"xatol": 1e-6, "fatol": 1e-12, "maxiter": 2000},
+    )
     best = min((res.x, np.zeros(4)), key=lambda x: on_line(*line(x))[0])
     _, p0, p1, radius = on_line(*line(best))
     return p0, p1, radius
@@ -181,18 +212,26 @@ def _mesh_capsules(points: np.ndarray, max_k: int) -> list[tuple[np.ndarray, np.
     for k in range(1, max_k + 1):
         cuts = np.linspace(t.min(), t.max(), k + 1)
         piece = np.clip(np.searchsorted(cuts, t, side="right") - 1, 0, k - 1)  # (n,)
-        caps = [enclosing_capsule(_hull(points[piece == i])) for i in range(k) if (piece == i).any()]
-        best_by_k[k] = (sum(_capsule_volume(r, float(np.linalg.norm(b - a))) for a, b, r in caps), caps)
+        caps = [
+            enclosing_capsule(_hull(points[piece == i])) for i in range(k) if (piece == i).any()
+        ]
+        best_by_k[k] = (
+            sum(_capsule_volume(r, float(np.linalg.norm(b - a))) for a, b, r in caps),
+            caps,
+        )
     return _fewest(best_by_k)
 
 
 def _load_mesh(geom: CollisionGeometry):
-    """The mesh of ``geom`` scaled, in its ``<collision>`` frame (``trimesh``; a clear error without it)."""
+    """The mesh of ``geom`` scaled, in its ``<collision>`` frame (``trimesh``; a clear error
+    without it)."""
     try:
         import trimesh
     except ImportError:
-        raise ImportError(f"link {geom.link!r} has a mesh collision geometry ({geom.mesh}); reading it needs "
-                          'trimesh: pip install "protorch[meshes]"') from None
+        raise ImportError(
+            f"link {geom.link!r} has a mesh collision geometry ({geom.mesh}); reading it needs "
+            'trimesh: pip install "protorch[meshes]"'
+        ) from None
     mesh = trimesh.load(str(geom.mesh), force="mesh")
     if len(mesh.vertices) == 0:
         raise ValueError(f"link {geom.link!r}: the mesh {geom.mesh} has no vertices")
@@ -200,14 +239,17 @@ def _load_mesh(geom: CollisionGeometry):
     return mesh
 
 
-def fit_geometry(geom: CollisionGeometry, *, max_per_geometry: int = 3, samples: int = 20000,
-                 seed: int = 0) -> list[Segment]:
+def fit_geometry(
+    geom: CollisionGeometry, *, max_per_geometry: int = 3, samples: int = 20000, seed: int = 0
+) -> list[Segment]:
     """The capsules holding one collision geometry, in its link's frame (module docstring);
     ``samples`` points on a mesh's triangles join its vertices."""
     if geom.kind == "sphere":
         caps = [(np.zeros(3), np.zeros(3), geom.radius)]
     elif geom.kind == "capsule":
-        caps = [(np.array([0, 0, -geom.length / 2]), np.array([0, 0, geom.length / 2]), geom.radius)]
+        caps = [
+            (np.array([0, 0, -geom.length / 2]), np.array([0, 0, geom.length / 2]), geom.radius)
+        ]
     elif geom.kind == "cylinder":
         radius, length = _prism_capsule(geom.radius, geom.length)
         caps = [(np.array([0, 0, -length / 2]), np.array([0, 0, length / 2]), radius)]
@@ -219,23 +261,42 @@ def fit_geometry(geom: CollisionGeometry, *, max_per_geometry: int = 3, samples:
         mesh = _load_mesh(geom)
         pts = np.asarray(mesh.vertices, dtype=np.float64)
         if len(mesh.faces) and samples:
-            pts = np.concatenate([pts, np.asarray(trimesh.sample.sample_surface(mesh, samples, seed=seed)[0])])
+            pts = np.concatenate(
+                [pts, np.asarray(trimesh.sample.sample_surface(mesh, samples, seed=seed)[0])]
+            )
         caps = _mesh_capsules(pts, max_per_geometry)
     else:
-        raise ValueError(f"unknown collision geometry kind {geom.kind!r}; expected one of {COLLISION_KINDS}")
+        raise ValueError(
+            f"unknown collision geometry kind {geom.kind!r}; expected one of {COLLISION_KINDS}"
+        )
     rot, pos = geom.origin[:3, :3], geom.origin[:3, 3]
     out = []
     for a, b, r in caps:
         a, b = rot @ np.asarray(a, float) + pos, rot @ np.asarray(b, float) + pos
         ra, rb = np.round(a / _STEP) * _STEP, np.round(b / _STEP) * _STEP
-        slack = max(np.linalg.norm(ra - a), np.linalg.norm(rb - b))  # the rounded segment stays this close
+        slack = max(
+            np.linalg.norm(ra - a), np.linalg.norm(rb - b)
+        )  # the rounded segment stays this close
         radius = math.ceil(round((r + slack) / _STEP, 6)) * _STEP
-        out.append((tuple(round(float(v), 4) for v in ra), tuple(round(float(v), 4) for v in rb), round(radius, 4)))
+        out.append(
+            (
+                tuple(round(float(v), 4) for v in ra),
+                tuple(round(float(v), 4) for v in rb),
+                round(radius, 4),
+            )
+        )
     return out
 
 
-def fit_capsules(urdf: str | Path, *, links: Sequence[str] | None = None, mesh_dir: str | Path | None = None,
-                 max_per_geometry: int = 3, samples: int = 20000, seed: int = 0) -> dict[str, list[Segment]]:
+def fit_capsules(
+    urdf: str | Path,
+    *,
+    links: Sequence[str] | None = None,
+    mesh_dir: str | Path | None = None,
+    max_per_geometry: int = 3,
+    samples: int = 20000,
+    seed: int = 0,
+) -> dict[str, list[Segment]]:
     """Capsules for every link with collision geometry (or only ``links``): link name -> list of
     ``(p0, p1, radius)`` in the link frame, metres (module docstring). A link named in ``links``
     that has no ``<collision>`` is refused with a clear error."""
@@ -246,20 +307,26 @@ def fit_capsules(urdf: str | Path, *, links: Sequence[str] | None = None, mesh_d
     if links is not None:
         missing = [n for n in links if n not in have]
         if missing:
-            raise ValueError(f"link {missing[0]!r} has no <collision> geometry to fit capsules to; "
-                             f"the links that have some: {sorted(have)}")
+            raise ValueError(
+                f"link {missing[0]!r} has no <collision> geometry to fit capsules to; "
+                f"the links that have some: {sorted(have)}"
+            )
     out: dict[str, list[Segment]] = {}
     for g in geoms:
         if links is None or g.link in links:
-            out.setdefault(g.link, []).extend(fit_geometry(g, max_per_geometry=max_per_geometry, samples=samples,
-                                                           seed=seed))
+            out.setdefault(g.link, []).extend(
+                fit_geometry(g, max_per_geometry=max_per_geometry, samples=samples, seed=seed)
+            )
     return out
 
 
 def as_capsules(fit: Mapping[str, Sequence[Segment]]) -> tuple[Capsule, ...]:
     """``{link: [(p0, p1, radius)]}`` as :class:`~protorch.robots.Capsule` records."""
-    return tuple(Capsule(link, tuple(map(float, a)), tuple(map(float, b)), float(r))
-                 for link, caps in fit.items() for a, b, r in caps)
+    return tuple(
+        Capsule(link, tuple(map(float, a)), tuple(map(float, b)), float(r))
+        for link, caps in fit.items()
+        for a, b, r in caps
+    )
 
 
 # ---------------------------------------------------------------------------------------- coverage
@@ -295,8 +362,14 @@ def surface_points(geom: CollisionGeometry, count: int = 5000, seed: int = 0) ->
     return pts @ geom.origin[:3, :3].T + geom.origin[:3, 3]
 
 
-def coverage(urdf: str | Path, fit: Mapping[str, Sequence[Segment]], *, mesh_dir: str | Path | None = None,
-             count: int = 5000, seed: int = 1) -> dict[str, dict[str, float]]:
+def coverage(
+    urdf: str | Path,
+    fit: Mapping[str, Sequence[Segment]],
+    *,
+    mesh_dir: str | Path | None = None,
+    count: int = 5000,
+    seed: int = 1,
+) -> dict[str, dict[str, float]]:
     """How well ``fit`` covers the URDF's collision geometry, per link (the Panda's measure,
     ``benchmarks/panda_volumes.py``): ``count`` points sampled on each collision surface (another
     seed than the fit's), ``inside`` the fraction of them inside the link's capsules and
@@ -307,8 +380,13 @@ def coverage(urdf: str | Path, fit: Mapping[str, Sequence[Segment]], *, mesh_dir
     out = {}
     for link, pts in per_link.items():
         if link not in fit or not fit[link]:
-            raise ValueError(f"the fit has no capsule for link {link!r}, which has collision geometry")
+            raise ValueError(
+                f"the fit has no capsule for link {link!r}, which has collision geometry"
+            )
         gap = protrusion(np.concatenate(pts), fit[link])
-        out[link] = {"capsules": len(fit[link]), "inside": float((gap <= 1e-9).mean()),
-                     "largest_out": max(float(gap.max()), 0.0)}
+        out[link] = {
+            "capsules": len(fit[link]),
+            "inside": float((gap <= 1e-9).mean()),
+            "largest_out": max(float(gap.max()), 0.0),
+        }
     return out

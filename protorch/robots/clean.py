@@ -9,7 +9,8 @@ What it changes, each reported in :class:`Cleaned` ``.report`` (the run's summar
 * elements protorch does not read are dropped (``<transmission>``, ``<gazebo>``,
   ``<ros2_control>``, ``<sensor>``, a link's ``<contact>``, a joint's ``<mimic>`` or
   ``<safety_controller>``, ...): listed once, by name and count (``ignored``);
-* every ``<mesh filename>`` is resolved to an absolute file (:func:`protorch.robots.meshes.resolve_mesh`;
+* every ``<mesh filename>`` is resolved to an absolute file
+  (:func:`protorch.robots.meshes.resolve_mesh`;
   a missing one refused naming the link); a file MuJoCo cannot read whole (Collada ``.dae``, an
   OBJ of several objects) replaced by its merged STL copy in the cache (``converted``);
 * every movable joint off the chain to the end link (fingers, grippers, anything past the end
@@ -48,11 +49,13 @@ __all__ = ["CleanError", "Cleaned", "clean_urdf", "end_link_candidates", "urdf_c
 log = logging.getLogger(__name__)
 
 _DECL = re.compile(r"^\s*<\?xml[^>]*\?>\s*")
-_KEEP = {"robot": {"link", "joint", "material"},
-         "link": {"inertial", "visual", "collision"},
-         "joint": {"origin", "parent", "child", "axis", "limit", "dynamics"},
-         "visual": {"origin", "geometry", "material"},
-         "collision": {"origin", "geometry"}}
+_KEEP = {
+    "robot": {"link", "joint", "material"},
+    "link": {"inertial", "visual", "collision"},
+    "joint": {"origin", "parent", "child", "axis", "limit", "dynamics"},
+    "visual": {"origin", "geometry", "material"},
+    "collision": {"origin", "geometry"},
+}
 CONTINUOUS_LIMITS = (-math.pi, math.pi)
 
 
@@ -72,8 +75,11 @@ class Cleaned:
 
 
 def urdf_chain(root: ET.Element, end_link: str) -> list[ET.Element]:
-    """The joints from the URDF's root link to ``end_link``, in order (``end_link`` must be a link)."""
-    by_child = {j.find("child").get("link"): j for j in root.iter("joint") if j.find("child") is not None}
+    """The joints from the URDF's root link to ``end_link``, in order (``end_link`` must be a
+    link)."""
+    by_child = {
+        j.find("child").get("link"): j for j in root.iter("joint") if j.find("child") is not None
+    }
     chain, link = [], end_link
     while link in by_child:
         j = by_child[link]
@@ -85,8 +91,11 @@ def urdf_chain(root: ET.Element, end_link: str) -> list[ET.Element]:
 
 
 def end_link_candidates(root: ET.Element) -> list[tuple[str, int]]:
-    """The leaf links (no joint below them) with the number of movable joints to each, most first."""
-    parents = {j.find("parent").get("link") for j in root.iter("joint") if j.find("parent") is not None}
+    """The leaf links (no joint below them) with the number of movable joints to each,
+    most first."""
+    parents = {
+        j.find("parent").get("link") for j in root.iter("joint") if j.find("parent") is not None
+    }
     out = []
     for link in root.iter("link"):
         name = link.get("name")
@@ -129,7 +138,9 @@ def _lock(joint: ET.Element, value: float) -> None:
         origin = ET.SubElement(joint, "origin")
     xyz = np.array(_floats(origin.get("xyz"), 3, (0, 0, 0)))
     rot = np.array(rpy_matrix(_floats(origin.get("rpy"), 3, (0, 0, 0))))
-    axis = _floats(joint.find("axis").get("xyz") if joint.find("axis") is not None else None, 3, (1, 0, 0))
+    axis = _floats(
+        joint.find("axis").get("xyz") if joint.find("axis") is not None else None, 3, (1, 0, 0)
+    )
     if value:
         if kind == "prismatic":
             xyz = xyz + rot @ (value * np.asarray(axis, float) / np.linalg.norm(axis))
@@ -151,8 +162,9 @@ def _drop_unused(root: ET.Element) -> dict[str, int]:
             if not isinstance(child.tag, str):
                 continue
             if child.tag not in keep:
-                dropped[f"{where}<{child.tag}>" if where else f"<{child.tag}>"] = \
+                dropped[f"{where}<{child.tag}>" if where else f"<{child.tag}>"] = (
                     dropped.get(f"{where}<{child.tag}>" if where else f"<{child.tag}>", 0) + 1
+                )
                 el.remove(child)
             elif child.tag in _KEEP and child.tag != "robot":
                 visit(child, _KEEP[child.tag], f"<{child.tag}> ")
@@ -162,12 +174,16 @@ def _drop_unused(root: ET.Element) -> dict[str, int]:
 
 
 def _inertia_matrix(el: ET.Element) -> np.ndarray:
-    xx, xy, xz, yy, yz, zz = (float(el.get(k, "0")) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"))
+    xx, xy, xz, yy, yz, zz = (
+        float(el.get(k, "0")) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+    )
     return np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
 
 
 def _set_inertia(el: ET.Element, mat: np.ndarray) -> None:
-    for k, (i, j) in zip(("ixx", "ixy", "ixz", "iyy", "iyz", "izz"), ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
+    for k, (i, j) in zip(
+        ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"), ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+    ):
         el.set(k, repr(float(mat[i, j])))
 
 
@@ -192,16 +208,23 @@ def _geometry_points(link: ET.Element, vertices: Mapping[str, np.ndarray]) -> np
             if shape.tag == "mesh":
                 if shape.get("filename") not in vertices:
                     continue
-                p = vertices[shape.get("filename")] * np.asarray(_floats(shape.get("scale"), 3, (1, 1, 1)))
+                p = vertices[shape.get("filename")] * np.asarray(
+                    _floats(shape.get("scale"), 3, (1, 1, 1))
+                )
             elif shape.tag == "box":
                 half = np.asarray(_floats(shape.get("size"), 3, (0, 0, 0))) / 2
-                p = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * half
+                p = (
+                    np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+                    * half
+                )
             elif shape.tag in ("cylinder", "capsule", "sphere"):
                 r = float(shape.get("radius", "0"))
                 h = float(shape.get("length", "0")) / 2 + (r if shape.tag != "cylinder" else 0.0)
                 if shape.tag == "sphere":
                     h = r
-                p = np.array([[sx * r, sy * r, sz * h] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+                p = np.array(
+                    [[sx * r, sy * r, sz * h] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]
+                )
             else:
                 continue
             m = _origin_matrix(item)
@@ -221,13 +244,16 @@ def _hull_inertia(points: np.ndarray, mass: float, com: np.ndarray) -> np.ndarra
         return None
     if not hull.is_volume or hull.volume <= 0:
         return None
-    inertia = np.asarray(hull.moment_inertia, float) * (mass / hull.volume)  # about the hull's centroid
+    inertia = np.asarray(hull.moment_inertia, float) * (
+        mass / hull.volume
+    )  # about the hull's centroid
     d = np.asarray(com, float) - np.asarray(hull.center_mass, float)
     return inertia + mass * (float(d @ d) * np.eye(3) - np.outer(d, d))
 
 
-def _fix_inertias(root: ET.Element, balance: bool, where: str, vertices: Mapping[str, np.ndarray]
-                  ) -> tuple[list[str], list[str], bool]:
+def _fix_inertias(
+    root: ET.Element, balance: bool, where: str, vertices: Mapping[str, np.ndarray]
+) -> tuple[list[str], list[str], bool]:
     balanced, implausible, changed_any = [], [], False
     for link in root.iter("link"):
         el = link.find("inertial")
@@ -241,7 +267,9 @@ def _fix_inertias(root: ET.Element, balance: bool, where: str, vertices: Mapping
         if not mass > 0:
             if np.abs(mat).max() > 0:
                 implausible.append(name)
-            link.remove(el)  # a massless link has no inertial (MuJoCo refuses a zero inertia given explicitly)
+            link.remove(
+                el
+            )  # a massless link has no inertial (MuJoCo refuses a zero inertia given explicitly)
             changed_any = True
             continue
         pts = _geometry_points(link, vertices)
@@ -256,17 +284,27 @@ def _fix_inertias(root: ET.Element, balance: bool, where: str, vertices: Mapping
         a, b, c = eig
         if eig.min() < 0 or c > (a + b) * (1 + 1e-9) + 1e-15:
             if not balance:
-                raise CleanError(f"{where}: link {name!r} has an inertia whose principal moments "
-                                 f"{[float(v) for v in eig]} violate A + B >= C (robot.balance_inertia=false refuses "
-                                 "it; true replaces it by the isotropic inertia of the same trace)")
+                raise CleanError(
+                    f"{where}: link {name!r} has an inertia whose principal moments "
+                    f"{[float(v) for v in eig]} violate A + B >= C (robot.balance_inertia=false "
+                    "refuses "
+                    "it; true replaces it by the isotropic inertia of the same trace)"
+                )
             balanced.append(name)
             _set_inertia(el.find("inertia"), np.eye(3) * max(float(eig.sum()) / 3, 0.0))
     return balanced, implausible, changed_any
 
 
-def clean_urdf(path: str | Path, end_link: str, *, locked: Mapping[str, float] | None = None,
-               limits: Mapping[str, Sequence[float]] | None = None, packages: Sequence[str | Path] = (),
-               balance: bool = True, where: str | None = None) -> Cleaned:
+def clean_urdf(
+    path: str | Path,
+    end_link: str,
+    *,
+    locked: Mapping[str, float] | None = None,
+    limits: Mapping[str, Sequence[float]] | None = None,
+    packages: Sequence[str | Path] = (),
+    balance: bool = True,
+    where: str | None = None,
+) -> Cleaned:
     """The URDF at ``path`` cleaned for the chain to ``end_link`` (module docstring). Refuses, in
     one line naming the file and the element (:class:`CleanError`, a ``FileNotFoundError`` for a
     mesh not found), what it cannot repair."""
@@ -279,14 +317,21 @@ def clean_urdf(path: str | Path, end_link: str, *, locked: Mapping[str, float] |
     except ET.ParseError as exc:
         raise CleanError(f"{where} is not valid XML: {exc}") from None
     if root.tag != "robot":
-        raise CleanError(f"{where} is not a URDF: its root element is <{root.tag}>, expected <robot>")
+        raise CleanError(
+            f"{where} is not a URDF: its root element is <{root.tag}>, expected <robot>"
+        )
     report: dict = {}
-    changed = "encoding" in raw[:len(raw) - len(body)]  # what pytorch_kinematics (lxml) refuses in a str
+    changed = (
+        "encoding" in raw[: len(raw) - len(body)]
+    )  # what pytorch_kinematics (lxml) refuses in a str
     dropped = _drop_unused(root)
     if dropped:
         report["ignored"] = dropped
-        log.info("%s: ignored what protorch does not read: %s", where,
-                 ", ".join(f"{k} x{v}" for k, v in sorted(dropped.items())))
+        log.info(
+            "%s: ignored what protorch does not read: %s",
+            where,
+            ", ".join(f"{k} x{v}" for k, v in sorted(dropped.items())),
+        )
         changed = True
     chain = {j.get("name") for j in urdf_chain(root, end_link)}
     locked = dict(locked or {})
@@ -295,8 +340,11 @@ def clean_urdf(path: str | Path, end_link: str, *, locked: Mapping[str, float] |
         raise CleanError(f"robot.locked names {unknown[0]!r}, not a joint of {where}")
     on_chain = sorted(set(locked) & chain)
     if on_chain:
-        raise CleanError(f"robot.locked names {on_chain[0]!r}, a joint of the chain to {end_link!r}; only joints off "
-                         "the chain can be locked")
+        raise CleanError(
+            f"robot.locked names {on_chain[0]!r}, a joint of the chain to {end_link!r}; only "
+            "joints off "
+            "the chain can be locked"
+        )
     report["locked"] = {}
     for j in root.iter("joint"):
         name, kind = j.get("name"), j.get("type")
@@ -320,14 +368,18 @@ def clean_urdf(path: str | Path, end_link: str, *, locked: Mapping[str, float] |
             report["continuous"][j.get("name")] = [lo, hi]
             changed = True
     report["meshes"], report["converted"] = 0, []
-    vertices: dict[str, np.ndarray] = {}  # every mesh read once: an unreadable one refused here, before any work
+    vertices: dict[
+        str, np.ndarray
+    ] = {}  # every mesh read once: an unreadable one refused here, before any work
     for link in root.iter("link"):
         for i, mesh in enumerate(link.iter("mesh")):
             what = f"{where}: link {link.get('name')!r} <mesh> {i + 1}"
             src = resolve_mesh(mesh.get("filename") or "", path.parent, packages, what)
             out, converted = mujoco_mesh(src, what)
             if str(out) not in vertices:
-                vertices[str(out)] = np.asarray(load_mesh(out, f"{what} ({src})").vertices, dtype=np.float64)
+                vertices[str(out)] = np.asarray(
+                    load_mesh(out, f"{what} ({src})").vertices, dtype=np.float64
+                )
             report["meshes"] += 1
             if converted:
                 report["converted"].append(f"{src.name} -> {out}")
@@ -339,7 +391,12 @@ def clean_urdf(path: str | Path, end_link: str, *, locked: Mapping[str, float] |
     if balanced:
         log.warning("%s: inertias balanced (A + B >= C violated): %s", where, ", ".join(balanced))
     if implausible:
-        log.warning("%s: inertias no body of the link's size and mass can have, replaced by the solid convex hull "
-                    "of its geometry: %s", where, ", ".join(implausible))
+        log.warning(
+            "%s: inertias no body of the link's size and mass can have, replaced by the solid "
+            "convex hull "
+            "of its geometry: %s",
+            where,
+            ", ".join(implausible),
+        )
     changed |= bool(balanced or implausible or dropped_massless)
     return Cleaned(ET.tostring(root, encoding="unicode") if changed else raw, changed, report)

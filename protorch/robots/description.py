@@ -91,8 +91,12 @@ class Robot:
     inertials: Mapping[str, Inertial]
     point_masses: tuple[PointMass, ...] = ()
     settings: dict = field(default_factory=dict, compare=False, repr=False)
-    text: str | None = field(default=None, compare=False, repr=False)  # the cleaned URDF (protorch.robots.clean)
-    found: dict = field(default_factory=dict, compare=False, repr=False)  # what protorch found or defaulted
+    text: str | None = field(
+        default=None, compare=False, repr=False
+    )  # the cleaned URDF (protorch.robots.clean)
+    found: dict = field(
+        default_factory=dict, compare=False, repr=False
+    )  # what protorch found or defaulted
 
     @property
     def num_joints(self) -> int:
@@ -111,16 +115,26 @@ class Robot:
 
     def kinematics(self, dtype: torch.dtype = torch.float64, device=None):
         """The chain base -> end link (:class:`~protorch.robots.ArmKinematics`)."""
-        return ArmKinematics(self.urdf if self.text is None else self.text, end_link=self.end_link, dtype=dtype,
-                             device=device)
+        return ArmKinematics(
+            self.urdf if self.text is None else self.text,
+            end_link=self.end_link,
+            dtype=dtype,
+            device=device,
+        )
 
     def summary(self) -> dict:
         """What ``metrics.json`` records of the robot: name, URDF, end link, joints, home, and
         under ``found`` what protorch found or defaulted (end link, home, locked joints, balanced
         or replaced inertias, converted meshes, ignored tags, limits; absent where nothing)."""
-        out = {"name": self.name, "urdf": str(self.urdf), "end_link": self.end_link, "joints": self.num_joints,
-               "joint_names": list(self.joint_names), "home": list(self.home),
-               "capsules": len(self.capsule_list())}
+        out = {
+            "name": self.name,
+            "urdf": str(self.urdf),
+            "end_link": self.end_link,
+            "joints": self.num_joints,
+            "joint_names": list(self.joint_names),
+            "home": list(self.home),
+            "capsules": len(self.capsule_list()),
+        }
         if self.found:
             out["found"] = self.found
         return out
@@ -132,18 +146,23 @@ def capsule_index(frame_names: Sequence[str], capsules: Sequence[Capsule]) -> li
     names = list(frame_names)
     missing = sorted({c.link for c in capsules} - set(names))
     if missing:
-        raise ValueError(f"the arm's frames {names} have no link {missing[0]!r} that a capsule rides on")
+        raise ValueError(
+            f"the arm's frames {names} have no link {missing[0]!r} that a capsule rides on"
+        )
     return [names.index(c.link) for c in capsules]
 
 
-def capsule_segments(frames: Tensor, frame_names: Sequence[str], capsules: Sequence[Capsule]
-                     ) -> tuple[Tensor, Tensor, Tensor]:
+def capsule_segments(
+    frames: Tensor, frame_names: Sequence[str], capsules: Sequence[Capsule]
+) -> tuple[Tensor, Tensor, Tensor]:
     """The capsules in the base frame: ``frames (..., F, 4, 4)`` (e.g.
     :meth:`~protorch.robots.ArmKinematics.frames`) -> ``a (..., C, 3)``, ``b (..., C, 3)``,
     ``radius (C,)``."""
     idx = torch.tensor(capsule_index(frame_names, capsules), device=frames.device, dtype=torch.long)
     kw = dict(dtype=frames.dtype, device=frames.device)
-    pts = torch.tensor([[c.a, c.b] for c in capsules], **kw).reshape(len(capsules), 2, 3)  # (C, 2, 3)
+    pts = torch.tensor([[c.a, c.b] for c in capsules], **kw).reshape(
+        len(capsules), 2, 3
+    )  # (C, 2, 3)
     mats = frames.index_select(-3, idx)  # (..., C, 4, 4)
     rot, pos = mats[..., :3, :3], mats[..., :3, 3]  # (..., C, 3, 3), (..., C, 3)
     ends = torch.einsum("...cij,ckj->...cki", rot, pts) + pos[..., None, :]  # (..., C, 2, 3)

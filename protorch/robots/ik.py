@@ -41,7 +41,9 @@ def inverse_kinematics(
     """
     q = kin.check_joints(q0, "q0").clone()  # (B, J)
     if q.device != kin.lower.device:
-        raise ValueError(f"q0 is on {q.device} but the chain is on {kin.lower.device}: move one with .to()")
+        raise ValueError(
+            f"q0 is on {q.device} but the chain is on {kin.lower.device}: move one with .to()"
+        )
     position = check_tensor(position, "position", ndim=2).to(q)  # (B, 3)
     if position.shape != (q.shape[0], 3):
         raise ValueError(f"position must be ({q.shape[0]}, 3), got {tuple(position.shape)}")
@@ -74,6 +76,8 @@ def inverse_kinematics(
             exact = jac.transpose(1, 2) @ torch.linalg.inv(jac @ jac.transpose(1, 2) + 1e-9 * eye6)
             null = eye_j - exact @ jac  # (B, J, J)
             dq = dq + (null @ (null_gain * (rest.to(q) - q))[..., None])[..., 0]
-        scale = (max_step / dq.abs().amax(-1, keepdim=True).clamp_min(1e-12)).clamp(max=1.0)  # (B, 1)
+        scale = (max_step / dq.abs().amax(-1, keepdim=True).clamp_min(1e-12)).clamp(
+            max=1.0
+        )  # (B, 1)
         q = torch.minimum(torch.maximum(q + scale * dq, lo), hi)
     return q, err

@@ -41,12 +41,16 @@ _SNAP = 1e-7
 
 class PointPlan(NamedTuple):
     """Points fixed on the arm's links, prepared for :meth:`ArmKinematics.carry_points`."""
-    start: Tensor  # (M, 3) float64: each point in the frame after its last joint's rotation, ordered by that joint
+
+    # (M, 3) float64: each point in the frame after its last joint's rotation, ordered by that joint
+    start: Tensor
     after: list  # per joint k, the index of the first point (in that order) after joint k
     back: Tensor | None  # the permutation back to the caller's order (None: already in it)
 
 
-def _joint_limits_from_xml(text: str, names: list[str]) -> tuple[list[float], list[float], list[float]]:
+def _joint_limits_from_xml(
+    text: str, names: list[str]
+) -> tuple[list[float], list[float], list[float]]:
     root = ET.fromstring(text)
     by_name = {j.get("name"): j for j in root.iter("joint")}
     lower, upper, vel = [], [], []
@@ -66,8 +70,11 @@ def _z_to(axis: Tensor) -> Tensor:
     z = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
     v, c = torch.linalg.cross(z, a), float(z @ a)
     if v.norm() < 1e-12:
-        return torch.eye(3, dtype=torch.float64) if c > 0 else torch.diag(torch.tensor([1.0, -1.0, -1.0],
-                                                                                        dtype=torch.float64))
+        return (
+            torch.eye(3, dtype=torch.float64)
+            if c > 0
+            else torch.diag(torch.tensor([1.0, -1.0, -1.0], dtype=torch.float64))
+        )
     vx = torch.tensor([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]], dtype=torch.float64)
     return torch.eye(3, dtype=torch.float64) + vx + vx @ vx / (1 + c)
 
@@ -93,19 +100,31 @@ class ArmKinematics(nn.Module):
     a chain with other than revolute and fixed joints, or a joint without limits.
     """
 
-    def __init__(self, urdf: str | Path | None = None, *, end_link: str | None = None, root_link: str = "",
-                 dtype: torch.dtype = torch.float64, device: torch.device | str | None = None) -> None:
+    def __init__(
+        self,
+        urdf: str | Path | None = None,
+        *,
+        end_link: str | None = None,
+        root_link: str = "",
+        dtype: torch.dtype = torch.float64,
+        device: torch.device | str | None = None,
+    ) -> None:
         super().__init__()
         import pytorch_kinematics as pk
 
         if urdf is None or end_link is None:
             default_urdf, default_end = default_chain()
-            urdf, end_link = default_urdf if urdf is None else urdf, default_end if end_link is None else end_link
+            urdf, end_link = (
+                default_urdf if urdf is None else urdf,
+                default_end if end_link is None else end_link,
+            )
         text, where = read_urdf(urdf)
         links = urdf_links(text, where)
         for role, name in (("end_link", end_link), ("root_link", root_link)):
             if name and name not in links:
-                raise ValueError(f"{where} has no link named {name!r} ({role}); its links are {links}")
+                raise ValueError(
+                    f"{where} has no link named {name!r} ({role}); its links are {links}"
+                )
         try:
             chain = pk.build_serial_chain_from_urdf(text, end_link, root_link)
         except Exception as exc:  # the parser's own error types (ParseError, KeyError, ...)
@@ -113,13 +132,17 @@ class ArmKinematics(nn.Module):
         frames = chain._serial_frames  # root .. end link (SerialChain keeps no public list of them)
         kinds = {f.joint.joint_type for f in frames[1:]}
         if not kinds <= {"revolute", "fixed"}:
-            raise ValueError(f"only revolute and fixed joints are supported, {where} has {sorted(kinds)}")
+            raise ValueError(
+                f"only revolute and fixed joints are supported, {where} has {sorted(kinds)}"
+            )
         self.urdf_source, self.urdf_text = where, text
         self.end_link, self.root_link = end_link, root_link or frames[0].name
         self.frame_names: list[str] = [f.name for f in frames]
         self.joint_names: list[str] = chain.get_joint_parameter_names()
         if not self.joint_names:
-            raise ValueError(f"the chain {self.root_link} -> {end_link} of {where} has no movable joint")
+            raise ValueError(
+                f"the chain {self.root_link} -> {end_link} of {where} has no movable joint"
+            )
         self._frame_idx = [chain.frame_to_idx[n] for n in self.frame_names]
         lower, upper, vel = _joint_limits_from_xml(text, self.joint_names)
         kw = dict(dtype=dtype, device=device)
@@ -141,7 +164,10 @@ class ArmKinematics(nn.Module):
         return len(self.frame_names)
 
     def extra_repr(self) -> str:
-        return f"{self.root_link} -> {self.end_link}, joints={self.num_joints}, frames={self.num_frames}"
+        return (
+            f"{self.root_link} -> {self.end_link}, joints={self.num_joints}, "
+            f"frames={self.num_frames}"
+        )
 
     def _apply(self, fn, *args, **kwargs):
         super()._apply(fn, *args, **kwargs)
@@ -158,7 +184,8 @@ class ArmKinematics(nn.Module):
             raise ValueError(f"{name} must have at least 1 dimensions, got shape {tuple(q.shape)}")
         if q.shape[-1] != self.num_joints:
             raise ValueError(
-                f"{name} must be (..., {self.num_joints}) joint values for the {self.num_joints} joints "
+                f"{name} must be (..., {self.num_joints}) joint values for the {self.num_joints} "
+                "joints "
                 f"{self.joint_names}, got shape {tuple(q.shape)}"
             )
         if not q.is_floating_point():
@@ -167,11 +194,14 @@ class ArmKinematics(nn.Module):
 
     def _on_device(self, q: Tensor) -> Tensor:
         if q.device != self.lower.device:
-            raise ValueError(f"q is on {q.device} but the chain is on {self.lower.device}: move one with .to()")
+            raise ValueError(
+                f"q is on {q.device} but the chain is on {self.lower.device}: move one with .to()"
+            )
         return q
 
     def within_limits(self, q: Tensor, tol: float = 0.0) -> Tensor:
-        """Whether every joint of ``q (..., J)`` is inside ``[lower - tol, upper + tol]``: ``(...)``."""
+        """Whether every joint of ``q (..., J)`` is inside ``[lower - tol, upper + tol]``:
+        ``(...)``."""
         q = self.check_joints(q)
         lo, hi = self.lower.to(q), self.upper.to(q)
         return ((q >= lo - tol) & (q <= hi + tol)).all(-1)
@@ -215,7 +245,8 @@ class ArmKinematics(nn.Module):
         return torch.stack([x, y, z], -1).reshape(*q.shape[:-1], 3)
 
     def ee_frame(self, q: Tensor) -> Tensor:
-        """The end link's pose by the compiled path: ``(..., J) -> (..., 4, 4)``, equal to the last of
+        """The end link's pose by the compiled path: ``(..., J) -> (..., 4, 4)``, equal to the last
+        of
         :meth:`frames` to round-off (its axes carried as :meth:`ee_position` carries its origin)."""
         q = self.check_joints(q, finite=False)
         x, y, z = self.ee_frame_rows(q)  # (4, P) each
@@ -224,16 +255,26 @@ class ArmKinematics(nn.Module):
         out[..., 3, 3] = 1.0
         return out
 
-    def ee_frame_rows(self, q: Tensor, trig: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor, Tensor]:
+    def ee_frame_rows(
+        self, q: Tensor, trig: tuple[Tensor, Tensor] | None = None
+    ) -> tuple[Tensor, Tensor, Tensor]:
         """:meth:`ee_frame`'s top three rows, component-major over the flattened batch ``P``:
-        ``x, y, z (4, P)``, whose columns are the end link's x, y and z axes and its origin (no copies:
-        what a caller placing points on the end link wants). ``trig``: :meth:`trig_rows` of ``q``, if known."""
+        ``x, y, z (4, P)``, whose columns are the end link's x, y and z axes and its origin (no
+        copies:
+        what a caller placing points on the end link wants). ``trig``: :meth:`trig_rows` of
+        ``q``, if known."""
         q = self.check_joints(q, finite=False)
         c, s = self.trig_rows(q) if trig is None else trig  # (J, P)
-        tail = torch.tensor(self._maps[-1], dtype=q.dtype, device=q.device)  # (3, 4) end link in the last joint's frame
-        vec = tail.T[:, :, None].expand(4, 3, c.shape[1])  # (4, 3, P): the three axes, then the origin
+        tail = torch.tensor(
+            self._maps[-1], dtype=q.dtype, device=q.device
+        )  # (3, 4) end link in the last joint's frame
+        vec = tail.T[:, :, None].expand(
+            4, 3, c.shape[1]
+        )  # (4, 3, P): the three axes, then the origin
         x, y, z = vec[:, 0], vec[:, 1], vec[:, 2]  # (4, P)
-        origin = torch.tensor([[0.0], [0.0], [0.0], [1.0]], dtype=q.dtype, device=q.device)  # translate the origin only
+        origin = torch.tensor(
+            [[0.0], [0.0], [0.0], [1.0]], dtype=q.dtype, device=q.device
+        )  # translate the origin only
         for j in range(self.num_joints - 1, -1, -1):
             x, y = c[j] * x - s[j] * y, s[j] * x + c[j] * y
             x, y, z = self._affine(j, x, y, z, translate=origin)
@@ -245,7 +286,9 @@ class ArmKinematics(nn.Module):
         (:meth:`carry_points` of the frames' origins). Any floating dtype; the shape is checked,
         the values are not."""
         q = self.check_joints(q, finite=False)
-        pts = torch.tensor(self._origins, dtype=q.dtype, device=q.device)  # (F, 3): each origin after its joint's rotation
+        pts = torch.tensor(
+            self._origins, dtype=q.dtype, device=q.device
+        )  # (F, 3): each origin after its joint's rotation
         return self._stack_rows(q, *self._carry_rows(q, pts, self._after_joint))
 
     def point_plan(self, frames: Sequence[str], points: Tensor) -> PointPlan:
@@ -254,13 +297,19 @@ class ArmKinematics(nn.Module):
         (float64), the points ordered by that joint, and per joint the first point after it."""
         points = check_tensor(points, "points", ndim=2).to(torch.float64).cpu()
         if points.shape != (len(frames), 3):
-            raise ValueError(f"points must be ({len(frames)}, 3), one per frame, got {tuple(points.shape)}")
+            raise ValueError(
+                f"points must be ({len(frames)}, 3), one per frame, got {tuple(points.shape)}"
+            )
         for f in frames:
             if f not in self._frame_maps:
                 raise ValueError(f"the chain has no frame {f!r}; its frames are {self.frame_names}")
         joints = [self._frame_maps[f][0] for f in frames]
-        order = sorted(range(len(frames)), key=lambda m: joints[m])  # stable: by the joints before each point
-        fixed = torch.tensor([self._frame_maps[frames[m]][1] for m in order], dtype=torch.float64)  # (M, 3, 4)
+        order = sorted(
+            range(len(frames)), key=lambda m: joints[m]
+        )  # stable: by the joints before each point
+        fixed = torch.tensor(
+            [self._frame_maps[frames[m]][1] for m in order], dtype=torch.float64
+        )  # (M, 3, 4)
         start = (fixed[:, :, :3] @ points[order][:, :, None])[..., 0] + fixed[:, :, 3]  # (M, 3)
         after = [bisect.bisect_right([joints[m] for m in order], k) for k in range(self.num_joints)]
         back = None if order == list(range(len(frames))) else torch.tensor(order).argsort()
@@ -277,9 +326,16 @@ class ArmKinematics(nn.Module):
         q = self.check_joints(q, finite=False)
         return self._stack_rows(q, *self.carry_points_rows(q, plan, functional=functional))
 
-    def carry_points_rows(self, q: Tensor, plan: PointPlan, *, functional: bool = False,
-                          trig: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor, Tensor]:
-        """:meth:`carry_points` component-major over the flattened batch: ``x, y, z (M, P)`` (``trig``: ee_frame_rows')."""
+    def carry_points_rows(
+        self,
+        q: Tensor,
+        plan: PointPlan,
+        *,
+        functional: bool = False,
+        trig: tuple[Tensor, Tensor] | None = None,
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        """:meth:`carry_points` component-major over the flattened batch: ``x, y, z (M, P)``
+        (``trig``: ee_frame_rows')."""
         q = self.check_joints(q, finite=False)
         x, y, z = self._carry_rows(q, plan.start.to(q), plan.after, functional, trig)
         if plan.back is None:
@@ -289,16 +345,24 @@ class ArmKinematics(nn.Module):
 
     @staticmethod
     def _stack_rows(q: Tensor, x: Tensor, y: Tensor, z: Tensor) -> Tensor:
-        """Component rows ``x, y, z (M, P)`` over ``q (..., J)``'s flattened batch as points ``(..., M, 3)``."""
+        """Component rows ``x, y, z (M, P)`` over ``q (..., J)``'s flattened batch as points
+        ``(..., M, 3)``."""
         return torch.stack([x, y, z], -1).transpose(0, 1).reshape(*q.shape[:-1], x.shape[0], 3)
 
     def trig_rows(self, q: Tensor) -> tuple[Tensor, Tensor]:
-        """``cos``, ``sin`` of ``q (..., J)`` as rows ``(J, P)``, each contiguous (a strided row costs ~3x per product)."""
+        """``cos``, ``sin`` of ``q (..., J)`` as rows ``(J, P)``, each contiguous (a strided row
+        costs ~3x per product)."""
         qt = q.reshape(-1, self.num_joints).T.contiguous()  # (J, P)
         return torch.cos(qt), torch.sin(qt)
 
-    def _carry_rows(self, q: Tensor, pts: Tensor, after: Sequence[int], functional: bool = False,
-                    trig: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor, Tensor]:
+    def _carry_rows(
+        self,
+        q: Tensor,
+        pts: Tensor,
+        after: Sequence[int],
+        functional: bool = False,
+        trig: tuple[Tensor, Tensor] | None = None,
+    ) -> tuple[Tensor, Tensor, Tensor]:
         """Points ``pts (M, 3)``, each in the frame after its last joint's rotation and ordered by
         that joint (``after[k]``: the first point after joint ``k``), at ``q (..., J)``: their rows
         ``x, y, z (M, P)``. ``functional``: no tensor written in place (:meth:`carry_points`)."""
@@ -317,10 +381,15 @@ class ArmKinematics(nn.Module):
                 x, y, z = (torch.cat([v[:lo], w]) for v, w in ((x, xs), (y, ys), (z, zs)))
             else:
                 x[lo:], y[lo:], z[lo:] = xs, ys, zs
-        return x.contiguous(), y.contiguous(), z.contiguous()  # (a row no joint moved would be a view of pts)
+        return (
+            x.contiguous(),
+            y.contiguous(),
+            z.contiguous(),
+        )  # (a row no joint moved would be a view of pts)
 
     def jacobian_pose(self, q: Tensor) -> tuple[Tensor, Tensor]:
-        """The end link's geometric Jacobian and pose by the compiled chain: ``q (B, J) -> (B, 6, J),
+        """The end link's geometric Jacobian and pose by the compiled chain: ``q (B, J) -> (B, 6,
+        J),
         (B, 4, 4)``, equal to :meth:`jacobian` and the last of :meth:`frames` to round-off at a
         fraction of ``pytorch_kinematics``' cost for small batches: the frames are accumulated
         forward, ``F_{k+1} = F_k Rz(q_k) G_k``, joint ``k`` turning about ``F_k``'s z axis through
@@ -334,19 +403,32 @@ class ArmKinematics(nn.Module):
             axes.append(frame[:, :, 2])
             origins.append(frame[:, :, 3])
             x, y = frame[:, :, 0], frame[:, :, 1]  # (B, 3)
-            rot = torch.stack([c[:, :, k] * x + s[:, :, k] * y, c[:, :, k] * y - s[:, :, k] * x, frame[:, :, 2]], -1)
-            frame = torch.cat([rot @ maps[k + 1][:, :3], (rot @ maps[k + 1][:, 3:]) + frame[:, :, 3:]], -1)
+            rot = torch.stack(
+                [c[:, :, k] * x + s[:, :, k] * y, c[:, :, k] * y - s[:, :, k] * x, frame[:, :, 2]],
+                -1,
+            )
+            frame = torch.cat(
+                [rot @ maps[k + 1][:, :3], (rot @ maps[k + 1][:, 3:]) + frame[:, :, 3:]], -1
+            )
         z, o = torch.stack(axes, -1), torch.stack(origins, -1)  # (B, 3, J)
         lin = torch.linalg.cross(z, frame[:, :, 3:] - o, dim=1)  # (B, 3, J)
-        pose = torch.cat([frame, torch.tensor([[[0.0, 0.0, 0.0, 1.0]]], dtype=q.dtype, device=q.device)
-                          .expand(q.shape[0], 1, 4)], 1)  # (B, 4, 4)
+        pose = torch.cat(
+            [
+                frame,
+                torch.tensor([[[0.0, 0.0, 0.0, 1.0]]], dtype=q.dtype, device=q.device).expand(
+                    q.shape[0], 1, 4
+                ),
+            ],
+            1,
+        )  # (B, 4, 4)
         return torch.cat([lin, z], 1), pose
 
     # ------------------------------------------------------------------- IK
     def inverse(self, position: Tensor, q0: Tensor, **options) -> tuple[Tensor, Tensor]:
         """Damped-least-squares inverse kinematics of the end link, batched:
         :func:`protorch.robots.ik.inverse_kinematics` (its options: ``rotation``, ``rest``,
-        ``iters``, ``damping``, ``rotation_weight``, ``null_gain``, ``max_step``, ``tol``, ``compiled``).
+        ``iters``, ``damping``, ``rotation_weight``, ``null_gain``, ``max_step``, ``tol``,
+        ``compiled``).
         Returns ``(q (B, J), position error (B,))``."""
         return inverse_kinematics(self, position, q0, **options)
 
@@ -360,7 +442,9 @@ class ArmKinematics(nn.Module):
 
         maps: list[Tensor] = []
         acc = eye.clone()  # the fixed map accumulated since the last revolute joint
-        self._frame_maps = {frames[0].name: (0, eye[:3].tolist())}  # frame -> (joints before it, its fixed map)
+        self._frame_maps = {
+            frames[0].name: (0, eye[:3].tolist())
+        }  # frame -> (joints before it, its fixed map)
         for f in frames[1:]:
             static = mat(f.link.offset) @ mat(f.joint.offset)  # as pytorch_kinematics composes them
             acc = acc @ static
@@ -371,16 +455,20 @@ class ArmKinematics(nn.Module):
                 acc = a.T.clone()  # A^T: back to the joint's own frame
             self._frame_maps[f.name] = (len(maps), acc[:3].tolist())
         maps.append(acc)  # the tail: from the last joint to the end link
-        # for skeleton(): every frame's origin in the frame after its last joint, and per joint the first
+        # for skeleton(): every frame's origin in the frame after its last joint, and per joint the
+        # first
         # frame after it (a serial chain's frames come after non-decreasing numbers of joints)
         joints = [self._frame_maps[f.name][0] for f in frames]
         self._origins = [[row[3] for row in self._frame_maps[f.name][1]] for f in frames]
         self._after_joint = [joints.index(k + 1) for k in range(len(maps) - 1)]
         self._maps = [[[_snap(float(v)) for v in row] for row in m[:3].tolist()] for m in maps]
-        self._tail = [self._maps[-1][r][3] for r in range(3)]  # the end point in the last joint's frame
+        self._tail = [
+            self._maps[-1][r][3] for r in range(3)
+        ]  # the end point in the last joint's frame
 
-    def _affine(self, j: int, x: Tensor, y: Tensor, z: Tensor, translate: Tensor | None = None
-                ) -> tuple[Tensor, Tensor, Tensor]:
+    def _affine(
+        self, j: int, x: Tensor, y: Tensor, z: Tensor, translate: Tensor | None = None
+    ) -> tuple[Tensor, Tensor, Tensor]:
         """Apply the fixed map ``G_j`` (before joint ``j``'s rotation) to the point ``(x, y, z)``,
         skipping zero terms and multiplications by +-1; ``translate`` (broadcasting to ``x``)
         weighs the translation (1: a point, 0: a direction)."""

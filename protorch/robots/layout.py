@@ -4,7 +4,8 @@ of an arm that has none, placed on the arm's own reach as the Panda's are on the
 
 The Panda's numbers (``robot=panda``, unchanged) anchor the rule. Its hand, pointing down
 10 cm above the table, reaches targets on the ``x`` axis in ``[0.29, 0.80]`` m by the rule below
-(span 0.51 m; applied to the Panda, the rule gives the Panda's numbers to 1e-4 m); its home is at ``x = 0.40``, the can in
+(span 0.51 m; applied to the Panda, the rule gives the Panda's numbers to 1e-4 m); its home is at
+``x = 0.40``, the can in
 ``[0.50, 0.62] x [-0.12, 0.12]``, the target in ``[0.66, 0.74] x [-0.24, 0.24]``, the table
 ``[0.2, 0.9] x [-0.5, 0.5]``, the can 0.0375 m in radius and 0.23 m high. For another arm:
 
@@ -31,27 +32,49 @@ import math
 
 import torch
 
-__all__ = ["PANDA_LAYOUT", "PANDA_LENGTH", "PANDA_REACH", "arm_length", "auto_workspace", "hand_down_layout", "measure_layout"]
+from ..threads import torch_threads
+from .kinematics import ArmKinematics
 
-PANDA_REACH = (0.29, 0.80)  # m, the Panda's hand-down reach at 0.10 m by this module's rule (its 1 cm lattice)
+__all__ = [
+    "PANDA_LAYOUT",
+    "PANDA_LENGTH",
+    "PANDA_REACH",
+    "arm_length",
+    "auto_workspace",
+    "hand_down_layout",
+    "measure_layout",
+]
+
+PANDA_REACH = (
+    0.29,
+    0.80,
+)  # m, the Panda's hand-down reach at 0.10 m by this module's rule (its 1 cm lattice)
 PANDA_LENGTH = 1.0897  # m, the Panda's L (module docstring), measured on protorch/robots/panda.urdf
-PANDA_WRIST = 0.3104  # m, the Panda's wrist (the frame its second-to-last joint moves) above the table at home
+# m, the Panda's wrist (the frame its second-to-last joint moves) above the table at home
+PANDA_WRIST = 0.3104
 _HEIGHT, _CAN_HEIGHT, _CAN_RADIUS = 0.10, 0.23, 0.0375
 _HOME_X, _CAN_X, _GOAL_X, _TABLE_X = 0.40, (0.50, 0.62), (0.66, 0.74), (0.2, 0.9)
 _CAN_Y, _GOAL_Y, _TABLE_Y = 0.12, 0.24, 0.5
-PANDA_LAYOUT = {"can_box": ((0.50, 0.62), (-0.12, 0.12)), "goal_box": ((0.66, 0.74), (-0.24, 0.24)),
-                "table": ((0.2, 0.9), (-0.5, 0.5)), "can_radius": _CAN_RADIUS, "can_height": _CAN_HEIGHT,
-                "reach": (0.30, 0.80)}  # the shipped robots' workspace (``auto`` with a shipped robot)
+PANDA_LAYOUT = {
+    "can_box": ((0.50, 0.62), (-0.12, 0.12)),
+    "goal_box": ((0.66, 0.74), (-0.24, 0.24)),
+    "table": ((0.2, 0.9), (-0.5, 0.5)),
+    "can_radius": _CAN_RADIUS,
+    "can_height": _CAN_HEIGHT,
+    "reach": (0.30, 0.80),
+}  # the shipped robots' workspace (``auto`` with a shipped robot)
 
 
 def arm_length(kin) -> float:
     """``L``: the summed distances between consecutive frame origins from the second moving
     joint's frame to the end link, at the zero pose (m)."""
-    q = torch.zeros(kin.num_joints, dtype=kin.lower.dtype, device=kin.lower.device).clamp(kin.lower, kin.upper)
+    q = torch.zeros(kin.num_joints, dtype=kin.lower.dtype, device=kin.lower.device).clamp(
+        kin.lower, kin.upper
+    )
     pos = kin.link_positions(q).cpu()  # (F, 3)
     moving = [i for i, n in enumerate(kin.frame_names) if n in _moving_frames(kin)]
     start = moving[1] if len(moving) > 1 else 0
-    return float((pos[start + 1:] - pos[start:-1]).norm(dim=-1).sum())
+    return float((pos[start + 1 :] - pos[start:-1]).norm(dim=-1).sum())
 
 
 def _moving_frames(kin) -> set[str]:
@@ -60,10 +83,14 @@ def _moving_frames(kin) -> set[str]:
 
 def _down(yaw: float, dtype) -> torch.Tensor:
     c, s = math.cos(yaw), math.sin(yaw)
-    return torch.tensor([[c, s, 0.0], [s, -c, 0.0], [0.0, 0.0, -1.0]], dtype=dtype)  # z down, x at yaw
+    return torch.tensor(
+        [[c, s, 0.0], [s, -c, 0.0], [0.0, 0.0, -1.0]], dtype=dtype
+    )  # z down, x at yaw
 
 
-def _sweep(kin, xs: torch.Tensor, z: float, rot: torch.Tensor, iters: int = 150) -> tuple[torch.Tensor, torch.Tensor]:
+def _sweep(
+    kin, xs: torch.Tensor, z: float, rot: torch.Tensor, iters: int = 150
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Hand-down IK at ``(x, 0, z)`` for each ``x`` ``(N,)``: ``(q (N, J), ok (N,))``."""
     kw = dict(dtype=kin.lower.dtype, device=kin.lower.device)
     n = xs.shape[0]
@@ -106,7 +133,8 @@ def _longest_run(ok: torch.Tensor) -> tuple[int, int]:
 def auto_workspace(robot) -> tuple[dict, dict | None]:
     """``(values, measured layout or None)``: the workspace ``auto`` stands for (``can_box``,
     ``goal_box``, ``table``, ``can_radius``, ``can_height``, ``reach``): the Panda's numbers for a
-    shipped robot (``robot.base`` set), else the arm's measured layout (:func:`hand_down_layout`)."""
+    shipped robot (``robot.base`` set), else the arm's measured layout
+    (:func:`hand_down_layout`)."""
     if robot.settings.get("base") is not None:
         return dict(PANDA_LAYOUT), None
     layout = robot.found.get("layout") or hand_down_layout(robot.kinematics(), robot.name)
@@ -121,10 +149,11 @@ def hand_down_layout(kin, name: str = "the arm") -> dict:
 
 @functools.lru_cache(maxsize=8)
 def _cached(text: str, end_link: str, name: str) -> dict:
-    from ..threads import torch_threads
-    from .kinematics import ArmKinematics
 
-    with torch.no_grad(), torch_threads(1):  # small batches: one thread (several only wait on each other)
+    with (
+        torch.no_grad(),
+        torch_threads(1),
+    ):  # small batches: one thread (several only wait on each other)
         return measure_layout(ArmKinematics(text, end_link=end_link), name)
 
 
@@ -136,7 +165,9 @@ def measure_layout(kin, name: str = "the arm") -> dict:
     length = arm_length(kin)
     s_v = length / PANDA_LENGTH
     z = _HEIGHT * s_v
-    xs = torch.arange(0.02, 1.1 * length + 0.1, 0.01, dtype=torch.float64)  # the hand reaches no farther than L
+    xs = torch.arange(
+        0.02, 1.1 * length + 0.1, 0.01, dtype=torch.float64
+    )  # the hand reaches no farther than L
     best = None
     for yaw in (0.0, math.pi / 2):
         q, ok = _sweep(kin, xs, z, _down(yaw, dtype))
@@ -145,9 +176,13 @@ def measure_layout(kin, name: str = "the arm") -> dict:
             best = (lo, hi, yaw, q)
     lo, hi, yaw, q = best
     if hi - lo < 10:
-        raise ValueError(f"{name} holds its hand down at {z:.3f} m above the table over no interval of 10 cm along x "
-                         "(the hand-down inverse kinematics from the joint limits' middle); give robot.home and the "
-                         "workspace (task.can_box, task.goal_box, task.table)")
+        raise ValueError(
+            f"{name} holds its hand down at {z:.3f} m above the table over no interval of 10 cm "
+            "along x "
+            "(the hand-down inverse kinematics from the joint limits' middle); give robot.home and "
+            "the "
+            "workspace (task.can_box, task.goal_box, task.table)"
+        )
     r0, r1 = float(xs[lo]), float(xs[hi])
     scale = r1 / PANDA_REACH[1]
     home_x = max(_HOME_X * scale, r0 + (_HOME_X - PANDA_REACH[0]) * scale)
@@ -159,15 +194,40 @@ def measure_layout(kin, name: str = "the arm") -> dict:
     s_h = scale
     i = int((xs - home_x).abs().argmin())
     target = torch.tensor([[home_x, 0.0, z]], dtype=dtype, device=kin.lower.device)
-    home, err = kin.inverse(target, q[i:i + 1].to(kin.lower.device), rotation=_down(yaw, dtype)[None].to(target),
-                            rest=q[i].to(target), iters=300, tol=1e-9)
+    home, err = kin.inverse(
+        target,
+        q[i : i + 1].to(kin.lower.device),
+        rotation=_down(yaw, dtype)[None].to(target),
+        rest=q[i].to(target),
+        iters=300,
+        tol=1e-9,
+    )
     moving = [n for n in kin.frame_names[1:] if n in _moving_frames(kin)]
     wrist = float(kin.link_positions(home[0])[kin.frame_names.index(moving[-2]), 2])
-    return {"wrist_height": round(wrist, 4), "scale": round(s_v, 4), "scale_xy": round(s_h, 4), "length": round(length, 4), "height": round(z, 4),
-            "reach": [round(r0, 4), round(r1, 4)], "yaw": yaw, "home": [float(v) for v in home[0].tolist()],
-            "home_target": [home_x, 0.0, round(z, 4)], "home_residual": float(err[0]),
-            "home_seed": "the joint limits' middle, continued along the reach lattice",
-            "can_box": [[at(_CAN_X[0]), at(_CAN_X[1])], [round(-_CAN_Y * s_h, 4), round(_CAN_Y * s_h, 4)]],
-            "goal_box": [[at(_GOAL_X[0]), at(_GOAL_X[1])], [round(-_GOAL_Y * s_h, 4), round(_GOAL_Y * s_h, 4)]],
-            "table": [[at(_TABLE_X[0]), at(_TABLE_X[1])], [round(-_TABLE_Y * s_h, 4), round(_TABLE_Y * s_h, 4)]],
-            "can_radius": round(_CAN_RADIUS * s_h, 4), "can_height": round(_CAN_HEIGHT * wrist / PANDA_WRIST, 4)}
+    return {
+        "wrist_height": round(wrist, 4),
+        "scale": round(s_v, 4),
+        "scale_xy": round(s_h, 4),
+        "length": round(length, 4),
+        "height": round(z, 4),
+        "reach": [round(r0, 4), round(r1, 4)],
+        "yaw": yaw,
+        "home": [float(v) for v in home[0].tolist()],
+        "home_target": [home_x, 0.0, round(z, 4)],
+        "home_residual": float(err[0]),
+        "home_seed": "the joint limits' middle, continued along the reach lattice",
+        "can_box": [
+            [at(_CAN_X[0]), at(_CAN_X[1])],
+            [round(-_CAN_Y * s_h, 4), round(_CAN_Y * s_h, 4)],
+        ],
+        "goal_box": [
+            [at(_GOAL_X[0]), at(_GOAL_X[1])],
+            [round(-_GOAL_Y * s_h, 4), round(_GOAL_Y * s_h, 4)],
+        ],
+        "table": [
+            [at(_TABLE_X[0]), at(_TABLE_X[1])],
+            [round(-_TABLE_Y * s_h, 4), round(_TABLE_Y * s_h, 4)],
+        ],
+        "can_radius": round(_CAN_RADIUS * s_h, 4),
+        "can_height": round(_CAN_HEIGHT * wrist / PANDA_WRIST, 4),
+    }

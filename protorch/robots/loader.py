@@ -18,7 +18,8 @@ The settings (``conf/robot/*.yaml``; docs/your_own_robot.md; every key optional 
 ``damping``         joint damping, N m s / rad, a number or one per joint (default 1.0)
 ``armature``        rotor armature, kg m^2, a number or one per joint (default 0.1)
 ``capsules``        the collision volumes: ``auto`` (fitted to the URDF's ``<collision>``
-                    geometry, :mod:`protorch.robots.capsules`), ``none``, or ``{link: [{a: [x, y, z], b:
+                    geometry, :mod:`protorch.robots.capsules`), ``none``, or ``{link: [{a: [x, y,
+                    z], b:
                     [x, y, z], radius: r}, ...]}`` in the link frames (m)
 ``forearm_link``    a link whose capsules the volume objective reads besides those rigid with the
                     end link (the Panda: link 5, which passes over the can); null: none; ``auto``
@@ -58,45 +59,81 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from ..errors import ProtorchError
-from .description import Capsule, Inertial, PointMass, Robot
 from .capsules import fit_capsules
 from .clean import CleanError, clean_urdf, end_link_candidates, urdf_chain
+from .description import Capsule, Inertial, PointMass, Robot
+from .kinematics import ArmKinematics
+from .layout import hand_down_layout
 from .urdf import ROBOTS_DIR, collision_geometry, parse_urdf, rpy_matrix, shipped_yaml
 
 log = logging.getLogger(__name__)
 
-__all__ = ["RobotError", "ROBOTS_DIR", "SETTINGS", "DEFAULTS", "shipped_robots", "load_robot", "robot_settings",
-           "urdf_inertials", "check_inertials", "auto_capsules", "MIN_JOINTS"]
+__all__ = [
+    "RobotError",
+    "ROBOTS_DIR",
+    "SETTINGS",
+    "DEFAULTS",
+    "shipped_robots",
+    "load_robot",
+    "robot_settings",
+    "urdf_inertials",
+    "check_inertials",
+    "auto_capsules",
+    "MIN_JOINTS",
+]
 
 MIN_JOINTS = 6  # a hand-down pose at every point of the workspace needs six joints
 DEFAULT_VELOCITY = 2.0  # rad/s: a joint's speed where the URDF gives none (or an implausible one)
 DEFAULT_EFFORT = 50.0  # N m: a joint's torque where the URDF gives none
 MAX_PLAUSIBLE_VELOCITY = 2 * math.pi  # rad/s: a revolution a second, beyond any arm's rating
-DEFAULTS = {"base": None, "name": None, "urdf": None, "end_link": None, "home": None, "max_velocity": None,
-            "max_acceleration": 10.0, "max_torque": None, "damping": 1.0, "armature": 0.1, "capsules": "auto",
-            "forearm_link": "auto", "base_links": "auto", "point_masses": [], "packages": [], "locked": {},
-            "limits": {}, "balance_inertia": True}
+DEFAULTS = {
+    "base": None,
+    "name": None,
+    "urdf": None,
+    "end_link": None,
+    "home": None,
+    "max_velocity": None,
+    "max_acceleration": 10.0,
+    "max_torque": None,
+    "damping": 1.0,
+    "armature": 0.1,
+    "capsules": "auto",
+    "forearm_link": "auto",
+    "base_links": "auto",
+    "point_masses": [],
+    "packages": [],
+    "locked": {},
+    "limits": {},
+    "balance_inertia": True,
+}
 SETTINGS = {
-    "base": "a shipped description (protorch/robots/<base>.yaml) the other keys override; null: none",
+    "base": "a shipped description (protorch/robots/<base>.yaml) the other keys override; null: "
+    "none",
     "name": "display name (figure titles, metrics.json); null: the URDF's <robot name>",
     "urdf": "the arm's URDF file",
     "end_link": "the chain's last link: the tool centre point",
     "home": "the start configuration, one angle (rad) per joint",
     "max_velocity": "rad/s, a number or one per joint; null: the URDF's <limit velocity>",
     "max_acceleration": "rad/s^2, a number or one per joint (the moving test's limits)",
-    "max_torque": "N m, a number or one per joint; null: the URDF's <limit effort> (MuJoCo's motors)",
+    "max_torque": "N m, a number or one per joint; null: the URDF's <limit effort> (MuJoCo's "
+    "motors)",
     "damping": "joint damping (N m s / rad), a number or one per joint",
     "armature": "rotor armature (kg m^2), a number or one per joint",
     "capsules": "collision volumes: auto (fitted to the URDF's <collision> geometry), none, or "
-                "{link: [{a: [x,y,z], b: [x,y,z], radius: r}]} in the link frames",
-    "forearm_link": "a link whose capsules the volume objective reads besides the end link's; null: none; auto: "
-                    "the link the third joint from the end moves (the Panda's link 5, the iiwa's link 5)",
-    "base_links": "links fixed to the table (no table check); auto: the links before the first joint",
-    "point_masses": "[{link, pos, mass, inertia: [ixx, iyy, izz]}]: bodies the URDF lacks (e.g. fingers)",
-    "packages": "folders where package://NAME/... meshes are looked up (after the URDF's folders, ROS_PACKAGE_PATH)",
+    "{link: [{a: [x,y,z], b: [x,y,z], radius: r}]} in the link frames",
+    "forearm_link": "a link whose capsules the volume objective reads besides the end link's; "
+    "null: none; auto: "
+    "the link the third joint from the end moves (the Panda's link 5, the iiwa's link 5)",
+    "base_links": "links fixed to the table (no table check); auto: the links before the first "
+    "joint",
+    "point_masses": "[{link, pos, mass, inertia: [ixx, iyy, izz]}]: bodies the URDF lacks (e.g. "
+    "fingers)",
+    "packages": "folders where package://NAME/... meshes are looked up (after the URDF's folders, "
+    "ROS_PACKAGE_PATH)",
     "locked": "{joint: value}: joints off the chain to the end link held there (default 0)",
     "limits": "{joint: [lower, upper]}: limits of continuous joints (default [-pi, pi])",
-    "balance_inertia": "true: inertias violating A + B >= C balanced with a warning; false: refused",
+    "balance_inertia": "true: inertias violating A + B >= C balanced with a warning; false: "
+    "refused",
 }
 
 
@@ -112,19 +149,24 @@ def shipped_robots() -> list[str]:
 def _shipped(name: str) -> dict:
     data = shipped_yaml(name)
     if data is None:
-        raise RobotError(f"robot.base={name!r} is not a shipped robot; shipped: {', '.join(shipped_robots())}")
+        raise RobotError(
+            f"robot.base={name!r} is not a shipped robot; shipped: {', '.join(shipped_robots())}"
+        )
     return data
 
 
 def robot_settings(spec=None) -> dict:
     """The full settings dict of ``spec`` (``None``: the Panda; a shipped name; a dict of
-    ``robot.*`` settings, its non-null values over its ``base``'s): every key of :data:`DEFAULTS`."""
+    ``robot.*`` settings, its non-null values over its ``base``'s): every key of
+    :data:`DEFAULTS`."""
     if spec is None:
         spec = "panda"
     if isinstance(spec, str):
         spec = {"base": spec}
     if not isinstance(spec, dict):
-        raise RobotError(f"robot must be a shipped name or a group of settings, got {type(spec).__name__}")
+        raise RobotError(
+            f"robot must be a shipped name or a group of settings, got {type(spec).__name__}"
+        )
     unknown = sorted(set(spec) - set(DEFAULTS))
     if unknown:
         raise RobotError(f"robot.{unknown[0]} is not a robot setting; known: {', '.join(DEFAULTS)}")
@@ -140,8 +182,10 @@ def robot_settings(spec=None) -> dict:
         out.update(shipped)
     out.update({k: v for k, v in spec.items() if v is not None and v != "???"})
     if out["urdf"] is None:
-        raise RobotError("robot.urdf must be set (robot=custom needs robot.urdf; robot.end_link and robot.home "
-                         "are found where not given)")
+        raise RobotError(
+            "robot.urdf must be set (robot=custom needs robot.urdf; robot.end_link and robot.home "
+            "are found where not given)"
+        )
     if not isinstance(out["urdf"], (str, Path)):
         raise RobotError(f"robot.urdf={out['urdf']!r} must be a file path")
     out["urdf"] = str(Path(out["urdf"]).expanduser().resolve())
@@ -160,13 +204,21 @@ def _vec(value, n: int, key: str, names, *, positive: bool = True) -> tuple[floa
     if isinstance(value, numbers.Real) and not isinstance(value, bool):
         value = [value] * n
     if not isinstance(value, (list, tuple)) or len(value) != n:
-        raise RobotError(f"robot.{key}={value!r} must be a number or {n} numbers, one per joint {list(names)}")
+        raise RobotError(
+            f"robot.{key}={value!r} must be a number or {n} numbers, one per joint {list(names)}"
+        )
     out = []
     for v, name in zip(value, names):
-        if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(float(v)) \
-                or (float(v) <= 0 if positive else float(v) < 0):
-            raise RobotError(f"robot.{key} has {v!r} for joint {name!r}: it must be a finite number "
-                             f"{'> 0' if positive else '>= 0'}")
+        if (
+            isinstance(v, bool)
+            or not isinstance(v, numbers.Real)
+            or not math.isfinite(float(v))
+            or (float(v) <= 0 if positive else float(v) < 0)
+        ):
+            raise RobotError(
+                f"robot.{key} has {v!r} for joint {name!r}: it must be a finite number "
+                f"{'> 0' if positive else '>= 0'}"
+            )
         out.append(float(v))
     return tuple(out)
 
@@ -184,7 +236,10 @@ def _floats(text: str | None, n: int, what: str) -> tuple[float, ...]:
 def _origin(el: ET.Element | None) -> tuple[tuple[float, ...], tuple[float, ...]]:
     if el is None:
         return (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
-    return (_floats(el.get("xyz", "0 0 0"), 3, "<origin xyz>"), _floats(el.get("rpy", "0 0 0"), 3, "<origin rpy>"))
+    return (
+        _floats(el.get("xyz", "0 0 0"), 3, "<origin xyz>"),
+        _floats(el.get("rpy", "0 0 0"), 3, "<origin rpy>"),
+    )
 
 
 def _apply(rot, xyz, p) -> tuple[float, float, float]:
@@ -202,20 +257,36 @@ def urdf_inertials(root: ET.Element) -> dict[str, Inertial]:
         name = link.get("name")
         mass_el, inertia_el = el.find("mass"), el.find("inertia")
         if mass_el is None or inertia_el is None:
-            raise RobotError(f"robot.urdf: link {name!r} has an <inertial> without <mass> or <inertia>")
+            raise RobotError(
+                f"robot.urdf: link {name!r} has an <inertial> without <mass> or <inertia>"
+            )
         xyz, rpy = _origin(el.find("origin"))
         try:
             mass = float(mass_el.get("value"))
-            xx, xy, xz, yy, yz, zz = (float(inertia_el.get(k)) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"))
+            xx, xy, xz, yy, yz, zz = (
+                float(inertia_el.get(k)) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+            )
         except (TypeError, ValueError):
-            raise RobotError(f"robot.urdf: link {name!r} has an <inertial> with a missing or non-numeric value") \
-                from None
+            raise RobotError(
+                f"robot.urdf: link {name!r} has an <inertial> with a missing or non-numeric value"
+            ) from None
         if any(rpy):
             rot = rpy_matrix(rpy)
             mat = [[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]
-            rm = [[sum(rot[i][k] * mat[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
-            full = [[sum(rm[i][k] * rot[j][k] for k in range(3)) for j in range(3)] for i in range(3)]
-            xx, yy, zz, xy, xz, yz = full[0][0], full[1][1], full[2][2], full[0][1], full[0][2], full[1][2]
+            rm = [
+                [sum(rot[i][k] * mat[k][j] for k in range(3)) for j in range(3)] for i in range(3)
+            ]
+            full = [
+                [sum(rm[i][k] * rot[j][k] for k in range(3)) for j in range(3)] for i in range(3)
+            ]
+            xx, yy, zz, xy, xz, yz = (
+                full[0][0],
+                full[1][1],
+                full[2][2],
+                full[0][1],
+                full[0][2],
+                full[1][2],
+            )
         out[name] = Inertial(mass, tuple(xyz), (xx, yy, zz, xy, xz, yz))
     return out
 
@@ -230,9 +301,12 @@ def check_inertials(robot: Robot) -> None:
         link = j.find("child").get("link")
         inertial = robot.inertials.get(link)
         if inertial is None or not inertial.mass > 0:
-            raise RobotError(f"robot.urdf={robot.urdf}: link {link!r} (moved by joint {j.get('name')!r}) has no "
-                             "<inertial> with a mass > 0; physics needs every moving link's mass and inertia: add "
-                             "them to the URDF or set settings.physics.run=never")
+            raise RobotError(
+                f"robot.urdf={robot.urdf}: link {link!r} (moved by joint {j.get('name')!r}) has no "
+                "<inertial> with a mass > 0; physics needs every moving link's mass and inertia: "
+                "add "
+                "them to the URDF or set settings.physics.run=never"
+            )
 
 
 def auto_capsules(urdf: str | Path, links, where: str) -> dict[str, tuple[Capsule, ...]]:
@@ -246,8 +320,10 @@ def auto_capsules(urdf: str | Path, links, where: str) -> dict[str, tuple[Capsul
         text = Path(urdf).read_text()
     else:
         source = text = str(urdf)
-    return {link: tuple(Capsule(link, a, b, r) for a, b, r in caps)
-            for link, caps in _fit_cached(text, source, tuple(links), where).items()}
+    return {
+        link: tuple(Capsule(link, a, b, r) for a, b, r in caps)
+        for link, caps in _fit_cached(text, source, tuple(links), where).items()
+    }
 
 
 @functools.lru_cache(maxsize=16)
@@ -257,7 +333,9 @@ def _fit_cached(text: str, urdf: str, links: tuple[str, ...], where: str) -> dic
         wanted = [n for n in links if n in have]
         return fit_capsules(urdf, links=wanted) if wanted else {}
     except (ValueError, FileNotFoundError, ImportError) as exc:
-        raise RobotError(f"robot.capsules=auto: {where}: {exc}; give the capsules in robot.capsules") from None
+        raise RobotError(
+            f"robot.capsules=auto: {where}: {exc}; give the capsules in robot.capsules"
+        ) from None
 
 
 def _capsules(value, path, frame_names, where) -> dict[str, tuple[Capsule, ...]]:
@@ -266,22 +344,33 @@ def _capsules(value, path, frame_names, where) -> dict[str, tuple[Capsule, ...]]
     if value == "auto":
         return auto_capsules(path, frame_names, where)
     if not isinstance(value, dict):
-        raise RobotError(f"robot.capsules={value!r} must be auto, none or {{link: [{{a, b, radius}}, ...]}}")
+        raise RobotError(
+            f"robot.capsules={value!r} must be auto, none or {{link: [{{a, b, radius}}, ...]}}"
+        )
     out = {}
     for link, caps in value.items():
         if link not in frame_names:
             raise RobotError(f"robot.capsules has link {link!r}, not on the chain {frame_names}")
         if not isinstance(caps, (list, tuple)):
-            raise RobotError(f"robot.capsules.{link} must be a list of {{a: [x, y, z], b: [x, y, z], radius: r}}")
+            raise RobotError(
+                f"robot.capsules.{link} must be a list of {{a: [x, y, z], b: [x, y, z], radius: r}}"
+            )
         items = []
         for i, c in enumerate(caps):
             try:
-                a, b, r = (tuple(float(v) for v in c["a"]), tuple(float(v) for v in c["b"]), float(c["radius"]))
+                a, b, r = (
+                    tuple(float(v) for v in c["a"]),
+                    tuple(float(v) for v in c["b"]),
+                    float(c["radius"]),
+                )
                 ok = len(a) == 3 and len(b) == 3 and r > 0 and all(map(math.isfinite, (*a, *b, r)))
             except (TypeError, KeyError, ValueError):
                 ok = False
             if not ok:
-                raise RobotError(f"robot.capsules.{link}[{i}]={c!r} must be {{a: [x, y, z], b: [x, y, z], radius: r > 0}}")
+                raise RobotError(
+                    f"robot.capsules.{link}[{i}]={c!r} must be {{a: [x, y, z], b: [x, y, z], "
+                    f"radius: r > 0}}"
+                )
             items.append(Capsule(link, a, b, r))
         out[link] = tuple(items)
     return out
@@ -291,22 +380,31 @@ def _point_masses(value, frame_names) -> tuple[PointMass, ...]:
     out = []
     for i, p in enumerate(value or []):
         try:
-            pm = PointMass(str(p["link"]), tuple(float(v) for v in p["pos"]), float(p["mass"]),
-                           tuple(float(v) for v in p["inertia"]))
+            pm = PointMass(
+                str(p["link"]),
+                tuple(float(v) for v in p["pos"]),
+                float(p["mass"]),
+                tuple(float(v) for v in p["inertia"]),
+            )
             ok = len(pm.pos) == 3 and len(pm.inertia) == 3 and pm.mass > 0
         except (TypeError, KeyError, ValueError):
             ok = False
         if not ok:
-            raise RobotError(f"robot.point_masses[{i}]={p!r} must be {{link, pos: [x, y, z], mass > 0, "
-                             "inertia: [ixx, iyy, izz]}}")
+            raise RobotError(
+                f"robot.point_masses[{i}]={p!r} must be {{link, pos: [x, y, z], mass > 0, "
+                "inertia: [ixx, iyy, izz]}}"
+            )
         if pm.link not in frame_names:
-            raise RobotError(f"robot.point_masses[{i}] is on link {pm.link!r}, not on the chain {frame_names}")
+            raise RobotError(
+                f"robot.point_masses[{i}] is on link {pm.link!r}, not on the chain {frame_names}"
+            )
         out.append(pm)
     return tuple(out)
 
 
 def _end_link(root: ET.Element, value, where: str) -> tuple[str, bool]:
-    """``(end link, found)``: the setting, or the one leaf reached through the most moving joints."""
+    """``(end link, found)``: the setting, or the one leaf reached through the most
+    moving joints."""
     if value is not None:
         if not isinstance(value, str):
             raise RobotError(f"robot.end_link={value!r} must be a link's name")
@@ -316,8 +414,10 @@ def _end_link(root: ET.Element, value, where: str) -> tuple[str, bool]:
         raise RobotError(f"{where} has no leaf link to end the chain at; give robot.end_link")
     top = [name for name, n in cands if n == cands[0][1]]
     if len(top) > 1:
-        raise RobotError(f"robot.end_link is not set and {where} has {len(top)} leaf links reached through "
-                         f"{cands[0][1]} moving joints: {top}; give robot.end_link=LINK")
+        raise RobotError(
+            f"robot.end_link is not set and {where} has {len(top)} leaf links reached through "
+            f"{cands[0][1]} moving joints: {top}; give robot.end_link=LINK"
+        )
     return top[0], True
 
 
@@ -364,7 +464,9 @@ def _load(cfg: dict, path: Path, where: str) -> Robot:
     end_link, auto_end = _end_link(root, cfg["end_link"], where)
     links = [link.get("name") for link in root.iter("link")]
     if end_link not in links:
-        raise RobotError(f"robot.end_link={end_link!r} is not a link of {where}; its links are {links}")
+        raise RobotError(
+            f"robot.end_link={end_link!r} is not a link of {where}; its links are {links}"
+        )
     if auto_end:
         found["end_link"] = end_link
     packages = cfg["packages"] or []
@@ -374,17 +476,34 @@ def _load(cfg: dict, path: Path, where: str) -> Robot:
         raise RobotError(f"robot.balance_inertia={cfg['balance_inertia']!r} must be true or false")
     limits = _mapping(cfg["limits"], "limits", "{joint: [lower, upper]}")
     for name, lim in limits.items():
-        ok = isinstance(lim, (list, tuple)) and len(lim) == 2 and all(
-            isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v) for v in lim)
+        ok = (
+            isinstance(lim, (list, tuple))
+            and len(lim) == 2
+            and all(
+                isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+                for v in lim
+            )
+        )
         if not ok or not lim[0] < lim[1]:
-            raise RobotError(f"robot.limits.{name}={lim!r} must be [lower, upper] with lower < upper (rad)")
+            raise RobotError(
+                f"robot.limits.{name}={lim!r} must be [lower, upper] with lower < upper (rad)"
+            )
     locked = _mapping(cfg["locked"], "locked", "{joint: value}")
     for name, v in locked.items():
         if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
-            raise RobotError(f"robot.locked.{name}={v!r} must be a number (rad, or m for a sliding joint)")
+            raise RobotError(
+                f"robot.locked.{name}={v!r} must be a number (rad, or m for a sliding joint)"
+            )
     try:
-        cleaned = clean_urdf(path, end_link, locked=locked, limits=limits, packages=packages,
-                             balance=cfg["balance_inertia"], where=where)
+        cleaned = clean_urdf(
+            path,
+            end_link,
+            locked=locked,
+            limits=limits,
+            packages=packages,
+            balance=cfg["balance_inertia"],
+            where=where,
+        )
     except (CleanError, FileNotFoundError, ValueError, ImportError) as exc:
         raise RobotError(str(exc).splitlines()[0]) from None
     report = {k: v for k, v in cleaned.report.items() if v}
@@ -395,12 +514,16 @@ def _load(cfg: dict, path: Path, where: str) -> Robot:
     moving = [j for j in joints if j.get("type") != "fixed"]
     kinds = sorted({j.get("type") for j in moving} - {"revolute"})
     if kinds:
-        raise RobotError(f"{where}: the chain to robot.end_link={end_link!r} has {kinds[0]} joints; "
-                         "only revolute, continuous and fixed joints are supported")
+        raise RobotError(
+            f"{where}: the chain to robot.end_link={end_link!r} has {kinds[0]} joints; "
+            "only revolute, continuous and fixed joints are supported"
+        )
     names = [j.get("name") for j in moving]
     if len(names) < MIN_JOINTS:
-        raise RobotError(f"robot.end_link={end_link!r}: the chain of {where} to it has {len(names)} joints "
-                         f"{names}; the arm experiment needs at least {MIN_JOINTS}")
+        raise RobotError(
+            f"robot.end_link={end_link!r}: the chain of {where} to it has {len(names)} joints "
+            f"{names}; the arm experiment needs at least {MIN_JOINTS}"
+        )
     lower, upper, vel, eff = [], [], [], []
     for j in moving:
         lim = j.find("limit")
@@ -409,35 +532,61 @@ def _load(cfg: dict, path: Path, where: str) -> Robot:
             raise RobotError(f"{where}: joint {j.get('name')!r} has no <limit lower=... upper=...>")
         lo, hi = float(get("lower")), float(get("upper"))
         if not lo < hi:
-            raise RobotError(f"{where}: joint {j.get('name')!r} has limits lower={lo} >= upper={hi}")
+            raise RobotError(
+                f"{where}: joint {j.get('name')!r} has limits lower={lo} >= upper={hi}"
+            )
         lower.append(lo)
         upper.append(hi)
         vel.append(float(get("velocity")) if get("velocity") is not None else None)
         eff.append(float(get("effort")) if get("effort") is not None else None)
     n = len(names)
-    velocity = _urdf_or_default(cfg["max_velocity"], vel, n, names, "max_velocity", DEFAULT_VELOCITY,
-                                MAX_PLAUSIBLE_VELOCITY, found, where)
-    torque = _urdf_or_default(cfg["max_torque"], eff, n, names, "max_torque", DEFAULT_EFFORT, math.inf, found, where)
-    frame_names = [joints[0].find("parent").get("link")] + [j.find("child").get("link") for j in joints]
+    velocity = _urdf_or_default(
+        cfg["max_velocity"],
+        vel,
+        n,
+        names,
+        "max_velocity",
+        DEFAULT_VELOCITY,
+        MAX_PLAUSIBLE_VELOCITY,
+        found,
+        where,
+    )
+    torque = _urdf_or_default(
+        cfg["max_torque"], eff, n, names, "max_torque", DEFAULT_EFFORT, math.inf, found, where
+    )
+    frame_names = [joints[0].find("parent").get("link")] + [
+        j.find("child").get("link") for j in joints
+    ]
     home = cfg["home"]
     if home is None:
         home = _auto_home(text, end_link, found, where)
-        cfg = {**cfg, "home": list(home)}  # a worker reloading robot.settings gets this home, unmeasured
+        cfg = {
+            **cfg,
+            "home": list(home),
+        }  # a worker reloading robot.settings gets this home, unmeasured
     if not isinstance(home, (list, tuple)) or len(home) != n:
-        raise RobotError(f"robot.home={home!r} must be {n} joint angles (rad), one per joint {names}")
+        raise RobotError(
+            f"robot.home={home!r} must be {n} joint angles (rad), one per joint {names}"
+        )
     home = tuple(_angle(v, i, names) for i, v in enumerate(home))
     for q, lo, hi, name in zip(home, lower, upper, names):
         if not lo <= q <= hi:
-            raise RobotError(f"robot.home has {q} for joint {name!r}, outside its limits [{lo}, {hi}]")
+            raise RobotError(
+                f"robot.home has {q} for joint {name!r}, outside its limits [{lo}, {hi}]"
+            )
     capsules = _capsules(cfg["capsules"], text, frame_names, where)
     first_moving = next(i for i, j in enumerate(joints) if j.get("type") != "fixed")
     base_links = cfg["base_links"]
     if base_links == "auto":
-        base_links = frame_names[:first_moving + 1]
+        base_links = frame_names[: first_moving + 1]
     if not isinstance(base_links, (list, tuple)) or any(b not in frame_names for b in base_links):
-        raise RobotError(f"robot.base_links={base_links!r} must be auto or links of the chain {frame_names}")
+        raise RobotError(
+            f"robot.base_links={base_links!r} must be auto or links of the chain {frame_names}"
+        )
     forearm = cfg["forearm_link"]
-    if forearm == "auto":  # the forearm: what the third joint from the end moves (wrist joints after it)
+    if (
+        forearm == "auto"
+    ):  # the forearm: what the third joint from the end moves (wrist joints after it)
         forearm = moving[-3].find("child").get("link")
         forearm = forearm if forearm in capsules else None
         found["forearm_link"] = forearm
@@ -445,13 +594,28 @@ def _load(cfg: dict, path: Path, where: str) -> Robot:
         raise RobotError(f"robot.forearm_link={forearm!r} is not a link of the chain {frame_names}")
     name = cfg["name"] if cfg["name"] is not None else (root.get("name") or path.stem)
     _log_found(found, where)
-    return Robot(name=str(name), urdf=path, end_link=end_link, joint_names=tuple(names), home=home,
-                 lower=tuple(lower), upper=tuple(upper), max_velocity=velocity,
-                 max_acceleration=_vec(cfg["max_acceleration"], n, "max_acceleration", names),
-                 max_torque=torque, damping=_vec(cfg["damping"], n, "damping", names, positive=False),
-                 armature=_vec(cfg["armature"], n, "armature", names, positive=False), capsules=capsules,
-                 base_links=tuple(base_links), forearm_link=forearm, inertials=urdf_inertials(root),
-                 point_masses=_point_masses(cfg["point_masses"], frame_names), settings=cfg, text=text, found=found)
+    return Robot(
+        name=str(name),
+        urdf=path,
+        end_link=end_link,
+        joint_names=tuple(names),
+        home=home,
+        lower=tuple(lower),
+        upper=tuple(upper),
+        max_velocity=velocity,
+        max_acceleration=_vec(cfg["max_acceleration"], n, "max_acceleration", names),
+        max_torque=torque,
+        damping=_vec(cfg["damping"], n, "damping", names, positive=False),
+        armature=_vec(cfg["armature"], n, "armature", names, positive=False),
+        capsules=capsules,
+        base_links=tuple(base_links),
+        forearm_link=forearm,
+        inertials=urdf_inertials(root),
+        point_masses=_point_masses(cfg["point_masses"], frame_names),
+        settings=cfg,
+        text=text,
+        found=found,
+    )
 
 
 def _log_found(found: dict, where: str) -> None:
@@ -461,8 +625,10 @@ def _log_found(found: dict, where: str) -> None:
         parts.append(f"end link {found['end_link']!r} (the leaf through the most moving joints)")
     if "home" in found:
         h = found["home"]
-        parts.append(f"home {[round(v, 4) for v in h['pose']]} (hand down at {h['target']}, IK residual "
-                     f"{h['residual']:.1e} m, from {h['seed']})")
+        parts.append(
+            f"home {[round(v, 4) for v in h['pose']]} (hand down at {h['target']}, IK residual "
+            f"{h['residual']:.1e} m, from {h['seed']})"
+        )
     if found.get("forearm_link"):
         parts.append(f"forearm link {found['forearm_link']!r}")
     if found.get("locked"):
@@ -472,16 +638,19 @@ def _log_found(found: dict, where: str) -> None:
 
 
 def _auto_home(text: str, end_link: str, found: dict, where: str) -> list[float]:
-    """The hand-down home (:func:`protorch.robots.layout.hand_down_layout`), its report in ``found``."""
-    from .kinematics import ArmKinematics
-    from .layout import hand_down_layout
+    """The hand-down home (:func:`protorch.robots.layout.hand_down_layout`), its report in
+    ``found``."""
 
     try:
         layout = hand_down_layout(ArmKinematics(text, end_link=end_link), f"the arm of {where}")
     except ValueError as exc:
         raise RobotError(str(exc)) from None
-    found["home"] = {"pose": layout["home"], "target": layout["home_target"], "residual": layout["home_residual"],
-                     "seed": layout["home_seed"]}
+    found["home"] = {
+        "pose": layout["home"],
+        "target": layout["home_target"],
+        "residual": layout["home_residual"],
+        "seed": layout["home_seed"],
+    }
     found["layout"] = layout
     return layout["home"]
 
@@ -492,15 +661,24 @@ def _angle(v, i: int, names) -> float:
     return float(v)
 
 
-def _urdf_or_default(value, urdf: list, n: int, names, key: str, default: float, most: float, found: dict,
-                     where: str) -> tuple[float, ...]:
+def _urdf_or_default(
+    value, urdf: list, n: int, names, key: str, default: float, most: float, found: dict, where: str
+) -> tuple[float, ...]:
     """A limit from the setting ``robot.<key>`` or, where it is null, the URDF's; where the URDF's
     is missing, not positive or above ``most``: ``default``, with a warning naming the joints."""
     if value is not None:
         return _vec(value, n, key, names)
     bad = [name for v, name in zip(urdf, names) if v is None or not 0 < v <= most]
     if bad:
-        log.warning("%s: joints %s have no plausible <limit %s> (missing, <= 0 or > %g): %g used (set robot.%s)",
-                    where, bad, "velocity" if key == "max_velocity" else "effort", most, default, key)
+        log.warning(
+            "%s: joints %s have no plausible <limit %s> (missing, <= 0 or > %g): %g used (set "
+            "robot.%s)",
+            where,
+            bad,
+            "velocity" if key == "max_velocity" else "effort",
+            most,
+            default,
+            key,
+        )
         found[f"{key}_default"] = {"joints": bad, "value": default}
     return tuple(default if name in bad else float(v) for v, name in zip(urdf, names))

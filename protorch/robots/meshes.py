@@ -26,7 +26,14 @@ import re
 from collections.abc import Sequence
 from pathlib import Path
 
-__all__ = ["cache_dir", "load_mesh", "mujoco_mesh", "needs_conversion", "obj_objects", "resolve_mesh"]
+__all__ = [
+    "cache_dir",
+    "load_mesh",
+    "mujoco_mesh",
+    "needs_conversion",
+    "obj_objects",
+    "resolve_mesh",
+]
 
 _MUJOCO_EXTS = {".stl", ".obj", ".msh"}
 _OBJECT_LINE = re.compile(rb"^[og]\s+\S", re.MULTILINE)
@@ -40,11 +47,11 @@ def cache_dir() -> Path:
 def _split(filename: str) -> tuple[str | None, str]:
     """``(package name or None, the rest)`` of a mesh filename."""
     if filename.startswith("package://"):
-        rest = filename[len("package://"):]
+        rest = filename[len("package://") :]
         name, _, tail = rest.partition("/")
         return name, tail
     if filename.startswith("file://"):
-        return None, filename[len("file://"):]
+        return None, filename[len("file://") :]
     return None, filename
 
 
@@ -55,8 +62,12 @@ def _in_package(root: Path, name: str, rest: str) -> Path | None:
     return None
 
 
-def resolve_mesh(filename: str, urdf_dir: str | Path | None, packages: Sequence[str | Path] = (),
-                 what: str = "a <mesh>") -> Path:
+def resolve_mesh(
+    filename: str,
+    urdf_dir: str | Path | None,
+    packages: Sequence[str | Path] = (),
+    what: str = "a <mesh>",
+) -> Path:
     """The file a URDF ``<mesh filename>`` names (module docstring), absolute; a
     ``FileNotFoundError`` of one line naming ``what``, the filename and every place looked."""
     name, rest = _split(filename or "")
@@ -89,10 +100,14 @@ def resolve_mesh(filename: str, urdf_dir: str | Path | None, packages: Sequence[
             for cand in (root / name / rest, root / rest):
                 if cand.is_file():
                     return cand.resolve()
-        looked.append(f"folders named {name!r} at or above {urdf_dir}, ROS_PACKAGE_PATH, "
-                      f"robot.packages={[str(p) for p in packages]}")
-    raise FileNotFoundError(f"{what} names the mesh {filename!r}, which is not found (looked in "
-                            f"{'; '.join(looked)}); give its folder in robot.packages=[DIR]")
+        looked.append(
+            f"folders named {name!r} at or above {urdf_dir}, ROS_PACKAGE_PATH, "
+            f"robot.packages={[str(p) for p in packages]}"
+        )
+    raise FileNotFoundError(
+        f"{what} names the mesh {filename!r}, which is not found (looked in "
+        f"{'; '.join(looked)}); give its folder in robot.packages=[DIR]"
+    )
 
 
 def obj_objects(path: str | Path) -> int:
@@ -101,7 +116,8 @@ def obj_objects(path: str | Path) -> int:
 
 
 def needs_conversion(path: str | Path) -> bool:
-    """Whether MuJoCo cannot read ``path`` whole: not STL / OBJ / MSH, or an OBJ of several objects."""
+    """Whether MuJoCo cannot read ``path`` whole: not STL / OBJ / MSH, or an OBJ of several
+    objects."""
     path = Path(path)
     ext = path.suffix.lower()
     if ext not in _MUJOCO_EXTS:
@@ -116,12 +132,15 @@ def load_mesh(path: str | Path, what: str = "a <mesh>"):
     try:
         import trimesh
     except ImportError:
-        raise ImportError(f"{what}: reading the mesh {path} needs trimesh: pip install "
-                          '"protorch[meshes]"') from None
+        raise ImportError(
+            f'{what}: reading the mesh {path} needs trimesh: pip install "protorch[meshes]"'
+        ) from None
     try:
         mesh = trimesh.load(str(path), force="mesh", process=False)
     except Exception as exc:  # noqa: BLE001 (trimesh's readers raise many kinds)
-        raise ValueError(f"{what}: the mesh {path} cannot be read: {type(exc).__name__}: {exc}") from None
+        raise ValueError(
+            f"{what}: the mesh {path} cannot be read: {type(exc).__name__}: {exc}"
+        ) from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.vertices) == 0 or len(mesh.faces) == 0:
         raise ValueError(f"{what}: the mesh {path} has no triangles")
     return mesh

@@ -15,8 +15,21 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["ROBOTS_DIR", "DEFAULT_ROBOT", "default_chain", "read_urdf", "parse_urdf", "urdf_links", "rpy_matrix",
-           "CollisionGeometry", "collision_geometry", "COLLISION_KINDS", "shipped_yaml"]
+from .meshes import resolve_mesh
+
+__all__ = [
+    "ROBOTS_DIR",
+    "DEFAULT_ROBOT",
+    "default_chain",
+    "read_urdf",
+    "parse_urdf",
+    "urdf_links",
+    "rpy_matrix",
+    "CollisionGeometry",
+    "collision_geometry",
+    "COLLISION_KINDS",
+    "shipped_yaml",
+]
 
 ROBOTS_DIR = Path(__file__).resolve().parent
 DEFAULT_ROBOT = "panda"
@@ -46,10 +59,19 @@ def default_chain() -> tuple[str, str]:
 def rpy_matrix(rpy) -> list[list[float]]:
     """The rotation ``Rz(yaw) Ry(pitch) Rx(roll)`` of a URDF ``rpy`` triple, as nested lists."""
     r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    return [[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr]]
+    cr, sr, cp, sp, cy, sy = (
+        math.cos(r),
+        math.sin(r),
+        math.cos(p),
+        math.sin(p),
+        math.cos(y),
+        math.sin(y),
+    )
+    return [
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ]
 
 
 def read_urdf(urdf: str | Path) -> tuple[str, str]:
@@ -72,7 +94,9 @@ def parse_urdf(text: str, where: str = "the URDF") -> ET.Element:
     except ET.ParseError as exc:
         raise ValueError(f"{where} is not valid XML: {exc}") from None
     if root.tag != "robot":
-        raise ValueError(f"{where} is not a URDF: its root element is <{root.tag}>, expected <robot>")
+        raise ValueError(
+            f"{where} is not a URDF: its root element is <{root.tag}>, expected <robot>"
+        )
     return root
 
 
@@ -97,7 +121,9 @@ class CollisionGeometry:
     scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
 
-def _floats(text: str | None, n: int, what: str, default: Sequence[float] | None = None) -> tuple[float, ...]:
+def _floats(
+    text: str | None, n: int, what: str, default: Sequence[float] | None = None
+) -> tuple[float, ...]:
     if text is None:
         if default is None:
             raise ValueError(f"{what} is missing")
@@ -129,12 +155,13 @@ def _origin(elem, what: str) -> np.ndarray:
 def _mesh_path(filename: str, base: Path | None, mesh_dir: Path | None, what: str) -> Path:
     """A ``<mesh filename>`` on disk (:func:`protorch.robots.meshes.resolve_mesh`; ``mesh_dir`` is
     searched as a ``robot.packages`` folder)."""
-    from .meshes import resolve_mesh
 
     return resolve_mesh(filename, base, [mesh_dir] if mesh_dir is not None else [], what)
 
 
-def collision_geometry(urdf: str | Path, *, mesh_dir: str | Path | None = None) -> list[CollisionGeometry]:
+def collision_geometry(
+    urdf: str | Path, *, mesh_dir: str | Path | None = None
+) -> list[CollisionGeometry]:
     """Every ``<collision>`` of a URDF (a path or its XML text), in document order. Mesh paths are
     resolved here (a clear error for one that is not on disk); ``mesh_dir`` is where
     ``package://<pkg>/...`` paths live (default: the URDF's folder)."""
@@ -150,13 +177,18 @@ def collision_geometry(urdf: str | Path, *, mesh_dir: str | Path | None = None) 
             geom = col.find("geometry")
             shapes = [g for g in (geom if geom is not None else []) if g.tag in COLLISION_KINDS]
             if len(shapes) != 1:
-                raise ValueError(f"{what} must hold one of <{'>, <'.join(COLLISION_KINDS)}> in its <geometry>")
+                raise ValueError(
+                    f"{what} must hold one of <{'>, <'.join(COLLISION_KINDS)}> in its <geometry>"
+                )
             g, origin = shapes[0], _origin(col, what)
             if g.tag in ("sphere", "capsule", "cylinder"):
                 radius = _floats(g.get("radius"), 1, f"{what} <{g.tag} radius>")[0]
                 length = _floats(g.get("length"), 1, f"{what} <{g.tag} length>", (0.0,))[0]
                 if radius <= 0 or length < 0 or (g.tag == "cylinder" and length <= 0):
-                    raise ValueError(f"{what} <{g.tag}> needs a positive radius and length, got {radius}, {length}")
+                    raise ValueError(
+                        f"{what} <{g.tag}> needs a positive radius and length, got {radius}, "
+                        f"{length}"
+                    )
                 out.append(CollisionGeometry(name, g.tag, origin, radius=radius, length=length))
             elif g.tag == "box":
                 size = _floats(g.get("size"), 3, f"{what} <box size>")

@@ -11,7 +11,14 @@ import importlib
 
 from ..errors import ProtorchError
 
-__all__ = ["PHYSICS_EXTRA", "INSTALL_HINT", "MIN_VERSION", "MujocoMissing", "load_mujoco", "mujoco_available"]
+__all__ = [
+    "PHYSICS_EXTRA",
+    "INSTALL_HINT",
+    "MIN_VERSION",
+    "MujocoMissing",
+    "load_mujoco",
+    "mujoco_available",
+]
 
 PHYSICS_EXTRA = "physics"
 INSTALL_HINT = 'pip install "protorch[physics]"'
@@ -28,8 +35,10 @@ def load_mujoco():
         mujoco = importlib.import_module("mujoco")
         importlib.import_module("mujoco.batch")
     except ImportError as exc:
-        raise MujocoMissing(f"the physics test needs MuJoCo >= {'.'.join(map(str, MIN_VERSION))}: {INSTALL_HINT} "
-                            f"({exc})") from None
+        raise MujocoMissing(
+            f"the physics test needs MuJoCo >= {'.'.join(map(str, MIN_VERSION))}: {INSTALL_HINT} "
+            f"({exc})"
+        ) from None
     return mujoco
 
 

@@ -24,13 +24,28 @@ from ..tasks.arm.reach import ArmReachTask
 from .mj import load_mujoco
 from .scene import CAPSULE_GROUP, VISUAL_GROUP, build_scene
 
-__all__ = ["render_frames", "write_gif", "write_strip", "render_episode", "render_in_subprocess", "main"]
+__all__ = [
+    "render_frames",
+    "write_gif",
+    "write_strip",
+    "render_episode",
+    "render_in_subprocess",
+    "main",
+]
 
 BACKENDS = ("egl", "osmesa")
 
 
-def render_frames(scene, q: np.ndarray, can: np.ndarray, target: np.ndarray, *, camera: str = "front",
-                  width: int = 480, height: int = 360) -> list[np.ndarray]:
+def render_frames(
+    scene,
+    q: np.ndarray,
+    can: np.ndarray,
+    target: np.ndarray,
+    *,
+    camera: str = "front",
+    width: int = 480,
+    height: int = 360,
+) -> list[np.ndarray]:
     """RGB frames ``(height, width, 3)`` uint8 of the arm at joints ``q (n, J)`` with the can and
     the target at ``can, target (n, 2)``."""
     mujoco = load_mujoco()
@@ -64,7 +79,9 @@ def write_gif(path: Path, frames: list[np.ndarray], fps: float = 12.5) -> Path:
 
     images = [Image.fromarray(f) for f in frames]
     buf = io.BytesIO()
-    images[0].save(buf, format="GIF", save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
+    images[0].save(
+        buf, format="GIF", save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0
+    )
     return atomic_write_bytes(path, buf.getvalue())
 
 
@@ -103,34 +120,75 @@ def _frame_titles(ep: dict, idx: list[int], labels) -> list[str]:
     return out
 
 
-def render_episode(scene, episodes: dict, i: int, out_dir: Path, name: str, *, num_frames: int = 5,
-                   max_gif_frames: int = 50) -> list[Path]:
-    """Episode ``i`` of an ``episodes.npz`` (as a dict) as ``<name>.gif`` and ``<name>_frames.png``."""
-    ep = {k: episodes[k][i] for k in ("q", "can", "target", "contact")} | {"dt": float(episodes["dt"])}
+def render_episode(
+    scene,
+    episodes: dict,
+    i: int,
+    out_dir: Path,
+    name: str,
+    *,
+    num_frames: int = 5,
+    max_gif_frames: int = 50,
+) -> list[Path]:
+    """Episode ``i`` of an ``episodes.npz`` (as a dict) as ``<name>.gif`` and
+    ``<name>_frames.png``."""
+    ep = {k: episodes[k][i] for k in ("q", "can", "target", "contact")} | {
+        "dt": float(episodes["dt"])
+    }
     labels = episodes["labels"][i] if "labels" in episodes else None
     n = ep["q"].shape[0]
     gif_idx = np.unique(np.linspace(0, n - 1, min(n, max_gif_frames)).round().astype(int))
     frames = render_frames(scene, ep["q"][gif_idx], ep["can"][gif_idx], ep["target"][gif_idx])
     out = [write_gif(out_dir / f"{name}.gif", frames)]
-    moved = np.flatnonzero(np.any(np.diff(ep["can"], axis=0) != 0, -1) | np.any(np.diff(ep["target"], axis=0) != 0, -1))
+    moved = np.flatnonzero(
+        np.any(np.diff(ep["can"], axis=0) != 0, -1) | np.any(np.diff(ep["target"], axis=0) != 0, -1)
+    )
     key = sorted({0, n - 1, *(int(m) + 1 for m in moved[:2])})
-    idx = sorted(set(key) | set(np.linspace(0, n - 1, num_frames).round().astype(int).tolist()))[:max(num_frames, 3) + 2]
+    idx = sorted(set(key) | set(np.linspace(0, n - 1, num_frames).round().astype(int).tolist()))[
+        : max(num_frames, 3) + 2
+    ]
     strip = render_frames(scene, ep["q"][idx], ep["can"][idx], ep["target"][idx])
     verdict = "success" if bool(episodes["success"][i]) else "failure"
-    out.append(write_strip(out_dir / f"{name}_frames.png", strip, _frame_titles(ep, idx, labels),
-                           f"{name}: episode {i}, MuJoCo, {verdict}"))
+    out.append(
+        write_strip(
+            out_dir / f"{name}_frames.png",
+            strip,
+            _frame_titles(ep, idx, labels),
+            f"{name}: episode {i}, MuJoCo, {verdict}",
+        )
+    )
     return out
 
 
-def render_in_subprocess(episodes_path: Path, out_dir: Path, task_kwargs: dict, picks: dict, *,
-                         timestep: float = 0.002, timeout: float = 600.0) -> str:
+def render_in_subprocess(
+    episodes_path: Path,
+    out_dir: Path,
+    task_kwargs: dict,
+    picks: dict,
+    *,
+    timestep: float = 0.002,
+    timeout: float = 600.0,
+) -> str:
     """Render ``picks`` (``{"reach": i, "switch": j}``: names of the pictures and episode indices)
     of ``episodes_path`` into ``out_dir`` in a subprocess, with EGL, else OSMesa. Returns one line:
     what was written, or why nothing was."""
     if not picks:
         return "nothing to render: no successful held-out reach and no switching episode"
-    args = [sys.executable, "-m", "protorch.sim.render", "--episodes", str(episodes_path), "--out", str(out_dir),
-            "--task", json.dumps(task_kwargs), "--picks", json.dumps(picks), "--timestep", str(timestep)]
+    args = [
+        sys.executable,
+        "-m",
+        "protorch.sim.render",
+        "--episodes",
+        str(episodes_path),
+        "--out",
+        str(out_dir),
+        "--task",
+        json.dumps(task_kwargs),
+        "--picks",
+        json.dumps(picks),
+        "--timestep",
+        str(timestep),
+    ]
     errors = []
     for backend in BACKENDS:
         env = {**os.environ, "MUJOCO_GL": backend, "PYOPENGL_PLATFORM": backend}
@@ -159,7 +217,10 @@ def main(argv: list[str] | None = None) -> None:
     written = []
     for name, i in json.loads(a.picks).items():
         written += render_episode(scene, episodes, int(i), Path(a.out), f"physics_{name}")
-    print(f"rendered with MUJOCO_GL={os.environ.get('MUJOCO_GL', '')}: " + ", ".join(p.name for p in written))
+    print(
+        f"rendered with MUJOCO_GL={os.environ.get('MUJOCO_GL', '')}: "
+        + ", ".join(p.name for p in written)
+    )
 
 
 if __name__ == "__main__":

@@ -41,12 +41,26 @@ from .mj import load_mujoco
 
 __all__ = ["ArmScene", "build_scene", "hand_links", "controller_model", "ARM_BITS", "WORLD_BITS"]
 
-ARM_BITS = (1, 2)  # (contype, conaffinity) of the arm's capsules: they touch the world, not each other
+ARM_BITS = (
+    1,
+    2,
+)  # (contype, conaffinity) of the arm's capsules: they touch the world, not each other
 WORLD_BITS = (2, 1)  # the table and the can
-_COMPILER = ('<mujoco><compiler fusestatic="false" discardvisual="false" balanceinertia="false" strippath="false" '
-             'meshdir="{meshdir}"/></mujoco>')
-VISUAL_GROUP, HIDDEN_GROUP, CAPSULE_GROUP = 3, 4, 2  # geom groups: the URDF's <visual>, its <collision>, the capsules
-_CONTACT_SENSOR = [1 | 8, 1, 1]  # data: found | dist (bit flags), reduce: mindist, num: 1 -> (count, distance)
+_COMPILER = (
+    '<mujoco><compiler fusestatic="false" discardvisual="false" balanceinertia="false" '
+    'strippath="false" '
+    'meshdir="{meshdir}"/></mujoco>'
+)
+VISUAL_GROUP, HIDDEN_GROUP, CAPSULE_GROUP = (
+    3,
+    4,
+    2,
+)  # geom groups: the URDF's <visual>, its <collision>, the capsules
+_CONTACT_SENSOR = [
+    1 | 8,
+    1,
+    1,
+]  # data: found | dist (bit flags), reduce: mindist, num: 1 -> (count, distance)
 _TABLE_THICKNESS = 0.02
 _CAN_RGBA = (0.75, 0.15, 0.12, 1.0)
 _ARM_RGBA = (0.92, 0.92, 0.9, 1.0)
@@ -63,11 +77,15 @@ class ArmScene:
     qpos_index: np.ndarray  # (J,)
     can_mocap: int
     target_mocap: int
-    can_contact: int  # sensordata index: number of arm-can contacts (the next entry: the deepest's distance)
+    can_contact: (
+        int  # sensordata index: number of arm-can contacts (the next entry: the deepest's distance)
+    )
     table_contact: int
     torque_limits: np.ndarray  # (J,)
     task: object
-    visuals: bool = False  # the URDF has <visual> geometry: renders show it (group 3), not the capsules
+    visuals: bool = (
+        False  # the URDF has <visual> geometry: renders show it (group 3), not the capsules
+    )
 
     @property
     def timestep(self) -> float:
@@ -94,11 +112,17 @@ def _arm_spec(task, mass_scale: float, timestep: float):
     folder = Path(robot.urdf).parent
     text = robot.urdf_text  # mesh paths resolved, off-chain joints locked (protorch.robots.clean)
     head = text.index(">", text.index("<robot")) + 1
-    spec = mujoco.MjSpec.from_string(text[:head] + _COMPILER.format(meshdir=f"{folder}/") + text[head:])
+    spec = mujoco.MjSpec.from_string(
+        text[:head] + _COMPILER.format(meshdir=f"{folder}/") + text[head:]
+    )
     spec.option.timestep = float(timestep)
     visuals = False
-    for geom in spec.geoms:  # the URDF's own geometry: no contact, no mass (the capsules collide); its
-        visual = geom.contype == 0 and geom.conaffinity == 0  # <visual> shown by the renders, <collision> never
+    for (
+        geom
+    ) in spec.geoms:  # the URDF's own geometry: no contact, no mass (the capsules collide); its
+        visual = (
+            geom.contype == 0 and geom.conaffinity == 0
+        )  # <visual> shown by the renders, <collision> never
         visuals |= visual
         geom.contype, geom.conaffinity, geom.density = 0, 0, 0.0
         geom.group = VISUAL_GROUP if visual else HIDDEN_GROUP
@@ -122,17 +146,29 @@ def _arm_spec(task, mass_scale: float, timestep: float):
             shape = dict(type=mujoco.mjtGeom.mjGEOM_SPHERE, pos=list(c.a))
         else:
             shape = dict(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[*c.a, *c.b])
-        spec.body(c.link).add_geom(**shape, size=[c.radius, 0, 0], contype=ARM_BITS[0], conaffinity=ARM_BITS[1],
-                                   rgba=list(rgba), group=CAPSULE_GROUP if visuals else 0)
+        spec.body(c.link).add_geom(
+            **shape,
+            size=[c.radius, 0, 0],
+            contype=ARM_BITS[0],
+            conaffinity=ARM_BITS[1],
+            rgba=list(rgba),
+            group=CAPSULE_GROUP if visuals else 0,
+        )
     names = task.kinematics.joint_names
     for i, name in enumerate(names):
         joint = spec.joint(name)
         joint.armature = robot.armature[i]
         joint.damping[0] = robot.damping[i]
         lim = robot.max_torque[i]
-        spec.add_actuator(name=f"motor{i + 1}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT,
-                          gainprm=[1.0] + [0.0] * 9, forcelimited=True, forcerange=[-lim, lim],
-                          ctrllimited=False)
+        spec.add_actuator(
+            name=f"motor{i + 1}",
+            target=name,
+            trntype=mujoco.mjtTrn.mjTRN_JOINT,
+            gainprm=[1.0] + [0.0] * 9,
+            forcelimited=True,
+            forcerange=[-lim, lim],
+            ctrllimited=False,
+        )
     return spec
 
 
@@ -151,27 +187,62 @@ def _add_world(spec, task) -> None:
     world = spec.worldbody
     (x0, x1), (y0, y1) = task.table
     lo_x, hi_x, lo_y, hi_y = min(x0, -0.25), max(x1, 0.2), min(y0, -0.3), max(y1, 0.3)
-    world.add_geom(name="table", type=mujoco.mjtGeom.mjGEOM_BOX, rgba=[0.62, 0.5, 0.38, 1.0],
-                   size=[(hi_x - lo_x) / 2, (hi_y - lo_y) / 2, _TABLE_THICKNESS / 2],
-                   pos=[(hi_x + lo_x) / 2, (hi_y + lo_y) / 2, -_TABLE_THICKNESS / 2],
-                   contype=WORLD_BITS[0], conaffinity=WORLD_BITS[1])
+    world.add_geom(
+        name="table",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        rgba=[0.62, 0.5, 0.38, 1.0],
+        size=[(hi_x - lo_x) / 2, (hi_y - lo_y) / 2, _TABLE_THICKNESS / 2],
+        pos=[(hi_x + lo_x) / 2, (hi_y + lo_y) / 2, -_TABLE_THICKNESS / 2],
+        contype=WORLD_BITS[0],
+        conaffinity=WORLD_BITS[1],
+    )
     for link in task.robot.base_links:
         spec.add_exclude(bodyname1="world", bodyname2=link)
     can = world.add_body(name="can", mocap=True, pos=[0.6, 0.0, task.can_height / 2])
-    can.add_geom(name="can", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[task.can_radius, task.can_height / 2, 0],
-                 contype=WORLD_BITS[0], conaffinity=WORLD_BITS[1], rgba=list(_CAN_RGBA))
+    can.add_geom(
+        name="can",
+        type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+        size=[task.can_radius, task.can_height / 2, 0],
+        contype=WORLD_BITS[0],
+        conaffinity=WORLD_BITS[1],
+        rgba=list(_CAN_RGBA),
+    )
     target = world.add_body(name="target", mocap=True, pos=[0.7, 0.0, task.ee_height])
-    target.add_geom(name="target", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.015, 0, 0], contype=0, conaffinity=0,
-                    rgba=[0.1, 0.75, 0.2, 0.8])
+    target.add_geom(
+        name="target",
+        type=mujoco.mjtGeom.mjGEOM_SPHERE,
+        size=[0.015, 0, 0],
+        contype=0,
+        conaffinity=0,
+        rgba=[0.1, 0.75, 0.2, 0.8],
+    )
     world.add_light(pos=[0.4, -0.6, 1.6], dir=[0.0, 0.35, -1.0], diffuse=[0.7, 0.7, 0.7])
-    spec.add_texture(name="sky", type=mujoco.mjtTexture.mjTEXTURE_SKYBOX, builtin=mujoco.mjtBuiltin.mjBUILTIN_GRADIENT,
-                     rgb1=[0.85, 0.9, 0.95], rgb2=[0.45, 0.5, 0.55], width=256, height=256)
-    world.add_camera(name="front", pos=[0.25, -0.95, 1.55], xyaxes=_look_at((0.25, -0.95, 1.55), (0.62, 0.05, 0.05)))
+    spec.add_texture(
+        name="sky",
+        type=mujoco.mjtTexture.mjTEXTURE_SKYBOX,
+        builtin=mujoco.mjtBuiltin.mjBUILTIN_GRADIENT,
+        rgb1=[0.85, 0.9, 0.95],
+        rgb2=[0.45, 0.5, 0.55],
+        width=256,
+        height=256,
+    )
+    world.add_camera(
+        name="front",
+        pos=[0.25, -0.95, 1.55],
+        xyaxes=_look_at((0.25, -0.95, 1.55), (0.62, 0.05, 0.05)),
+    )
     world.add_camera(name="top", pos=[0.5, 0.0, 1.6], xyaxes=[0.0, 1.0, 0.0, -1.0, 0.0, 0.0])
     root = task.kinematics.frame_names[1]  # the first moving link: its subtree is the arm
     for name, other in (("arm_can", "can"), ("arm_table", "world")):
-        spec.add_sensor(name=name, type=mujoco.mjtSensor.mjSENS_CONTACT, objtype=mujoco.mjtObj.mjOBJ_XBODY,
-                        objname=root, reftype=mujoco.mjtObj.mjOBJ_BODY, refname=other, intprm=_CONTACT_SENSOR)
+        spec.add_sensor(
+            name=name,
+            type=mujoco.mjtSensor.mjSENS_CONTACT,
+            objtype=mujoco.mjtObj.mjOBJ_XBODY,
+            objname=root,
+            reftype=mujoco.mjtObj.mjOBJ_BODY,
+            refname=other,
+            intprm=_CONTACT_SENSOR,
+        )
 
 
 def build_scene(task, *, timestep: float = 0.002, mass_scale: float = 1.0) -> ArmScene:
@@ -186,12 +257,17 @@ def build_scene(task, *, timestep: float = 0.002, mass_scale: float = 1.0) -> Ar
     qpos_index = np.array([model.jnt_qposadr[model.joint(n).id] for n in names])
     if not np.array_equal(qpos_index, np.arange(len(names))) or model.nv != len(names):
         raise ValueError(f"the scene's joints {names} are not the model's only degrees of freedom")
-    return ArmScene(model=model, qpos_index=qpos_index, can_mocap=int(model.body("can").mocapid[0]),
-                    target_mocap=int(model.body("target").mocapid[0]),
-                    can_contact=int(model.sensor("arm_can").adr[0]),
-                    table_contact=int(model.sensor("arm_table").adr[0]),
-                    torque_limits=np.array(task.robot.max_torque, dtype=np.float64), task=task,
-                    visuals=bool((model.geom_group == VISUAL_GROUP).any()))
+    return ArmScene(
+        model=model,
+        qpos_index=qpos_index,
+        can_mocap=int(model.body("can").mocapid[0]),
+        target_mocap=int(model.body("target").mocapid[0]),
+        can_contact=int(model.sensor("arm_can").adr[0]),
+        table_contact=int(model.sensor("arm_table").adr[0]),
+        torque_limits=np.array(task.robot.max_torque, dtype=np.float64),
+        task=task,
+        visuals=bool((model.geom_group == VISUAL_GROUP).any()),
+    )
 
 
 def controller_model(task, *, timestep: float = 0.002, mass_scale: float = 1.0):
@@ -199,5 +275,7 @@ def controller_model(task, *, timestep: float = 0.002, mass_scale: float = 1.0):
     ``mass_scale``: what the controller computes ``M(q)`` and the bias forces with."""
     mujoco = load_mujoco()
     model = _arm_spec(task, mass_scale, timestep).compile()
-    model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
+    model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(
+        mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+    )
     return model

@@ -8,8 +8,14 @@ import importlib
 
 from ..data.demos import load_human_demos
 from .arm import ArmReachTask
-from .base import (PROTOCOL_MEMBERS, SelfImprovementTask, Task, TaskContractError, check_task_outputs,
-                   check_task_protocol)
+from .base import (
+    PROTOCOL_MEMBERS,
+    SelfImprovementTask,
+    Task,
+    TaskContractError,
+    check_task_outputs,
+    check_task_protocol,
+)
 from .beam_window import BeamWindowTask, SimulatedOperator
 from .point_particle import PointParticleTask, signed_distance_to_wall, wall_collision
 from .teleop_window import TeleopWindowTask
@@ -17,14 +23,33 @@ from .toy import LineToy
 from .window import WindowTask
 
 TASKS = {
-    "line_toy": LineToy, "window": WindowTask, "point_particle": PointParticleTask, "beam_window": BeamWindowTask,
-    "arm_reach": ArmReachTask, "teleop_window": TeleopWindowTask,
+    "line_toy": LineToy,
+    "window": WindowTask,
+    "point_particle": PointParticleTask,
+    "beam_window": BeamWindowTask,
+    "arm_reach": ArmReachTask,
+    "teleop_window": TeleopWindowTask,
 }
 
 __all__ = [
-    "Task", "SelfImprovementTask", "check_task_protocol", "check_task_outputs", "TaskContractError", "PROTOCOL_MEMBERS",
-    "task_class", "make_task", "LineToy", "WindowTask", "PointParticleTask", "load_human_demos",
-    "signed_distance_to_wall", "wall_collision", "TASKS", "BeamWindowTask", "SimulatedOperator", "ArmReachTask",
+    "Task",
+    "SelfImprovementTask",
+    "check_task_protocol",
+    "check_task_outputs",
+    "TaskContractError",
+    "PROTOCOL_MEMBERS",
+    "task_class",
+    "make_task",
+    "LineToy",
+    "WindowTask",
+    "PointParticleTask",
+    "load_human_demos",
+    "signed_distance_to_wall",
+    "wall_collision",
+    "TASKS",
+    "BeamWindowTask",
+    "SimulatedOperator",
+    "ArmReachTask",
     "TeleopWindowTask",
 ]
 
@@ -35,12 +60,17 @@ def task_class(target: str) -> type:
         return TASKS[target]
     module, _, attr = str(target).rpartition(".")
     if not module:
-        raise ValueError(f"task {target!r}: give a registered name ({', '.join(sorted(TASKS))}) or a dotted path "
-                         "module.Class")
+        raise ValueError(
+            f"task {target!r}: give a registered name ({', '.join(sorted(TASKS))}) or a dotted "
+            "path "
+            "module.Class"
+        )
     try:
         mod = importlib.import_module(module)
     except ImportError as exc:
-        raise ValueError(f"task._target_={target!r}: cannot import {module!r} ({exc}); is it on PYTHONPATH?") from None
+        raise ValueError(
+            f"task._target_={target!r}: cannot import {module!r} ({exc}); is it on PYTHONPATH?"
+        ) from None
     if not isinstance(getattr(mod, attr, None), type):
         raise ValueError(f"task._target_={target!r}: module {module!r} has no class {attr!r}")
     return getattr(mod, attr)

@@ -64,11 +64,21 @@ class SimulatedOperator:
     lengths: tuple = (300, 500)
 
     def __post_init__(self) -> None:
-        for key in ("depth_std", "lateral_std", "tilt_std", "orientation_std", "endpoint_std",
-                    "endpoint_angle_std", "jitter_std", "jitter_angle_std"):
+        for key in (
+            "depth_std",
+            "lateral_std",
+            "tilt_std",
+            "orientation_std",
+            "endpoint_std",
+            "endpoint_angle_std",
+            "jitter_std",
+            "jitter_angle_std",
+        ):
             v = float(getattr(self, key))
             if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"operator {key} must be finite and >= 0, got {getattr(self, key)}")
+                raise ValueError(
+                    f"operator {key} must be finite and >= 0, got {getattr(self, key)}"
+                )
             setattr(self, key, v)
         if not math.isfinite(float(self.depth_bias)):
             raise ValueError(f"operator depth_bias must be finite, got {self.depth_bias}")
@@ -77,20 +87,30 @@ class SimulatedOperator:
             lo, hi = (float(v) for v in getattr(self, key))
             if not (lo_ok < lo <= hi) or (key != "plan_offset" and hi > 1):
                 bound = "" if key == "plan_offset" else " <= 1"
-                raise ValueError(f"operator {key} must be (lo, hi) with 0 < lo <= hi{bound}, got {getattr(self, key)}")
+                raise ValueError(
+                    f"operator {key} must be (lo, hi) with 0 < lo <= hi{bound}, got "
+                    f"{getattr(self, key)}"
+                )
             setattr(self, key, (lo, hi))
         t_min, t_max = (int(v) for v in self.lengths)
         if not 4 <= t_min <= t_max:
-            raise ValueError(f"operator lengths must be (lo, hi) with 4 <= lo <= hi, got {self.lengths}")
+            raise ValueError(
+                f"operator lengths must be (lo, hi) with 4 <= lo <= hi, got {self.lengths}"
+            )
         self.lengths = (t_min, t_max)
         if int(self.jitter_knots) < 2:
             raise ValueError(f"operator jitter_knots must be >= 2, got {self.jitter_knots}")
 
     def intentions(
-        self, task: Task, num: int, generator: torch.Generator | None = None, *,
+        self,
+        task: Task,
+        num: int,
+        generator: torch.Generator | None = None,
+        *,
         dtype: torch.dtype = torch.float64,
     ) -> tuple[Tensor, Tensor]:
-        """``num`` planned trials through ``task``'s window (a :class:`~protorch.tasks.BeamWindowTask`),
+        """``num`` planned trials through ``task``'s window (a
+        :class:`~protorch.tasks.BeamWindowTask`),
         padded: poses ``(num, T_max, 7)`` (a trial repeats its last pose after its length) and
         ``lengths (num,)``. Unassisted, the device follows them exactly."""
         if isinstance(num, bool) or int(num) != num or int(num) < 1:
@@ -120,12 +140,18 @@ class SimulatedOperator:
         # the upright pose they aim for: tilted about the wall normal and a little about the rest
         tilt = self.tilt_std * deg * randn(n, 1) * rot[:, 0]  # (n, 3) rotation vector
         other = self.orientation_std * deg * randn(n, 2) @ rot[:, 1:].T  # (n, 3)
-        err = quaternion_raw_multiply(axis_angle_to_quaternion(other), axis_angle_to_quaternion(tilt))
+        err = quaternion_raw_multiply(
+            axis_angle_to_quaternion(other), axis_angle_to_quaternion(tilt)
+        )
         q_pass = quaternion_raw_multiply(err, task.passing_quaternion().expand(n, 4))  # (n, 4)
-        q_start = quaternion_raw_multiply(axis_angle_to_quaternion(self.endpoint_angle_std * deg * randn(n, 3)),
-                                          start[3:].expand(n, 4))
-        q_end = quaternion_raw_multiply(axis_angle_to_quaternion(self.endpoint_angle_std * deg * randn(n, 3)),
-                                        end[3:].expand(n, 4))
+        q_start = quaternion_raw_multiply(
+            axis_angle_to_quaternion(self.endpoint_angle_std * deg * randn(n, 3)),
+            start[3:].expand(n, 4),
+        )
+        q_end = quaternion_raw_multiply(
+            axis_angle_to_quaternion(self.endpoint_angle_std * deg * randn(n, 3)),
+            end[3:].expand(n, 4),
+        )
         # timing: a minimum-jerk progress along the curve with a random skew
         t_min, t_max = self.lengths
         length = torch.randint(t_min, t_max + 1, (n, 1), generator=g)  # (n, 1)
@@ -134,7 +160,8 @@ class SimulatedOperator:
         v = u**skew
         s = v**3 * (10 - 15 * v + 6 * v**2)  # (n, T_max) progress in [0, 1]
         path = catmull_rom(via, s)  # (n, T_max, 3)
-        # orientation keyed to the progress: turn up before the front point, back after the back point
+        # orientation keyed to the progress: turn up before the front point, back after the back
+        # point
         chord = (via[:, 1:] - via[:, :-1]).norm(dim=-1)  # (n, 3)
         knots = chord.cumsum(-1) / chord.sum(-1, keepdim=True)  # (n, 3): front, back, end
         k1, k2 = knots[:, :1], knots[:, 1:2]  # (n, 1)
@@ -149,18 +176,27 @@ class SimulatedOperator:
         down = smooth((s - k2) / (b1 - k2))
         q_in = quaternion_slerp(q_start[:, None], q_pass[:, None], up)  # (n, T_max, 4)
         q_out = quaternion_slerp(q_pass[:, None], q_end[:, None], down)
-        q = torch.where((s <= k1)[..., None], q_in,
-                        torch.where((s <= k2)[..., None], q_pass[:, None].expand_as(q_in), q_out))  # (n, T_max, 4)
+        q = torch.where(
+            (s <= k1)[..., None],
+            q_in,
+            torch.where((s <= k2)[..., None], q_pass[:, None].expand_as(q_in), q_out),
+        )  # (n, T_max, 4)
         # jitter, vanishing at the ends
         env = torch.sin(torch.pi * s)[..., None]  # (n, T_max, 1)
         path = path + smooth_noise(u, self.jitter_std, g, dim=3, knots=self.jitter_knots) * env
-        wobble = smooth_noise(u, self.jitter_angle_std * deg, g, dim=3, knots=self.jitter_knots) * env
+        wobble = (
+            smooth_noise(u, self.jitter_angle_std * deg, g, dim=3, knots=self.jitter_knots) * env
+        )
         q = quaternion_raw_multiply(axis_angle_to_quaternion(wobble), q)
         q = align_quaternions(q / q.norm(dim=-1, keepdim=True), start[3:])
         return torch.cat([path, q], -1).to(dtype), length[:, 0]
 
     def trials(
-        self, task: Task, num: int, generator: torch.Generator | None = None, *,
+        self,
+        task: Task,
+        num: int,
+        generator: torch.Generator | None = None,
+        *,
         dtype: torch.dtype = torch.float64,
     ) -> list[Tensor]:
         """``num`` unassisted trials ``(T_i, 7)`` of random lengths (the demonstrations)."""

@@ -107,7 +107,8 @@ def _jerk(x: Tensor, steps: int | None = None) -> Tensor:
 
 
 def _closest_index(x: Tensor, points: Tensor) -> Tensor:
-    """Index along ``T`` of the closest approach of ``x (..., T, 3)`` to each of ``points (P, 3)``."""
+    """Index along ``T`` of the closest approach of ``x (..., T, 3)`` to each of
+    ``points (P, 3)``."""
     return torch.stack([_norm(x - p).argmin(-1) for p in points], -1)
 
 
@@ -162,21 +163,37 @@ class BeamWindowTask(Task):
         self.start_position = _vec(self.start_position, "start_position", 3)
         self.end_position = _vec(self.end_position, "end_position", 3)
         for key in ("wall_quaternion", "start_quaternion", "end_quaternion"):
-            q = check_unit_quaternion(torch.as_tensor(getattr(self, key), dtype=torch.float64), key, tol=1e-3)
+            q = check_unit_quaternion(
+                torch.as_tensor(getattr(self, key), dtype=torch.float64), key, tol=1e-3
+            )
             if q.shape != (4,):
-                raise ValueError(f"{key} must be one quaternion (w, x, y, z), got shape {tuple(q.shape)}")
+                raise ValueError(
+                    f"{key} must be one quaternion (w, x, y, z), got shape {tuple(q.shape)}"
+                )
             setattr(self, key, tuple(float(v) for v in q))
-        for key in ("window_width", "window_height", "wall_thickness", "beam_length", "via_offset",
-                    "position_tol", "angle_tol"):
+        for key in (
+            "window_width",
+            "window_height",
+            "wall_thickness",
+            "beam_length",
+            "via_offset",
+            "position_tol",
+            "angle_tol",
+        ):
             setattr(self, key, _positive(getattr(self, key), key))
         for key in ("beam_radius", "length_weight", "jerk_weight"):
             v = float(getattr(self, key))
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"{key} must be finite and >= 0, got {getattr(self, key)}")
             setattr(self, key, v)
-        if isinstance(self.collision_substeps, bool) or int(self.collision_substeps) != self.collision_substeps \
-                or int(self.collision_substeps) < 1:
-            raise ValueError(f"collision_substeps must be an int >= 1, got {self.collision_substeps}")
+        if (
+            isinstance(self.collision_substeps, bool)
+            or int(self.collision_substeps) != self.collision_substeps
+            or int(self.collision_substeps) < 1
+        ):
+            raise ValueError(
+                f"collision_substeps must be an int >= 1, got {self.collision_substeps}"
+            )
         self.collision_substeps = int(self.collision_substeps)
         if self.jerk_steps is not None:
             js = self.jerk_steps
@@ -186,25 +203,33 @@ class BeamWindowTask(Task):
         r = self.beam_radius
         if self.window_width <= 2 * r or self.window_height <= 2 * r:
             raise ValueError(
-                f"the window ({self.window_width} x {self.window_height}) must be larger than the beam's "
+                f"the window ({self.window_width} x {self.window_height}) must be larger than the "
+                "beam's "
                 f"diameter ({2 * r})"
             )
         if self.beam_length <= self.window_width:
             raise ValueError(
-                f"beam_length ({self.beam_length}) must exceed window_width ({self.window_width}): the task is "
+                f"beam_length ({self.beam_length}) must exceed window_width ({self.window_width}): "
+                "the task is "
                 "a beam that has to be turned to pass"
             )
         side_start, side_end = self._side(self.start_position), self._side(self.end_position)
         if side_start * side_end >= 0:
-            raise ValueError("start_position and end_position must lie on opposite sides of the wall")
-        centre = torch.cat([self._t(self.wall_position), self.passing_quaternion()])  # upright in the window
+            raise ValueError(
+                "start_position and end_position must lie on opposite sides of the wall"
+            )
+        centre = torch.cat(
+            [self._t(self.wall_position), self.passing_quaternion()]
+        )  # upright in the window
         poses = torch.stack([*self.via_poses(), centre])  # (5, 7)
         hit = self.collides_at(poses)  # (5,)
         if bool(hit.any()):
             which = [n for n, h in zip(_VIA_NAMES + ("window_centre",), hit.tolist()) if h]
             raise ValueError(
-                f"the pose(s) {which} put the beam inside the wall: the task cannot be solved (check the "
-                "window height against beam_length + 2 beam_radius, via_offset against the wall thickness, and "
+                f"the pose(s) {which} put the beam inside the wall: the task cannot be solved "
+                "(check the "
+                "window height against beam_length + 2 beam_radius, via_offset against the wall "
+                "thickness, and "
                 "the start / end poses)"
             )
 
@@ -227,18 +252,22 @@ class BeamWindowTask(Task):
         return -n if self._side(self.start_position) > 0 else n
 
     def passing_quaternion(self, ref: Tensor | None = None) -> Tensor:
-        """``(4,)``: the beam upright in the window (its axis along the window's height), in the wall's
+        """``(4,)``: the beam upright in the window (its axis along the window's height), in the
+        wall's
         orientation: ``q_wall * q_x(90 deg) * q_z(90 deg)`` (the beam axis ``x`` -> ``y`` -> ``z``
         in the wall frame)."""
         kw = dict(dtype=torch.float64) if ref is None else dict(dtype=ref.dtype, device=ref.device)
-        local = quaternion_raw_multiply(quaternion_about((1, 0, 0), math.pi / 2, **kw),
-                                        quaternion_about((0, 0, 1), math.pi / 2, **kw))
+        local = quaternion_raw_multiply(
+            quaternion_about((1, 0, 0), math.pi / 2, **kw),
+            quaternion_about((0, 0, 1), math.pi / 2, **kw),
+        )
         q = quaternion_raw_multiply(self._t(self.wall_quaternion, ref), local)
         return q / q.norm()
 
     def via_poses(self, ref: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """The four via poses ``(7,)``: start, before the window, after the window, end. The two at
-        the window are computed from the wall's pose: its centre ``-+ via_offset`` along the approach
+        the window are computed from the wall's pose: its centre ``-+ via_offset`` along the
+        approach
         direction, in :meth:`passing_quaternion`."""
         c = self._t(self.wall_position, ref)
         a = self.approach_direction(ref)
@@ -259,10 +288,16 @@ class BeamWindowTask(Task):
         q = poses[..., 3:]
         n2 = (q * q).sum(-1)  # (...)
         if bool((n2 < 1e-16).any()):
-            raise ValueError("the poses contain a zero quaternion (norm < 1e-08): it is no rotation")
+            raise ValueError(
+                "the poses contain a zero quaternion (norm < 1e-08): it is no rotation"
+            )
         w, x, y, z = q.unbind(-1)  # (...)
-        s2 = 2 / n2  # the first column of the rotation matrix of q / |q|: the body x axis (BEAM_AXIS)
-        axis = torch.stack([1 - s2 * (y * y + z * z), s2 * (x * y + w * z), s2 * (x * z - w * y)], -1)  # (..., 3)
+        s2 = (
+            2 / n2
+        )  # the first column of the rotation matrix of q / |q|: the body x axis (BEAM_AXIS)
+        axis = torch.stack(
+            [1 - s2 * (y * y + z * z), s2 * (x * y + w * z), s2 * (x * z - w * y)], -1
+        )  # (..., 3)
         half = 0.5 * self.beam_length * axis
         return poses[..., :3] - half, poses[..., :3] + half
 
@@ -271,17 +306,24 @@ class BeamWindowTask(Task):
         return normalize_poses(traj, name)
 
     def collides_at(self, poses: Tensor) -> Tensor:
-        """Whether the beam at each pose ``(..., 7)`` intersects the (inflated) wall: ``(...)`` bool.
+        """Whether the beam at each pose ``(..., 7)`` intersects the (inflated) wall: ``(...)``
+        bool.
 
         Exact for a segment against a slab minus a rectangular prism (see the module docstring)."""
         poses = check_tensor(poses, "poses")
         if poses.shape[-1] != 7:
-            raise ValueError(f"poses must be (..., 7) = position + quaternion (w, x, y, z), got {tuple(poses.shape)}")
+            raise ValueError(
+                "poses must be (..., 7) = position + quaternion (w, x, y, z), got "
+                f"{tuple(poses.shape)}"
+            )
         if not poses.is_floating_point():
             poses = poses.to(torch.get_default_dtype())
         a, b = self.beam_endpoints(poses)  # (..., 3) each
         c, rot = self._t(self.wall_position, poses), self.wall_rotation(poses)
-        (ax, ay, az), (bx, by, bz) = ((a - c) @ rot).unbind(-1), ((b - c) @ rot).unbind(-1)  # wall frame
+        (ax, ay, az), (bx, by, bz) = (
+            ((a - c) @ rot).unbind(-1),
+            ((b - c) @ rot).unbind(-1),
+        )  # wall frame
         h = 0.5 * self.wall_thickness + self.beam_radius
         half_w = 0.5 * self.window_width - self.beam_radius
         half_h = 0.5 * self.window_height - self.beam_radius
@@ -290,11 +332,17 @@ class BeamWindowTask(Task):
         safe = torch.where(moving, dx, torch.ones_like(dx))
         t1, t2 = (-h - ax) / safe, (h - ax) / safe  # (...) where the segment crosses the two faces
         inside_static = ax.abs() < h  # a segment parallel to the wall
-        t_in = torch.where(moving, torch.minimum(t1, t2).clamp_min(0), torch.where(inside_static, 0.0, 1.0).to(dx))
-        t_out = torch.where(moving, torch.maximum(t1, t2).clamp_max(1), torch.where(inside_static, 1.0, 0.0).to(dx))
+        t_in = torch.where(
+            moving, torch.minimum(t1, t2).clamp_min(0), torch.where(inside_static, 0.0, 1.0).to(dx)
+        )
+        t_out = torch.where(
+            moving, torch.maximum(t1, t2).clamp_max(1), torch.where(inside_static, 1.0, 0.0).to(dx)
+        )
         in_slab = t_in < t_out  # (...)
 
-        def in_window(t: Tensor) -> Tensor:  # the point at segment parameter t, inside the window prism
+        def in_window(
+            t: Tensor,
+        ) -> Tensor:  # the point at segment parameter t, inside the window prism
             return ((ay + t * (by - ay)).abs() < half_w) & ((az + t * (bz - az)).abs() < half_h)
 
         return in_slab & ~(in_window(t_in) & in_window(t_out))
@@ -329,7 +377,9 @@ class BeamWindowTask(Task):
         """``(..., T, 3) -> (..., 4)``: via-point distances + length and jerk terms."""
         positions = check_tensor(positions, "positions")
         if positions.ndim < 2 or positions.shape[-1] != 3 or positions.shape[-2] < 2:
-            raise ValueError(f"positions must be (..., T, 3) with T >= 2, got shape {tuple(positions.shape)}")
+            raise ValueError(
+                f"positions must be (..., T, 3) with T >= 2, got shape {tuple(positions.shape)}"
+            )
         via = self.via_array(positions)[:, :3]  # (4, 3)
         d_start = _norm(positions[..., 0, :] - via[0])  # (...)
         d_front = _norm(positions - via[1]).amin(-1)  # (...)
@@ -337,7 +387,9 @@ class BeamWindowTask(Task):
         d_end = _norm(positions[..., -1, :] - via[3])  # (...)
         obj = torch.stack([d_start, d_front, d_back, d_end], -1)  # (..., 4)
         length = _norm(positions[..., 1:, :] - positions[..., :-1, :]).sum(-1)  # (...)
-        extra = self.length_weight * length + self.jerk_weight * _jerk(positions, self.jerk_steps)  # (...)
+        extra = self.length_weight * length + self.jerk_weight * _jerk(
+            positions, self.jerk_steps
+        )  # (...)
         return obj + extra[..., None]
 
     def orientation_costs(self, quaternions: Tensor, phases: Tensor) -> Tensor:
@@ -346,7 +398,9 @@ class BeamWindowTask(Task):
         renormalised and sign-aligned first, so ``q`` and ``-q`` (at any step) cost the same."""
         q = normalize_quaternion(quaternions, "quaternions")
         if q.ndim < 2 or q.shape[-2] < 2:
-            raise ValueError(f"quaternions must be (..., T, 4) with T >= 2, got shape {tuple(q.shape)}")
+            raise ValueError(
+                f"quaternions must be (..., T, 4) with T >= 2, got shape {tuple(q.shape)}"
+            )
         phases = check_tensor(torch.as_tensor(phases, dtype=q.dtype, device=q.device), "phases")
         if phases.shape[-1:] != (4,):
             raise ValueError(f"phases must be (4,) or (..., 4), got shape {tuple(phases.shape)}")
@@ -361,7 +415,9 @@ class BeamWindowTask(Task):
             idx = idx.expand(*q.shape[:-2], 4)
             at = q.gather(-2, idx[..., None].expand(*idx.shape, 4))  # (..., 4, 4)
         obj = quaternion_distance(at, self.via_array(q)[:, 3:])  # (..., 4)
-        extra = self.length_weight * quaternion_path_length(q) + self.jerk_weight * _jerk(q, self.jerk_steps)
+        extra = self.length_weight * quaternion_path_length(q) + self.jerk_weight * _jerk(
+            q, self.jerk_steps
+        )
         return obj + extra[..., None]
 
     def costs(self, traj: Tensor) -> Tensor:
@@ -369,19 +425,27 @@ class BeamWindowTask(Task):
         the phases where each trajectory's own position passes the window via points."""
         traj = self._check_traj(traj)
         pos, q = traj[..., :3], traj[..., 3:]
-        return torch.cat([self.position_costs(pos), self.orientation_costs(q, self.window_phases(pos))], -1)
+        return torch.cat(
+            [self.position_costs(pos), self.orientation_costs(q, self.window_phases(pos))], -1
+        )
 
     def via_errors(self, traj: Tensor) -> dict:
         """Distances (m) and angles (deg) of one trajectory ``(T, 7)`` to the four via poses."""
         traj = self._check_traj(traj)
         if traj.ndim != 2:
-            raise ValueError(f"via_errors takes one trajectory (T, 7), got shape {tuple(traj.shape)}")
+            raise ValueError(
+                f"via_errors takes one trajectory (T, 7), got shape {tuple(traj.shape)}"
+            )
         via = self.via_array(traj)
         z = self.window_phases(traj[:, :3])
         idx = (z * (traj.shape[0] - 1)).round().long()
         pos_err = (traj[idx, :3] - via[:, :3]).norm(dim=-1)
         ang_err = quaternion_distance(traj[idx, 3:], via[:, 3:])
-        return {"phases": z.tolist(), "position_m": pos_err.tolist(), "angle_deg": torch.rad2deg(ang_err).tolist()}
+        return {
+            "phases": z.tolist(),
+            "position_m": pos_err.tolist(),
+            "angle_deg": torch.rad2deg(ang_err).tolist(),
+        }
 
     def success(self, traj: Tensor) -> Tensor:
         """No collision along the densely resampled trajectory, and start and end poses within

@@ -22,11 +22,19 @@ def catmull_rom(via: Tensor, s: Tensor) -> Tensor:
     knots = torch.cat([chord.new_zeros(len(via), 1), chord.cumsum(-1)], -1)  # (n, P)
     knots = knots / knots[:, -1:]  # (n, P)
     # reflected ghost points at both ends, so the end tangents are the end chords
-    pad = torch.cat([2 * via[:, :1] - via[:, 1:2], via, 2 * via[:, -1:] - via[:, -2:-1]], 1)  # (n, P+2, D)
-    kpad = torch.cat([2 * knots[:, :1] - knots[:, 1:2], knots, 2 * knots[:, -1:] - knots[:, -2:-1]], 1)  # (n, P+2)
-    tangent = (pad[:, 2:] - pad[:, :-2]) / (kpad[:, 2:] - kpad[:, :-2])[..., None]  # (n, P, D) d via / d s
+    pad = torch.cat(
+        [2 * via[:, :1] - via[:, 1:2], via, 2 * via[:, -1:] - via[:, -2:-1]], 1
+    )  # (n, P+2, D)
+    kpad = torch.cat(
+        [2 * knots[:, :1] - knots[:, 1:2], knots, 2 * knots[:, -1:] - knots[:, -2:-1]], 1
+    )  # (n, P+2)
+    tangent = (pad[:, 2:] - pad[:, :-2]) / (kpad[:, 2:] - kpad[:, :-2])[
+        ..., None
+    ]  # (n, P, D) d via / d s
     s = s.clamp(0, 1).contiguous()  # (n, T)
-    i = torch.searchsorted(knots.contiguous(), s, right=True).clamp(1, via.shape[1] - 1) - 1  # (n, T)
+    i = (
+        torch.searchsorted(knots.contiguous(), s, right=True).clamp(1, via.shape[1] - 1) - 1
+    )  # (n, T)
     k0, k1 = knots.gather(1, i), knots.gather(1, i + 1)  # (n, T)
     h = (k1 - k0)[..., None]  # (n, T, 1)
     x = ((s - k0)[..., None] / h).clamp(0, 1)  # (n, T, 1)
@@ -47,7 +55,9 @@ def smooth_noise(
     if int(knots) < 2:
         raise ValueError(f"knots must be >= 2, got {knots}")
     k = int(knots)
-    values = scale * torch.randn(u.shape[0], k, dim, generator=generator, dtype=u.dtype)  # (n, k, dim)
+    values = scale * torch.randn(
+        u.shape[0], k, dim, generator=generator, dtype=u.dtype
+    )  # (n, k, dim)
     pos = (k - 1) * u  # (n, T)
     lo = pos.floor().long().clamp(0, k - 2)  # (n, T)
     w = (0.5 - 0.5 * torch.cos(torch.pi * (pos - lo)))[..., None]  # (n, T, 1) smooth blend

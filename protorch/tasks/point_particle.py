@@ -69,10 +69,14 @@ def signed_distance_to_wall(points: Tensor, env6: Tensor, *, infinite_wall: bool
     if infinite_wall:
         # the nearer rectangle is the one on the same side of the hole's centre line, and a box's
         # signed distance grows with its y-distance, so one box term suffices (half the work)
-        q_y = torch.sub(y, hy).abs_().neg_().add_(HOLE_HALF_HEIGHT)  # (...)  1 - |y - hy| > 0: in the hole's y-range
+        q_y = (
+            torch.sub(y, hy).abs_().neg_().add_(HOLE_HALF_HEIGHT)
+        )  # (...)  1 - |y - hy| > 0: in the hole's y-range
         outside = torch.hypot(q_x.clamp_min(0), q_y.clamp_min(0))  # (...)
         inside = torch.maximum(q_x, q_y).clamp_max_(0)  # (...)
-        return outside + inside if outside.requires_grad else outside.add_(inside)  # autograd keeps hypot's result
+        return (
+            outside + inside if outside.requires_grad else outside.add_(inside)
+        )  # autograd keeps hypot's result
     # box distance along y, > 0 outside the rectangle's y-range: max(y - top, bottom - y)
     q_low = y - (hy - HOLE_HALF_HEIGHT)  # (...)  lower rectangle, top face hole_y - 1
     q_up = (hy + HOLE_HALF_HEIGHT) - y  # (...)  upper rectangle, bottom face hole_y + 1
@@ -88,8 +92,10 @@ def signed_distance_to_wall(points: Tensor, env6: Tensor, *, infinite_wall: bool
 
 
 def _distance(points: Tensor, target: Tensor) -> Tensor:
-    """``||points - target||`` over the last axis ``(..., 2)`` -> ``(...)``; the norm's rounding depends
-    on its input's memory layout: contiguous points make it the same for a trajectory of any layout."""
+    """``||points - target||`` over the last axis ``(..., 2)`` -> ``(...)``; the norm's rounding
+    depends
+    on its input's memory layout: contiguous points make it the same for a trajectory of any
+    layout."""
     return (points.contiguous() - target).norm(dim=-1)
 
 
@@ -116,7 +122,9 @@ def wall_collision(traj: Tensor, env6: Tensor, *, infinite_wall: bool = True) ->
         moving = v != 0  # (..., T-1, 1)
         safe = torch.where(moving, v, torch.ones_like(v))  # (..., T-1, 1)
         t1, t2 = (lo[k] - a) / safe, (hi[k] - a) / safe  # (..., T-1, 1 or 2)
-        still_in = (lo[k] < a) & (a < hi[k])  # (..., T-1, 1 or 2)  a static coordinate inside the slab
+        still_in = (lo[k] < a) & (
+            a < hi[k]
+        )  # (..., T-1, 1 or 2)  a static coordinate inside the slab
         t_lo = torch.where(moving, torch.minimum(t1, t2), torch.where(still_in, -inf, inf))
         t_hi = torch.where(moving, torch.maximum(t1, t2), torch.where(still_in, inf, -inf))
         t_enter, t_exit = torch.maximum(t_enter, t_lo), torch.minimum(t_exit, t_hi)  # (..., T-1, 2)
@@ -135,7 +143,8 @@ class PointParticleTask(Task):
     minimum signed distance of the path to the wall, shifted by the hole's half-height:
     ``max(1 - min_t sd(tau(t)), 0)``. No path that crosses the wall line ``x = wall_x`` can have a
     clearance above 1 (the hole is 2 high), so the shift makes the cost >= 0, and 0 only for a
-    path that crosses the hole along its centre line ``y = hole_y``; being a constant it leaves PRO's rewards unchanged
+    path that crosses the hole along its centre line ``y = hole_y``; being a constant it leaves
+    PRO's rewards unchanged
     (``exp(-beta * o)`` is shifted by its minimum anyway), so this ranks samples exactly as the
     authors' objective. The clamp only acts for a path that jumps over the wall between two samples
     (or goes around a wall bounded by the workspace).
@@ -158,7 +167,9 @@ class PointParticleTask(Task):
 
     def __post_init__(self) -> None:
         if self.objectives not in _OBJECTIVES:
-            raise ValueError(f"objectives must be one of {sorted(_OBJECTIVES)}, got {self.objectives!r}")
+            raise ValueError(
+                f"objectives must be one of {sorted(_OBJECTIVES)}, got {self.objectives!r}"
+            )
         self.objective_names = _OBJECTIVES[self.objectives]
         if self.fixed_start is not None:
             self.fixed_start = tuple(float(v) for v in self.fixed_start)
@@ -227,7 +238,9 @@ class PointParticleTask(Task):
         if traj.shape[-1] != 2:
             raise ValueError(f"traj must be (..., T, 2), got shape {tuple(traj.shape)}")
         if traj.shape[-2] < 1:
-            raise ValueError(f"traj must have at least one time step, got shape {tuple(traj.shape)}")
+            raise ValueError(
+                f"traj must have at least one time step, got shape {tuple(traj.shape)}"
+            )
         if traj.device != env.device:
             raise ValueError(f"traj is on {traj.device} but env is on {env.device}")
         dtype = torch.promote_types(traj.dtype, env.dtype)
@@ -264,7 +277,9 @@ class PointParticleTask(Task):
         """``min_t`` signed distance of the samples of ``traj (..., T, 2)`` to the wall: ``(...)``.
         The authors' convergence check asks for a clearance >= 0.1."""
         traj, env = self._prepare(traj, env)
-        sd = signed_distance_to_wall(traj, env[..., None, :], infinite_wall=self.infinite_wall)  # (..., T)
+        sd = signed_distance_to_wall(
+            traj, env[..., None, :], infinite_wall=self.infinite_wall
+        )  # (..., T)
         return sd.amin(-1)
 
     def collides(self, traj: Tensor, env: Tensor) -> Tensor:
@@ -283,7 +298,8 @@ class PointParticleTask(Task):
 
     # ---------------------------------------------------------------- objectives
     def costs(self, traj: Tensor, env: Tensor) -> Tensor:
-        """``traj (..., T, 2)``, ``env (..., E)`` -> ``(..., 3)`` costs, each >= 0 (see the class)."""
+        """``traj (..., T, 2)``, ``env (..., E)`` -> ``(..., 3)`` costs, each >= 0 (see
+        the class)."""
         traj, env = self._prepare(traj, env)
         d_start = _distance(traj[..., 0, :], env[..., 0:2])  # (...)
         d_goal = _distance(traj[..., -1, :], env[..., 4:6])  # (...)
@@ -291,7 +307,9 @@ class PointParticleTask(Task):
             hole = env[..., 2:4]  # (..., 2)  centre (wall_x, hole_y)
             middle = (traj - hole[..., None, :]).norm(dim=-1).amin(-1)  # (...)
         else:
-            sd = signed_distance_to_wall(traj, env[..., None, :], infinite_wall=self.infinite_wall)  # (..., T)
+            sd = signed_distance_to_wall(
+                traj, env[..., None, :], infinite_wall=self.infinite_wall
+            )  # (..., T)
             middle = (HOLE_HALF_HEIGHT - sd.amin(-1)).clamp_min(0)  # (...)
         return torch.stack([d_start, middle, d_goal], -1)  # (..., 3)
 
@@ -309,7 +327,8 @@ class PointParticleTask(Task):
         return _distance(traj[..., -1, :], env[..., 4:6])  # (...)
 
     def objective_steps(self, index: int) -> tuple[int, ...] | None:
-        """The time steps objective ``index`` reads (``None``: all); :meth:`objective_cost` gives the same
+        """The time steps objective ``index`` reads (``None``: all); :meth:`objective_cost` gives
+        the same
         number for a trajectory restricted to them (the loop computes only those)."""
         if index not in (0, 1, 2):
             raise ValueError(f"index must be 0, 1 or 2, got {index!r}")
@@ -347,7 +366,8 @@ class PointParticleTask(Task):
             lengths: inclusive range of the number of samples per demonstration.
             hole_noise: std of the operator's vertical aim error at the hole, shared by the three
                 via points of one demonstration (each also gets an independent 0.12). With the
-                default about a quarter of the demonstrations (20 to 27 % over 600, seeds 0-7) clip the wall.
+                default about a quarter of the demonstrations (20 to 27 % over 600, seeds 0-7) clip
+                the wall.
             endpoint_noise: std per coordinate of the start and end errors.
 
         Returns:
@@ -375,20 +395,28 @@ class PointParticleTask(Task):
         aim = hole_noise * torch.randn(n, 1, generator=g, dtype=f64)  # (n, 1) the operator's bias
         dy = aim + 0.12 * torch.randn(n, 3, generator=g, dtype=f64)  # (n, 3)
         gap = 0.15 + 0.5 * torch.rand(n, 2, generator=g, dtype=f64)  # (n, 2) beyond the wall faces
-        x_via = torch.stack([
-            wx - WALL_HALF_WIDTH - gap[:, 0],
-            wx + 0.2 * torch.randn(n, generator=g, dtype=f64),
-            wx + WALL_HALF_WIDTH + gap[:, 1],
-        ], -1)  # (n, 3)
-        via = torch.cat([
-            (e[:, 0:2] + endpoint_noise * torch.randn(n, 2, generator=g, dtype=f64))[:, None],
-            torch.stack([x_via, hy[:, None] + dy], -1),
-            (e[:, 4:6] + endpoint_noise * torch.randn(n, 2, generator=g, dtype=f64))[:, None],
-        ], 1)  # (n, 5, 2)
+        x_via = torch.stack(
+            [
+                wx - WALL_HALF_WIDTH - gap[:, 0],
+                wx + 0.2 * torch.randn(n, generator=g, dtype=f64),
+                wx + WALL_HALF_WIDTH + gap[:, 1],
+            ],
+            -1,
+        )  # (n, 3)
+        via = torch.cat(
+            [
+                (e[:, 0:2] + endpoint_noise * torch.randn(n, 2, generator=g, dtype=f64))[:, None],
+                torch.stack([x_via, hy[:, None] + dy], -1),
+                (e[:, 4:6] + endpoint_noise * torch.randn(n, 2, generator=g, dtype=f64))[:, None],
+            ],
+            1,
+        )  # (n, 5, 2)
         length = torch.randint(t_min, t_max + 1, (n, 1), generator=g)  # (n, 1)
         skew = 0.8 + 0.45 * torch.rand(n, 1, generator=g, dtype=f64)  # (n, 1)
         # demo i uses its first length[i] columns; the rest repeats its last sample
-        u = (torch.arange(t_max, dtype=f64) / (length - 1)).clamp(max=1)  # (n, T_max) time in [0, 1]
+        u = (torch.arange(t_max, dtype=f64) / (length - 1)).clamp(
+            max=1
+        )  # (n, T_max) time in [0, 1]
         v = u**skew  # (n, T_max)  a slower start or end
         s = v**3 * (10 - 15 * v + 6 * v**2)  # (n, T_max) minimum-jerk progress along the path
         path = _catmull_rom(via, s)  # (n, T_max, 2)
@@ -397,4 +425,3 @@ class PointParticleTask(Task):
         path = path.to(dtype=envs.dtype, device=envs.device)
         demos = [p[:t].clone() for p, t in zip(path, length[:, 0].tolist())]  # (T_i, 2) each
         return demos, envs.repeat_interleave(int(per_env), 0)  # list of (T_i, 2), (n, E)
-

@@ -1,4 +1,5 @@
-"""Simulated people at the controls of the beam (:class:`~protorch.tasks.TeleopWindowTask`), as plug-ins.
+"""Simulated people at the controls of the beam (:class:`~protorch.tasks.TeleopWindowTask`), as
+plug-ins.
 
 **The protocol** (:class:`Operator`): any class with
 
@@ -40,8 +41,16 @@ from ..primitives.quaternions import axis_angle_to_quaternion, quaternion_raw_mu
 from .curves import catmull_rom, smooth_noise
 from .teleop_window import TeleopWindowTask
 
-__all__ = ["Operator", "ScreenOperator", "VariedOperator", "load_operator", "probe_operator", "plan_poses",
-           "careful_demonstrations", "OPERATORS"]
+__all__ = [
+    "Operator",
+    "ScreenOperator",
+    "VariedOperator",
+    "load_operator",
+    "probe_operator",
+    "plan_poses",
+    "careful_demonstrations",
+    "OPERATORS",
+]
 
 _DEG = math.pi / 180
 
@@ -62,9 +71,22 @@ def _smooth(x: Tensor) -> Tensor:
     return x**3 * (10 - 15 * x + 6 * x**2)
 
 
-def plan_poses(task, s: Tensor, wall: Tensor, start: Tensor, end: Tensor, *, cls: int, depth: float = 0.0,
-               lateral=(0.0, 0.0), tilt: float = 0.0, other=(0.0, 0.0), offset: float = 0.1,
-               turn_start: float = 0.15, turn_back: float = 0.8) -> Tensor:
+def plan_poses(
+    task,
+    s: Tensor,
+    wall: Tensor,
+    start: Tensor,
+    end: Tensor,
+    *,
+    cls: int,
+    depth: float = 0.0,
+    lateral=(0.0, 0.0),
+    tilt: float = 0.0,
+    other=(0.0, 0.0),
+    offset: float = 0.1,
+    turn_start: float = 0.15,
+    turn_back: float = 0.8,
+) -> Tensor:
     """The planned poses ``(P, 7)`` at progresses ``s (P,)`` in ``[0, 1]`` through the window of
     ``wall (4,)`` as believed: ``depth`` (m) further along the normal, ``lateral (2,)`` (m) off in
     the window's plane, the upright pose of class ``cls`` rolled ``tilt`` (rad) further about the
@@ -78,8 +100,10 @@ def plan_poses(task, s: Tensor, wall: Tensor, start: Tensor, end: Tensor, *, cls
     cb = c + depth * a + rot[:, 1:] @ lat
     via = torch.stack([start[:3], cb - offset * a, cb + offset * a, end[:3]])[None]  # (1, 4, 3)
     path = catmull_rom(via, s[None])[0]  # (P, 3)
-    err = quaternion_raw_multiply(axis_angle_to_quaternion(rot[:, 1:] @ torch.as_tensor(other, dtype=wall.dtype)),
-                                  axis_angle_to_quaternion(tilt * a))
+    err = quaternion_raw_multiply(
+        axis_angle_to_quaternion(rot[:, 1:] @ torch.as_tensor(other, dtype=wall.dtype)),
+        axis_angle_to_quaternion(tilt * a),
+    )
     q_pass = quaternion_raw_multiply(err, task.passing_quaternions(wall)[cls])  # (4,)
     chord = (via[0, 1:] - via[0, :-1]).norm(dim=-1)
     knots = chord.cumsum(-1) / chord.sum()
@@ -88,7 +112,9 @@ def plan_poses(task, s: Tensor, wall: Tensor, start: Tensor, end: Tensor, *, cls
     up, down = _smooth((s - b0) / (k1 - b0)), _smooth((s - k2) / (b1 - k2))
     q_in = quaternion_slerp(start[3:], q_pass, up)  # (P, 4)
     q_out = quaternion_slerp(q_pass, end[3:], down)
-    q = torch.where((s <= k1)[:, None], q_in, torch.where((s <= k2)[:, None], q_pass.expand_as(q_in), q_out))
+    q = torch.where(
+        (s <= k1)[:, None], q_in, torch.where((s <= k2)[:, None], q_pass.expand_as(q_in), q_out)
+    )
     return torch.cat([path, q], -1)
 
 
@@ -110,7 +136,8 @@ class _Planner:
         self._task = None
 
     def bind(self, task) -> None:
-        """The task whose geometry the plan uses (the experiment binds it; default geometry otherwise)."""
+        """The task whose geometry the plan uses (the experiment binds it; default geometry
+        otherwise)."""
         self._task = task
 
     def _draw(self, *shape) -> Tensor:
@@ -126,16 +153,23 @@ class _Planner:
         self._T = self._uniform(*self.duration)
         self._skew = self._uniform(0.8, 1.25)
         self._cls = int(float(torch.rand((), generator=self._gen)) >= self.cls_p)
-        self._err = dict(depth=self.depth_bias + self.depth_std * float(self._draw()),
-                         lateral=tuple((self.lateral_std * self._draw(2)).tolist()),
-                         tilt=self.tilt_std * _DEG * float(self._draw()),
-                         other=tuple((self.other_std * _DEG * self._draw(2)).tolist()),
-                         offset=self._uniform(0.05, 0.15), turn_start=self._uniform(0.01, 0.3),
-                         turn_back=self._uniform(0.6, 1.0))
+        self._err = dict(
+            depth=self.depth_bias + self.depth_std * float(self._draw()),
+            lateral=tuple((self.lateral_std * self._draw(2)).tolist()),
+            tilt=self.tilt_std * _DEG * float(self._draw()),
+            other=tuple((self.other_std * _DEG * self._draw(2)).tolist()),
+            offset=self._uniform(0.05, 0.15),
+            turn_start=self._uniform(0.01, 0.3),
+            turn_back=self._uniform(0.6, 1.0),
+        )
         self._grid = torch.linspace(0, 1, 401, dtype=torch.float64)  # (G,) progress
         self._env = torch.sin(math.pi * self._grid)[:, None]  # (G, 1) tremor vanishing at the ends
-        self._jit = smooth_noise(self._grid[None], self.jitter_std, self._gen, dim=3, knots=24)[0]  # (G, 3)
-        self._wob = smooth_noise(self._grid[None], self.jitter_angle_std * _DEG, self._gen, dim=3, knots=24)[0]
+        self._jit = smooth_noise(self._grid[None], self.jitter_std, self._gen, dim=3, knots=24)[
+            0
+        ]  # (G, 3)
+        self._wob = smooth_noise(
+            self._grid[None], self.jitter_angle_std * _DEG, self._gen, dim=3, knots=24
+        )[0]
         self._plan = None
         self._seen = [(0.0, wall.double().clone())]
 
@@ -147,22 +181,31 @@ class _Planner:
         return old[-1] if old else self._seen[0][1]
 
     def progress(self, t: float) -> float:
-        """The planned progress in ``[0, 1]`` at ``t``: a minimum-jerk profile over the trial's duration."""
+        """The planned progress in ``[0, 1]`` at ``t``: a minimum-jerk profile over the trial's
+        duration."""
         u = min(max(t / self._T, 0.0), 1.0) ** self._skew
         return u**3 * (10 - 15 * u + 6 * u**2)
 
     def act(self, t: float, pose: Tensor, wall: Tensor) -> Tensor:
         s = self.progress(float(t))
         seen = self.perceived(t, wall)
-        if self._plan is None or not torch.equal(seen, self._plan[0]):  # re-planned when the wall moved
-            grid = plan_poses(self._task, self._grid, seen, self._start, self._end, cls=self._cls, **self._err)
-            q = quaternion_raw_multiply(axis_angle_to_quaternion(self._wob * self._env), grid[:, 3:])
+        if self._plan is None or not torch.equal(
+            seen, self._plan[0]
+        ):  # re-planned when the wall moved
+            grid = plan_poses(
+                self._task, self._grid, seen, self._start, self._end, cls=self._cls, **self._err
+            )
+            q = quaternion_raw_multiply(
+                axis_angle_to_quaternion(self._wob * self._env), grid[:, 3:]
+            )
             q = align_quaternions(q, self._start[3:])  # sign-continuous along the grid
             self._plan = (seen, torch.cat([grid[:, :3] + self._jit * self._env, q], -1))  # (G, 7)
         x = s * (len(self._grid) - 1)
         i = min(int(x), len(self._grid) - 2)
         f = x - i
-        p = (1 - f) * self._plan[1][i] + f * self._plan[1][i + 1]  # the plan between two grid points
+        p = (1 - f) * self._plan[1][i] + f * self._plan[1][
+            i + 1
+        ]  # the plan between two grid points
         return torch.cat([p[:3], p[3:] / p[3:].norm()])
 
 
@@ -208,7 +251,9 @@ def load_operator(spec: str) -> type:
     else:
         where, _, name = spec.rpartition(".")
     if not where or not name:
-        raise ValueError(f"teleop.operator={spec!r}: give {'/'.join(OPERATORS)}, PATH.py:CLASS or module.CLASS")
+        raise ValueError(
+            f"teleop.operator={spec!r}: give {'/'.join(OPERATORS)}, PATH.py:CLASS or module.CLASS"
+        )
     if where.endswith(".py"):
         path = Path(where).expanduser()
         if not path.is_file():
@@ -220,7 +265,9 @@ def load_operator(spec: str) -> type:
         try:
             loader_spec.loader.exec_module(module)
         except Exception as exc:
-            raise ValueError(f"teleop.operator={spec!r}: importing {path} raised {type(exc).__name__}: {exc}") from None
+            raise ValueError(
+                f"teleop.operator={spec!r}: importing {path} raised {type(exc).__name__}: {exc}"
+            ) from None
     else:
         try:
             module = importlib.import_module(where)
@@ -231,13 +278,23 @@ def load_operator(spec: str) -> type:
         raise ValueError(f"teleop.operator={spec!r}: {where} has no class {name}")
     missing = [m for m in ("reset", "act") if not callable(getattr(cls, m, None))]
     if missing:
-        raise ValueError(f"teleop.operator={spec!r}: class {name} lacks {', '.join(missing)} (an operator needs "
-                         "__init__(seed), reset(start, end, wall), act(t, pose, wall))")
+        raise ValueError(
+            f"teleop.operator={spec!r}: class {name} lacks {', '.join(missing)} (an operator needs "
+            "__init__(seed), reset(start, end, wall), act(t, pose, wall))"
+        )
     return cls
 
 
-def probe_operator(cls: type, task, start: Tensor, end: Tensor, wall: Tensor, *, seed: int = 0,
-                   times=(0.0, 0.5, 1.5)) -> None:
+def probe_operator(
+    cls: type,
+    task,
+    start: Tensor,
+    end: Tensor,
+    wall: Tensor,
+    *,
+    seed: int = 0,
+    times=(0.0, 0.5, 1.5),
+) -> None:
     """Build ``cls(seed)``, reset it and call ``act`` at a few times of a static trial; raise
     ``ValueError`` (one line naming the class) where it raises or returns anything but 7 finite
     numbers with a non-zero quaternion."""
@@ -259,18 +316,23 @@ def check_pose(pose, name: str, t: float) -> Tensor:
     """``pose`` as a float64 ``(7,)`` tensor; ``ValueError`` naming the operator otherwise."""
     p = torch.as_tensor(pose)
     if p.shape != (7,):
-        raise ValueError(f"operator {name}.act returned shape {tuple(p.shape)} at t={t:g} s; it must return "
-                         "a pose (7,): xyz, quaternion wxyz")
+        raise ValueError(
+            f"operator {name}.act returned shape {tuple(p.shape)} at t={t:g} s; it must return "
+            "a pose (7,): xyz, quaternion wxyz"
+        )
     p = p.to(torch.float64)
     if not bool(torch.isfinite(p).all()):
-        raise ValueError(f"operator {name}.act returned a non-finite pose {p.tolist()} at t={t:g} s")
+        raise ValueError(
+            f"operator {name}.act returned a non-finite pose {p.tolist()} at t={t:g} s"
+        )
     if float(p[3:].norm()) < 1e-8:
         raise ValueError(f"operator {name}.act returned a zero quaternion at t={t:g} s")
     return p
 
 
-def careful_demonstrations(task, num_envs: int, per_env: int, generator: torch.Generator, *,
-                           num_steps: int = 100) -> tuple[list, Tensor]:
+def careful_demonstrations(
+    task, num_envs: int, per_env: int, generator: torch.Generator, *, num_steps: int = 100
+) -> tuple[list, Tensor]:
     """Demonstrations by a careful person at a static wall: the plan without errors (offsets and
     turning points varied), tremor of 3 mm and 1 deg; classes alternate between walls."""
     envs = task.sample_envs(num_envs, generator)
@@ -281,10 +343,25 @@ def careful_demonstrations(task, num_envs: int, per_env: int, generator: torch.G
     for i, env in enumerate(envs):
         for _ in range(per_env):
             r = torch.rand(3, generator=generator, dtype=torch.float64).tolist()
-            p = plan_poses(task, s, env, start, end, cls=i % 2, offset=0.08 + 0.08 * r[0],
-                           turn_start=0.05 + 0.3 * r[1], turn_back=0.6 + 0.35 * r[2])
-            jit = smooth_noise(s[None], 0.003, generator, dim=3, knots=12)[0] * torch.sin(math.pi * s)[:, None]
-            wob = smooth_noise(s[None], 1.0 * _DEG, generator, dim=3, knots=12)[0] * torch.sin(math.pi * s)[:, None]
+            p = plan_poses(
+                task,
+                s,
+                env,
+                start,
+                end,
+                cls=i % 2,
+                offset=0.08 + 0.08 * r[0],
+                turn_start=0.05 + 0.3 * r[1],
+                turn_back=0.6 + 0.35 * r[2],
+            )
+            jit = (
+                smooth_noise(s[None], 0.003, generator, dim=3, knots=12)[0]
+                * torch.sin(math.pi * s)[:, None]
+            )
+            wob = (
+                smooth_noise(s[None], 1.0 * _DEG, generator, dim=3, knots=12)[0]
+                * torch.sin(math.pi * s)[:, None]
+            )
             q = quaternion_raw_multiply(axis_angle_to_quaternion(wob), p[:, 3:])
             demos.append(torch.cat([p[:, :3] + jit, align_quaternions(q, start[3:])], -1))
             env_rows.append(env)

@@ -32,14 +32,23 @@ from .teleop_operators import check_pose
 __all__ = ["WallSchedule", "draw_schedules", "run_trials", "CONDITIONS", "SCHEDULE_DEFAULTS"]
 
 CONDITIONS = ("none", "fixed", "adaptive")
-SCHEDULE_DEFAULTS = dict(moves=2, slide=0.1, turn=15.0, slide_speed=0.15, turn_speed=20.0,
-                         move_window=(0.3, 2.0), start_fraction=0.6)
+SCHEDULE_DEFAULTS = dict(
+    moves=2,
+    slide=0.1,
+    turn=15.0,
+    slide_speed=0.15,
+    turn_speed=20.0,
+    move_window=(0.3, 2.0),
+    start_fraction=0.6,
+)
 
 
 @dataclass
 class WallSchedule:
-    """``B`` walls: first poses ``env0 (B, 4)``, move starts ``t0 (B, M)`` and durations ``dur (B, M)``
-    (s), displacements ``delta (B, M, 4)``; ``low``/``high`` ``(4,)`` the range the pose is clipped to."""
+    """``B`` walls: first poses ``env0 (B, 4)``, move starts ``t0 (B, M)`` and durations ``dur (B,
+    M)``
+    (s), displacements ``delta (B, M, 4)``; ``low``/``high`` ``(4,)`` the range the pose is
+    clipped to."""
 
     env0: Tensor
     t0: Tensor
@@ -57,12 +66,20 @@ class WallSchedule:
 
     def rows(self) -> list[dict]:
         """One plain dict per wall (for the study CSV and the metrics)."""
-        return [{"env0": self.env0[i].tolist(), "t0": self.t0[i].tolist(), "dur": self.dur[i].tolist(),
-                 "delta": self.delta[i].tolist()} for i in range(self.env0.shape[0])]
+        return [
+            {
+                "env0": self.env0[i].tolist(),
+                "t0": self.t0[i].tolist(),
+                "dur": self.dur[i].tolist(),
+                "delta": self.delta[i].tolist(),
+            }
+            for i in range(self.env0.shape[0])
+        ]
 
 
 def draw_schedules(task, n: int, seed: int, **settings) -> WallSchedule:
-    """``n`` wall schedules from ``seed`` (module docstring; ``settings``: :data:`SCHEDULE_DEFAULTS` keys)."""
+    """``n`` wall schedules from ``seed`` (module docstring; ``settings``:
+    :data:`SCHEDULE_DEFAULTS` keys)."""
     unknown = sorted(set(settings) - set(SCHEDULE_DEFAULTS))
     if unknown:
         raise ValueError(f"unknown wall setting(s) {unknown}; allowed: {sorted(SCHEDULE_DEFAULTS)}")
@@ -71,7 +88,12 @@ def draw_schedules(task, n: int, seed: int, **settings) -> WallSchedule:
     for key in ("slide", "turn", "slide_speed", "turn_speed", "start_fraction"):
         if not (math.isfinite(float(c[key])) and float(c[key]) >= 0):
             raise ValueError(f"wall.{key} must be finite and >= 0, got {c[key]}")
-    if m < 0 or float(c["slide_speed"]) <= 0 or float(c["turn_speed"]) <= 0 or not 0 <= c["start_fraction"] <= 1:
+    if (
+        m < 0
+        or float(c["slide_speed"]) <= 0
+        or float(c["turn_speed"]) <= 0
+        or not 0 <= c["start_fraction"] <= 1
+    ):
         raise ValueError("wall.moves must be >= 0, the speeds > 0 and start_fraction in [0, 1]")
     g = torch.Generator().manual_seed(int(seed))
     f64 = torch.float64
@@ -83,18 +105,40 @@ def draw_schedules(task, n: int, seed: int, **settings) -> WallSchedule:
         sign = torch.where(torch.rand(*shape, generator=g) < 0.5, -1.0, 1.0).to(f64)
         return sign * scale * (0.5 + 0.5 * torch.rand(*shape, generator=g, dtype=f64))
 
-    lat, dep, turn = amount(c["slide"], n, m), amount(0.5 * c["slide"], n, m), amount(math.radians(c["turn"]), n, m)
+    lat, dep, turn = (
+        amount(c["slide"], n, m),
+        amount(0.5 * c["slide"], n, m),
+        amount(math.radians(c["turn"]), n, m),
+    )
     yaw = env0[:, 3:4]
-    delta = torch.stack([dep * torch.cos(yaw) - lat * torch.sin(yaw), dep * torch.sin(yaw) + lat * torch.cos(yaw),
-                         torch.zeros_like(lat), turn], -1)  # (n, m, 4)
+    delta = torch.stack(
+        [
+            dep * torch.cos(yaw) - lat * torch.sin(yaw),
+            dep * torch.sin(yaw) + lat * torch.cos(yaw),
+            torch.zeros_like(lat),
+            turn,
+        ],
+        -1,
+    )  # (n, m, 4)
     lo, hi = c["move_window"]
     t0 = lo + (hi - lo) * torch.rand(n, m, generator=g, dtype=f64)
-    dur = torch.maximum((lat**2 + dep**2).sqrt() / c["slide_speed"], turn.abs() / math.radians(c["turn_speed"]))
+    dur = torch.maximum(
+        (lat**2 + dep**2).sqrt() / c["slide_speed"], turn.abs() / math.radians(c["turn_speed"])
+    )
     return WallSchedule(env0=env0, t0=t0, dur=dur.clamp_min(1e-3), delta=delta, low=low, high=high)
 
 
-def run_trials(task, operators: list, walls: WallSchedule, condition: str, guide=None, *, dt: float = 0.02,
-               time_limit: float = 10.0, record: bool = False) -> dict:
+def run_trials(
+    task,
+    operators: list,
+    walls: WallSchedule,
+    condition: str,
+    guide=None,
+    *,
+    dt: float = 0.02,
+    time_limit: float = 10.0,
+    record: bool = False,
+) -> dict:
     """Simulate ``B = len(operators)`` trials (each operator already built; ``walls`` holds ``B``
     schedules) in one condition (module docstring). Returns per trial ``success``, ``collided``,
     ``time``, ``effort``, ``freedom`` (mean position compliance of the guide, 1 without one) and,
@@ -122,8 +166,12 @@ def run_trials(task, operators: list, walls: WallSchedule, condition: str, guide
     for s in range(1, steps + 1):
         t = s * dt
         env = walls.at(t)  # (B, 4)
-        wish = torch.stack([check_pose(op.act(t, x[i].clone(), env[i].clone()), names[i], t)
-                            for i, op in enumerate(operators)])  # (B, 7)
+        wish = torch.stack(
+            [
+                check_pose(op.act(t, x[i].clone(), env[i].clone()), names[i], t)
+                for i, op in enumerate(operators)
+            ]
+        )  # (B, 7)
         if condition == "none":
             new, comp = wish, torch.ones(b, dtype=torch.float64)
         else:
@@ -131,10 +179,14 @@ def run_trials(task, operators: list, walls: WallSchedule, condition: str, guide
             new, state, comp = guide.step(state, wish, cond_env, dt)
         active = ~done
         mid = x + 0.5 * (new - x)
-        mid = torch.cat([mid[:, :3], mid[:, 3:] / mid[:, 3:].norm(dim=-1, keepdim=True).clamp_min(1e-9)], -1)
+        mid = torch.cat(
+            [mid[:, :3], mid[:, 3:] / mid[:, 3:].norm(dim=-1, keepdim=True).clamp_min(1e-9)], -1
+        )
         touch = task.collides_at(new, env) | task.collides_at(mid, env)
         hit |= touch & active
-        gap = (wish[:, :3] - new[:, :3]).norm(dim=-1) + half * quaternion_distance(wish[:, 3:], new[:, 3:])
+        gap = (wish[:, :3] - new[:, :3]).norm(dim=-1) + half * quaternion_distance(
+            wish[:, 3:], new[:, 3:]
+        )
         effort += torch.where(active, gap * dt, torch.zeros_like(gap))
         comp_sum += torch.where(active, comp, torch.zeros_like(comp))
         comp_n += active.double()
@@ -148,8 +200,14 @@ def run_trials(task, operators: list, walls: WallSchedule, condition: str, guide
             rec["walls"].append(env)
         if bool(done.all()):
             break
-    out = {"success": done & ~hit, "collided": hit, "arrived": done, "time": time, "effort": effort,
-           "freedom": comp_sum / comp_n.clamp_min(1)}
+    out = {
+        "success": done & ~hit,
+        "collided": hit,
+        "arrived": done,
+        "time": time,
+        "effort": effort,
+        "freedom": comp_sum / comp_n.clamp_min(1),
+    }
     if record:
         out.update({k: torch.stack(v, 1) for k, v in rec.items()})
     return out

@@ -32,14 +32,24 @@ import torch
 from torch import Tensor
 
 from ..checks import check_tensor
-from ..primitives.pose import (align_quaternions, normalize_poses, quaternion_distance,
-                               quaternion_path_length, resample_poses)
+from ..primitives.pose import (
+    align_quaternions,
+    normalize_poses,
+    quaternion_distance,
+    quaternion_path_length,
+    resample_poses,
+)
 from ..primitives.quaternions import quaternion_raw_multiply
 from .beam_window import quaternion_about
 
 __all__ = ["TeleopWindowTask", "ENV_NAMES", "yaw_quaternion"]
 
-ENV_NAMES = ("x", "y", "z", "yaw")  # the wall's pose: window centre (m), rotation about vertical (rad)
+ENV_NAMES = (
+    "x",
+    "y",
+    "z",
+    "yaw",
+)  # the wall's pose: window centre (m), rotation about vertical (rad)
 
 
 def _norm(x: Tensor) -> Tensor:
@@ -61,7 +71,8 @@ def _positive(value, name: str) -> float:
 
 
 def _jerk(x: Tensor, steps: int) -> Tensor:
-    """Mean norm of the third difference along ``T`` of ``x (..., T, D)``, per step of a ``steps``-step
+    """Mean norm of the third difference along ``T`` of ``x (..., T, D)``, per step of a
+    ``steps``-step
     grid over the same phase (the beam task's jerk term): ``(...)``."""
     t = x.shape[-2]
     d3 = x[..., 3:, :] - 3 * x[..., 2:-1, :] + 3 * x[..., 1:-2, :] - x[..., :-3, :]  # (..., T-3, D)
@@ -111,50 +122,84 @@ class TeleopWindowTask:
     num_dof: int = 7
     env_dim: int = 4
     num_classes: int = 2
-    objective_names: tuple = ("start", "window_front", "window_back", "end",
-                              "q_start", "q_window_front", "q_window_back", "q_end")
+    objective_names: tuple = (
+        "start",
+        "window_front",
+        "window_back",
+        "end",
+        "q_start",
+        "q_window_front",
+        "q_window_back",
+        "q_end",
+    )
 
     def __post_init__(self) -> None:
-        self.env_low, self.env_high = _vec(self.env_low, "env_low", 4), _vec(self.env_high, "env_high", 4)
+        self.env_low, self.env_high = (
+            _vec(self.env_low, "env_low", 4),
+            _vec(self.env_high, "env_high", 4),
+        )
         if any(lo > hi for lo, hi in zip(self.env_low, self.env_high)):
             raise ValueError(f"env_low {self.env_low} must be <= env_high {self.env_high}")
         if max(abs(self.env_low[3]), abs(self.env_high[3])) >= math.radians(80):
-            raise ValueError("the wall's yaw must stay within +-80 deg (the beam approaches along x)")
+            raise ValueError(
+                "the wall's yaw must stay within +-80 deg (the beam approaches along x)"
+            )
         for key in ("start_position", "end_position"):
             setattr(self, key, _vec(getattr(self, key), key, 3))
         for key in ("start_quaternion", "end_quaternion"):
             q = torch.tensor(_vec(getattr(self, key), key, 4), dtype=torch.float64)
             setattr(self, key, tuple(float(v) for v in q / q.norm()))
-        for key in ("window_width", "window_height", "wall_thickness", "beam_length", "via_offset",
-                    "position_tol", "angle_tol"):
+        for key in (
+            "window_width",
+            "window_height",
+            "wall_thickness",
+            "beam_length",
+            "via_offset",
+            "position_tol",
+            "angle_tol",
+        ):
             setattr(self, key, _positive(getattr(self, key), key))
-        if self.beam_length <= self.window_width or self.window_height <= self.beam_length + 2 * self.beam_radius:
-            raise ValueError("the beam must be longer than the window is wide and fit upright in its height")
+        if (
+            self.beam_length <= self.window_width
+            or self.window_height <= self.beam_length + 2 * self.beam_radius
+        ):
+            raise ValueError(
+                "the beam must be longer than the window is wide and fit upright in its height"
+            )
         lo, hi = torch.tensor(self.env_low), torch.tensor(self.env_high)
         for corner in (lo, hi):
             n = torch.tensor([math.cos(corner[3]), math.sin(corner[3]), 0.0], dtype=torch.float64)
             s0 = float((torch.tensor(self.start_position) - corner[:3].double()) @ n)
             s1 = float((torch.tensor(self.end_position) - corner[:3].double()) @ n)
             if not (s0 < -self.via_offset and s1 > self.via_offset):
-                raise ValueError(f"the start must lie before and the end after every wall in the range, "
-                                 f"not so at {corner.tolist()}")
+                raise ValueError(
+                    f"the start must lie before and the end after every wall in the range, "
+                    f"not so at {corner.tolist()}"
+                )
 
     # ------------------------------------------------------------------ environments
     def check_env(self, env, name: str = "env") -> Tensor:
         """``env (..., 4)`` as a float tensor; a wrong shape or a non-finite value is refused."""
         env = check_tensor(torch.as_tensor(env), name)
         if env.shape[-1:] != (4,):
-            raise ValueError(f"{name} must be (..., 4) = wall x, y, z, yaw; got shape {tuple(env.shape)}")
+            raise ValueError(
+                f"{name} must be (..., 4) = wall x, y, z, yaw; got shape {tuple(env.shape)}"
+            )
         return env if env.is_floating_point() else env.double()
 
-    def sample_envs(self, n: int, generator: torch.Generator, dtype: torch.dtype = torch.float64) -> Tensor:
+    def sample_envs(
+        self, n: int, generator: torch.Generator, dtype: torch.dtype = torch.float64
+    ) -> Tensor:
         """``n`` wall poses ``(n, 4)`` uniform in ``[env_low, env_high]``."""
         lo, hi = torch.tensor(self.env_low, dtype=dtype), torch.tensor(self.env_high, dtype=dtype)
         return lo + (hi - lo) * torch.rand(int(n), 4, generator=generator, dtype=dtype)
 
     def clamp_env(self, env: Tensor) -> Tensor:
         """``env (..., 4)`` clipped to the trained range."""
-        lo, hi = (torch.tensor(v, dtype=env.dtype, device=env.device) for v in (self.env_low, self.env_high))
+        lo, hi = (
+            torch.tensor(v, dtype=env.dtype, device=env.device)
+            for v in (self.env_low, self.env_high)
+        )
         return torch.maximum(torch.minimum(env, hi), lo)
 
     def wall_frame(self, env: Tensor) -> tuple[Tensor, Tensor]:
@@ -162,7 +207,10 @@ class TeleopWindowTask:
         yaw = env[..., 3]
         c, s = torch.cos(yaw), torch.sin(yaw)
         z, o = torch.zeros_like(c), torch.ones_like(c)
-        rot = torch.stack([torch.stack([c, -s, z], -1), torch.stack([s, c, z], -1), torch.stack([z, z, o], -1)], -2)
+        rot = torch.stack(
+            [torch.stack([c, -s, z], -1), torch.stack([s, c, z], -1), torch.stack([z, z, o], -1)],
+            -2,
+        )
         return env[..., :3], rot
 
     def passing_quaternions(self, env: Tensor) -> Tensor:
@@ -170,10 +218,16 @@ class TeleopWindowTask:
         (class 1) about the normal from lying along the window's width."""
         kw = dict(dtype=env.dtype, device=env.device)
         qz = quaternion_about((0, 0, 1), math.pi / 2, **kw)
-        local = torch.stack([quaternion_raw_multiply(quaternion_about((1, 0, 0), sgn * math.pi / 2, **kw), qz)
-                             for sgn in (1.0, -1.0)])  # (2, 4)
+        local = torch.stack(
+            [
+                quaternion_raw_multiply(quaternion_about((1, 0, 0), sgn * math.pi / 2, **kw), qz)
+                for sgn in (1.0, -1.0)
+            ]
+        )  # (2, 4)
         qw = yaw_quaternion(env[..., 3])[..., None, :]  # (..., 1, 4)
-        return quaternion_raw_multiply(qw.expand(*qw.shape[:-2], 2, 4), local.expand(*qw.shape[:-2], 2, 4))
+        return quaternion_raw_multiply(
+            qw.expand(*qw.shape[:-2], 2, 4), local.expand(*qw.shape[:-2], 2, 4)
+        )
 
     def via_positions(self, env: Tensor) -> Tensor:
         """``(..., 4, 3)``: start, before the window, after it, end."""
@@ -186,8 +240,10 @@ class TeleopWindowTask:
     def endpoint_poses(self, dtype=torch.float64, device=None) -> tuple[Tensor, Tensor]:
         """The start and end poses ``(7,)``."""
         kw = dict(dtype=dtype, device=device)
-        return (torch.tensor(self.start_position + self.start_quaternion, **kw),
-                torch.tensor(self.end_position + self.end_quaternion, **kw))
+        return (
+            torch.tensor(self.start_position + self.start_quaternion, **kw),
+            torch.tensor(self.end_position + self.end_quaternion, **kw),
+        )
 
     # ------------------------------------------------------------------ collision
     def collides_at(self, poses: Tensor, env: Tensor) -> Tensor:
@@ -196,21 +252,32 @@ class TeleopWindowTask:
         prism, exact (see :meth:`BeamWindowTask.collides_at`)."""
         q = poses[..., 3:] / _norm(poses[..., 3:]).clamp_min(1e-12)[..., None]
         w, x, y, z = q.unbind(-1)
-        axis = torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], -1)  # (..., 3)
+        axis = torch.stack(
+            [1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], -1
+        )  # (..., 3)
         half = 0.5 * self.beam_length * axis
         c, rot = self.wall_frame(env.to(poses))
-        a_l = ((poses[..., :3] - half - c)[..., None, :] @ rot)[..., 0, :]  # (..., 3) in the wall frame
+        a_l = ((poses[..., :3] - half - c)[..., None, :] @ rot)[
+            ..., 0, :
+        ]  # (..., 3) in the wall frame
         b_l = ((poses[..., :3] + half - c)[..., None, :] @ rot)[..., 0, :]
         (ax, ay, az), (bx, by, bz) = a_l.unbind(-1), b_l.unbind(-1)
         h = 0.5 * self.wall_thickness + self.beam_radius
-        half_w, half_h = 0.5 * self.window_width - self.beam_radius, 0.5 * self.window_height - self.beam_radius
+        half_w, half_h = (
+            0.5 * self.window_width - self.beam_radius,
+            0.5 * self.window_height - self.beam_radius,
+        )
         dx = bx - ax
         moving = dx != 0
         safe = torch.where(moving, dx, torch.ones_like(dx))
         t1, t2 = (-h - ax) / safe, (h - ax) / safe
         inside = ax.abs() < h
-        t_in = torch.where(moving, torch.minimum(t1, t2).clamp_min(0), torch.where(inside, 0.0, 1.0).to(dx))
-        t_out = torch.where(moving, torch.maximum(t1, t2).clamp_max(1), torch.where(inside, 1.0, 0.0).to(dx))
+        t_in = torch.where(
+            moving, torch.minimum(t1, t2).clamp_min(0), torch.where(inside, 0.0, 1.0).to(dx)
+        )
+        t_out = torch.where(
+            moving, torch.maximum(t1, t2).clamp_max(1), torch.where(inside, 1.0, 0.0).to(dx)
+        )
 
         def in_window(t: Tensor) -> Tensor:
             return ((ay + t * (by - ay)).abs() < half_w) & ((az + t * (bz - az)).abs() < half_h)
@@ -218,7 +285,8 @@ class TeleopWindowTask:
         return (t_in < t_out) & ~(in_window(t_in) & in_window(t_out))
 
     def collides(self, traj: Tensor, env: Tensor) -> Tensor:
-        """Whether the beam meets the (static) wall ``env (..., 4)`` anywhere along ``traj (..., T, 7)``."""
+        """Whether the beam meets the (static) wall ``env (..., 4)`` anywhere along ``traj (..., T,
+        7)``."""
         k, t = self.collision_substeps, traj.shape[-2]
         dense = traj if k == 1 or t < 2 else resample_poses(traj, (t - 1) * k + 1)
         return self.collides_at(dense, env[..., None, :]).any(-1)
@@ -236,19 +304,36 @@ class TeleopWindowTask:
         via = self.via_positions(env)  # (..., 4, 3)
         d_front = _norm(pos - via[..., 1, None, :]).amin(-1)
         d_back = _norm(pos - via[..., 2, None, :]).amin(-1)
-        d_pos = torch.stack([_norm(pos[..., 0, :] - via[..., 0, :]), d_front, d_back,
-                             _norm(pos[..., -1, :] - via[..., 3, :])], -1)  # (..., 4)
+        d_pos = torch.stack(
+            [
+                _norm(pos[..., 0, :] - via[..., 0, :]),
+                d_front,
+                d_back,
+                _norm(pos[..., -1, :] - via[..., 3, :]),
+            ],
+            -1,
+        )  # (..., 4)
         idx = self._phases(pos, via)  # (..., 2)
         at = q.gather(-2, idx[..., None].expand(*idx.shape, 4))  # (..., 2, 4) at the window phases
         qp = self.passing_quaternions(env)  # (..., 2 classes, 4)
         d_win = quaternion_distance(at[..., None, :, :], qp[..., :, None, :])  # (..., class, phase)
-        d_win = d_win.gather(-2, d_win.sum(-1).argmin(-1)[..., None, None].expand(*d_win.shape[:-2], 1, 2))[..., 0, :]
+        d_win = d_win.gather(
+            -2, d_win.sum(-1).argmin(-1)[..., None, None].expand(*d_win.shape[:-2], 1, 2)
+        )[..., 0, :]
         start, end = self.endpoint_poses(traj.dtype, traj.device)
-        d_rot = torch.cat([quaternion_distance(q[..., 0, :], start[3:])[..., None], d_win,
-                           quaternion_distance(q[..., -1, :], end[3:])[..., None]], -1)  # (..., 4)
+        d_rot = torch.cat(
+            [
+                quaternion_distance(q[..., 0, :], start[3:])[..., None],
+                d_win,
+                quaternion_distance(q[..., -1, :], end[3:])[..., None],
+            ],
+            -1,
+        )  # (..., 4)
         length = _norm(pos[..., 1:, :] - pos[..., :-1, :]).sum(-1)
         extra_p = self.length_weight * length + self.jerk_weight * _jerk(pos, self.jerk_steps)
-        extra_q = self.length_weight * quaternion_path_length(q) + self.jerk_weight * _jerk(q, self.jerk_steps)
+        extra_q = self.length_weight * quaternion_path_length(q) + self.jerk_weight * _jerk(
+            q, self.jerk_steps
+        )
         return torch.cat([d_pos + extra_p[..., None], d_rot + extra_q[..., None]], -1)
 
     def label(self, traj: Tensor, env: Tensor) -> Tensor:
@@ -271,5 +356,6 @@ class TeleopWindowTask:
 
     def at_pose(self, pose: Tensor, target: Tensor) -> Tensor:
         """Whether ``pose (..., 7)`` is within the tolerances of ``target (7,)``: ``(...)`` bool."""
-        return ((_norm(pose[..., :3] - target[:3]) <= self.position_tol)
-                & (quaternion_distance(pose[..., 3:], target[3:]) <= self.angle_tol))
+        return (_norm(pose[..., :3] - target[:3]) <= self.position_tol) & (
+            quaternion_distance(pose[..., 3:], target[3:]) <= self.angle_tol
+        )

@@ -59,12 +59,16 @@ class WindowTask(Task):
 
     def _check(self, traj: Tensor) -> None:
         if traj.ndim < 2 or traj.shape[-1] != 2:
-            raise ValueError(f"window task trajectories must be (..., T, 2), got shape {tuple(traj.shape)}")
+            raise ValueError(
+                f"window task trajectories must be (..., T, 2), got shape {tuple(traj.shape)}"
+            )
 
     def _objective(self, traj: Tensor, index: int) -> Tensor:
         if index == 1:
             return (traj - self._pt(self.centre, traj)).norm(dim=-1).amin(-1)  # (...)
-        point, target = (traj[..., 0, :], self.start) if index == 0 else (traj[..., -1, :], self.end)
+        point, target = (
+            (traj[..., 0, :], self.start) if index == 0 else (traj[..., -1, :], self.end)
+        )
         return (point - self._pt(target, traj)).norm(dim=-1)  # (...)
 
     def crossing_height(self, traj: Tensor) -> Tensor:
@@ -96,19 +100,27 @@ class WindowTask(Task):
             raise ValueError(f"num must be >= 1, got {num}")
         g = generator
         demos = []
-        start, centre, end = (torch.tensor(p, dtype=dtype) for p in (self.start, self.centre, self.end))
+        start, centre, end = (
+            torch.tensor(p, dtype=dtype) for p in (self.start, self.centre, self.end)
+        )
         for _ in range(num):
             length = int(torch.randint(80, 161, (1,), generator=g))
-            via = torch.stack([
-                start + 0.06 * torch.randn(2, generator=g, dtype=dtype),
-                centre + torch.tensor([0.0, 1.0], dtype=dtype) * (self.demo_bias + 0.04 * torch.randn(1, generator=g, dtype=dtype)),
-                end + 0.06 * torch.randn(2, generator=g, dtype=dtype),
-            ])  # (3, 2)
+            via = torch.stack(
+                [
+                    start + 0.06 * torch.randn(2, generator=g, dtype=dtype),
+                    centre
+                    + torch.tensor([0.0, 1.0], dtype=dtype)
+                    * (self.demo_bias + 0.04 * torch.randn(1, generator=g, dtype=dtype)),
+                    end + 0.06 * torch.randn(2, generator=g, dtype=dtype),
+                ]
+            )  # (3, 2)
             s = torch.linspace(0, 1, length, dtype=dtype)[:, None]  # (T, 1)
             # quadratic through the three via points at s = 0, 0.5, 1, plus a random bulge
             l0, l1, l2 = 2 * (s - 0.5) * (s - 1), -4 * s * (s - 1), 2 * s * (s - 0.5)
             path = l0 * via[0] + l1 * via[1] + l2 * via[2]  # (T, 2)
-            bulge = 0.08 * torch.randn(1, 2, generator=g, dtype=dtype) * torch.sin(torch.pi * s) ** 2
+            bulge = (
+                0.08 * torch.randn(1, 2, generator=g, dtype=dtype) * torch.sin(torch.pi * s) ** 2
+            )
             bulge = bulge * (2 * s - 1).sign().neg()  # pushes the halves apart, keeps the middle
             path = path + bulge + 0.003 * torch.randn(length, 2, generator=g, dtype=dtype)
             demos.append(path)

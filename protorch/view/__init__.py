@@ -1,5 +1,6 @@
 """The live browser viewer of a trained ``point_particle`` or ``arm_reach`` run:
-``python -m protorch.view [RUN_DIR]`` or ``protorch view [RUN_DIR]`` (needs ``pip install -e ".[view]"``).
+``python -m protorch.view [RUN_DIR]`` or ``protorch view [RUN_DIR]`` (needs ``pip install -e
+".[view]"``).
 
 :mod:`~protorch.view.scene` (what is drawn, as plain functions of an environment vector),
 :mod:`~protorch.view.live` (the moving-environment controllers one step at a time),

@@ -33,23 +33,54 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="protorch view", description=__doc__.split("\n\n")[0])
     ap.add_argument("run_dir", nargs="?", help="a run directory (default: the newest under --runs)")
     ap.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
-    ap.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 picks a free one)")
-    ap.add_argument("--runs", default="runs", help="where to look for runs without RUN_DIR (default runs/)")
+    ap.add_argument(
+        "--port", type=int, default=8080, help="port (default 8080; 0 picks a free one)"
+    )
+    ap.add_argument(
+        "--runs", default="runs", help="where to look for runs without RUN_DIR (default runs/)"
+    )
     ap.add_argument("--samples", type=int, default=16, help="sample paths drawn (default 16)")
-    ap.add_argument("--threads", type=int, default=1,
-                    help="torch CPU threads (default 1: one small query is fastest on one thread)")
+    ap.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch CPU threads (default 1: one small query is fastest on one thread)",
+    )
     teach = ap.add_argument_group("teaching (docs/teach.md)")
-    teach.add_argument("--teach", choices=TEACH_TASKS, help="serve the teach page for this task instead")
-    teach.add_argument("--out", help="the demonstration folder written (default demos/TASK; continued if it exists)")
-    teach.add_argument("--per-env", type=int, default=3, help="demonstrations per environment (default 3, >= 2)")
-    teach.add_argument("--envs", type=int, help="environments to teach (default 30 point_particle, 20 arm_reach)")
-    teach.add_argument("--steps", type=int, help="time steps a demonstration is resampled to (default: the run's "
-                                                 "promp.num_steps, else 100)")
-    teach.add_argument("--format", default="out", choices=("out", "csv"),
-                       help="out: trajK.out / envK.out (default); csv: timestamped recordings demoK.csv (docs/recordings.md)")
-    teach.add_argument("--seed", type=int, default=0, help="seed of the proposed environments (default 0)")
-    teach.add_argument("--robot", help="arm_reach without RUN_DIR: a shipped robot (e.g. panda) or a yaml file of "
-                                       "robot.* settings (docs/your_own_robot.md); default the Panda")
+    teach.add_argument(
+        "--teach", choices=TEACH_TASKS, help="serve the teach page for this task instead"
+    )
+    teach.add_argument(
+        "--out",
+        help="the demonstration folder written (default demos/TASK; continued if it exists)",
+    )
+    teach.add_argument(
+        "--per-env", type=int, default=3, help="demonstrations per environment (default 3, >= 2)"
+    )
+    teach.add_argument(
+        "--envs", type=int, help="environments to teach (default 30 point_particle, 20 arm_reach)"
+    )
+    teach.add_argument(
+        "--steps",
+        type=int,
+        help="time steps a demonstration is resampled to (default: the run's "
+        "promp.num_steps, else 100)",
+    )
+    teach.add_argument(
+        "--format",
+        default="out",
+        choices=("out", "csv"),
+        help="out: trajK.out / envK.out (default); csv: timestamped recordings demoK.csv "
+        "(docs/recordings.md)",
+    )
+    teach.add_argument(
+        "--seed", type=int, default=0, help="seed of the proposed environments (default 0)"
+    )
+    teach.add_argument(
+        "--robot",
+        help="arm_reach without RUN_DIR: a shipped robot (e.g. panda) or a yaml file of "
+        "robot.* settings (docs/your_own_robot.md); default the Panda",
+    )
     return ap.parse_args(argv)
 
 
@@ -66,10 +97,19 @@ def teach_session(args) -> tuple[TeachSession, object]:
     num_envs = args.envs or (30 if args.teach == "point_particle" else 20)
     proposals = None
     if run is not None:  # random environments, those where the run's map fails first
-        proposals = failing_envs(run, teach.sample_envs(4 * num_envs + 16, torch.Generator().manual_seed(args.seed)))
-    session = TeachSession(teach, Path(args.out or f"demos/{args.teach}"), per_env=args.per_env,
-                           num_envs=num_envs, num_steps=int(steps), proposals=proposals, seed=args.seed,
-                           fmt=args.format)
+        proposals = failing_envs(
+            run, teach.sample_envs(4 * num_envs + 16, torch.Generator().manual_seed(args.seed))
+        )
+    session = TeachSession(
+        teach,
+        Path(args.out or f"demos/{args.teach}"),
+        per_env=args.per_env,
+        num_envs=num_envs,
+        num_steps=int(steps),
+        proposals=proposals,
+        seed=args.seed,
+        fmt=args.format,
+    )
     return session, run
 
 
@@ -108,16 +148,24 @@ def main(argv=None) -> int:
         except (FileNotFoundError, ValueError) as exc:
             print(f"protorch view --teach: {exc}", file=sys.stderr)
             return 1
-        code = _serve(lambda: Teacher(session, run=run, host=args.host, port=args.port),
-                      f"teaching {args.teach} into {session.folder.resolve()}")
+        code = _serve(
+            lambda: Teacher(session, run=run, host=args.host, port=args.port),
+            f"teaching {args.teach} into {session.folder.resolve()}",
+        )
         p = session.progress()
-        print(f"kept {p['kept']} demonstrations ({p['marked']} marked), {p['envs_done']} environments complete; "
-              f"train with: python -m protorch experiment={args.teach} task.demos={session.folder}")
+        print(
+            f"kept {p['kept']} demonstrations ({p['marked']} marked), {p['envs_done']} "
+            "environments complete; "
+            f"train with: python -m protorch experiment={args.teach} task.demos={session.folder}"
+        )
         return code
     if args.run_dir is None:
         runs = find_runs(args.runs)
         if not runs:
-            print(f"no point_particle or arm_reach run under {Path(args.runs).resolve()}; make one with: {MAKE_RUN}")
+            print(
+                f"no point_particle or arm_reach run under {Path(args.runs).resolve()}; make one "
+                f"with: {MAKE_RUN}"
+            )
             return 1
         args.run_dir = runs[0]
     try:
@@ -125,8 +173,10 @@ def main(argv=None) -> int:
     except (FileNotFoundError, ValueError) as exc:
         print(f"protorch view: {exc}", file=sys.stderr)
         return 1
-    return _serve(lambda: Viewer(run, host=args.host, port=args.port, num_samples=args.samples),
-                  f"{run.model.task_name} run {Path(args.run_dir).resolve()}")
+    return _serve(
+        lambda: Viewer(run, host=args.host, port=args.port, num_samples=args.samples),
+        f"{run.model.task_name} run {Path(args.run_dir).resolve()}",
+    )
 
 
 if __name__ == "__main__":

@@ -47,7 +47,9 @@ def segment_quaternion(d: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q)
 
 
-def draw_paths(scene, mean: np.ndarray, samples: np.ndarray, *, width: float, color=(31, 119, 180)) -> None:
+def draw_paths(
+    scene, mean: np.ndarray, samples: np.ndarray, *, width: float, color=(31, 119, 180)
+) -> None:
     """The mean path ``(T, 3)`` (dark, thick) and the sample paths ``(S, T, 3)`` (thin)."""
     scene.add_line_segments("/paths/samples", polylines(samples), color, thickness=0.25 * width)
     scene.add_line_segments("/paths/mean", polylines(mean), _MEAN, thickness=width)
@@ -56,24 +58,44 @@ def draw_paths(scene, mean: np.ndarray, samples: np.ndarray, *, width: float, co
 def draw_trace(scene, trace: np.ndarray, point: np.ndarray, *, radius: float) -> None:
     """The live controller's path so far ``(t, 3)`` and its current point ``(3,)``."""
     if len(trace) > 1:
-        scene.add_line_segments("/live/trace", polylines(trace), (255, 0, 200), thickness=0.6 * radius)
-    scene.add_icosphere("/live/point", radius, (255, 0, 200), position=tuple(float(v) for v in point))
+        scene.add_line_segments(
+            "/live/trace", polylines(trace), (255, 0, 200), thickness=0.6 * radius
+        )
+    scene.add_icosphere(
+        "/live/point", radius, (255, 0, 200), position=tuple(float(v) for v in point)
+    )
 
 
 # ----------------------------------------------------------------------------- point particle
 def draw_particle_static(scene) -> None:
     """The workspace ``[0, 10]^2``."""
-    scene.add_grid("/workspace", 10.0, 10.0, position=(5.0, 5.0, -0.01), cell_size=1.0, section_size=5.0,
-                   plane_color=(250, 250, 250), plane_opacity=1.0)
+    scene.add_grid(
+        "/workspace",
+        10.0,
+        10.0,
+        position=(5.0, 5.0, -0.01),
+        cell_size=1.0,
+        section_size=5.0,
+        plane_color=(250, 250, 250),
+        plane_opacity=1.0,
+    )
 
 
 def draw_particle_env(scene, rects: np.ndarray, start: np.ndarray, goal: np.ndarray) -> None:
-    """The wall (its two rectangles ``(2, 4)`` as ``x_min, x_max, y_min, y_max``), start and goal."""
+    """The wall (its two rectangles ``(2, 4)`` as ``x_min, x_max, y_min, y_max``),
+    start and goal."""
     for i, (x0, x1, y0, y1) in enumerate(np.asarray(rects, dtype=np.float64)):
         h = max(y1 - y0, 1e-3)
-        scene.add_box(f"/env/wall{i}", _WALL, (x1 - x0, h, 0.4), position=((x0 + x1) / 2, (y0 + y1) / 2, 0.2),
-                      visible=bool(y1 - y0 > 1e-6))
-    scene.add_icosphere("/env/start", 0.18, _START, position=(float(start[0]), float(start[1]), 0.0))
+        scene.add_box(
+            f"/env/wall{i}",
+            _WALL,
+            (x1 - x0, h, 0.4),
+            position=((x0 + x1) / 2, (y0 + y1) / 2, 0.2),
+            visible=bool(y1 - y0 > 1e-6),
+        )
+    scene.add_icosphere(
+        "/env/start", 0.18, _START, position=(float(start[0]), float(start[1]), 0.0)
+    )
     scene.add_icosphere("/env/goal", 0.18, _GOAL, position=(float(goal[0]), float(goal[1]), 0.0))
 
 
@@ -81,15 +103,30 @@ def draw_particle_env(scene, rects: np.ndarray, start: np.ndarray, goal: np.ndar
 def draw_arm_static(scene, table, start: np.ndarray) -> None:
     """The table top (``((x0, x1), (y0, y1))``, its surface at ``z = 0``) and the start point."""
     (x0, x1), (y0, y1) = table
-    scene.add_box("/table", (205, 175, 135), (x1 - x0, y1 - y0, 0.02), position=((x0 + x1) / 2, (y0 + y1) / 2, -0.011))
-    scene.add_box("/table_to_base", (205, 175, 135), (x0 + 0.1, 0.3, 0.02), position=((x0 - 0.1) / 2, 0.0, -0.011))
+    scene.add_box(
+        "/table",
+        (205, 175, 135),
+        (x1 - x0, y1 - y0, 0.02),
+        position=((x0 + x1) / 2, (y0 + y1) / 2, -0.011),
+    )
+    scene.add_box(
+        "/table_to_base",
+        (205, 175, 135),
+        (x0 + 0.1, 0.3, 0.02),
+        position=((x0 - 0.1) / 2, 0.0, -0.011),
+    )
     scene.add_icosphere("/env/start", 0.012, _START, position=tuple(float(v) for v in start))
 
 
 def draw_arm_env(scene, can_xy: np.ndarray, goal: np.ndarray, radius: float, height: float) -> None:
     """The can (a vertical cylinder on the table) and the target point ``(3,)``."""
-    scene.add_cylinder("/env/can", radius, height, (200, 30, 30), position=(float(can_xy[0]), float(can_xy[1]),
-                                                                            height / 2))
+    scene.add_cylinder(
+        "/env/can",
+        radius,
+        height,
+        (200, 30, 30),
+        position=(float(can_xy[0]), float(can_xy[1]), height / 2),
+    )
     scene.add_icosphere("/env/goal", 0.015, (30, 160, 60), position=tuple(float(v) for v in goal))
 
 
@@ -98,7 +135,9 @@ class ArmPose:
     (coincident frames skipped) and a sphere per joint. The nodes are made once; :meth:`update`
     only moves them (a pose change is then a few small property messages, not new meshes)."""
 
-    def __init__(self, scene, name: str = "/arm", *, radius: float = 0.04, color=(235, 235, 240)) -> None:
+    def __init__(
+        self, scene, name: str = "/arm", *, radius: float = 0.04, color=(235, 235, 240)
+    ) -> None:
         self.scene, self.name, self.radius, self.color = scene, name, radius, color
         self.links: list = []
         self.joints: list = []
@@ -116,7 +155,9 @@ class ArmPose:
             i = len(self.links)
             r = self.radius * (1.0 - 0.5 * i / max(n - 1, 1))  # thinner towards the hand
             self.links.append(self.scene.add_cylinder(f"{self.name}/link{i}", r, 1.0, self.color))
-            self.joints.append(self.scene.add_icosphere(f"{self.name}/joint{i}", 1.1 * r, (90, 90, 100)))
+            self.joints.append(
+                self.scene.add_icosphere(f"{self.name}/joint{i}", 1.1 * r, (90, 90, 100))
+            )
         for i, (cyl, sph) in enumerate(zip(self.links, self.joints)):
             if i >= n:
                 cyl.visible = sph.visible = False
@@ -142,20 +183,26 @@ def draw_teach(scene, kept: list, pending: np.ndarray | None, ok: bool, *, width
     """The teach page's paths: this environment's kept demonstrations ``[(T, 3)]`` (grey) and
     the one on show ``(T, 3)`` resampled (a line with a dot per time step; green if its checks
     pass, red if not)."""
-    segs = np.concatenate([polylines(k) for k in kept], 0) if kept else np.zeros((1, 2, 3), np.float32)
+    segs = (
+        np.concatenate([polylines(k) for k in kept], 0) if kept else np.zeros((1, 2, 3), np.float32)
+    )
     scene.add_line_segments("/teach/kept", segs, _KEPT, thickness=0.5 * width, visible=bool(kept))
     color = _OK if ok else _FLAGGED
     show = pending is not None and len(pending) > 1
     path = np.asarray(pending if show else np.zeros((2, 3)), dtype=np.float32)
     scene.add_line_segments("/teach/shown", polylines(path), color, thickness=width, visible=show)
-    scene.add_point_cloud("/teach/steps", path, color, point_size=1.5 * width, point_shape="circle", visible=show)
+    scene.add_point_cloud(
+        "/teach/steps", path, color, point_size=1.5 * width, point_shape="circle", visible=show
+    )
 
 
 def draw_stroke(scene, stroke: np.ndarray | None, *, width: float) -> None:
     """The stroke being recorded ``(n, 3)`` (magenta; hidden for ``None`` or one point)."""
     on = stroke is not None and len(stroke) > 1
     trace = np.asarray(stroke if on else np.zeros((2, 3)), dtype=np.float32)
-    scene.add_line_segments("/teach/live", polylines(trace), _LIVE, thickness=0.7 * width, visible=on)
+    scene.add_line_segments(
+        "/teach/live", polylines(trace), _LIVE, thickness=0.7 * width, visible=on
+    )
 
 
 def screen_points(position, wxyz, fov: float, aspect: float, points) -> np.ndarray:
@@ -164,9 +211,17 @@ def screen_points(position, wxyz, fov: float, aspect: float, points) -> np.ndarr
     orientation ``wxyz`` (camera to world, OpenCV axes: x right, y down, z forward), vertical
     field of view ``fov`` (radians) and width / height ``aspect``."""
     w, x, y, z = (float(v) for v in wxyz)
-    rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                    [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                    [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-    cam = (np.asarray(points, dtype=np.float64) - np.asarray(position, dtype=np.float64)) @ rot  # (n, 3)
+    rot = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    cam = (
+        np.asarray(points, dtype=np.float64) - np.asarray(position, dtype=np.float64)
+    ) @ rot  # (n, 3)
     f = 0.5 / np.tan(0.5 * float(fov))
-    return np.stack([0.5 + f / float(aspect) * cam[:, 0] / cam[:, 2], 0.5 + f * cam[:, 1] / cam[:, 2]], 1)
+    return np.stack(
+        [0.5 + f / float(aspect) * cam[:, 0] / cam[:, 2], 0.5 + f * cam[:, 1] / cam[:, 2]], 1
+    )

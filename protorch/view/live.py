@@ -28,13 +28,15 @@ from ..tasks.arm.reach import SIDES
 __all__ = ["ArmPlayer", "ParticlePlayer", "make_player"]
 
 
-
 class _Player:
     """Shared clock: ``duration`` seconds of motion (phase 0 -> 1), then ``hold`` at the end."""
 
     def __init__(self, run, *, duration: float, hold: float, dt: float) -> None:
         if not (dt > 0 and duration >= dt and hold >= 0):
-            raise ValueError(f"need 0 < dt <= duration and hold >= 0, got dt={dt}, duration={duration}, hold={hold}")
+            raise ValueError(
+                f"need 0 < dt <= duration and hold >= 0, got dt={dt}, duration={duration}, hold="
+                f"{hold}"
+            )
         self.run, self.dt, self.duration = run, float(dt), float(duration)
         self.moving = int(math.ceil(duration / dt - 1e-9))
         self.total = self.moving + int(round(hold / dt))
@@ -56,8 +58,17 @@ class _Player:
 class ParticlePlayer(_Player):
     """The PD particle of :mod:`protorch.control.particle`, stepped against a live environment."""
 
-    def __init__(self, run, *, duration: float = 2.0, hold: float = 0.5, dt: float = 0.01, kp: float = 1000.0,
-                 kd: float = 30.0, goal_tol: float = 0.2) -> None:
+    def __init__(
+        self,
+        run,
+        *,
+        duration: float = 2.0,
+        hold: float = 0.5,
+        dt: float = 0.01,
+        kp: float = 1000.0,
+        kd: float = 30.0,
+        goal_tol: float = 0.2,
+    ) -> None:
         super().__init__(run, duration=duration, hold=hold, dt=dt)
         self.kp, self.kd, self.goal_tol = float(kp), float(kd), float(goal_tol)
         self.pos = self.vel = None
@@ -117,9 +128,17 @@ class ArmPlayer(_Player):
         settings = policy_settings("arm_reach", dyn, **options)
         super().__init__(run, duration=settings["duration"], hold=hold, dt=settings["decision_dt"])
         model, task = run.model, run.task
-        self.policy = Policy(model.promp, model.env_map, model.task_name, task=task, warm_up=False, **settings)
-        follow = self.policy.follow  # the moving test's velocity command (max_acceleration None: the robot's)
-        self.kp, self.vmax, self.amax = follow.kp, follow.vmax.to(**self.kw), follow.amax.to(**self.kw)  # (J,) each
+        self.policy = Policy(
+            model.promp, model.env_map, model.task_name, task=task, warm_up=False, **settings
+        )
+        follow = (
+            self.policy.follow
+        )  # the moving test's velocity command (max_acceleration None: the robot's)
+        self.kp, self.vmax, self.amax = (
+            follow.kp,
+            follow.vmax.to(**self.kw),
+            follow.amax.to(**self.kw),
+        )  # (J,) each
         self.cand = self.policy.labels  # (K,)
         self.q = None
 
@@ -135,7 +154,11 @@ class ArmPlayer(_Player):
 
     @property
     def label(self) -> str | None:
-        return None if self.current is None else SIDES.get(int(self.cand[self.current]), str(self.current))
+        return (
+            None
+            if self.current is None
+            else SIDES.get(int(self.cand[self.current]), str(self.current))
+        )
 
     def _clearance(self, e: Tensor) -> tuple[float, bool]:
         """The arm's gap to the can of ``e (4,)`` and whether it is above the table, now (from the
@@ -152,13 +175,25 @@ class ArmPlayer(_Player):
             return self.q
         e, task = self._env(env), self.run.task
         with torch.no_grad():
-            best, w = self.policy.choose(e, self.t * self.dt, self.q, qd=self.qd)  # (1, N) the class's mean
+            best, w = self.policy.choose(
+                e, self.t * self.dt, self.q, qd=self.qd
+            )  # (1, N) the class's mean
             self.switches += int(self.current is not None and best != self.current)
             self.current = best
-            m, dm_dz = promp_state_at(self.run.model.promp, w[0].to(**self.kw), self.phase)  # (J,), (J,)
+            m, dm_dz = promp_state_at(
+                self.run.model.promp, w[0].to(**self.kw), self.phase
+            )  # (J,), (J,)
             m_vel = dm_dz / self.duration if self.t < self.moving else torch.zeros_like(m)
-            acc = velocity_command_acceleration(self.q[None], self.qd[None], m[None], m_vel[None], kp=self.kp,
-                                                vmax=self.vmax, amax=self.amax, dt=self.dt)[0]  # (J,)
+            acc = velocity_command_acceleration(
+                self.q[None],
+                self.qd[None],
+                m[None],
+                m_vel[None],
+                kp=self.kp,
+                vmax=self.vmax,
+                amax=self.amax,
+                dt=self.dt,
+            )[0]  # (J,)
             self.qd = self.qd + acc * self.dt
             self.q = self.q + self.qd * self.dt
             gap, table = self._clearance(e)

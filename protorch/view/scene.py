@@ -5,7 +5,8 @@ and rebuilds its task from the run's ``config.yaml``; :func:`scene_state` turns 
 into what is drawn: the map's mean trajectory, trajectories of weight samples (the spread), the
 success check of the mean, its costs and the inference time. The arm uses the label-aware
 inference (:func:`protorch.gp.model.label_aware_mean`): the homotopy class whose mean scores
-lowest (the summed objectives, as the policy chooses) is chosen and shown. The samples use fixed standard-normal draws (``eps``), so a small
+lowest (the summed objectives, as the policy chooses) is chosen and shown. The samples use fixed
+standard-normal draws (``eps``), so a small
 change of the environment moves every drawn sample a little instead of redrawing them.
 """
 
@@ -47,12 +48,16 @@ __all__ = [
 ]
 
 KINDS = {"point_particle": "particle", "arm_reach": "arm"}
-MAKE_RUN = "python -m protorch experiment=point_particle hydra.run.dir=runs/pp  (or experiment=arm_reach)"
+MAKE_RUN = (
+    "python -m protorch experiment=point_particle hydra.run.dir=runs/pp  (or experiment=arm_reach)"
+)
 _PARTICLE_KEYS = ("objectives", "fixed_start", "infinite_wall")
 # every setting ArmReachTask takes (its collision model and can objective among them: a volume run
 # rebuilt without them would be checked and scored with the skeleton); the run's other task.* keys
 # (demos, priors, ...) only shaped the training
-_ARM_KEYS = tuple(f.name for f in fields(ArmReachTask) if f.init and f.name not in ("robot", "name"))
+_ARM_KEYS = tuple(
+    f.name for f in fields(ArmReachTask) if f.init and f.name not in ("robot", "name")
+)
 
 
 @dataclass(frozen=True)
@@ -85,8 +90,10 @@ class ViewRun:
         """``env (E,)`` clipped into every coordinate's range (a float64 tensor)."""
         env = check_tensor(torch.as_tensor(env, dtype=torch.float64), "env", ndim=1)
         if env.shape[0] != len(self.params):
-            raise ValueError(f"env must have {len(self.params)} values {[p.name for p in self.params]}, "
-                             f"got {env.shape[0]}")
+            raise ValueError(
+                f"env must have {len(self.params)} values {[p.name for p in self.params]}, "
+                f"got {env.shape[0]}"
+            )
         lo = torch.tensor([p.lo for p in self.params], dtype=torch.float64)
         hi = torch.tensor([p.hi for p in self.params], dtype=torch.float64)
         return torch.maximum(torch.minimum(env, hi), lo)
@@ -101,7 +108,8 @@ class SceneState:
     samples: np.ndarray  # (S, T, 3) paths of weight samples
     success: bool
     costs: dict  # objective name -> cost of the mean
-    infer_ms: float  # the map's answer (mean and variance; the arm: every class scored, then its variance)
+    # the map's answer (mean and variance; the arm: every class scored, then its variance)
+    infer_ms: float
     total_ms: float  # inference, trajectories, success and costs
     label: str | None = None  # the arm's chosen side
     scores: dict | None = None  # the arm: side -> summed objectives of its mean
@@ -151,17 +159,29 @@ def build_task(task_name: str, task_cfg: dict | None = None, robot=None):
     (:func:`~protorch.robots.load_robot`; ``None``: the Panda)."""
     cfg = dict(task_cfg or {})
     if task_name == "point_particle":
-        kw = {k: (tuple(cfg[k]) if isinstance(cfg[k], list) else cfg[k]) for k in _PARTICLE_KEYS if k in cfg}
+        kw = {
+            k: (tuple(cfg[k]) if isinstance(cfg[k], list) else cfg[k])
+            for k in _PARTICLE_KEYS
+            if k in cfg
+        }
         return PointParticleTask(**kw)
     if task_name == "arm_reach":
-        return ArmReachTask(robot=robot, **{k: cfg[k] for k in _ARM_KEYS if k in cfg})  # (it normalises its boxes)
-    raise ValueError(f"the viewer shows point_particle and arm_reach runs, this one solved {task_name!r}")
+        return ArmReachTask(
+            robot=robot, **{k: cfg[k] for k in _ARM_KEYS if k in cfg}
+        )  # (it normalises its boxes)
+    raise ValueError(
+        f"the viewer shows point_particle and arm_reach runs, this one solved {task_name!r}"
+    )
 
 
 def _particle_params(task: PointParticleTask) -> tuple[list[Param], Tensor]:
     start = [Param("start_x", 0.0, 6.5, 0.05), Param("start_y", 0.0, 10.0, 0.05)]
-    rest = [Param("wall_x", 2.0, 8.0, 0.05), Param("hole_y", 1.0, 9.0, 0.05),
-            Param("goal_x", 3.5, 10.0, 0.05), Param("goal_y", 0.0, 10.0, 0.05)]
+    rest = [
+        Param("wall_x", 2.0, 8.0, 0.05),
+        Param("hole_y", 1.0, 9.0, 0.05),
+        Param("goal_x", 3.5, 10.0, 0.05),
+        Param("goal_y", 0.0, 10.0, 0.05),
+    ]
     env0 = [1.0, 2.0, 5.0, 6.5, 9.0, 3.0]
     if task.fixed_start is not None:
         return rest, torch.tensor(env0[2:], dtype=torch.float64)
@@ -187,26 +207,36 @@ def open_run(run_dir: str | Path, *, device=None) -> ViewRun:
     """Load a ``point_particle`` or ``arm_reach`` run for the viewer (float64, ``device``)."""
     run_dir = Path(run_dir)
     if not checkpoint_path(run_dir).is_file():
-        raise FileNotFoundError(f"{run_dir} holds no checkpoint ({checkpoint_path(run_dir)}); make a run with: "
-                                f"{MAKE_RUN}")
+        raise FileNotFoundError(
+            f"{run_dir} holds no checkpoint ({checkpoint_path(run_dir)}); make a run with: "
+            f"{MAKE_RUN}"
+        )
     model = load(run_dir, device=device)
     if model.task_name not in KINDS:
-        raise ValueError(f"{run_dir} is a {model.task_name!r} run; the viewer shows {sorted(KINDS)}")
+        raise ValueError(
+            f"{run_dir} is a {model.task_name!r} run; the viewer shows {sorted(KINDS)}"
+        )
     cfg = read_config(run_dir)
     task = build_task(model.task_name, cfg.get("task"), cfg.get("robot"))
     if device is not None and hasattr(task, "to"):
         task = task.to(device)
     params, env0 = task_params(task)
     if len(params) != model.env_dim:
-        raise ValueError(f"{run_dir}: the map takes {model.env_dim}-D environments, the task {len(params)}-D")
+        raise ValueError(
+            f"{run_dir}: the map takes {model.env_dim}-D environments, the task {len(params)}-D"
+        )
     return ViewRun(run_dir, model, task, params, env0, cfg)
 
 
 # ----------------------------------------------------------------------------- states
 def weight_noise(num_weights: int, num_samples: int = 16, seed: int = 0) -> Tensor:
     """Fixed standard-normal draws ``(S, N)`` for the drawn samples (float64)."""
-    return torch.randn(int(num_samples), int(num_weights), generator=torch.Generator().manual_seed(int(seed)),
-                       dtype=torch.float64)
+    return torch.randn(
+        int(num_samples),
+        int(num_weights),
+        generator=torch.Generator().manual_seed(int(seed)),
+        dtype=torch.float64,
+    )
 
 
 def _as_query(run: ViewRun, env) -> Tensor:
@@ -227,9 +257,16 @@ def particle_state(run: ViewRun, env, eps: Tensor, *, check: bool = True) -> Sce
         mean = promp.trajectory(mu)  # (1, T, 2)
         samples = promp.trajectory(w)  # (S, T, 2)
     flat = lambda x: torch.cat([x, torch.zeros_like(x[..., :1])], -1).cpu().numpy()
-    state = SceneState(env=q[0].cpu().numpy(), mean=flat(mean[0]), samples=flat(samples), success=False,
-                       costs={}, infer_ms=1e3 * (t1 - t0), total_ms=1e3 * (time.perf_counter() - t0),
-                       joints=mean[0].cpu().numpy())
+    state = SceneState(
+        env=q[0].cpu().numpy(),
+        mean=flat(mean[0]),
+        samples=flat(samples),
+        success=False,
+        costs={},
+        infer_ms=1e3 * (t1 - t0),
+        total_ms=1e3 * (time.perf_counter() - t0),
+        joints=mean[0].cpu().numpy(),
+    )
     return check_state(run, state) if check else state
 
 
@@ -253,11 +290,22 @@ def arm_state(run: ViewRun, env, eps: Tensor, *, check: bool = True, poses: int 
         mean = task.ee_path(joints)  # (T, 3)
         samples = task.ee_path(promp.trajectory(w))  # (S, T, 3)
     label = int(best.label[0])
-    scores = {SIDES.get(int(c), str(int(c))): float(s) for c, s in zip(best.candidates, best.scores[0])}
-    state = SceneState(env=q[0].cpu().numpy(), mean=mean.cpu().numpy(), samples=samples.cpu().numpy(),
-                       success=False, costs={}, infer_ms=1e3 * (t1 - t0),
-                       total_ms=1e3 * (time.perf_counter() - t0), label=SIDES.get(label, str(label)),
-                       scores=scores, joints=joints.cpu().numpy(), links=links.cpu().numpy())
+    scores = {
+        SIDES.get(int(c), str(int(c))): float(s) for c, s in zip(best.candidates, best.scores[0])
+    }
+    state = SceneState(
+        env=q[0].cpu().numpy(),
+        mean=mean.cpu().numpy(),
+        samples=samples.cpu().numpy(),
+        success=False,
+        costs={},
+        infer_ms=1e3 * (t1 - t0),
+        total_ms=1e3 * (time.perf_counter() - t0),
+        label=SIDES.get(label, str(label)),
+        scores=scores,
+        joints=joints.cpu().numpy(),
+        links=links.cpu().numpy(),
+    )
     return check_state(run, state) if check else state
 
 

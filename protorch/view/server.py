@@ -28,16 +28,25 @@ def info_markdown(run: ViewRun, state: SceneState, player=None) -> str:
     """The info panel: inference time, the mean's success check and costs, the arm's side."""
     verdict = "SUCCESS" if state.success else "FAILURE"
     costs = ", ".join(f"{k} {v:.3f}" for k, v in state.costs.items())
-    lines = [f"**{run.model.task_name}** ({run.model.env_map.num_points} map entries)",
-             f"inference: {state.infer_ms:.1f} ms; whole scene: {state.total_ms:.1f} ms",
-             f"mean trajectory: **{verdict}**", f"costs: {costs}"]
+    lines = [
+        f"**{run.model.task_name}** ({run.model.env_map.num_points} map entries)",
+        f"inference: {state.infer_ms:.1f} ms; whole scene: {state.total_ms:.1f} ms",
+        f"mean trajectory: **{verdict}**",
+        f"costs: {costs}",
+    ]
     if state.label is not None:
         scores = ", ".join(f"{k} {v:.3f}" for k, v in (state.scores or {}).items())
         lines.append(f"side: **{state.label}** (summed objectives: {scores})")
     if player is not None and player.started:
         t = player.t * player.dt
-        extra = f", side {player.label}, switches {player.switches}" if hasattr(player, "switches") else ""
-        result = "running" if player.success is None else ("SUCCESS" if player.success else "FAILURE")
+        extra = (
+            f", side {player.label}, switches {player.switches}"
+            if hasattr(player, "switches")
+            else ""
+        )
+        result = (
+            "running" if player.success is None else ("SUCCESS" if player.success else "FAILURE")
+        )
         lines.append(f"live: t = {t:.2f} s{extra}: {result}")
     return "\n\n".join(lines)
 
@@ -46,8 +55,15 @@ class Viewer:
     """Serve ``run`` on ``host:port`` (port 0: a free one). ``num_samples`` sample paths are drawn
     (fixed draws, ``seed``). :attr:`state` is the last state drawn; :attr:`redraws` counts them."""
 
-    def __init__(self, run: ViewRun, *, host: str = "127.0.0.1", port: int = 8080, num_samples: int = 16,
-                 seed: int = 0) -> None:
+    def __init__(
+        self,
+        run: ViewRun,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 8080,
+        num_samples: int = 16,
+        seed: int = 0,
+    ) -> None:
         import viser
 
         self.run = run
@@ -61,8 +77,9 @@ class Viewer:
         self._syncing = False
         self._thread: threading.Thread | None = None
         self._playing = False
-        self.server = viser.ViserServer(host=host, port=port, label=f"protorch view: {run.model.task_name}",
-                                        verbose=False)
+        self.server = viser.ViserServer(
+            host=host, port=port, label=f"protorch view: {run.model.task_name}", verbose=False
+        )
         self._scene_setup()
         self._gui_setup()
         scene_state(run, self.env, self.eps)  # warm-up: the first answer pays one-off costs
@@ -90,8 +107,13 @@ class Viewer:
             self.arm_pose = draw.ArmPose(scene)
         self.handles = {}
         for name, cols in handles.items():
-            h = scene.add_transform_controls(f"/handles/{name.split()[0]}", scale=scale, active_axes=(True, True, False),
-                                             disable_rotations=True, depth_test=False)
+            h = scene.add_transform_controls(
+                f"/handles/{name.split()[0]}",
+                scale=scale,
+                active_axes=(True, True, False),
+                disable_rotations=True,
+                depth_test=False,
+            )
             h.on_update(lambda event, cols=cols: self._on_handle(event.target, cols))
             self.handles[cols] = h
 
@@ -103,7 +125,9 @@ class Viewer:
                 s = gui.add_slider(p.name, p.lo, p.hi, p.step, float(self.env[i]))
                 s.on_update(lambda _e, i=i: self._on_slider(i))
                 self.sliders.append(s)
-        self.play_button = gui.add_button("Play", hint="run the moving-environment controller live; keep dragging")
+        self.play_button = gui.add_button(
+            "Play", hint="run the moving-environment controller live; keep dragging"
+        )
         self.play_button.on_click(lambda _e: self.toggle_play())
         self.info = gui.add_markdown("")
 
@@ -119,7 +143,9 @@ class Viewer:
         if self._syncing:
             return
         env = self.env.clone()
-        env[list(cols)] = torch.tensor([float(handle.position[0]), float(handle.position[1])], dtype=env.dtype)
+        env[list(cols)] = torch.tensor(
+            [float(handle.position[0]), float(handle.position[1])], dtype=env.dtype
+        )
         self.set_env(env, dragged=cols)
 
     def set_env(self, env, *, dragged=None) -> SceneState:
@@ -159,7 +185,11 @@ class Viewer:
             self.redraws += 1
             self.info.content = info_markdown(self.run, state, self.player)
             t3 = time.perf_counter()
-            self.timings = {"state_ms": 1e3 * (t1 - t0), "sent_ms": 1e3 * (t2 - t0), "info_ms": 1e3 * (t3 - t0)}
+            self.timings = {
+                "state_ms": 1e3 * (t1 - t0),
+                "sent_ms": 1e3 * (t2 - t0),
+                "info_ms": 1e3 * (t3 - t0),
+            }
             return state
 
     def send_paths(self, state: SceneState) -> None:
@@ -173,8 +203,12 @@ class Viewer:
         else:
             task = run.task
             e = torch.as_tensor(state.env)
-            draw.draw_arm_env(scene, state.env[:2], task.goal_point(e).numpy(), task.can_radius, task.can_height)
-            draw.draw_paths(scene, state.mean, state.samples, width=0.01, color=draw.SIDE_COLORS[state.label])
+            draw.draw_arm_env(
+                scene, state.env[:2], task.goal_point(e).numpy(), task.can_radius, task.can_height
+            )
+            draw.draw_paths(
+                scene, state.mean, state.samples, width=0.01, color=draw.SIDE_COLORS[state.label]
+            )
             draw.draw_arm_ghosts(scene, state.links[:-1])
             if not self._playing:
                 self.arm_pose.update(state.links[-1])

@@ -7,7 +7,8 @@ phase (:func:`protorch.primitives.promp.resample`, what the ProMP fit does with 
 demonstration) and runs the quality checks (:mod:`protorch.view.teach_tasks`);
 :meth:`~TeachSession.keep` writes the resampled demonstration at once as ``trajK.out`` /
 ``envK.out`` (:func:`protorch.data.demos.write_demo`, atomic; with ``fmt="csv"`` the raw samples
-at their times as a timestamped recording ``demoK.csv``, :mod:`protorch.data.recordings`) and then the quality record
+at their times as a timestamped recording ``demoK.csv``, :mod:`protorch.data.recordings`) and then
+the quality record
 ``teach.json``; a flagged demonstration is kept only with ``insist=True`` and stays marked there.
 After ``per_env`` kept demonstrations the next proposed environment comes.
 
@@ -51,7 +52,9 @@ class Pending:
     traj: Tensor
     quality: Quality
     path: np.ndarray
-    times: Tensor | None = None  # (n,) seconds of the raw samples (the recordings format writes them)
+    times: Tensor | None = (
+        None  # (n,) seconds of the raw samples (the recordings format writes them)
+    )
 
 
 def failing_envs(run, envs: Tensor) -> Tensor:
@@ -77,7 +80,10 @@ def _recover(folder: Path, known: set) -> list[str]:
     orphans = sorted(envs.keys() - trajs.keys())
     if orphans and orphans[-1] == max(envs) and orphans[-1] not in known:
         envs[orphans[-1]].unlink()
-        notes.append(f"removed env{orphans[-1]}.out: its keep was interrupted before the trajectory was written")
+        notes.append(
+            f"removed env{orphans[-1]}.out: its keep was interrupted before the trajectory was "
+            "written"
+        )
     return notes
 
 
@@ -90,19 +96,33 @@ class TeachSession:
         num_envs: environments to teach (the panel counts towards it; more may be taught).
         num_steps: ``T``, the time grid the demonstrations are resampled to (the ProMP's steps).
         proposals: ``(P, E)`` environments offered in order (default: random, ``seed``).
-        fmt: ``"out"``: ``trajK.out`` / ``envK.out`` (resampled to ``num_steps``); ``"csv"``: timestamped
-            recordings ``demoK.csv`` (:mod:`protorch.data.recordings`: the raw samples at their times, the
+        fmt: ``"out"``: ``trajK.out`` / ``envK.out`` (resampled to ``num_steps``); ``"csv"``:
+        timestamped
+            recordings ``demoK.csv`` (:mod:`protorch.data.recordings`: the raw samples at their
+            times, the
             environment in every row; cleaned when read for training).
     """
 
-    def __init__(self, teach, folder: str | Path, *, per_env: int = 3, num_envs: int = 30, num_steps: int = 100,
-                 proposals: Tensor | None = None, seed: int = 0, fmt: str = "out") -> None:
+    def __init__(
+        self,
+        teach,
+        folder: str | Path,
+        *,
+        per_env: int = 3,
+        num_envs: int = 30,
+        num_steps: int = 100,
+        proposals: Tensor | None = None,
+        seed: int = 0,
+        fmt: str = "out",
+    ) -> None:
         if fmt not in ("out", "csv"):
             raise ValueError(f"fmt must be out or csv, got {fmt!r}")
         self.fmt = fmt
         if int(per_env) < 2 or int(num_envs) < 1 or int(num_steps) < 2:
-            raise ValueError(f"need per_env >= 2, num_envs >= 1, num_steps >= 2; "
-                             f"got {per_env}, {num_envs}, {num_steps}")
+            raise ValueError(
+                f"need per_env >= 2, num_envs >= 1, num_steps >= 2; "
+                f"got {per_env}, {num_envs}, {num_steps}"
+            )
         self.teach, self.folder = teach, Path(folder)
         self.per_env, self.num_envs, self.num_steps = int(per_env), int(num_envs), int(num_steps)
         self.lock = threading.RLock()
@@ -116,7 +136,9 @@ class TeachSession:
         self.next_k = 0
         self._read_folder()
         if proposals is None:
-            proposals = teach.sample_envs(4 * self.num_envs + 16, torch.Generator().manual_seed(int(seed)))
+            proposals = teach.sample_envs(
+                4 * self.num_envs + 16, torch.Generator().manual_seed(int(seed))
+            )
         self.proposals = torch.as_tensor(proposals, dtype=torch.float64)  # (P, E)
         self.offered = 0  # proposals used; those already in the folder are passed over
         self.pending: Pending | None = None
@@ -129,31 +151,46 @@ class TeachSession:
     def _read_record(self) -> dict:
         path = self.folder / MARKS_FILE
         if not path.is_file():
-            return {"task": self.teach.name, "columns": list(self.teach.fmt.columns),
-                    "env_names": list(self.teach.fmt.env_names), "demos": {}}
+            return {
+                "task": self.teach.name,
+                "columns": list(self.teach.fmt.columns),
+                "env_names": list(self.teach.fmt.env_names),
+                "demos": {},
+            }
         try:
             data = json.loads(path.read_text())
             task = data["task"]
         except (ValueError, KeyError, TypeError) as exc:
             raise ValueError(f"{path}: not a teach-page record ({exc})") from None
         if task != self.teach.name:
-            raise ValueError(f"{self.folder} holds {task} demonstrations ({path}); teach {self.teach.name} elsewhere")
+            raise ValueError(
+                f"{self.folder} holds {task} demonstrations ({path}); teach {self.teach.name} "
+                "elsewhere"
+            )
         return data
 
     def _read_folder(self) -> None:
         trajs, envs = demo_files(self.folder)
         csvs = recording_files(self.folder)
         if (trajs or envs) and (csvs or self.fmt == "csv") or (csvs and self.fmt == "out"):
-            raise ValueError(f"{self.folder} holds {'*.csv recordings' if csvs else 'trajK.out files'}: teach the "
-                             f"{'csv' if csvs else 'out'} format there (--format), or another folder")
+            raise ValueError(
+                f"{self.folder} holds {'*.csv recordings' if csvs else 'trajK.out files'}: teach "
+                "the "
+                f"{'csv' if csvs else 'out'} format there (--format), or another folder"
+            )
         if csvs:
-            found = [(int(m.group(1)), read_recording(p, self.teach.fmt)) for p in csvs
-                     if (m := _CSV_NAME.match(p.name))]  # refuses a malformed file, naming file and line
+            found = [
+                (int(m.group(1)), read_recording(p, self.teach.fmt))
+                for p in csvs
+                if (m := _CSV_NAME.match(p.name))
+            ]  # refuses a malformed file, naming file and line
             indices = [k for k, _ in found]
             demos = [torch.as_tensor(r.values) for _, r in found]
             envs_t = [torch.as_tensor(r.env) for _, r in found]
         elif trajs or envs:
-            out = read_demos(self.folder, self.teach.fmt)  # refuses a malformed file, naming file and line
+            out = read_demos(
+                self.folder, self.teach.fmt
+            )  # refuses a malformed file, naming file and line
             indices, demos, envs_t = out.indices, out.demos, list(out.envs)
         else:
             return
@@ -186,7 +223,9 @@ class TeachSession:
         """The next proposed environment the folder does not hold yet."""
         while True:
             while self.offered >= self.proposals.shape[0]:  # more than proposed: draw on
-                more = self.teach.sample_envs(self.proposals.shape[0], torch.Generator().manual_seed(self.offered))
+                more = self.teach.sample_envs(
+                    self.proposals.shape[0], torch.Generator().manual_seed(self.offered)
+                )
                 self.proposals = torch.cat([self.proposals, more.to(self.proposals)])
             env = self.proposals[self.offered].clone()
             self.offered += 1
@@ -204,7 +243,8 @@ class TeachSession:
 
     @property
     def locked(self) -> bool:
-        """The environment cannot change: some but not ``per_env`` demonstrations are kept for it."""
+        """The environment cannot change: some but not ``per_env`` demonstrations are
+        kept for it."""
         return 0 < self.kept_here < self.per_env
 
     def kept_paths(self) -> list[np.ndarray]:
@@ -234,8 +274,11 @@ class TeachSession:
             if env.shape == self.env.shape and torch.equal(env, self.env):
                 return  # unchanged: the demonstration on show stays
             if self.locked:
-                raise ValueError(f"{self.kept_here} of {self.per_env} demonstrations are kept for this environment: "
-                                 "finish it first")
+                raise ValueError(
+                    f"{self.kept_here} of {self.per_env} demonstrations are kept for this "
+                    "environment: "
+                    "finish it first"
+                )
             if env.shape != self.env.shape:
                 raise ValueError(f"env must have {self.env.numel()} values, got {env.numel()}")
             self.env, self.pending = env.clone(), None
@@ -244,8 +287,11 @@ class TeachSession:
         """Move to the next proposed environment (refused while :attr:`locked`)."""
         with self.lock:
             if self.locked:
-                raise ValueError(f"{self.kept_here} of {self.per_env} demonstrations are kept for this environment: "
-                                 "finish it first")
+                raise ValueError(
+                    f"{self.kept_here} of {self.per_env} demonstrations are kept for this "
+                    "environment: "
+                    "finish it first"
+                )
             self.env, self.pending = self._proposal(), None
             return self.env
 
@@ -254,13 +300,22 @@ class TeachSession:
         """The demonstration ``raw (n, D)`` (n >= 1 recorded samples, taken at ``times (n,)`` s;
         default: 60 per second) resampled to ``num_steps``, checked and put on show (replacing the
         one shown). ``extra`` goes to the checks (the arm: ``ik_error``)."""
-        raw = torch.as_tensor(raw, dtype=torch.float64).reshape(-1, len(self.teach.fmt.columns))  # (n, D)
-        times = (torch.arange(raw.shape[0], dtype=torch.float64) / 60 if times is None
-                 else torch.as_tensor(times, dtype=torch.float64).reshape(-1))  # (n,)
+        raw = torch.as_tensor(raw, dtype=torch.float64).reshape(
+            -1, len(self.teach.fmt.columns)
+        )  # (n, D)
+        times = (
+            torch.arange(raw.shape[0], dtype=torch.float64) / 60
+            if times is None
+            else torch.as_tensor(times, dtype=torch.float64).reshape(-1)
+        )  # (n,)
         if times.shape[0] != raw.shape[0]:
-            raise ValueError(f"times must have one entry per sample ({raw.shape[0]}), got {times.shape[0]}")
+            raise ValueError(
+                f"times must have one entry per sample ({raw.shape[0]}), got {times.shape[0]}"
+            )
         if raw.shape[0] < 1 or not bool(torch.isfinite(raw).all()):
-            raise ValueError(f"a demonstration needs >= 1 finite sample, got shape {tuple(raw.shape)}")
+            raise ValueError(
+                f"a demonstration needs >= 1 finite sample, got shape {tuple(raw.shape)}"
+            )
         with self.lock:
             src = raw if raw.shape[0] >= 2 else raw.expand(2, -1)  # one sample: a point held still
             traj = resample(src, self.num_steps)  # (T, D)
@@ -284,8 +339,11 @@ class TeachSession:
             if p is None:
                 raise ValueError("no demonstration to keep: draw one first")
             if not p.quality.ok and not insist:
-                raise ValueError("this demonstration failed its checks (" + "; ".join(p.quality.messages)
-                                 + "): keep it anyway, or discard it")
+                raise ValueError(
+                    "this demonstration failed its checks ("
+                    + "; ".join(p.quality.messages)
+                    + "): keep it anyway, or discard it"
+                )
             k = self.next_k
             if self.fmt == "csv":
                 self._write_recording(k, p)
@@ -299,9 +357,15 @@ class TeachSession:
             if "label" in p.quality.values:
                 self.sides[i].append(int(p.quality.values["label"]))
             self.record_data["demos"][str(k)] = {
-                "env": i, "samples": int(p.raw.shape[0]), "num_steps": self.num_steps, "flags": list(p.quality.flags),
-                "messages": p.quality.messages, "insisted": bool(insist and not p.quality.ok),
-                "values": p.quality.values, "time": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+                "env": i,
+                "samples": int(p.raw.shape[0]),
+                "num_steps": self.num_steps,
+                "flags": list(p.quality.flags),
+                "messages": p.quality.messages,
+                "insisted": bool(insist and not p.quality.ok),
+                "values": p.quality.values,
+                "time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            }
             self._write_record()
             self.pending = None
             if self.counts[i] >= self.per_env:
@@ -311,19 +375,31 @@ class TeachSession:
     def _write_recording(self, k: int, p: Pending) -> None:
         """``demoK.csv``: the raw samples at their times from 0 (samples whose time does not
         increase dropped; one sample held for a second), the environment in every row."""
-        keep = torch.cat([torch.ones(1, dtype=torch.bool), p.times[1:] > torch.cummax(p.times, 0).values[:-1]])
+        keep = torch.cat(
+            [torch.ones(1, dtype=torch.bool), p.times[1:] > torch.cummax(p.times, 0).values[:-1]]
+        )
         t, raw = p.times[keep] - p.times[0], p.raw[keep]  # (n,), (n, D)
         if t.shape[0] < 2:
             t, raw = torch.tensor([0.0, 1.0], dtype=torch.float64), raw[:1].expand(2, -1)
         env = self.env.to(torch.float64).expand(t.shape[0], -1)  # (n, E)
         fmt = self.teach.fmt
-        write_recording(self.folder / f"demo{k}.csv", [TIME, *fmt.columns, *fmt.env_names],
-                        torch.cat([t[:, None], raw, env], 1).numpy())
+        write_recording(
+            self.folder / f"demo{k}.csv",
+            [TIME, *fmt.columns, *fmt.env_names],
+            torch.cat([t[:, None], raw, env], 1).numpy(),
+        )
 
     # ------------------------------------------------------------------ progress
     def progress(self) -> dict:
-        """Environments done (of ``num_envs``), kept here (of ``per_env``), kept and marked in all."""
+        """Environments done (of ``num_envs``), kept here (of ``per_env``), kept and
+        marked in all."""
         with self.lock:
-            return {"envs_done": self.envs_done, "num_envs": self.num_envs, "kept_here": self.kept_here,
-                    "per_env": self.per_env, "kept": self.kept, "marked": self.marked,
-                    "finished": self.envs_done >= self.num_envs}
+            return {
+                "envs_done": self.envs_done,
+                "num_envs": self.num_envs,
+                "kept_here": self.kept_here,
+                "per_env": self.per_env,
+                "kept": self.kept,
+                "marked": self.marked,
+                "finished": self.envs_done >= self.num_envs,
+            }

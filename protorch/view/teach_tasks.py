@@ -46,9 +46,12 @@ class Quality:
         self.messages.append(message)
 
 
-def _common_checks(q: Quality, samples: int, start_d: float, goal_d: float, tol: float, min_samples: int,
-                   unit: str) -> None:
-    q.values.update(samples=int(samples), start_distance=float(start_d), goal_distance=float(goal_d))
+def _common_checks(
+    q: Quality, samples: int, start_d: float, goal_d: float, tol: float, min_samples: int, unit: str
+) -> None:
+    q.values.update(
+        samples=int(samples), start_distance=float(start_d), goal_distance=float(goal_d)
+    )
     if samples < min_samples:
         q.fail("short", f"too short: {samples} samples (at least {min_samples})")
     if start_d > tol:
@@ -72,12 +75,18 @@ class ParticleTeach:
     name, kind, unit = "point_particle", "particle", ""
     fmt: DemoFormat = PARTICLE_FORMAT
 
-    def __init__(self, task: PointParticleTask | None = None, *, tol: float = 0.3, min_samples: int = 10) -> None:
+    def __init__(
+        self, task: PointParticleTask | None = None, *, tol: float = 0.3, min_samples: int = 10
+    ) -> None:
         self.task = PointParticleTask() if task is None else task
         if self.task.fixed_start is not None:
-            raise ValueError("teaching writes 6-D environments: use a point_particle task without fixed_start")
+            raise ValueError(
+                "teaching writes 6-D environments: use a point_particle task without fixed_start"
+            )
         if not tol > 0 or int(min_samples) < 2:
-            raise ValueError(f"need tol > 0 and min_samples >= 2, got tol={tol}, min_samples={min_samples}")
+            raise ValueError(
+                f"need tol > 0 and min_samples >= 2, got tol={tol}, min_samples={min_samples}"
+            )
         self.tol, self.min_samples = float(tol), int(min_samples)
 
     def sample_envs(self, n: int, generator: torch.Generator) -> Tensor:
@@ -98,8 +107,15 @@ class ParticleTeach:
         start and end within ``tol``, at least ``min_samples`` samples, and neither the drawn
         polyline nor the resampled one entering the wall (exact segment test)."""
         q = Quality()
-        _common_checks(q, raw.shape[0], float((traj[0] - env[0:2]).norm()), float((traj[-1] - env[4:6]).norm()),
-                       self.tol, self.min_samples, self.unit)
+        _common_checks(
+            q,
+            raw.shape[0],
+            float((traj[0] - env[0:2]).norm()),
+            float((traj[-1] - env[4:6]).norm()),
+            self.tol,
+            self.min_samples,
+            self.unit,
+        )
         clear = float(self.task.clearance(traj, env))
         q.values["clearance"] = clear
         if bool(self.task.collides(raw, env)) or bool(self.task.collides(traj, env)):
@@ -127,7 +143,9 @@ class HandFollower:
         from the current configuration; and the hand's position error (m)."""
         kin = self.task.kinematics
         p = torch.as_tensor(np.asarray(target, dtype=np.float64)).to(self.rest)[None]  # (1, 3)
-        q, _ = kin.inverse(p, self.q[None], rotation=self.rotation, rest=self.rest, iters=self.iters)
+        q, _ = kin.inverse(
+            p, self.q[None], rotation=self.rotation, rest=self.rest, iters=self.iters
+        )
         self.q = q[0]
         err = float((kin.ee_position(self.q) - p[0]).norm())
         return self.q.clone(), err
@@ -152,11 +170,19 @@ class ArmTeach:
 
     name, kind, unit = "arm_reach", "arm", " m"
 
-    def __init__(self, task: ArmReachTask | None = None, *, tol: float = 0.03, min_samples: int = 10,
-                 ik_tol: float = 0.01) -> None:
+    def __init__(
+        self,
+        task: ArmReachTask | None = None,
+        *,
+        tol: float = 0.03,
+        min_samples: int = 10,
+        ik_tol: float = 0.01,
+    ) -> None:
         self.task = ArmReachTask() if task is None else task
         if not (tol > 0 and ik_tol > 0) or int(min_samples) < 2:
-            raise ValueError(f"need tol > 0, ik_tol > 0, min_samples >= 2, got {tol}, {ik_tol}, {min_samples}")
+            raise ValueError(
+                f"need tol > 0, ik_tol > 0, min_samples >= 2, got {tol}, {ik_tol}, {min_samples}"
+            )
         self.tol, self.min_samples, self.ik_tol = float(tol), int(min_samples), float(ik_tol)
         self.fmt = arm_demo_format(self.task)
 
@@ -169,8 +195,9 @@ class ArmTeach:
         kin = self.task.kinematics
         return self.task.ee_path(torch.as_tensor(traj).to(kin.lower)).cpu().numpy()
 
-    def quality(self, raw: Tensor, traj: Tensor, env: Tensor, *, ik_error: float = 0.0,
-                sides: tuple = ()) -> Quality:
+    def quality(
+        self, raw: Tensor, traj: Tensor, env: Tensor, *, ik_error: float = 0.0, sides: tuple = ()
+    ) -> Quality:
         """Checks of the recorded ``raw (n, 7)`` resampled to ``traj (T, 7)`` in ``env (4,)``:
         the hand starts (ends) within ``tol`` of the start (target), at least ``min_samples``
         samples, no part of the arm within the can's radius plus ``margin`` of its axis, no frame
@@ -182,22 +209,38 @@ class ArmTeach:
         traj, env = traj.to(kin.lower), env.to(kin.lower)
         ee = task.ee_path(traj)  # (T, 3)
         q = Quality()
-        _common_checks(q, raw.shape[0], float((ee[0] - task.start_position(ee.dtype, ee.device)).norm()),
-                       float((ee[-1] - task.goal_point(env)).norm()), self.tol, self.min_samples, self.unit)
+        _common_checks(
+            q,
+            raw.shape[0],
+            float((ee[0] - task.start_position(ee.dtype, ee.device)).norm()),
+            float((ee[-1] - task.goal_point(env)).norm()),
+            self.tol,
+            self.min_samples,
+            self.unit,
+        )
         dist = float(task.can_distance(traj, env))
         side = int(task.side(traj, env))
         links = kin.link_positions(traj)  # (T, F, 3)
         q.values.update(can_distance=dist, ik_error=float(ik_error), side=SIDES[side], label=side)
         if dist <= task.can_radius + task.margin:
-            q.fail("collides", f"the arm comes {dist:.3g} m from the can's axis (radius + margin "
-                               f"{task.can_radius + task.margin:.3g} m)")
+            q.fail(
+                "collides",
+                f"the arm comes {dist:.3g} m from the can's axis (radius + margin "
+                f"{task.can_radius + task.margin:.3g} m)",
+            )
         if not bool((links[:, 1:, 2] >= 0).all()):
             q.fail("table", "part of the arm goes below the table")
         if ik_error > self.ik_tol:
-            q.fail("ik", f"the hand could not follow the target (missed it by up to {ik_error:.3g} m)")
+            q.fail(
+                "ik", f"the hand could not follow the target (missed it by up to {ik_error:.3g} m)"
+            )
         if sides and any(int(s) != side for s in sides):
-            q.fail("side", f"passes the can on the {SIDES[side]}; this environment's other demonstrations pass "
-                           f"on the {SIDES[int(sides[0])]}")
+            q.fail(
+                "side",
+                f"passes the can on the {SIDES[side]}; this environment's other demonstrations "
+                "pass "
+                f"on the {SIDES[int(sides[0])]}",
+            )
         return q
 
 

@@ -24,7 +24,9 @@ PAGE = Path(__file__).with_name("teleop_page.html")
 class TeleopServer:
     """Serve ``session`` on ``host:port`` (port 0: a free one) in a background thread."""
 
-    def __init__(self, session: TeleopSession, *, host: str = "127.0.0.1", port: int = 8080) -> None:
+    def __init__(
+        self, session: TeleopSession, *, host: str = "127.0.0.1", port: int = 8080
+    ) -> None:
         self.session = session
         self.lock = threading.Lock()
         server = self
@@ -83,29 +85,49 @@ class TeleopServer:
 
 
 def teleop_main(argv) -> int:
-    """``python -m protorch.view teleop RUN [--study N] [--conditions none,fixed,adaptive] [--out DIR]``."""
+    """``python -m protorch.view teleop RUN [--study N] [--conditions none,fixed,adaptive] [--out
+    DIR]``."""
     import argparse
     import time
 
-    ap = argparse.ArgumentParser(prog="protorch view teleop",
-                                 description="drive the beam through the moving window, guided by RUN's map")
+    ap = argparse.ArgumentParser(
+        prog="protorch view teleop",
+        description="drive the beam through the moving window, guided by RUN's map",
+    )
     ap.add_argument("run_dir", help="a finished experiment=teleop_window run")
     ap.add_argument("--host", default="127.0.0.1")
-    ap.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 picks a free one)")
-    ap.add_argument("--study", type=int, default=0, help="trials per condition, counterbalanced (0: free mode)")
-    ap.add_argument("--conditions", default="none,fixed,adaptive", help="comma-separated (default all three)")
+    ap.add_argument(
+        "--port", type=int, default=8080, help="port (default 8080; 0 picks a free one)"
+    )
+    ap.add_argument(
+        "--study", type=int, default=0, help="trials per condition, counterbalanced (0: free mode)"
+    )
+    ap.add_argument(
+        "--conditions", default="none,fixed,adaptive", help="comma-separated (default all three)"
+    )
     ap.add_argument("--out", help="where trials.csv and the raw poses go (default RUN/study)")
-    ap.add_argument("--time-limit", type=float, default=30.0, help="s a trial may last (default 30)")
+    ap.add_argument(
+        "--time-limit", type=float, default=30.0, help="s a trial may last (default 30)"
+    )
     args = ap.parse_args(argv)
     try:
-        session = TeleopSession(args.run_dir, conditions=[c for c in args.conditions.split(",") if c],
-                                study=args.study, out=args.out, time_limit=args.time_limit)
+        session = TeleopSession(
+            args.run_dir,
+            conditions=[c for c in args.conditions.split(",") if c],
+            study=args.study,
+            out=args.out,
+            time_limit=args.time_limit,
+        )
     except (FileNotFoundError, ValueError) as exc:
         print(f"protorch view teleop: {exc}", flush=True)
         return 1
     server = TeleopServer(session, host=args.host, port=args.port)
-    print(f"protorch view: teleoperation of {Path(args.run_dir).resolve()} at {server.url}; trials are written to "
-          f"{session.out.resolve()}  (Ctrl-C stops)", flush=True)
+    print(
+        f"protorch view: teleoperation of {Path(args.run_dir).resolve()} at {server.url}; trials "
+        "are written to "
+        f"{session.out.resolve()}  (Ctrl-C stops)",
+        flush=True,
+    )
     try:
         while True:
             time.sleep(3600)

@@ -16,8 +16,16 @@ import torch
 from ..gp.model import label_aware_mean
 from .common import atomic_save, frame_indices, legend_below, new_figure, to_numpy
 
-__all__ = ["CLASS_COLORS", "draw_can", "plot_top_view", "plot_arm_3d", "draw_episode_frame",
-           "plot_switch_frames", "write_switch_gif", "experiment_figures"]
+__all__ = [
+    "CLASS_COLORS",
+    "draw_can",
+    "plot_top_view",
+    "plot_arm_3d",
+    "draw_episode_frame",
+    "plot_switch_frames",
+    "write_switch_gif",
+    "experiment_figures",
+]
 
 CLASS_COLORS = {0: "tab:blue", 1: "tab:orange"}  # LEFT, RIGHT
 _NAMES = {0: "left", 1: "right"}
@@ -31,8 +39,17 @@ def draw_can(ax, task, env, *, margin: bool = True):
     e = to_numpy(env)
     ax.add_patch(Circle((e[0], e[1]), task.can_radius, facecolor="0.55", edgecolor="0.2", zorder=2))
     if margin:
-        ax.add_patch(Circle((e[0], e[1]), task.can_radius + task.margin, fill=False, ls="--", ec="0.3", lw=0.8,
-                            zorder=2))
+        ax.add_patch(
+            Circle(
+                (e[0], e[1]),
+                task.can_radius + task.margin,
+                fill=False,
+                ls="--",
+                ec="0.3",
+                lw=0.8,
+                zorder=2,
+            )
+        )
     ax.add_patch(Circle((e[2], e[3]), task.goal_tol, fill=False, ec="r", ls=":", lw=1, zorder=2))
     ax.plot(task.start[0], task.start[1], "x", color="g", ms=8, mew=2, zorder=3)
     ax.plot(e[2], e[3], "x", color="r", ms=8, mew=2, zorder=3)
@@ -75,14 +92,27 @@ def plot_arm_3d(ax, task, q, env, *, instants: int = 7):
     xx, yy = np.meshgrid([-0.1, tx1], [ty0, ty1])  # the table top, the robot's base on it
     ax.plot_surface(xx, yy, np.zeros_like(xx), color="burlywood", alpha=0.25, zorder=0)
     th, zz = np.meshgrid(np.linspace(0, 2 * np.pi, 30), [0.0, task.can_height])
-    ax.plot_surface(e[0] + task.can_radius * np.cos(th), e[1] + task.can_radius * np.sin(th), zz, color="0.5",
-                    alpha=0.7)
+    ax.plot_surface(
+        e[0] + task.can_radius * np.cos(th),
+        e[1] + task.can_radius * np.sin(th),
+        zz,
+        color="0.5",
+        alpha=0.7,
+    )
     cmap = __import__("matplotlib").colormaps["viridis"]
     idx = np.linspace(0, len(links) - 1, instants).round().astype(int)
     for k, i in enumerate(idx):
         c = cmap(k / max(len(idx) - 1, 1))
         ax.plot(links[i, :, 0], links[i, :, 1], links[i, :, 2], "-o", color=c, ms=2.5, lw=2)
-    ax.plot(links[:, -1, 0], links[:, -1, 1], links[:, -1, 2], "-", color="k", lw=1.2, label="end effector")
+    ax.plot(
+        links[:, -1, 0],
+        links[:, -1, 1],
+        links[:, -1, 2],
+        "-",
+        color="k",
+        lw=1.2,
+        label="end effector",
+    )
     ax.scatter([e[2]], [e[3]], [task.ee_height], color="r", marker="x", s=40)
     ax.set_xlim(-0.1, 0.9)
     ax.set_ylim(-0.45, 0.45)
@@ -105,8 +135,15 @@ def draw_episode_frame(ax, task, ep: dict, *, t: int, legend: bool = False):
         raise ValueError(f"t must be in [0, {len(envs) - 1}], got {t}")
     draw_can(ax, task, envs[t])
     lab = int(labels[t])
-    ax.plot(means[t, :, 0], means[t, :, 1], "-", color=CLASS_COLORS.get(lab, "m"), lw=1.5,
-            label=f"tracked mean ({_NAMES.get(lab, lab)})", zorder=4)
+    ax.plot(
+        means[t, :, 0],
+        means[t, :, 1],
+        "-",
+        color=CLASS_COLORS.get(lab, "m"),
+        lw=1.5,
+        label=f"tracked mean ({_NAMES.get(lab, lab)})",
+        zorder=4,
+    )
     ax.plot(links[t, :, 0], links[t, :, 1], "-o", color="0.45", ms=2, lw=2, zorder=5, label="arm")
     ax.plot(ee[: t + 1, 0], ee[: t + 1, 1], "-", color="k", lw=1.3, zorder=6, label="end effector")
     _limits(ax, task)
@@ -126,11 +163,24 @@ def _switch_frames(labels, n: int, num_frames: int) -> list[int]:
     return sorted(picks)[:num_frames] if len(picks) >= num_frames else sorted(picks)
 
 
-def plot_switch_frames(path, task, ep: dict, *, frames=None, num_frames: int = 5, title: str | None = None,
-                       dpi: int = 110) -> Path:
-    """A row of frames of one episode (default: around its first switch) as a PNG; returns the path."""
+def plot_switch_frames(
+    path,
+    task,
+    ep: dict,
+    *,
+    frames=None,
+    num_frames: int = 5,
+    title: str | None = None,
+    dpi: int = 110,
+) -> Path:
+    """A row of frames of one episode (default: around its first switch) as a PNG; returns the
+    path."""
     n = len(ep["envs"])
-    idx = _switch_frames(ep["labels"], n, num_frames) if frames is None else frame_indices(n, frames, num_frames)
+    idx = (
+        _switch_frames(ep["labels"], n, num_frames)
+        if frames is None
+        else frame_indices(n, frames, num_frames)
+    )
     fig = new_figure((2.9 * len(idx), 3.2))
     axes = fig.subplots(1, len(idx), squeeze=False)
     for ax, t in zip(axes[0], idx):
@@ -139,11 +189,21 @@ def plot_switch_frames(path, task, ep: dict, *, frames=None, num_frames: int = 5
     fig.suptitle(f"{head}: {'success' if ep['success'] else 'failure'}", fontsize=10)
     fig.tight_layout()
     legend_below(fig, axes)
-    return atomic_save(path, ".png", lambda tmp: fig.savefig(tmp, dpi=dpi, format="png", bbox_inches="tight"))
+    return atomic_save(
+        path, ".png", lambda tmp: fig.savefig(tmp, dpi=dpi, format="png", bbox_inches="tight")
+    )
 
 
-def write_switch_gif(path, task, ep: dict, *, fps: int = 12, max_frames: int = 40, title: str | None = None,
-                     dpi: int = 70) -> Path:
+def write_switch_gif(
+    path,
+    task,
+    ep: dict,
+    *,
+    fps: int = 12,
+    max_frames: int = 40,
+    title: str | None = None,
+    dpi: int = 70,
+) -> Path:
     """An animated GIF of one episode (``PillowWriter``); returns the path."""
     from matplotlib.animation import FuncAnimation, PillowWriter
 
@@ -159,11 +219,15 @@ def write_switch_gif(path, task, ep: dict, *, fps: int = 12, max_frames: int = 4
         return ()
 
     anim = FuncAnimation(fig, update, frames=idx, blit=False, repeat=False)
-    return atomic_save(path, ".gif", lambda tmp: anim.save(tmp, writer=PillowWriter(fps=int(fps)), dpi=dpi))
+    return atomic_save(
+        path, ".gif", lambda tmp: anim.save(tmp, writer=PillowWriter(fps=int(fps)), dpi=dpi)
+    )
 
 
 # ----------------------------------------------------------------------------- the experiment's set
-def experiment_figures(out_dir, task, model, off_model, test_envs, res, off_loop, episodes, metrics) -> None:
+def experiment_figures(
+    out_dir, task, model, off_model, test_envs, res, off_loop, episodes, metrics
+) -> None:
     """Every figure of :func:`protorch.experiments.arm_reach.run` into ``out_dir``."""
     out_dir = Path(out_dir)
     promp = model.promp
@@ -176,28 +240,51 @@ def experiment_figures(out_dir, task, model, off_model, test_envs, res, off_loop
         pick = torch.argsort(off_line)[:6].tolist()
         env = test_envs[pick]
         known = torch.unique(model.env_map.labels).tolist()
-        paths = {k: task.ee_path(promp.trajectory(model.env_map.predict_mean(env, k))) for k in known}
+        paths = {
+            k: task.ee_path(promp.trajectory(model.env_map.predict_mean(env, k))) for k in known
+        }
 
-        best = label_aware_mean(model.env_map, promp, task, env, dtype=promp.basis.dtype, check=True)
+        best = label_aware_mean(
+            model.env_map, promp, task, env, dtype=promp.basis.dtype, check=True
+        )
         ok = task.success(promp.trajectory(best.mean), env)
-        off = None if off_model is None else task.ee_path(promp.trajectory(off_model.env_map.predict_mean(env)))
+        off = (
+            None
+            if off_model is None
+            else task.ee_path(promp.trajectory(off_model.env_map.predict_mean(env)))
+        )
     fig = new_figure((3.2 * 3, 3.4 * 2))
     axes = fig.subplots(2, 3, squeeze=False)
     for i, ax in enumerate(axes.flat):
         lines = {}
         for k in known:
             chosen = int(best.label[i]) == k
-            lines[f"{_NAMES.get(k, k)}{' (chosen)' if chosen else ''}"] = (paths[k][i], CLASS_COLORS.get(k, "m"),
-                                                                          "-" if chosen else ":")
+            lines[f"{_NAMES.get(k, k)}{' (chosen)' if chosen else ''}"] = (
+                paths[k][i],
+                CLASS_COLORS.get(k, "m"),
+                "-" if chosen else ":",
+            )
         if off is not None:
             lines["labels off (averaged)"] = (off[i], "0.35", "--")
-        plot_top_view(ax, task, env[i], lines, title=f"held-out env {pick[i]}: {'success' if ok[i] else 'failure'}")
-    fig.suptitle(f"end-effector paths of both classes' predicted means (top view); test success "
-                 f"{metrics['test']['success_rate']:.3f}", fontsize=10)
+        plot_top_view(
+            ax,
+            task,
+            env[i],
+            lines,
+            title=f"held-out env {pick[i]}: {'success' if ok[i] else 'failure'}",
+        )
+    fig.suptitle(
+        f"end-effector paths of both classes' predicted means (top view); test success "
+        f"{metrics['test']['success_rate']:.3f}",
+        fontsize=10,
+    )
     fig.tight_layout()
     legend_below(fig, axes, ncol=5)
-    atomic_save(out_dir / "top_view.png", ".png",
-                lambda tmp: fig.savefig(tmp, dpi=110, format="png", bbox_inches="tight"))
+    atomic_save(
+        out_dir / "top_view.png",
+        ".png",
+        lambda tmp: fig.savefig(tmp, dpi=110, format="png", bbox_inches="tight"),
+    )
 
     # 3-D view of the arm along the chosen mean of the first of those environments
     fig = new_figure((6, 5.5))
@@ -205,31 +292,57 @@ def experiment_figures(out_dir, task, model, off_model, test_envs, res, off_loop
     with torch.no_grad():
         q = promp.trajectory(best.mean[0])  # (T, 7)
     plot_arm_3d(ax, task, q, env[0])
-    ax.set_title(f"{task.robot.name} along the {_NAMES.get(int(best.label[0]), '')} mean, held-out env {pick[0]}", fontsize=9)
+    ax.set_title(
+        f"{task.robot.name} along the {_NAMES.get(int(best.label[0]), '')} mean, held-out env "
+        f"{pick[0]}",
+        fontsize=9,
+    )
     atomic_save(out_dir / "arm_3d.png", ".png", lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
 
     # held-out success vs loop iteration
     fig = new_figure((6, 4))
     ax = fig.subplots()
-    for name, r, color in (("labels on", res, "tab:green"), ("labels off (loop)", off_loop, "tab:red")):
+    for name, r, color in (
+        ("labels on", res, "tab:green"),
+        ("labels off (loop)", off_loop, "tab:red"),
+    ):
         if r is None:
             continue
-        ax.plot([m["envs_done"] for m in r.metrics], [m["eval_success"] for m in r.metrics], "-o", ms=3, color=color,
-                label=f"{name}: held-out test")
-        ax.plot([m["envs_done"] for m in r.metrics[1:]], [m["initial_success"] / m["batch"] for m in r.metrics[1:]],
-                ":", color=color, lw=1, label=f"{name}: GP guess on the next batch")
+        ax.plot(
+            [m["envs_done"] for m in r.metrics],
+            [m["eval_success"] for m in r.metrics],
+            "-o",
+            ms=3,
+            color=color,
+            label=f"{name}: held-out test",
+        )
+        ax.plot(
+            [m["envs_done"] for m in r.metrics[1:]],
+            [m["initial_success"] / m["batch"] for m in r.metrics[1:]],
+            ":",
+            color=color,
+            lw=1,
+            label=f"{name}: GP guess on the next batch",
+        )
     ax.set_xlabel("environments tried")
     ax.set_ylabel("success rate of the map's mean")
     ax.set_ylim(-0.02, 1.02)
     ax.legend(fontsize=7)
     ax.set_title("arm: self-improvement, success vs loop iteration", fontsize=10)
-    atomic_save(out_dir / "success_vs_iteration.png", ".png", lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    atomic_save(
+        out_dir / "success_vs_iteration.png",
+        ".png",
+        lambda tmp: fig.savefig(tmp, dpi=110, format="png"),
+    )
 
     # a moving episode in which the arm switches sides
     if episodes is not None:
         sw, okd = episodes.switches, episodes.success
-        order = [i for i in range(episodes.num_episodes) if sw[i] > 0 and okd[i]] + \
-                [i for i in range(episodes.num_episodes) if sw[i] > 0] + [0]
+        order = (
+            [i for i in range(episodes.num_episodes) if sw[i] > 0 and okd[i]]
+            + [i for i in range(episodes.num_episodes) if sw[i] > 0]
+            + [0]
+        )
         i = order[0]
         ep = episodes.episode(i)
         title = f"episode {i}, {int(sw[i])} switch(es)"

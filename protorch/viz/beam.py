@@ -11,15 +11,28 @@ from .common import to_numpy
 from .paper import save_figure
 
 __all__ = [
-    "plot_wall_3d", "plot_paths_3d", "plot_beam_3d", "plot_quaternion_components", "plot_stiffness",
-    "plot_paths_top", "fig5_figure", "teleop_figure",
+    "plot_wall_3d",
+    "plot_paths_3d",
+    "plot_beam_3d",
+    "plot_quaternion_components",
+    "plot_stiffness",
+    "plot_paths_top",
+    "fig5_figure",
+    "teleop_figure",
 ]
 
 _QUAT_NAMES = ("q_w", "q_x", "q_y", "q_z")
 
 
-def plot_wall_3d(ax, task, *, margin: float = 0.35, color: str = "0.6", alpha: float = 0.35,
-                 view: tuple[float, float] | None = (22.0, -130.0)):
+def plot_wall_3d(
+    ax,
+    task,
+    *,
+    margin: float = 0.35,
+    color: str = "0.6",
+    alpha: float = 0.35,
+    view: tuple[float, float] | None = (22.0, -130.0),
+):
     """The wall around the window (a ``margin`` wide frame of it), start and end positions; the
     camera (``view = (elevation, azimuth)`` in degrees, ``None``: matplotlib's) looks at the
     window from the start's side at an angle, so both the opening and the path show."""
@@ -34,8 +47,15 @@ def plot_wall_3d(ax, task, *, margin: float = 0.35, color: str = "0.6", alpha: f
     def quad(y0, y1, z0, z1):
         return [c + y * u + z * v for y, z in ((y0, z0), (y1, z0), (y1, z1), (y0, z1))]
 
-    panels = [quad(-ow, -hw, -oh, oh), quad(hw, ow, -oh, oh), quad(-hw, hw, hh, oh), quad(-hw, hw, -oh, -hh)]
-    ax.add_collection3d(Poly3DCollection(panels, facecolor=color, edgecolor="0.3", alpha=alpha, lw=0.5))
+    panels = [
+        quad(-ow, -hw, -oh, oh),
+        quad(hw, ow, -oh, oh),
+        quad(-hw, hw, hh, oh),
+        quad(-hw, hw, -oh, -hh),
+    ]
+    ax.add_collection3d(
+        Poly3DCollection(panels, facecolor=color, edgecolor="0.3", alpha=alpha, lw=0.5)
+    )
     window = np.array(quad(-hw, hw, -hh, hh) + [quad(-hw, hw, -hh, hh)[0]])
     ax.plot(window[:, 0], window[:, 1], window[:, 2], color="k", lw=1.2)
     ax.scatter(*task.start_position, color="g", marker="x", s=50, depthshade=False)
@@ -45,7 +65,9 @@ def plot_wall_3d(ax, task, *, margin: float = 0.35, color: str = "0.6", alpha: f
     ax.set_zlabel("z (m)", fontsize=7)
     ax.tick_params(labelsize=6)
     # one scale on every axis (metres look like metres), around the wall, start and end
-    pts = np.concatenate([np.array(panels).reshape(-1, 3), [task.start_position, task.end_position]])
+    pts = np.concatenate(
+        [np.array(panels).reshape(-1, 3), [task.start_position, task.end_position]]
+    )
     lo, hi = pts.min(0), pts.max(0)
     centre, half = (lo + hi) / 2, (hi - lo).max() / 2
     for setter, c0 in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
@@ -56,14 +78,28 @@ def plot_wall_3d(ax, task, *, margin: float = 0.35, color: str = "0.6", alpha: f
     return ax
 
 
-def plot_paths_3d(ax, positions, *, color, lw: float = 1.0, alpha: float = 1.0, label: str | None = None):
+def plot_paths_3d(
+    ax, positions, *, color, lw: float = 1.0, alpha: float = 1.0, label: str | None = None
+):
     """Position paths ``(n, T, 3)`` or ``(T, 3)`` (or a list of ``(T_i, 3+)``)."""
-    paths = [to_numpy(p) for p in positions] if isinstance(positions, (list, tuple)) else to_numpy(positions)
+    paths = (
+        [to_numpy(p) for p in positions]
+        if isinstance(positions, (list, tuple))
+        else to_numpy(positions)
+    )
     if isinstance(paths, np.ndarray) and paths.ndim == 2:
         paths = [paths]
     colors = color if isinstance(color, (list, tuple)) else [color] * len(paths)
     for i, (p, col) in enumerate(zip(paths, colors)):
-        ax.plot(p[:, 0], p[:, 1], p[:, 2], color=col, lw=lw, alpha=alpha, label=label if i == 0 else None)
+        ax.plot(
+            p[:, 0],
+            p[:, 1],
+            p[:, 2],
+            color=col,
+            lw=lw,
+            alpha=alpha,
+            label=label if i == 0 else None,
+        )
     return ax
 
 
@@ -79,8 +115,18 @@ def plot_beam_3d(ax, task, poses, *, cmap: str = "viridis", lw: float = 2.5):
     return ax
 
 
-def plot_quaternion_components(ax, phase, quaternions, *, components=(0, 1, 2), via_phases=None, via=None,
-                               style: str = "-", label_prefix: str = "", lw: float = 1.8):
+def plot_quaternion_components(
+    ax,
+    phase,
+    quaternions,
+    *,
+    components=(0, 1, 2),
+    via_phases=None,
+    via=None,
+    style: str = "-",
+    label_prefix: str = "",
+    lw: float = 1.8,
+):
     """Quaternion components ``(T, 4)`` over the phase ``(T,)`` (the first three by default, as
     Fig. 5), with via quaternions ``(V, 4)`` at ``via_phases (V,)`` as markers, each drawn with the
     sign of the curve at its phase (``q`` and ``-q`` are the same orientation)."""
@@ -138,8 +184,12 @@ def fig5_figure(path, task, demos, demo_hits, demo_model, model, samples, phases
     ax = fig.add_subplot(2, 2, 1, projection="3d")
     plot_wall_3d(ax, task)
     hits = [bool(h) for h in demo_hits]
-    plot_paths_3d(ax, [d[:, :3] for d in demos], color=["tab:red" if h else "tab:green" for h in hits], lw=1)
-    ax.set_title(f"(a) {len(demos)} demonstrated positions ({sum(hits)} hit the wall, red)", fontsize=10)
+    plot_paths_3d(
+        ax, [d[:, :3] for d in demos], color=["tab:red" if h else "tab:green" for h in hits], lw=1
+    )
+    ax.set_title(
+        f"(a) {len(demos)} demonstrated positions ({sum(hits)} hit the wall, red)", fontsize=10
+    )
     ax = fig.add_subplot(2, 2, 2, projection="3d")
     plot_wall_3d(ax, task)
     plot_paths_3d(ax, samples[..., :3], color="tab:blue", lw=0.6, alpha=0.5, label="samples")
@@ -151,11 +201,19 @@ def fig5_figure(path, task, demos, demo_hits, demo_model, model, samples, phases
     ax.set_title(f"(b) optimised ProMP: mean and {len(samples)} samples", fontsize=10)
     ax = fig.add_subplot(2, 2, 3)
     plot_quaternion_components(ax, model.phase, mean[:, 3:], via_phases=phases, via=via[:, 3:])
-    plot_quaternion_components(ax, demo_model.phase, demo_model.mean_trajectory()[:, 3:], style="--",
-                               label_prefix="demos' mean ", lw=1.0)
+    plot_quaternion_components(
+        ax,
+        demo_model.phase,
+        demo_model.mean_trajectory()[:, 3:],
+        style="--",
+        label_prefix="demos' mean ",
+        lw=1.0,
+    )
     ax.legend(fontsize=7, ncol=2)
-    ax.set_title("(c) first three quaternion components of the optimised mean (solid), via points (circles)",
-                 fontsize=10)
+    ax.set_title(
+        "(c) first three quaternion components of the optimised mean (solid), via points (circles)",
+        fontsize=10,
+    )
     ax = fig.add_subplot(2, 2, 4, projection="3d")
     plot_wall_3d(ax, task, alpha=0.25)
     idx = torch.linspace(0, mean.shape[0] - 1, 16).round().long()
@@ -176,12 +234,17 @@ def teleop_figure(path, task, guide, intended, assisted, free_ok, guided_ok, len
     z = torch.linspace(0, 1, guide.num_steps)
     ax = axes[0]
     plot_stiffness(ax, z, guide.stiffness[:, :3].mean(-1), label="position (N/m)", color="tab:blue")
-    plot_stiffness(ax, z, guide.stiffness[:, 3:].mean(-1), label="quaternion (per unit)", color="tab:orange")
+    plot_stiffness(
+        ax, z, guide.stiffness[:, 3:].mean(-1), label="quaternion (per unit)", color="tab:orange"
+    )
     ax.set_ylabel("stiffness K(z) = clip(gain / std)")
     ax.legend(fontsize=8)
     ax.set_title("guidance stiffness (mean over coordinates)", fontsize=9)
     n = min(30, intended.shape[0])
-    panels = ((axes[1], intended, free_ok, "unassisted"), (axes[2], assisted, guided_ok, "assisted"))
+    panels = (
+        (axes[1], intended, free_ok, "unassisted"),
+        (axes[2], assisted, guided_ok, "assisted"),
+    )
     for ax, trials, ok, name in panels:
         paths = [t[: int(k)] for t, k in zip(trials[:n, :, :3], lengths[:n])]
         rate = float(ok.double().mean())

@@ -30,7 +30,8 @@ def new_figure(figsize):
 
 
 def atomic_save(path, suffix: str, save) -> Path:
-    """Call ``save(tmp)`` on a temporary file beside ``path`` (mode 0644), then rename it over ``path``."""
+    """Call ``save(tmp)`` on a temporary file beside ``path`` (mode 0644), then rename it over
+    ``path``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=suffix)
@@ -69,5 +70,12 @@ def legend_below(fig, axes, *, ncol: int = 6, fontsize: int = 7):
                 labels.append(label)
     if not handles:
         return None
-    return fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=min(ncol, len(labels)),
-                      fontsize=fontsize, frameon=False)
+    return fig.legend(
+        handles,
+        labels,
+        loc="upper center",
+        bbox_to_anchor=(0.5, 0.0),
+        ncol=min(ncol, len(labels)),
+        fontsize=fontsize,
+        frameon=False,
+    )

@@ -1,6 +1,7 @@
 """Figures of one online episode of the point-particle task (the paper's Fig. 6).
 
-Each function takes the episode as arrays (see :meth:`protorch.control.particle.EpisodeResult.episode`,
+Each function takes the episode as arrays (see
+:meth:`protorch.control.particle.EpisodeResult.episode`,
 whose dict can be passed as ``**kwargs``), writes one file atomically (temporary file in the same
 folder, then ``os.replace``) and returns its path. Figures are drawn on their own Agg canvas
 (no pyplot), so the caller's backend and figures are untouched.
@@ -25,12 +26,19 @@ _LIMITS = (0.0, 10.0)
 
 
 def _check(positions, envs, means, markers):
-    positions, envs, means, markers = to_numpy(positions), to_numpy(envs), to_numpy(means), to_numpy(markers)
+    positions, envs, means, markers = (
+        to_numpy(positions),
+        to_numpy(envs),
+        to_numpy(means),
+        to_numpy(markers),
+    )
     if positions.ndim != 2 or positions.shape[1] != 2:
         raise ValueError(f"positions must be (T+1, 2), got shape {positions.shape}")
     n = positions.shape[0]
     if envs.ndim != 2 or envs.shape != (n, 6):
-        raise ValueError(f"envs must be (T+1, 6) = ({n}, 6) full environments, got shape {envs.shape}")
+        raise ValueError(
+            f"envs must be (T+1, 6) = ({n}, 6) full environments, got shape {envs.shape}"
+        )
     if means.ndim != 3 or means.shape[0] != n or means.shape[2] != 2:
         raise ValueError(f"means must be (T+1, P, 2) with T+1 = {n}, got shape {means.shape}")
     if markers is not None and markers.shape != (n, 2):
@@ -54,24 +62,67 @@ class _EpisodeArtists:
     moved to instant ``t`` by :meth:`show`, so an animation redraws only what moves (see
     :func:`write_episode_gif`)."""
 
-    def __init__(self, ax, positions, envs, means, markers, *, goal_tol: float, legend: bool, recent: int):
+    def __init__(
+        self, ax, positions, envs, means, markers, *, goal_tol: float, legend: bool, recent: int
+    ):
         from matplotlib.patches import Circle, Rectangle
 
-        self.ax, self.positions, self.envs, self.means, self.markers = ax, positions, envs, means, markers
+        self.ax, self.positions, self.envs, self.means, self.markers = (
+            ax,
+            positions,
+            envs,
+            means,
+            markers,
+        )
         self.recent = recent
-        self.walls = [ax.add_patch(Rectangle((0, 0), 2 * _WALL_HALF_WIDTH, 0, facecolor="0.6", edgecolor="0.2",
-                                             lw=1, zorder=1, label=label)) for label in ("wall (now)", "_")]
+        self.walls = [
+            ax.add_patch(
+                Rectangle(
+                    (0, 0),
+                    2 * _WALL_HALF_WIDTH,
+                    0,
+                    facecolor="0.6",
+                    edgecolor="0.2",
+                    lw=1,
+                    zorder=1,
+                    label=label,
+                )
+            )
+            for label in ("wall (now)", "_")
+        ]
         (self.hole,) = ax.plot([], [], "+", color="0.2", ms=8, zorder=2, label="hole centre")
-        self.ring = ax.add_patch(Circle((0, 0), goal_tol, fill=False, edgecolor="r", ls=":", lw=1, zorder=2,
-                                        label="goal tolerance"))
+        self.ring = ax.add_patch(
+            Circle(
+                (0, 0),
+                goal_tol,
+                fill=False,
+                edgecolor="r",
+                ls=":",
+                lw=1,
+                zorder=2,
+                label="goal tolerance",
+            )
+        )
         (self.start,) = ax.plot([], [], "x", color="g", ms=9, mew=2, zorder=3, label="start")
         (self.goal,) = ax.plot([], [], "x", color="r", ms=9, mew=2, zorder=3, label="goal")
         (self.mean,) = ax.plot([], [], "-", color="tab:red", lw=1.2, zorder=4, label="ProMP mean")
-        (self.earlier,) = ax.plot([], [], "-", color="tab:blue", lw=1.0, alpha=0.3, zorder=5,
-                                  label="path earlier, faded: the wall has moved since")
+        (self.earlier,) = ax.plot(
+            [],
+            [],
+            "-",
+            color="tab:blue",
+            lw=1.0,
+            alpha=0.3,
+            zorder=5,
+            label="path earlier, faded: the wall has moved since",
+        )
         (self.path,) = ax.plot([], [], "-", color="tab:blue", lw=1.5, zorder=5, label="path")
         (self.particle,) = ax.plot([], [], "o", color="m", ms=7, zorder=6, label="particle")
-        self.marker = None if markers is None else ax.plot([], [], "*", color="k", ms=9, zorder=7, label="marker")[0]
+        self.marker = (
+            None
+            if markers is None
+            else ax.plot([], [], "*", color="k", ms=9, zorder=7, label="marker")[0]
+        )
         lo, hi = _LIMITS
         ax.set_xlim(lo, hi)
         ax.set_ylim(lo, hi)
@@ -85,15 +136,26 @@ class _EpisodeArtists:
     @property
     def moving(self) -> list:
         """The artists :meth:`show` changes, in drawing order (the axes' title last)."""
-        arts = [*self.walls, self.hole, self.ring, self.start, self.goal, self.mean, self.earlier, self.path,
-                self.particle]
+        arts = [
+            *self.walls,
+            self.hole,
+            self.ring,
+            self.start,
+            self.goal,
+            self.mean,
+            self.earlier,
+            self.path,
+            self.particle,
+        ]
         return arts + ([] if self.marker is None else [self.marker]) + [self.ax.title]
 
     def show(self, t: int, title: str) -> None:
         """Move every artist to instant ``t`` and set the axes' title."""
         sx, sy, wx, hy, gx, gy = self.envs[t]
         lo, hi = _LIMITS
-        for rect, (y_lo, y_hi) in zip(self.walls, ((lo, hy - _HOLE_HALF_HEIGHT), (hy + _HOLE_HALF_HEIGHT, hi))):
+        for rect, (y_lo, y_hi) in zip(
+            self.walls, ((lo, hy - _HOLE_HALF_HEIGHT), (hy + _HOLE_HALF_HEIGHT, hi))
+        ):
             rect.set_xy((wx - _WALL_HALF_WIDTH, y_lo))
             rect.set_height(max(y_hi - y_lo, 0.0))
             rect.set_visible(bool(y_hi > y_lo))
@@ -105,15 +167,26 @@ class _EpisodeArtists:
         split = past_path_split(self.envs, t, self.recent)
         self.earlier.set_data(self.positions[: split + 1, 0], self.positions[: split + 1, 1])
         self.earlier.set_visible(split > 0)  # only once the wall has moved
-        self.path.set_data(self.positions[split: t + 1, 0], self.positions[split: t + 1, 1])
+        self.path.set_data(self.positions[split : t + 1, 0], self.positions[split : t + 1, 1])
         self.particle.set_data([self.positions[t, 0]], [self.positions[t, 1]])
         if self.marker is not None:
             self.marker.set_data([self.markers[t, 0]], [self.markers[t, 1]])
         self.ax.set_title(title, fontsize=9)
 
 
-def draw_online_frame(ax, positions, envs, means, markers=None, *, t: int, dt: float = 0.01,
-                      goal_tol: float = 0.2, legend: bool = False, recent: float = 0.1):
+def draw_online_frame(
+    ax,
+    positions,
+    envs,
+    means,
+    markers=None,
+    *,
+    t: int,
+    dt: float = 0.01,
+    goal_tol: float = 0.2,
+    legend: bool = False,
+    recent: float = 0.1,
+):
     """Draw instant ``t`` of an episode on ``ax``: the wall (grey) with its hole, start (green x),
     goal (red x) with its ``goal_tol`` circle, the particle's path so far (blue) and position,
     the current ProMP mean (red) and marker (black star). The wall is drawn where it is at ``t``;
@@ -122,8 +195,16 @@ def draw_online_frame(ax, positions, envs, means, markers=None, *, t: int, dt: f
     positions, envs, means, markers = _check(positions, envs, means, markers)
     if not 0 <= t < positions.shape[0]:
         raise ValueError(f"t must be in [0, {positions.shape[0] - 1}], got {t}")
-    arts = _EpisodeArtists(ax, positions, envs, means, markers, goal_tol=goal_tol, legend=False,
-                           recent=max(1, int(round(recent / dt))))
+    arts = _EpisodeArtists(
+        ax,
+        positions,
+        envs,
+        means,
+        markers,
+        goal_tol=goal_tol,
+        legend=False,
+        recent=max(1, int(round(recent / dt))),
+    )
     arts.show(t, f"t = {t * dt:.2f} s")
     for a in arts.moving:
         if not a.get_visible():
@@ -133,9 +214,21 @@ def draw_online_frame(ax, positions, envs, means, markers=None, *, t: int, dt: f
     return ax
 
 
-def plot_episode_frames(path, positions, envs, means, markers=None, *, dt: float = 0.01, frames=None,
-                        num_frames: int = 5, success: bool | None = None, title: str | None = None,
-                        goal_tol: float = 0.2, dpi: int = 110) -> Path:
+def plot_episode_frames(
+    path,
+    positions,
+    envs,
+    means,
+    markers=None,
+    *,
+    dt: float = 0.01,
+    frames=None,
+    num_frames: int = 5,
+    success: bool | None = None,
+    title: str | None = None,
+    goal_tol: float = 0.2,
+    dpi: int = 110,
+) -> Path:
     """A row of Fig. 6-style frames of one episode, written as a PNG to ``path``; returns it.
 
     ``frames``: the instants to draw; default ``num_frames`` evenly spaced from the first to the
@@ -153,13 +246,26 @@ def plot_episode_frames(path, positions, envs, means, markers=None, *, dt: float
     fig.suptitle(head, fontsize=10)
     fig.tight_layout()
     legend_below(fig, axes)
-    return atomic_save(path, ".png", lambda tmp: fig.savefig(tmp, dpi=dpi, format="png",
-                                                            bbox_inches="tight"))
+    return atomic_save(
+        path, ".png", lambda tmp: fig.savefig(tmp, dpi=dpi, format="png", bbox_inches="tight")
+    )
 
 
-def write_episode_gif(path, positions, envs, means, markers=None, *, dt: float = 0.01, fps: int = 20,
-                      max_frames: int = 60, success: bool | None = None, title: str | None = None,
-                      goal_tol: float = 0.2, dpi: int = 80) -> Path:
+def write_episode_gif(
+    path,
+    positions,
+    envs,
+    means,
+    markers=None,
+    *,
+    dt: float = 0.01,
+    fps: int = 20,
+    max_frames: int = 60,
+    success: bool | None = None,
+    title: str | None = None,
+    goal_tol: float = 0.2,
+    dpi: int = 80,
+) -> Path:
     """An animated GIF of one episode at ``path`` (written with Pillow); returns the path.
 
     At most ``max_frames`` instants, evenly spaced and always including the last. What does not
@@ -178,8 +284,16 @@ def write_episode_gif(path, positions, envs, means, markers=None, *, dt: float =
     head = title or "online episode"
     if success is not None:
         head += f": {'success' if success else 'failure'}"
-    arts = _EpisodeArtists(ax, positions, envs, means, markers, goal_tol=goal_tol, legend=True,
-                           recent=max(1, int(round(0.1 / dt))))  # draw_online_frame's faded path
+    arts = _EpisodeArtists(
+        ax,
+        positions,
+        envs,
+        means,
+        markers,
+        goal_tol=goal_tol,
+        legend=True,
+        recent=max(1, int(round(0.1 / dt))),
+    )  # draw_online_frame's faded path
     arts.show(idx[0], head)  # the legend and the layout see every artist once
     for a in arts.moving:
         a.set_animated(True)  # left out of the background
@@ -192,11 +306,25 @@ def write_episode_gif(path, positions, envs, means, markers=None, *, dt: float =
         arts.show(t, f"{head}, t = {t * dt:.2f} s")
         for a in arts.moving:
             ax.draw_artist(a)
-        frame = Image.frombuffer("RGBA", canvas.get_width_height(), bytes(canvas.buffer_rgba())).convert("RGB")
+        frame = Image.frombuffer(
+            "RGBA", canvas.get_width_height(), bytes(canvas.buffer_rgba())
+        ).convert("RGB")
         # one palette for every frame, from the first (its legend shows every colour): mapping a
         # frame to it is a fifth of the time of Pillow's own palette per frame
-        frames.append(frame.quantize(colors=255, method=Image.Quantize.FASTOCTREE) if not frames
-                      else frame.quantize(palette=frames[0], dither=Image.Dither.NONE))
-    return atomic_save(path, ".gif", lambda tmp: frames[0].save(tmp, format="GIF", save_all=True,
-                                                                append_images=frames[1:],
-                                                                duration=int(1000 / int(fps)), loop=0))
+        frames.append(
+            frame.quantize(colors=255, method=Image.Quantize.FASTOCTREE)
+            if not frames
+            else frame.quantize(palette=frames[0], dither=Image.Dither.NONE)
+        )
+    return atomic_save(
+        path,
+        ".gif",
+        lambda tmp: frames[0].save(
+            tmp,
+            format="GIF",
+            save_all=True,
+            append_images=frames[1:],
+            duration=int(1000 / int(fps)),
+            loop=0,
+        ),
+    )

@@ -7,7 +7,12 @@ import numpy as np
 from .common import atomic_save, to_numpy
 
 __all__ = [
-    "plot_cloud", "plot_curves", "plot_trajectories", "plot_window", "plot_point_particle", "plot_relevance",
+    "plot_cloud",
+    "plot_curves",
+    "plot_trajectories",
+    "plot_window",
+    "plot_point_particle",
+    "plot_relevance",
     "save_figure",
 ]
 
@@ -19,7 +24,9 @@ def plot_cloud(ax, samples, *, label: str, color: str, alpha: float = 0.3):
     return ax
 
 
-def plot_curves(ax, curves: dict, *, xlabel: str = "iteration", ylabel: str = "", logy: bool = False):
+def plot_curves(
+    ax, curves: dict, *, xlabel: str = "iteration", ylabel: str = "", logy: bool = False
+):
     """One line per entry of ``{label: (I,) values}``."""
     for label, y in curves.items():
         ax.plot(to_numpy(y), label=label)
@@ -31,13 +38,17 @@ def plot_curves(ax, curves: dict, *, xlabel: str = "iteration", ylabel: str = ""
     return ax
 
 
-def plot_trajectories(ax, trajs, *, color: str, label: str | None = None, lw: float = 1.0, alpha: float = 1.0):
+def plot_trajectories(
+    ax, trajs, *, color: str, label: str | None = None, lw: float = 1.0, alpha: float = 1.0
+):
     """Lines of 2-D trajectories ``(n, T, 2)`` (or one ``(T, 2)``)."""
     t = to_numpy(trajs)
     if t.ndim == 2:
         t = t[None]
     for i, tr in enumerate(t):
-        ax.plot(tr[:, 0], tr[:, 1], color=color, lw=lw, alpha=alpha, label=label if i == 0 else None)
+        ax.plot(
+            tr[:, 0], tr[:, 1], color=color, lw=lw, alpha=alpha, label=label if i == 0 else None
+        )
     return ax
 
 
@@ -66,8 +77,17 @@ def plot_point_particle(ax, task, env):
     rects = to_numpy(task.wall_rectangles(env))  # (2, 4) x_min, x_max, y_min, y_max
     for x0, x1, y0, y1 in rects:
         if y1 > y0:
-            ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, facecolor="0.65", edgecolor="0.2", lw=1,
-                                   label="wall"))
+            ax.add_patch(
+                Rectangle(
+                    (x0, y0),
+                    x1 - x0,
+                    y1 - y0,
+                    facecolor="0.65",
+                    edgecolor="0.2",
+                    lw=1,
+                    label="wall",
+                )
+            )
     e = to_numpy(task.full_env(env))  # (6,)
     ax.plot(e[2], e[3], "+", color="0.2", ms=8, label="hole centre")
     ax.plot(e[0], e[1], "gx", ms=9, mew=2, label="start")
@@ -81,8 +101,9 @@ def plot_point_particle(ax, task, env):
     return ax
 
 
-def plot_relevance(ax, relevance, names, *, title: str = "", xlabel: str = "weight index",
-                   legend_loc: str = "best"):
+def plot_relevance(
+    ax, relevance, names, *, title: str = "", xlabel: str = "weight index", legend_loc: str = "best"
+):
     """Relevance profiles ``(O, N)`` over the weight index (pass a slice, e.g. one DoF's ``K``
     weights ``relevance[:, :K]``, to plot those only). The legend goes to ``legend_loc``
     (``"below"``: under the axes, covering nothing)."""
@@ -95,7 +116,13 @@ def plot_relevance(ax, relevance, names, *, title: str = "", xlabel: str = "weig
     ax.set_xticks(np.arange(r.shape[1]))
     ax.set_title(title)
     if legend_loc == "below":
-        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=len(names), frameon=False)
+        ax.legend(
+            fontsize=7,
+            loc="upper center",
+            bbox_to_anchor=(0.5, -0.2),
+            ncol=len(names),
+            frameon=False,
+        )
     else:
         ax.legend(fontsize=7, loc=legend_loc)
     return ax
@@ -105,5 +132,7 @@ def save_figure(fig, path) -> None:
     """Save a PNG atomically (mode 0644) and close the figure."""
     import matplotlib.pyplot as plt
 
-    atomic_save(path, ".png", lambda tmp: fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png"))
+    atomic_save(
+        path, ".png", lambda tmp: fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
+    )
     plt.close(fig)

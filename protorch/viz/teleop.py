@@ -19,14 +19,25 @@ def teleop_figure(path, task, results: dict) -> Path:
         ax = fig.add_subplot(1, len(results), i + 1)
         poses, walls, ok = to_numpy(r["poses"]), to_numpy(r["walls"]), to_numpy(r["success"])
         for b in range(poses.shape[0]):
-            ax.plot(poses[b, :, 0], poses[b, :, 1], color="tab:green" if ok[b] else "tab:red", lw=0.8, alpha=0.7)
+            ax.plot(
+                poses[b, :, 0],
+                poses[b, :, 1],
+                color="tab:green" if ok[b] else "tab:red",
+                lw=0.8,
+                alpha=0.7,
+            )
             for env, style in ((walls[b, 0], "0.6"), (walls[b, -1], "k")):
                 c, yaw = env[:3], env[3]
                 u = (-math.sin(yaw), math.cos(yaw))
                 h = 0.5 * task.window_width
                 for s in (-1, 1):  # the wall's two halves beside the window
-                    ax.plot([c[0] + s * h * u[0], c[0] + s * 0.45 * u[0]], [c[1] + s * h * u[1], c[1] + s * 0.45 * u[1]],
-                            color=style, lw=0.6, alpha=0.5)
+                    ax.plot(
+                        [c[0] + s * h * u[0], c[0] + s * 0.45 * u[0]],
+                        [c[1] + s * h * u[1], c[1] + s * 0.45 * u[1]],
+                        color=style,
+                        lw=0.6,
+                        alpha=0.5,
+                    )
         ax.set_title(f"{cond}: success {ok.mean():.2f}")
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")

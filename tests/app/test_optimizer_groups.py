@@ -26,8 +26,17 @@ OPTIONS = sorted(p.stem for p in (CONF / "optimizer").glob("*.yaml"))
 EXPERIMENTS = {"point_particle": point_particle, "arm_reach": arm_reach}
 # small problem sizes, so building an experiment takes a fraction of a second
 SMALL = {
-    "point_particle": ["settings.test.num_envs=4", "settings.dynamic.episodes=1", "settings.dynamic_paper.episodes=1"],
-    "arm_reach": ["task.priors=10", "task.demo_envs=2", "settings.test.num_envs=4", "settings.dynamic.episodes=1"],
+    "point_particle": [
+        "settings.test.num_envs=4",
+        "settings.dynamic.episodes=1",
+        "settings.dynamic_paper.episodes=1",
+    ],
+    "arm_reach": [
+        "task.priors=10",
+        "task.demo_envs=2",
+        "settings.test.num_envs=4",
+        "settings.dynamic.episodes=1",
+    ],
 }
 
 
@@ -53,9 +62,13 @@ def test_the_registry_has_a_group_option_for_every_optimiser():
 def test_each_optimizer_option_gets_its_own_defaults(experiment, option):
     cfg = composed(f"experiment={experiment}", f"optimizer={option}")
     own = yaml_dict(CONF / "optimizer" / f"{option}.yaml")
-    shared = yaml_dict(CONF / "experiment" / f"{experiment}.yaml")["optimizer"]  # what every optimiser gets
+    shared = yaml_dict(CONF / "experiment" / f"{experiment}.yaml")[
+        "optimizer"
+    ]  # what every optimiser gets
     tuned = yaml_dict(CONF / "experiment_optimizer" / experiment / f"{option}.yaml")
-    assert "beta" not in shared  # the experiment's temperature is per optimiser, never for all of them
+    assert (
+        "beta" not in shared
+    )  # the experiment's temperature is per optimiser, never for all of them
     assert cfg["optimizer"] == {**own, **shared, **tuned}
     if option == "epro":
         assert cfg["optimizer"]["beta"] is None and cfg["optimizer"]["num_samples"] == 20
@@ -65,13 +78,22 @@ def test_each_optimizer_option_gets_its_own_defaults(experiment, option):
         assert cfg["optimizer"]["beta"] == {"point_particle": 20.0, "arm_reach": 200.0}[experiment]
 
 
-@pytest.mark.parametrize("experiment", [pytest.param(e, marks=pytest.mark.slow) if e == "arm_reach" else e
-                                        for e in sorted(EXPERIMENTS)])  # the arm builds IK demonstrations: ~10 s
+@pytest.mark.parametrize(
+    "experiment",
+    [
+        pytest.param(e, marks=pytest.mark.slow) if e == "arm_reach" else e
+        for e in sorted(EXPERIMENTS)
+    ],
+)  # the arm builds IK demonstrations: ~10 s
 @pytest.mark.parametrize("option", OPTIONS)
 def test_each_optimizer_option_builds_through_the_registry(experiment, option):
     module = EXPERIMENTS[experiment]
-    small = ["optimizer.theta_samples=4", "optimizer.trajectory_samples=3"] if option == "rwpo" else []
-    settings = check_config(composed(f"experiment={experiment}", f"optimizer={option}", *SMALL[experiment], *small))
+    small = (
+        ["optimizer.theta_samples=4", "optimizer.trajectory_samples=3"] if option == "rwpo" else []
+    )
+    settings = check_config(
+        composed(f"experiment={experiment}", f"optimizer={option}", *SMALL[experiment], *small)
+    )
     cls, _ = optimizer_spec(settings["optimizer"])
     assert cls is OPTIMIZERS[option]
     accepted = inspect.signature(module.prepare).parameters
@@ -80,7 +102,12 @@ def test_each_optimizer_option_builds_through_the_registry(experiment, option):
     assert args["optimizer"] is cls
     kwargs = problem_arguments(cls, args["optimizer_kwargs"], setup.task, setup.promp)
     n = setup.promp.num_weights
-    opt = cls(torch.zeros(2, n, dtype=torch.float64), torch.full((2, n), 0.1, dtype=torch.float64), seed=0, **kwargs)
+    opt = cls(
+        torch.zeros(2, n, dtype=torch.float64),
+        torch.full((2, n), 0.1, dtype=torch.float64),
+        seed=0,
+        **kwargs,
+    )
     w = opt.ask()  # (B, S, N)
     assert w.shape[0] == 2 and w.shape[-1] == n
     if option != "rwpo":  # RWPO asks first for its relevance search's samples
@@ -91,28 +118,60 @@ def test_each_optimizer_option_builds_through_the_registry(experiment, option):
 def test_the_default_point_particle_optimizers_are_the_papers():
     cfg = composed("experiment=point_particle")
     assert list(cfg["optimizer"].items()) == [
-        ("name", "pro"), ("beta", 20.0), ("num_samples", 100), ("max_iter", 200), ("tol", 1e-3), ("window", 5),
-        ("relevance_samples", 100), ("relevance_var", 1e-5), ("relevance_every", 1), ("noise_floor", None),
-        ("convergence", "mean")]
+        ("name", "pro"),
+        ("beta", 20.0),
+        ("num_samples", 100),
+        ("max_iter", 200),
+        ("tol", 1e-3),
+        ("window", 5),
+        ("relevance_samples", 100),
+        ("relevance_var", 1e-5),
+        ("relevance_every", 1),
+        ("noise_floor", None),
+        ("convergence", "mean"),
+    ]
     assert list(cfg["baseline_optimizer"].items()) == [
-        ("name", "rwr"), ("beta", 20.0), ("num_samples", 100), ("max_iter", 200), ("tol", 1e-3), ("window", 5),
-        ("center", "new"), ("convergence", "mean")]
+        ("name", "rwr"),
+        ("beta", 20.0),
+        ("num_samples", 100),
+        ("max_iter", 200),
+        ("tol", 1e-3),
+        ("window", 5),
+        ("center", "new"),
+        ("convergence", "mean"),
+    ]
 
 
 def test_the_default_arm_optimizer_is_the_papers():
     cfg = composed("experiment=arm_reach")
     assert list(cfg["optimizer"].items()) == [
-        ("name", "pro"), ("beta", 200.0), ("num_samples", 100), ("max_iter", 50), ("tol", 1e-3), ("window", 5),
-        ("relevance_samples", 100), ("relevance_var", 1e-5), ("relevance_every", 1), ("noise_floor", None)]
+        ("name", "pro"),
+        ("beta", 200.0),
+        ("num_samples", 100),
+        ("max_iter", 50),
+        ("tol", 1e-3),
+        ("window", 5),
+        ("relevance_samples", 100),
+        ("relevance_var", 1e-5),
+        ("relevance_every", 1),
+        ("noise_floor", None),
+    ]
 
 
-@pytest.mark.parametrize("option, beta", [("pro", 20.0), ("epro", 20.0), ("cem", 20.0), ("cmaes", 20.0)])
+@pytest.mark.parametrize(
+    "option, beta", [("pro", 20.0), ("epro", 20.0), ("cem", 20.0), ("cmaes", 20.0)]
+)
 def test_the_rwr_baseline_keeps_a_temperature_whatever_the_loop_runs(option, beta):
     # the loop's beta where it has one; 20 where it sets its own (EPRO) or takes none (CEM, CMA-ES)
-    assert composed("experiment=point_particle", f"optimizer={option}")["baseline_optimizer"]["beta"] == beta
-    assert composed("experiment=point_particle", f"optimizer={option}",
-                    *([] if option in ("cem", "cmaes") else ["optimizer.beta=7"]))["baseline_optimizer"]["beta"] == \
-        (20.0 if option in ("cem", "cmaes") else 7.0)
+    assert (
+        composed("experiment=point_particle", f"optimizer={option}")["baseline_optimizer"]["beta"]
+        == beta
+    )
+    assert composed(
+        "experiment=point_particle",
+        f"optimizer={option}",
+        *([] if option in ("cem", "cmaes") else ["optimizer.beta=7"]),
+    )["baseline_optimizer"]["beta"] == (20.0 if option in ("cem", "cmaes") else 7.0)
 
 
 def test_an_experiment_without_optimizer_files_takes_the_group_as_it_is():

@@ -13,7 +13,9 @@ import pytest
 from protorch.app import report as rep
 
 
-def make_run(root: Path, name: str, overrides: list[str], config: dict, metrics: dict | None) -> Path:
+def make_run(
+    root: Path, name: str, overrides: list[str], config: dict, metrics: dict | None
+) -> Path:
     d = root / name
     (d / ".hydra").mkdir(parents=True)
     (d / ".hydra" / "overrides.yaml").write_text("".join(f"- {o}\n" for o in overrides))
@@ -27,21 +29,42 @@ GRID = [(b, a) for b in (10.0, 20.0, 40.0) for a in (0.001, 0.01)]
 
 
 def metrics_for(i: int, beta: float, alpha: float) -> dict:
-    return {"experiment": "point_particle", "test": {"success_rate": 0.5 + 0.01 * i, "num_envs": 200},
-            "dynamic": {"success_rate": 0.4}, "loop": {"seconds": 1.0 + i, "success_rate": 0.9},
-            "seconds": 2.0 + i, "objective": {"metric": "test.success_rate", "value": 0.5 + 0.01 * i},
-            "baselines": {"rwr": {"test": {"success_rate": 1.0}}}, "relevance": [0.1, 0.2],
-            "settings": {"beta": beta, "alpha": alpha}}
+    return {
+        "experiment": "point_particle",
+        "test": {"success_rate": 0.5 + 0.01 * i, "num_envs": 200},
+        "dynamic": {"success_rate": 0.4},
+        "loop": {"seconds": 1.0 + i, "success_rate": 0.9},
+        "seconds": 2.0 + i,
+        "objective": {"metric": "test.success_rate", "value": 0.5 + 0.01 * i},
+        "baselines": {"rwr": {"test": {"success_rate": 1.0}}},
+        "relevance": [0.1, 0.2],
+        "settings": {"beta": beta, "alpha": alpha},
+    }
 
 
 @pytest.fixture
 def sweep(tmp_path) -> Path:
     root = tmp_path / "sweep"
     for i, (beta, alpha) in enumerate(GRID):
-        cfg = {"name": "point_particle", "seed": 0, "optimizer": {"beta": beta, "num_samples": 20},
-               "gp": {"alpha": alpha}, "settings": {"baselines": []}}
-        make_run(root, str(i), ["experiment=point_particle", f"optimizer.beta={beta:g}", f"gp.alpha={alpha:g}",
-                                "optimizer.num_samples=20"], cfg, metrics_for(i, beta, alpha))
+        cfg = {
+            "name": "point_particle",
+            "seed": 0,
+            "optimizer": {"beta": beta, "num_samples": 20},
+            "gp": {"alpha": alpha},
+            "settings": {"baselines": []},
+        }
+        make_run(
+            root,
+            str(i),
+            [
+                "experiment=point_particle",
+                f"optimizer.beta={beta:g}",
+                f"gp.alpha={alpha:g}",
+                "optimizer.num_samples=20",
+            ],
+            cfg,
+            metrics_for(i, beta, alpha),
+        )
     (root / "multirun.yaml").write_text("hydra: {}\n")
     (root / ".submitit").mkdir()  # launcher bookkeeping is not a run
     (root / "0" / "baselines" / "rwr").mkdir(parents=True)  # the inside of a run is not a run
@@ -57,7 +80,11 @@ def test_collect_finds_every_run_and_what_was_swept(sweep):
     assert [(x.param("optimizer.beta"), x.param("gp.alpha")) for x in r.runs] == GRID
     assert r.objective_metric() == "test.success_rate"
     success, time = r.headline()
-    assert success == ["dynamic.success_rate", "loop.success_rate", "test.success_rate"]  # not baselines.*
+    assert success == [
+        "dynamic.success_rate",
+        "loop.success_rate",
+        "test.success_rate",
+    ]  # not baselines.*
     assert time == ["loop.seconds", "seconds"]
 
 
@@ -95,26 +122,36 @@ def test_a_run_without_metrics_keeps_its_row(sweep):
 
 def test_optuna_results_are_summarised(sweep):
     (sweep / "optimization_results.yaml").write_text(
-        "name: optuna\nbest_params:\n  optimizer.beta: 20.0\n  gp.alpha: 0.01\nbest_value: 0.53\n")
+        "name: optuna\nbest_params:\n  optimizer.beta: 20.0\n  gp.alpha: 0.01\nbest_value: 0.53\n"
+    )
     md = rep.to_markdown(rep.collect(sweep), [], [])
     assert "Optuna: best value 0.53 at `optimizer.beta=20`, `gp.alpha=0.01`" in md
 
 
 def test_runs_without_overrides_are_compared_by_their_configs(tmp_path):
-    """hydra.output_subdir=null leaves no .hydra/: the swept keys are the config entries that differ."""
+    """hydra.output_subdir=null leaves no .hydra/: the swept keys are the config entries that
+    differ."""
     for i, beta in enumerate((1.0, 5.0)):
         d = tmp_path / f"r{i}"
         d.mkdir()
-        (d / "config.yaml").write_text(json.dumps({"name": "fig3_toy", "optimizer": {"beta": beta}}))
+        (d / "config.yaml").write_text(
+            json.dumps({"name": "fig3_toy", "optimizer": {"beta": beta}})
+        )
         (d / "metrics.json").write_text(json.dumps({"pro": {"seconds": 0.1}}))
     r = rep.collect(tmp_path)
     assert r.swept == ["optimizer.beta"] and r.fixed == {}
 
 
 def test_cli_writes_and_prints_the_table(sweep, capsys):
-    assert rep.main([str(sweep), "--no-figure", "--success", "test.success_rate", "--time", "seconds"]) == 0
+    assert (
+        rep.main([str(sweep), "--no-figure", "--success", "test.success_rate", "--time", "seconds"])
+        == 0
+    )
     out = capsys.readouterr().out
-    assert "| run | optimizer.beta | gp.alpha | objective (test.success_rate) | seconds | status |" in out
+    assert (
+        "| run | optimizer.beta | gp.alpha | objective (test.success_rate) | seconds | status |"
+        in out
+    )
     assert (sweep / "report.csv").is_file() and not (sweep / "report.png").exists()
 
 
@@ -150,7 +187,9 @@ def test_runs_that_all_failed(sweep):
         rep.collect(sweep)
 
 
-@pytest.mark.parametrize("content, message", [("{not json", "is not valid JSON"), ("[1, 2]", "expected a JSON object")])
+@pytest.mark.parametrize(
+    "content, message", [("{not json", "is not valid JSON"), ("[1, 2]", "expected a JSON object")]
+)
 def test_bad_metrics_file_is_named(sweep, content, message):
     (sweep / "2" / "metrics.json").write_text(content)
     with pytest.raises(ValueError, match=f"2/metrics.json.*{message}|{message}"):

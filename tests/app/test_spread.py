@@ -15,11 +15,26 @@ HELD_OUT = {0: 0.99, 1: 0.97, 2: 1.0, 3: 0.985, 4: 0.995}  # per seed
 
 
 def headline(test: float, moving: float) -> dict:
-    return {"summary": {"headline": {
-        "test.success_rate": {"label": "held-out success", "method": "PRO loop", "value": test, "paper": None},
-        "dynamic.success_rate": {"label": "moving-environment success", "method": "PRO loop", "value": moving,
-                                 "paper": None}}},
-        "test": {"success_rate": test}, "dynamic": {"success_rate": moving}}
+    return {
+        "summary": {
+            "headline": {
+                "test.success_rate": {
+                    "label": "held-out success",
+                    "method": "PRO loop",
+                    "value": test,
+                    "paper": None,
+                },
+                "dynamic.success_rate": {
+                    "label": "moving-environment success",
+                    "method": "PRO loop",
+                    "value": moving,
+                    "paper": None,
+                },
+            }
+        },
+        "test": {"success_rate": test},
+        "dynamic": {"success_rate": moving},
+    }
 
 
 @pytest.fixture
@@ -27,9 +42,13 @@ def seeds(tmp_path):
     root = tmp_path / "seeds"
     for i, (seed, test) in enumerate(HELD_OUT.items()):
         for j, alpha in enumerate((0.001, 0.01)):
-            make_run(root, str(2 * i + j), ["experiment=point_particle", f"seed={seed}", f"gp.alpha={alpha}"],
-                     {"name": "point_particle", "seed": seed, "gp": {"alpha": alpha}},
-                     headline(test - j * 0.5, 0.9 + 0.01 * seed))
+            make_run(
+                root,
+                str(2 * i + j),
+                ["experiment=point_particle", f"seed={seed}", f"gp.alpha={alpha}"],
+                {"name": "point_particle", "seed": seed, "gp": {"alpha": alpha}},
+                headline(test - j * 0.5, 0.9 + 0.01 * seed),
+            )
     return root
 
 
@@ -49,15 +68,31 @@ def test_mean_range_and_first_seed_per_group(seeds):
 def test_a_count_keeps_its_integer_form(tmp_path):
     root = tmp_path / "counts"
     for seed, n in enumerate((71, 158, 114)):
-        make_run(root, str(seed), ["experiment=fig4_window", f"seed={seed}"], {"name": "fig4_window", "seed": seed},
-                 {"summary": {"headline": {"pro.iterations": {"label": "iterations", "method": "PRO", "value": n}}}})
-    assert "| iterations | PRO | `pro.iterations` | 114 | 71 - 158 | 71 |" in spread_markdown(rep.collect(root))
+        make_run(
+            root,
+            str(seed),
+            ["experiment=fig4_window", f"seed={seed}"],
+            {"name": "fig4_window", "seed": seed},
+            {
+                "summary": {
+                    "headline": {
+                        "pro.iterations": {"label": "iterations", "method": "PRO", "value": n}
+                    }
+                }
+            },
+        )
+    assert "| iterations | PRO | `pro.iterations` | 114 | 71 - 158 | 71 |" in spread_markdown(
+        rep.collect(root)
+    )
 
 
 def test_the_table_and_the_cli(seeds, capsys):
     text = spread_markdown(rep.collect(seeds))
     assert "## gp.alpha=0.001" in text and "5 seeds: 0, 1, 2, 3, 4" in text
-    assert "| held-out success | PRO loop | `test.success_rate` | 0.988 | 0.970 - 1.000 | 0.990 |" in text
+    assert (
+        "| held-out success | PRO loop | `test.success_rate` | 0.988 | 0.970 - 1.000 | 0.990 |"
+        in text
+    )
     assert rep.main([str(seeds), "--spread", "--no-figure"]) == 0
     assert (seeds / rep.SPREAD_FILE).read_text() == text
     assert "0.970 - 1.000" in capsys.readouterr().out
@@ -66,8 +101,13 @@ def test_the_table_and_the_cli(seeds, capsys):
 def test_a_sweep_without_seeds_is_refused_before_writing(tmp_path, capsys):
     root = tmp_path / "grid"
     for i, alpha in enumerate((0.001, 0.01)):
-        make_run(root, str(i), ["experiment=point_particle", f"gp.alpha={alpha}"], {"name": "point_particle"},
-                 headline(0.9, 0.9))
+        make_run(
+            root,
+            str(i),
+            ["experiment=point_particle", f"gp.alpha={alpha}"],
+            {"name": "point_particle"},
+            headline(0.9, 0.9),
+        )
     assert rep.main([str(root), "--spread"]) == 2
     assert "does not vary the seed" in capsys.readouterr().err
     assert not (root / rep.SPREAD_FILE).exists() and not (root / "report.md").exists()
@@ -76,8 +116,12 @@ def test_a_sweep_without_seeds_is_refused_before_writing(tmp_path, capsys):
 def test_another_seed_inside_or_outside_the_widened_range(seeds, tmp_path):
     spreads = seed_spread(rep.collect(seeds))[(("gp.alpha", 0.001),)]
     widen = {"test.success_rate": 0.005, "dynamic.success_rate": 0.01}
-    inside = make_run(tmp_path / "s11", "0", ["seed=11"], {"name": "point_particle"}, headline(0.966, 0.949))
-    low = make_run(tmp_path / "s12", "0", ["seed=12"], {"name": "point_particle"}, headline(0.964, 0.951))
+    inside = make_run(
+        tmp_path / "s11", "0", ["seed=11"], {"name": "point_particle"}, headline(0.966, 0.949)
+    )
+    low = make_run(
+        tmp_path / "s12", "0", ["seed=12"], {"name": "point_particle"}, headline(0.964, 0.951)
+    )
     assert outside(spreads, rep.collect(inside).runs[0], widen) == {}
     bad = outside(spreads, rep.collect(low).runs[0], widen)
     assert set(bad) == {"test.success_rate", "dynamic.success_rate"}

@@ -1,4 +1,5 @@
-"""Sweeps on real launchers, end to end at a tiny budget: the beta x alpha grid of the point-particle
+"""Sweeps on real launchers, end to end at a tiny budget: the beta x alpha grid of the
+point-particle
 experiment (4 configurations) in parallel with joblib and with submitit (local executor, the
 SLURM launcher's machinery without a cluster), reported by ``protorch.app.report``; an Optuna study
 tuning beta and alpha for held-out success; the SLURM and Optuna presets compose."""
@@ -26,37 +27,64 @@ optuna = pytest.importorskip("optuna", reason="the sweep extra: pip install -e '
 ROOT = Path(__file__).resolve().parents[2]
 # smaller than the app tests' TINY: four runs must fit in seconds on 2 cores
 MICRO = [
-    "settings.loop.num_envs=4", "settings.loop.batch_size=2", "optimizer.max_iter=3", "optimizer.num_samples=10",
-    "optimizer.relevance_samples=10", "settings.test.num_envs=4", "settings.dynamic.episodes=1",
-    "settings.progress=false", "plot=false", "settings.baselines=[]",
+    "settings.loop.num_envs=4",
+    "settings.loop.batch_size=2",
+    "optimizer.max_iter=3",
+    "optimizer.num_samples=10",
+    "optimizer.relevance_samples=10",
+    "settings.test.num_envs=4",
+    "settings.dynamic.episodes=1",
+    "settings.progress=false",
+    "plot=false",
+    "settings.baselines=[]",
 ]
 GRID = ["optimizer.beta=10,40", "gp.alpha=1e-3,1e-2"]
 PAIRS = {(b, a) for b in (10.0, 40.0) for a in (1e-3, 1e-2)}
 
 
 def run_cli(args, check=True, env=None, **kw):
-    env = {**os.environ, "OMP_NUM_THREADS": "1", **(env or {})}  # several runs share 2 cores: one thread each
-    proc = subprocess.run([sys.executable, "-m", "protorch", *args], cwd=ROOT, env=env, capture_output=True,
-                          text=True, timeout=300, check=False, **kw)
+    env = {
+        **os.environ,
+        "OMP_NUM_THREADS": "1",
+        **(env or {}),
+    }  # several runs share 2 cores: one thread each
+    proc = subprocess.run(
+        [sys.executable, "-m", "protorch", *args],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+        **kw,
+    )
     if check and proc.returncode != 0:
-        raise AssertionError(f"exit {proc.returncode}\nstdout:\n{proc.stdout}\nstderr:\n{proc.stderr}")
+        raise AssertionError(
+            f"exit {proc.returncode}\nstdout:\n{proc.stdout}\nstderr:\n{proc.stderr}"
+        )
     return proc
 
 
 def grid_sweep(root: Path, launcher: list[str]) -> Path:
-    run_cli(["-m", "experiment=point_particle", *GRID, *MICRO, *launcher, f"hydra.sweep.dir={root}"])
+    run_cli(
+        ["-m", "experiment=point_particle", *GRID, *MICRO, *launcher, f"hydra.sweep.dir={root}"]
+    )
     return root
 
 
 @pytest.fixture(scope="module")
 def joblib_sweep(tmp_path_factory):
-    return grid_sweep(tmp_path_factory.mktemp("joblib"), ["hydra/launcher=joblib", "hydra.launcher.n_jobs=2"])
+    return grid_sweep(
+        tmp_path_factory.mktemp("joblib"), ["hydra/launcher=joblib", "hydra.launcher.n_jobs=2"]
+    )
 
 
 @pytest.fixture(scope="module")
 def submitit_sweep(tmp_path_factory):
-    return grid_sweep(tmp_path_factory.mktemp("submitit"), ["hydra/launcher=submitit_local",
-                                                            "hydra.launcher.timeout_min=5"])
+    return grid_sweep(
+        tmp_path_factory.mktemp("submitit"),
+        ["hydra/launcher=submitit_local", "hydra.launcher.timeout_min=5"],
+    )
 
 
 def check_grid(root: Path) -> list[dict]:
@@ -83,14 +111,18 @@ def check_report(root: Path, tmp_path: Path) -> None:
         assert float(r["objective.value"]) == m["objective"]["value"]
     md = paths["md"].read_text()
     assert "swept: optimizer.beta, gp.alpha" in md
-    assert sum(line.startswith("| ") for line in md.splitlines()) == 1 + len(PAIRS)  # header + a row per run
+    assert sum(line.startswith("| ") for line in md.splitlines()) == 1 + len(
+        PAIRS
+    )  # header + a row per run
     assert paths["png"].stat().st_size > 10_000
 
 
 def overlapping(metrics: list[dict]) -> bool:
     """Whether two runs were running at the same time (their started..finished intervals meet)."""
-    spans = sorted((datetime.fromisoformat(m["run"]["started"]), datetime.fromisoformat(m["run"]["finished"]))
-                   for m in metrics)
+    spans = sorted(
+        (datetime.fromisoformat(m["run"]["started"]), datetime.fromisoformat(m["run"]["finished"]))
+        for m in metrics
+    )
     return any(b[0] < a[1] for a, b in zip(spans, spans[1:]))
 
 
@@ -126,10 +158,22 @@ def test_report_of_the_submitit_sweep(submitit_sweep, tmp_path):
 def test_optuna_tunes_beta_and_alpha_for_held_out_success(tmp_path):
     db = tmp_path / "study.db"
     root = tmp_path / "optuna"
-    run_cli(["-m", "experiment=point_particle", "tune=point_particle", "hydra.sweeper.n_trials=3",
-             "hydra.sweeper.sampler.n_startup_trials=2", f"hydra.sweeper.storage=sqlite:///{db}",
-             "hydra.sweeper.study_name=t", *MICRO, f"hydra.sweep.dir={root}"])
-    study = optuna.load_study(study_name="t", storage=f"sqlite:///{db}")  # a stored study (SQLAlchemy < 2)
+    run_cli(
+        [
+            "-m",
+            "experiment=point_particle",
+            "tune=point_particle",
+            "hydra.sweeper.n_trials=3",
+            "hydra.sweeper.sampler.n_startup_trials=2",
+            f"hydra.sweeper.storage=sqlite:///{db}",
+            "hydra.sweeper.study_name=t",
+            *MICRO,
+            f"hydra.sweep.dir={root}",
+        ]
+    )
+    study = optuna.load_study(
+        study_name="t", storage=f"sqlite:///{db}"
+    )  # a stored study (SQLAlchemy < 2)
     trials = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
     assert len(trials) == 3 and study.direction == optuna.study.StudyDirection.MAXIMIZE
     runs = [json.loads((root / str(t.number) / "metrics.json").read_text()) for t in trials]
@@ -147,16 +191,27 @@ def test_optuna_tunes_beta_and_alpha_for_held_out_success(tmp_path):
 # ------------------------------------------------------------------------------ presets
 def compose_hydra(*overrides):
     with initialize_config_dir(config_dir=str(config_dir()), version_base=None):
-        return compose(config_name="config", overrides=["experiment=point_particle", *overrides],
-                       return_hydra_config=True)
+        return compose(
+            config_name="config",
+            overrides=["experiment=point_particle", *overrides],
+            return_hydra_config=True,
+        )
 
 
 def test_slurm_preset_composes_onto_the_submitit_launcher():
-    c = compose_hydra("hydra/launcher=slurm", "hydra.launcher.partition=gpu", "hydra.launcher.gpus_per_node=1")
+    c = compose_hydra(
+        "hydra/launcher=slurm", "hydra.launcher.partition=gpu", "hydra.launcher.gpus_per_node=1"
+    )
     launcher = c.hydra.launcher
-    assert launcher._target_ == "hydra_plugins.hydra_submitit_launcher.submitit_launcher.SlurmLauncher"
+    assert (
+        launcher._target_ == "hydra_plugins.hydra_submitit_launcher.submitit_launcher.SlurmLauncher"
+    )
     assert launcher.partition == "gpu" and launcher.gpus_per_node == 1
-    assert launcher.cpus_per_task == 2 and launcher.timeout_min == 60 and launcher.array_parallelism == 64
+    assert (
+        launcher.cpus_per_task == 2
+        and launcher.timeout_min == 60
+        and launcher.array_parallelism == 64
+    )
     assert launcher.submitit_folder.endswith("/.submitit/%j")  # inside the sweep directory
 
 
@@ -165,17 +220,36 @@ def test_slurm_preset_submits_an_array_job_with_its_resources(tmp_path):
     """A fake ``sbatch`` on PATH keeps the script submitit hands to SLURM (then refuses it)."""
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
-    (bin_dir / "sbatch").write_text(f'#!/bin/sh\ncp "$1" {tmp_path}/submitted.sh\necho "no cluster here" >&2\nexit 1\n')
+    (bin_dir / "sbatch").write_text(
+        f'#!/bin/sh\ncp "$1" {tmp_path}/submitted.sh\necho "no cluster here" >&2\nexit 1\n'
+    )
     (bin_dir / "srun").write_text("#!/bin/sh\nexit 0\n")  # submitit checks that srun exists
     for f in bin_dir.iterdir():
         f.chmod(0o755)
-    proc = run_cli(["-m", "experiment=point_particle", "optimizer.beta=10,20,40", *MICRO, "hydra/launcher=slurm",
-                    "hydra.launcher.partition=gpu", "hydra.launcher.timeout_min=30", f"hydra.sweep.dir={tmp_path / 's'}"],
-                   check=False, env={"PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"})
+    proc = run_cli(
+        [
+            "-m",
+            "experiment=point_particle",
+            "optimizer.beta=10,20,40",
+            *MICRO,
+            "hydra/launcher=slurm",
+            "hydra.launcher.partition=gpu",
+            "hydra.launcher.timeout_min=30",
+            f"hydra.sweep.dir={tmp_path / 's'}",
+        ],
+        check=False,
+        env={"PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"},
+    )
     assert proc.returncode != 0 and "no cluster here" in proc.stderr
     lines = set((tmp_path / "submitted.sh").read_text().splitlines())
-    for expected in ("#SBATCH --array=0-2%3", "#SBATCH --partition=gpu", "#SBATCH --cpus-per-task=2",
-                     "#SBATCH --mem=8GB", "#SBATCH --time=30", "#SBATCH --job-name=protorch-point_particle"):
+    for expected in (
+        "#SBATCH --array=0-2%3",
+        "#SBATCH --partition=gpu",
+        "#SBATCH --cpus-per-task=2",
+        "#SBATCH --mem=8GB",
+        "#SBATCH --time=30",
+        "#SBATCH --job-name=protorch-point_particle",
+    ):
         assert expected in lines, expected
     assert any(line.startswith("srun ") and "submitit.core._submit" in line for line in lines)
 
@@ -186,26 +260,40 @@ def test_tune_preset_is_optuna_maximising_held_out_success():
     sweeper = c.hydra.sweeper
     assert sweeper._target_.endswith("OptunaSweeper") and sweeper.direction == "maximize"
     assert sweeper.sampler._target_ == "optuna.samplers.TPESampler"
-    assert dict(sweeper.params) == {"optimizer.beta": "tag(log, interval(1, 100))",
-                                    "gp.alpha": "tag(log, interval(1e-4, 1e-1))"}
+    assert dict(sweeper.params) == {
+        "optimizer.beta": "tag(log, interval(1, 100))",
+        "gp.alpha": "tag(log, interval(1e-4, 1e-1))",
+    }
 
 
 # ------------------------------------------------------------------------------ objective
 def fig3_cfg(tmp_objective):
-    return {"name": "fig3_toy", "optimizer": {"beta": 10.0, "num_samples": 20, "max_iter": 3},
-            "settings": {"eval_samples": 50}, "plot": False, "objective": tmp_objective}
+    return {
+        "name": "fig3_toy",
+        "optimizer": {"beta": 10.0, "num_samples": 20, "max_iter": 3},
+        "settings": {"eval_samples": 50},
+        "plot": False,
+        "objective": tmp_objective,
+    }
 
 
 def test_objective_is_stored_and_returned(tmp_path):
     m = run_experiment(fig3_cfg("pro.irrelevant_std_ratio"), tmp_path)
-    assert m["objective"] == {"metric": "pro.irrelevant_std_ratio", "value": m["pro"]["irrelevant_std_ratio"]}
+    assert m["objective"] == {
+        "metric": "pro.irrelevant_std_ratio",
+        "value": m["pro"]["irrelevant_std_ratio"],
+    }
     assert json.loads((tmp_path / "metrics.json").read_text())["objective"] == m["objective"]
 
 
 def test_unknown_objective_names_the_metrics_and_keeps_the_results(tmp_path):
-    with pytest.raises(ValueError, match=r"objective 'pro.nope': no such metric; numeric metrics .*pro.seconds"):
+    with pytest.raises(
+        ValueError, match=r"objective 'pro.nope': no such metric; numeric metrics .*pro.seconds"
+    ):
         run_experiment(fig3_cfg("pro.nope"), tmp_path)
-    assert "pro" in json.loads((tmp_path / "metrics.json").read_text())  # the run's work is not lost
+    assert "pro" in json.loads(
+        (tmp_path / "metrics.json").read_text()
+    )  # the run's work is not lost
     with pytest.raises(ValueError, match="not a number"):
         run_experiment(fig3_cfg("pro.final_std"), tmp_path / "b")
 

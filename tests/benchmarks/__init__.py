@@ -13,8 +13,9 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 @contextmanager
-def benchmark_module(filename: str, name: str, setup: Callable | None = None,
-                     also: tuple[str, ...] = ()) -> Iterator:
+def benchmark_module(
+    filename: str, name: str, setup: Callable | None = None, also: tuple[str, ...] = ()
+) -> Iterator:
     """``benchmarks/<filename>`` imported as module ``name`` (``main()`` is not called: it would
     set this process's threads), with ``setup(module)`` run on it; the environment variables the
     module sets for itself (``OMP_NUM_THREADS`` & co.) are restored for later tests'

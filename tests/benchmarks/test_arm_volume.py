@@ -1,6 +1,7 @@
 """benchmarks/arm_volume.py at its quick sizes: every row runs, the pruned gap, the success
 verdicts, the check in pieces and the volume objective with contiguous rows (and its cos/sin rows
-computed once) equal the implementations they replace, the placed capsules and the Jacobian to round-off."""
+computed once) equal the implementations they replace, the placed capsules and the Jacobian to
+round-off."""
 
 from __future__ import annotations
 
@@ -17,9 +18,18 @@ def test_the_volume_pieces_agree_with_what_they_replace(capsys):
         bench.main(["--quick", "--repeats", "1"])
     rows = [line for line in capsys.readouterr().out.splitlines() if "largest difference" in line]
     assert len(rows) == 8
-    worst = {line.split("  ")[0].strip(): float(re.search(r"largest difference (\S+)", line).group(1)) for line in rows}
+    worst = {
+        line.split("  ")[0].strip(): float(re.search(r"largest difference (\S+)", line).group(1))
+        for line in rows
+    }
     by = lambda key: next(v for k, v in worst.items() if k.startswith(key))  # noqa: E731
-    assert by("their gap") == 0.0 and by("the volume success check") == 0.0 and by("volume gap and table") == 0.0
+    assert (
+        by("their gap") == 0.0
+        and by("the volume success check") == 0.0
+        and by("volume gap and table") == 0.0
+    )
     assert by("volume objective") == 0.0  # the rows' layout changes no number
-    assert worst[next(k for k in worst if "trig per frame" in k)] == 0.0  # nor the rows computed once
+    assert (
+        worst[next(k for k in worst if "trig per frame" in k)] == 0.0
+    )  # nor the rows computed once
     assert by("capsules placed") < 1e-12 and by("Jacobian") < 1e-12 and by("detour IK") < 1e-9

@@ -9,12 +9,14 @@ from tests.benchmarks import benchmark_module
 
 
 def test_switches_undone_within_three_decisions_are_counted_per_episode():
-    labels = torch.tensor([
-        [0, 0, 1, 0, 0, 0, 0, 0],  # 0 -> 1 -> 0 one decision apart: one undone
-        [0, 0, 1, 1, 1, 1, 0, 0],  # back after 4 decisions: not a flicker
-        [1, 0, 1, 0, 1, 1, 1, 1],  # four switches, each undone at the next decision: three
-        [1, 1, 1, 1, 1, 1, 1, 1],  # no switch
-    ])
+    labels = torch.tensor(
+        [
+            [0, 0, 1, 0, 0, 0, 0, 0],  # 0 -> 1 -> 0 one decision apart: one undone
+            [0, 0, 1, 1, 1, 1, 0, 0],  # back after 4 decisions: not a flicker
+            [1, 0, 1, 0, 1, 1, 1, 1],  # four switches, each undone at the next decision: three
+            [1, 1, 1, 1, 1, 1, 1, 1],  # no switch
+        ]
+    )
     with benchmark_module("control_loop.py", "_control_loop") as bench:
         assert bench.reversed_switches(labels) == (4, 2)
         assert bench.reversed_switches(labels, within=4) == (5, 3)
@@ -31,7 +33,9 @@ def test_each_timed_call_is_sorted_by_what_it_did():
         kinds: list[str] = []
         ts, cpu, misses = bench.time_calls(policy, envs, kinds)
     assert len(kinds) == len(ts) == len(cpu) == 300
-    assert sum(k.startswith("decision") for k in kinds) == 15  # t = 0 .. 0.299 s, a decision every 20 ms
+    assert (
+        sum(k.startswith("decision") for k in kinds) == 15
+    )  # t = 0 .. 0.299 s, a decision every 20 ms
     solved = sum(k.endswith("solve") for k in kinds)
     assert 0 < solved <= misses
     assert set(kinds) <= {"light", "solve", "decision", "decision + solve"}
@@ -40,8 +44,8 @@ def test_each_timed_call_is_sorted_by_what_it_did():
 def test_the_pieces_are_timed_and_the_timers_removed(capsys):
     """time_pieces wraps the decision's pieces in timers for one walk and puts them back."""
     import protorch.control.arm_choice as ac
-    from protorch.policy.policy import Policy
     from protorch.policy.means import ClassMeans
+    from protorch.policy.policy import Policy
     from tests.control.test_policy import toy_policy
 
     before = (ClassMeans.__call__, Policy._scores, ac.rest_plan)
@@ -69,7 +73,9 @@ def test_collections_are_counted_only_within_the_timed_calls():
             gc.collect()
             assert [g for g, _ in rec.seen] == [2, 0]
             assert rec.summary().startswith("generation 0: 1 (longest ")
-            assert "generation 1: 0;" in rec.summary() and "generation 2: 1 (longest " in rec.summary()
+            assert (
+                "generation 1: 0;" in rec.summary() and "generation 2: 1 (longest " in rec.summary()
+            )
         finally:
             rec.stop()
         assert rec not in gc.callbacks
@@ -84,5 +90,7 @@ def test_the_soak_reports_after_each_walk(capsys):
         bench.soak(policy, 250, chunk=100)
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("soak: 250 calls; before: ")
-    assert [line.split(":")[0].strip() for line in lines[1:]] == [f"after {n} calls" for n in (100, 200, 250)]
+    assert [line.split(":")[0].strip() for line in lines[1:]] == [
+        f"after {n} calls" for n in (100, 200, 250)
+    ]
     assert all("MB resident" in line and "objects tracked" in line for line in lines)

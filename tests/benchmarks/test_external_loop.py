@@ -1,4 +1,5 @@
-"""benchmarks/studies/external/loop.py's task (box pushing over goal poses) on a stand-in for fancy_gym's
+"""benchmarks/studies/external/loop.py's task (box pushing over goal poses) on a stand-in for
+fancy_gym's
 episodes: the identity ProMP, the shapes the loop hands the task, the cache and the episode count,
 and a tiny self-improvement loop through it (fancy_gym itself is never imported)."""
 
@@ -82,8 +83,12 @@ def test_the_protocol_check_passes(loop):
 
     task = loop.BoxGoalTask(FakeEpisodes())
     traj = loop.identity_promp().trajectory(torch.randn(2, 35, dtype=torch.float64))  # (2, 5, 7)
-    assert check_task_outputs(task, traj, task.sample_envs(2, torch.Generator().manual_seed(1)),
-                              dtype=torch.float32) == 1
+    assert (
+        check_task_outputs(
+            task, traj, task.sample_envs(2, torch.Generator().manual_seed(1)), dtype=torch.float32
+        )
+        == 1
+    )
 
 
 def test_a_tiny_loop_counts_every_episode_it_ran(loop):
@@ -94,13 +99,25 @@ def test_a_tiny_loop_counts_every_episode_it_ran(loop):
     fake = FakeEpisodes(thr=5.0)
     task = loop.BoxGoalTask(fake)
     promp = loop.identity_promp()
-    res = self_improve(task, promp, loop.prior_dataset(task, promp, 1.0), optimizer=CMAES,
-                       optimizer_kwargs={"num_samples": 6, "max_iter": 3, "tol": 0.0},
-                       env_map=lambda: make_env_map("torch", 5.0), num_envs=2, add_only="all", choice="nearest",
-                       solved=task.success, min_var=0.04, var_floor=0.01, threads=1)
+    res = self_improve(
+        task,
+        promp,
+        loop.prior_dataset(task, promp, 1.0),
+        optimizer=CMAES,
+        optimizer_kwargs={"num_samples": 6, "max_iter": 3, "tol": 0.0},
+        env_map=lambda: make_env_map("torch", 5.0),
+        num_envs=2,
+        add_only="all",
+        choice="nearest",
+        solved=task.success,
+        min_var=0.04,
+        var_floor=0.01,
+        threads=1,
+    )
     ran = sum(len(w) for w, _ in fake.calls)
     assert task.episodes == ran == len(task.cache)
     rollouts = sum(r["rollouts"] for r in res.metrics[1:])
-    # every sample is an episode; the rest are checks of distinct means (at most one per iteration + the start)
+    # every sample is an episode; the rest are checks of distinct means (at most one per iteration +
+    # the start)
     assert rollouts <= ran <= rollouts + 2 * (3 + 1)
     assert len(res.dataset) == 3  # the prior entry and both poses' solutions (add_only="all")

@@ -23,8 +23,16 @@ def test_the_asked_objective_gives_pro_the_numbers_of_the_full_one(bench, dtype)
     task, promp, full = bench.window_problem(dtype=dtype)
     runs = []
     for asked in (False, True):
-        opt = PRO(promp.mean.expand(5, -1).clone(), promp.var.expand(5, -1).clone(), beta=20.0, num_samples=20,
-                  relevance_samples=20, max_iter=3, tol=0.0, seed=0)
+        opt = PRO(
+            promp.mean.expand(5, -1).clone(),
+            promp.var.expand(5, -1).clone(),
+            beta=20.0,
+            num_samples=20,
+            relevance_samples=20,
+            max_iter=3,
+            tol=0.0,
+            seed=0,
+        )
         f = bench.asked_objective(task, promp, opt) if asked else full
         read = []
         while not opt.stop():
@@ -34,7 +42,9 @@ def test_the_asked_objective_gives_pro_the_numbers_of_the_full_one(bench, dtype)
             opt.tell(c)
         runs.append((opt.result(), read))
     (a, read_a), (b, read_b) = runs
-    assert len(read_a) == len(read_b) == 3 * 4  # a relevance ask and three objective asks per iteration
+    assert (
+        len(read_a) == len(read_b) == 3 * 4
+    )  # a relevance ask and three objective asks per iteration
     assert all(torch.equal(x, y) for x, y in zip(read_a, read_b))
     assert torch.equal(a.mean, b.mean) and torch.equal(a.var, b.var)
 

@@ -1,6 +1,7 @@
 """Multimodality on the arm task: label-aware inference never averages a left and a right
 solution through the can (labels off does), and the online episode (protorch.control.arm)
-switches sides on the fly when the can is moved, within the joint velocity and acceleration limits."""
+switches sides on the fly when the can is moved, within the joint velocity and acceleration
+limits."""
 
 from __future__ import annotations
 
@@ -27,17 +28,25 @@ def both_sides(task, envs, seed=0, **kw):
     """A data set with a left and a right entry (2 IK demonstrations each) per environment."""
     g = torch.Generator().manual_seed(seed)
     n = envs.shape[0]
-    dl, el, ll = task.demonstrations(envs, 2, g, sides=torch.full((n,), LEFT), lengths=(30, 30), **kw)
-    dr, er, lr = task.demonstrations(envs, 2, g, sides=torch.full((n,), RIGHT), lengths=(30, 30), **kw)
+    dl, el, ll = task.demonstrations(
+        envs, 2, g, sides=torch.full((n,), LEFT), lengths=(30, 30), **kw
+    )
+    dr, er, lr = task.demonstrations(
+        envs, 2, g, sides=torch.full((n,), RIGHT), lengths=(30, 30), **kw
+    )
     promp = ProMP(task.num_dof, 10, 50)
     labels = torch.cat([ll, lr])
     assert labels.tolist() == [LEFT] * 2 * n + [RIGHT] * 2 * n
-    return promp, demonstration_dataset(promp, dl + dr, torch.cat([el, er]), labels=labels, var_floor=1e-3)
+    return promp, demonstration_dataset(
+        promp, dl + dr, torch.cat([el, er]), labels=labels, var_floor=1e-3
+    )
 
 
 def test_left_and_right_data_never_average_through_the_can(task):
     # the can on the straight start-target line (y = 0); mirror-image demonstrations on both sides
-    envs = torch.tensor([[0.53, 0.0, 0.70, 0.0], [0.56, 0.0, 0.74, 0.0], [0.59, 0.0, 0.72, 0.0]], dtype=F64)
+    envs = torch.tensor(
+        [[0.53, 0.0, 0.70, 0.0], [0.56, 0.0, 0.74, 0.0], [0.59, 0.0, 0.72, 0.0]], dtype=F64
+    )
     promp, ds = both_sides(task, envs, pass_distance=(0.2, 0.2), goal_noise=0.0, tremor=0.0)
     between = torch.tensor([[0.545, 0.0, 0.72, 0.0], [0.575, 0.0, 0.73, 0.0]], dtype=F64)
     query = torch.cat([envs, between])  # the data and between it
@@ -72,7 +81,9 @@ def test_the_arm_switches_sides_when_the_can_is_moved(task, switching):
     model, walk = switching
     res = run_arm_episodes(model, task, walk=walk, duration=2.0, hold=0.5, dt=0.02)
     lab = res.labels[0]
-    assert int(lab[0]) == RIGHT and int(lab[-1]) == LEFT  # the short way round, before and after the move
+    assert (
+        int(lab[0]) == RIGHT and int(lab[-1]) == LEFT
+    )  # the short way round, before and after the move
     assert int(res.switches[0]) == 1 and int(count_switches(res.labels)[0]) == 1
     assert bool(res.success[0]) and float(res.min_can_distance[0]) > task.can_radius + task.margin
     assert float(res.final_goal_distance[0]) <= task.goal_tol
@@ -80,11 +91,21 @@ def test_the_arm_switches_sides_when_the_can_is_moved(task, switching):
     vmax, amax = task.kinematics.max_velocity, torch.tensor(task.robot.max_acceleration, dtype=F64)
     assert bool((res.qd.abs() <= vmax + 1e-9).all())
     assert bool((res.qd.diff(dim=1).abs() / res.dt <= amax + 1e-6).all())
-    assert res.map_queries == 2 * 2  # both classes at A, then at B: unchanged environments reuse the answer
-    again = run_arm_episodes(model, task, walk=walk, duration=2.0, hold=0.5, dt=0.02, reuse_answers=False)
-    assert torch.allclose(again.q, res.q) and again.map_queries == 2 * 126  # asked afresh every step
+    assert (
+        res.map_queries == 2 * 2
+    )  # both classes at A, then at B: unchanged environments reuse the answer
+    again = run_arm_episodes(
+        model, task, walk=walk, duration=2.0, hold=0.5, dt=0.02, reuse_answers=False
+    )
+    assert (
+        torch.allclose(again.q, res.q) and again.map_queries == 2 * 126
+    )  # asked afresh every step
     ep = res.episode(0)
-    assert ep["links"].shape == (126, 11, 3) and ep["means"].shape[-1] == 3 and ep["labels"].shape == (126,)
+    assert (
+        ep["links"].shape == (126, 11, 3)
+        and ep["means"].shape[-1] == 3
+        and ep["labels"].shape == (126,)
+    )
 
 
 def test_without_labels_there_is_nothing_to_switch_to(task, switching):
@@ -98,17 +119,27 @@ def test_without_labels_there_is_nothing_to_switch_to(task, switching):
 def test_random_moves_never_put_the_can_onto_the_arm(task, switching, gen):
     model, _ = switching
     env0 = task.sample_envs(6, gen)
-    res = run_arm_episodes(model, task, env0, duration=2.0, hold=0.2, dt=0.05, moves=(2,), generator=gen)
+    res = run_arm_episodes(
+        model, task, env0, duration=2.0, hold=0.2, dt=0.05, moves=(2,), generator=gen
+    )
     changed = (res.envs[:, 1:] != res.envs[:, :-1]).any(-1)  # (E, T)
-    assert changed.sum(-1).tolist() == res.moves.tolist() and int(res.moves.sum()) >= 10  # two each, but a
+    assert (
+        changed.sum(-1).tolist() == res.moves.tolist() and int(res.moves.sum()) >= 10
+    )  # two each, but a
     # move is skipped when both fall on the same step or no place is clear of the arm
-    for e, t in torch.nonzero(changed).tolist():  # the instant after each move: can clear of the arm
+    for e, t in torch.nonzero(
+        changed
+    ).tolist():  # the instant after each move: can clear of the arm
         links = task.kinematics.link_positions(res.q[e, t + 1])
         d = task.skeleton_distance(links[None], res.envs[e, t + 1])
         assert float(d) > task.can_radius + 0.05
     assert bool(task.valid_envs(res.envs).all())
     s = res.summary()
-    assert s["episodes"] == 6 and s["moves"] == int(res.moves.sum()) and 0.0 <= s["success_rate"] <= 1.0
+    assert (
+        s["episodes"] == 6
+        and s["moves"] == int(res.moves.sum())
+        and 0.0 <= s["success_rate"] <= 1.0
+    )
 
 
 def test_bad_input_is_refused(task, switching):
@@ -128,7 +159,10 @@ def test_bad_input_is_refused(task, switching):
 @pytest.mark.parametrize(
     "kwargs, match",
     [
-        ({"kp": 100.0}, r"dt = 0\.02 with kp = 100.*kp dt < 2, got 2"),  # the unclamped loop: e *= (1 - kp dt) = -1
+        (
+            {"kp": 100.0},
+            r"dt = 0\.02 with kp = 100.*kp dt < 2, got 2",
+        ),  # the unclamped loop: e *= (1 - kp dt) = -1
         ({"dt": 0.5, "duration": 3.0}, r"dt = 0\.5 with kp = 10.*kp dt < 2, got 5"),
         ({"dt": 1e-6}, r"4000000 control steps per episode, over the limit of 1000000"),
     ],
@@ -140,11 +174,18 @@ def test_unstable_or_huge_settings_are_refused(task, switching, kwargs, match):
 
 
 def test_a_six_joint_arm_moves_within_its_own_limits(tmp_path):
-    """The moving test reads the task's robot (a 6-joint arm once crashed on the Panda's 7 limits)."""
+    """The moving test reads the task's robot (a 6-joint arm once crashed on the
+    Panda's 7 limits)."""
     from tests.robots.user_arm import user_arm_home, write_user_arm
 
-    six = ArmReachTask(robot={"urdf": str(write_user_arm(tmp_path)), "end_link": "tool0", "home": user_arm_home(),
-                              "max_acceleration": 4.0})
+    six = ArmReachTask(
+        robot={
+            "urdf": str(write_user_arm(tmp_path)),
+            "end_link": "tool0",
+            "home": user_arm_home(),
+            "max_acceleration": 4.0,
+        }
+    )
     a = torch.tensor([0.56, 0.05, 0.72, 0.0], dtype=F64)
     promp, ds = both_sides(six, a[None], seed=1)
     model = EnvToProMP(promp, make_env_map("torch", 30.0).fit(ds.env, ds.mean, ds.var, ds.label))
@@ -152,4 +193,6 @@ def test_a_six_joint_arm_moves_within_its_own_limits(tmp_path):
     assert res.q.shape[-1] == 6
     assert bool((res.qd.abs() <= six.kinematics.max_velocity + 1e-9).all())
     assert bool((res.qd.diff(dim=1).abs() / res.dt <= 4.0 + 1e-6).all())  # robot.max_acceleration
-    assert float((res.qd.diff(dim=1).abs() / res.dt).max()) > 3.0  # the limit is reached, so it binds
+    assert (
+        float((res.qd.diff(dim=1).abs() / res.dt).max()) > 3.0
+    )  # the limit is reached, so it binds

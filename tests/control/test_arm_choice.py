@@ -13,7 +13,9 @@ from protorch.control.arm_choice import hysteresis_choice
 
 
 def test_a_blocked_class_is_passed_over_while_another_is_clear():
-    scores = torch.tensor([[0.1, 0.1, 0.5], [0.3, 0.3, 0.2]])  # (K=2, E=3): class 0 is cheaper for e = 0, 1
+    scores = torch.tensor(
+        [[0.1, 0.1, 0.5], [0.3, 0.3, 0.2]]
+    )  # (K=2, E=3): class 0 is cheaper for e = 0, 1
     blocked = torch.tensor([[True, False, False], [False, False, False]])
     assert hysteresis_choice(scores, None, 0.0).tolist() == [0, 0, 1]
     assert hysteresis_choice(scores, None, 0.0, blocked).tolist() == [1, 0, 1]
@@ -41,11 +43,23 @@ def _tracked(task, promp, w, steps, kp=10.0, dt=0.02, duration=1.0):
             return w
 
         def acceleration(self, q, qd, m, m_vel):
-            return velocity_command_acceleration(q, qd, m, m_vel, kp=kp, vmax=task.kinematics.max_velocity.to(q),
-                                                 amax=torch.as_tensor(task.robot.max_acceleration).to(q).expand(task.num_dof), dt=dt)
+            return velocity_command_acceleration(
+                q,
+                qd,
+                m,
+                m_vel,
+                kp=kp,
+                vmax=task.kinematics.max_velocity.to(q),
+                amax=torch.as_tensor(task.robot.max_acceleration).to(q).expand(task.num_dof),
+                dt=dt,
+            )
 
-    timing = Timing(dt=dt, duration=duration, moving=round(duration / dt), held=steps - round(duration / dt))
-    run = track(Fixed(), promp, timing, w.shape[0], task.start_config(dtype=torch.float64), record=False)
+    timing = Timing(
+        dt=dt, duration=duration, moving=round(duration / dt), held=steps - round(duration / dt)
+    )
+    run = track(
+        Fixed(), promp, timing, w.shape[0], task.start_config(dtype=torch.float64), record=False
+    )
     return run.positions, run.velocities, timing
 
 
@@ -62,7 +76,9 @@ def test_the_plan_check_rolls_out_the_velocity_command_that_drives_the_arm():
     promp = ProMP(task.num_dof, 10, 50)
     g = torch.Generator().manual_seed(0)
     start = task.start_config(dtype=torch.float64)
-    w = (start[:, None] + 0.4 * torch.randn(2, task.num_dof, 10, generator=g, dtype=torch.float64)).flatten(1)  # (2, N)
+    w = (
+        start[:, None] + 0.4 * torch.randn(2, task.num_dof, 10, generator=g, dtype=torch.float64)
+    ).flatten(1)  # (2, N)
     pos, vel, timing = _tracked(task, promp, w, steps=70)
     follow = arm_follow(task, 10.0, task.robot.max_acceleration, timing)
     rest = torch.linspace(0.1, 1.0, 10, dtype=torch.float64)
@@ -71,9 +87,13 @@ def test_the_plan_check_rolls_out_the_velocity_command_that_drives_the_arm():
         plan = rest_plan(promp, w[None], pos[:, t], z, rest, vel[:, t], follow)[0]  # (E, P, J)
         h = follow.horizon
         kept = [0] + [i + 1 for i in range(h) if i % 2 == 0 or i == h - 1]
-        torch.testing.assert_close(plan[:, :len(kept)], pos[:, [t + i for i in kept]], rtol=0, atol=1e-12)
+        torch.testing.assert_close(
+            plan[:, : len(kept)], pos[:, [t + i for i in kept]], rtol=0, atol=1e-12
+        )
         later = rest[rest > min(z + h * timing.dt / timing.duration, 1.0)]
-        torch.testing.assert_close(plan[:, len(kept):], promp.trajectory(w, phase=later), rtol=0, atol=0)
+        torch.testing.assert_close(
+            plan[:, len(kept) :], promp.trajectory(w, phase=later), rtol=0, atol=0
+        )
     # without the velocities: the straight way over to the mean at z (8 points), then the mean
     plan = rest_plan(promp, w[None], pos[:, 3], timing.phase(3), rest)[0]
     assert plan.shape[1] == 9 + rest.numel()
@@ -91,13 +111,22 @@ def test_where_every_class_is_blocked_the_largest_clearance_is_chosen():
     promp = ProMP(task.num_dof, 10, 50)
     start = task.start_config(dtype=torch.float64)
     g = torch.Generator().manual_seed(3)
-    means = (start[:, None] + 0.3 * torch.randn(2, 40, task.num_dof, 10, generator=g, dtype=torch.float64)).flatten(2)
-    ee = task.kinematics.ee_position(promp.trajectory(means.flatten(0, 1), phase=torch.tensor([0.5], dtype=torch.float64)))
-    env = torch.cat([ee[:40, 0, :2], task.sample_envs(40, g)[:, 2:]], -1)  # the can under class 0's mean at z = 0.5
-    env[20:, :2] = ee[40 + 20:, 0, :2]  # and under class 1's for the last 20 systems
+    means = (
+        start[:, None]
+        + 0.3 * torch.randn(2, 40, task.num_dof, 10, generator=g, dtype=torch.float64)
+    ).flatten(2)
+    ee = task.kinematics.ee_position(
+        promp.trajectory(means.flatten(0, 1), phase=torch.tensor([0.5], dtype=torch.float64))
+    )
+    env = torch.cat(
+        [ee[:40, 0, :2], task.sample_envs(40, g)[:, 2:]], -1
+    )  # the can under class 0's mean at z = 0.5
+    env[20:, :2] = ee[40 + 20 :, 0, :2]  # and under class 1's for the last 20 systems
     rest = torch.linspace(0.3, 1.0, 8, dtype=torch.float64)
     now = start.expand(40, -1)
-    scores = torch.stack([torch.zeros(40), torch.ones(40)]).to(torch.float64)  # class 0 always scored better
+    scores = torch.stack([torch.zeros(40), torch.ones(40)]).to(
+        torch.float64
+    )  # class 0 always scored better
     blocked = rest_blocked(task, promp, means, env, now, 0.2, rest)  # (K, E)
     gaps = rest_clearance(task, promp, means, env, now, 0.2, rest)  # (K, E)
     assert torch.equal(blocked, gaps <= task.margin)
@@ -123,26 +152,49 @@ def test_the_checks_hysteresis_takes_another_class_only_clear_by_the_extra_clear
     start = task.start_config(dtype=torch.float64)
     g = torch.Generator().manual_seed(3)
     n = 400
-    means = (start[:, None] + 0.3 * torch.randn(2, n, task.num_dof, 10, generator=g, dtype=torch.float64)).flatten(2)
-    ee = task.kinematics.ee_position(promp.trajectory(means[0], phase=torch.tensor([0.5], dtype=torch.float64)))
-    env = torch.cat([ee[:, 0, :2] + 0.08 * torch.randn(n, 2, generator=g, dtype=torch.float64),
-                     task.sample_envs(n, g)[:, 2:]], -1)  # the can near class 0's mean at z = 0.5
+    means = (
+        start[:, None] + 0.3 * torch.randn(2, n, task.num_dof, 10, generator=g, dtype=torch.float64)
+    ).flatten(2)
+    ee = task.kinematics.ee_position(
+        promp.trajectory(means[0], phase=torch.tensor([0.5], dtype=torch.float64))
+    )
+    env = torch.cat(
+        [
+            ee[:, 0, :2] + 0.08 * torch.randn(n, 2, generator=g, dtype=torch.float64),
+            task.sample_envs(n, g)[:, 2:],
+        ],
+        -1,
+    )  # the can near class 0's mean at z = 0.5
     rest = torch.linspace(0.3, 1.0, 8, dtype=torch.float64)
     now = start.expand(n, -1)
     gaps = rest_clearance(task, promp, means, env, now, 0.2, rest)  # (K, E)
-    scores = torch.stack([torch.zeros(n), torch.ones(n)]).to(torch.float64)  # class 0 scored far better
+    scores = torch.stack([torch.zeros(n), torch.ones(n)]).to(
+        torch.float64
+    )  # class 0 scored far better
     current = torch.ones(n, dtype=torch.long)  # the arm tracks class 1
     delta, m = 0.01, task.margin
     plain = checked_choice(task, promp, means, env, now, 0.2, rest, scores, current, 0.0)
-    held = checked_choice(task, promp, means, env, now, 0.2, rest, scores, current, 0.0, switch_clearance=delta)
-    assert torch.equal(plain, checked_choice(task, promp, means, env, now, 0.2, rest, scores, current, 0.0,
-                                             switch_clearance=0.0))
-    assert torch.equal(plain, checked_choice(task, promp, means, env, now, 0.2, rest, scores, None, 0.0,
-                                             switch_clearance=delta))
+    held = checked_choice(
+        task, promp, means, env, now, 0.2, rest, scores, current, 0.0, switch_clearance=delta
+    )
+    assert torch.equal(
+        plain,
+        checked_choice(
+            task, promp, means, env, now, 0.2, rest, scores, current, 0.0, switch_clearance=0.0
+        ),
+    )
+    assert torch.equal(
+        plain,
+        checked_choice(
+            task, promp, means, env, now, 0.2, rest, scores, None, 0.0, switch_clearance=delta
+        ),
+    )
     hover = (gaps[0] > m) & (gaps[0] <= m + delta)  # class 0 clear, but by less than the extra
     far = gaps[0] > m + delta
     assert int((hover & (gaps[1] > m)).sum()) >= 3 and int((hover & (gaps[1] <= m)).sum()) >= 1
-    assert bool((plain[gaps[0] > m] == 0).all())  # without it: class 0 taken back as soon as it is clear
+    assert bool(
+        (plain[gaps[0] > m] == 0).all()
+    )  # without it: class 0 taken back as soon as it is clear
     assert bool((held[hover & (gaps[1] > m)] == 1).all())  # with it: the tracked class is kept
     assert bool((held[hover & (gaps[1] <= m)] == 0).all())  # but never a blocked one
     assert bool((held[far] == 0).all())
@@ -170,9 +222,13 @@ def test_the_rollout_of_a_few_systems_on_floats_is_the_tensor_loop_to_the_bit(mo
     g = torch.Generator().manual_seed(1)
     timing = Timing(dt=0.02, duration=1.0, moving=50, held=20)
     follow = arm_follow(task, 10.0, task.robot.max_acceleration, timing)
-    w = 2.0 * torch.randn(2, 1, task.num_dof * 10, generator=g, dtype=torch.float64)  # (K, E, N) far from the arm
+    w = 2.0 * torch.randn(
+        2, 1, task.num_dof * 10, generator=g, dtype=torch.float64
+    )  # (K, E, N) far from the arm
     q = torch.randn(1, task.num_dof, generator=g, dtype=torch.float64)
-    qd = 3.0 * torch.randn(1, task.num_dof, generator=g, dtype=torch.float64)  # beyond the velocity limits
+    qd = 3.0 * torch.randn(
+        1, task.num_dof, generator=g, dtype=torch.float64
+    )  # beyond the velocity limits
     rest = torch.linspace(0.1, 1.0, 10, dtype=torch.float64)
     kept = follow._replace(tables={})  # a policy's: the basis values kept per phase
     for z in (0.0, 0.3, 0.9):
@@ -184,8 +240,12 @@ def test_the_rollout_of_a_few_systems_on_floats_is_the_tensor_loop_to_the_bit(mo
         for _ in range(2):  # the tables made, then read back: the same plan to the bit
             assert torch.equal(rest_plan(promp, w, q, z, rest, qd, kept), fast)
     assert len(kept.tables) == 3
-    free = follow._replace(vmax=torch.full_like(follow.vmax, math.inf), amax=torch.full_like(follow.amax, math.inf))
-    assert not torch.allclose(rest_plan(promp, w, q, 0.0, rest, qd, free), rest_plan(promp, w, q, 0.0, rest, qd, follow))
+    free = follow._replace(
+        vmax=torch.full_like(follow.vmax, math.inf), amax=torch.full_like(follow.amax, math.inf)
+    )
+    assert not torch.allclose(
+        rest_plan(promp, w, q, 0.0, rest, qd, free), rest_plan(promp, w, q, 0.0, rest, qd, follow)
+    )
 
 
 def test_a_capsule_point_moves_by_at_most_the_reach_weighted_joint_change():
@@ -202,7 +262,9 @@ def test_a_capsule_point_moves_by_at_most_the_reach_weighted_joint_change():
     q0 = lo + (hi - lo) * torch.rand(400, task.num_dof, generator=g, dtype=torch.float64)
     for scale in (1e-3, 0.1, 1.0):
         q1 = q0 + scale * torch.randn(q0.shape, generator=g, dtype=torch.float64)
-        moved = (kin.carry_points(q1, plan) - kin.carry_points(q0, plan)).norm(dim=-1).amax(-1)  # (B,)
+        moved = (
+            (kin.carry_points(q1, plan) - kin.carry_points(q0, plan)).norm(dim=-1).amax(-1)
+        )  # (B,)
         bound = (q1 - q0).abs() @ reach  # (B,)
         assert bool((moved <= bound + 1e-12).all())
         assert float((moved / bound).max()) > 0.5  # and not loose everywhere
@@ -223,10 +285,16 @@ def test_the_clearance_memo_passes_only_plans_the_full_check_finds_clear():
     start = task.start_config(dtype=torch.float64)
     memo = ClearanceMemo(point_reach(kin, plan))
     env = torch.tensor([[0.55, 0.0, 0.7, 0.0]], dtype=torch.float64)  # (1, 4)
-    q = start + 0.2 * torch.randn(1, 20, task.num_dof, generator=g, dtype=torch.float64)  # (1, P, J)
+    q = start + 0.2 * torch.randn(
+        1, 20, task.num_dof, generator=g, dtype=torch.float64
+    )  # (1, P, J)
     a, b = capsule_ends(kin, q, plan)
-    _, lower = capsules_clear(a, b, r, env, task.can_radius, task.can_height, task.margin, with_lower=True)
-    gap = capsules_gap(a[:, :, None], b[:, :, None], r, env[:, None], task.can_radius, task.can_height)  # (1, P)
+    _, lower = capsules_clear(
+        a, b, r, env, task.can_radius, task.can_height, task.margin, with_lower=True
+    )
+    gap = capsules_gap(
+        a[:, :, None], b[:, :, None], r, env[:, None], task.can_radius, task.can_height
+    )  # (1, P)
     assert bool((lower <= gap + 1e-12).all())  # lower bounds of each configuration's gap
     memo.add(q, env, lower)
     passed = 0
@@ -236,6 +304,9 @@ def test_the_clearance_memo_passes_only_plans_the_full_check_finds_clear():
         env1 = env + torch.tensor([[step, -step, 0.0, 0.0]], dtype=torch.float64)
         if memo.surely_clear(q1, env1, task.margin):
             a1, b1 = capsule_ends(kin, q1, plan)
-            assert float(capsules_gap(a1, b1, r, env1, task.can_radius, task.can_height).min()) > task.margin
+            assert (
+                float(capsules_gap(a1, b1, r, env1, task.can_radius, task.can_height).min())
+                > task.margin
+            )
             passed += 1
     assert 0 < passed < 200

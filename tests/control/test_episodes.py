@@ -34,7 +34,9 @@ def test_timing_counts_moving_and_held_steps():
 def test_step_cap_is_refused_with_the_bound():
     ok = check_timing(2.5 / MAX_STEPS, 2.0, 0.5)  # exactly at the cap
     assert ok.total == MAX_STEPS
-    with pytest.raises(ValueError, match=r"control steps per episode.*limit of 1000000.*dt >= 2\.5e-06"):
+    with pytest.raises(
+        ValueError, match=r"control steps per episode.*limit of 1000000.*dt >= 2\.5e-06"
+    ):
         check_timing(1e-6, 2.0, 0.5)
 
 
@@ -45,8 +47,12 @@ def pd_step_matrix(kp, kd, mass, dt):
 
 
 def test_pd_bound_is_where_the_step_matrix_becomes_unstable():
-    grid = itertools.product([1.0, 100.0, 1000.0, 1e4, 1e6], [0.5, 30.0, 300.0], [0.5, 1.0, 3.0],
-                             [1e-4, 1e-3, 0.01, 0.05, 0.1])
+    grid = itertools.product(
+        [1.0, 100.0, 1000.0, 1e4, 1e6],
+        [0.5, 30.0, 300.0],
+        [0.5, 1.0, 3.0],
+        [1e-4, 1e-3, 0.01, 0.05, 0.1],
+    )
     refused = stable = 0
     for kp, kd, mass, dt in grid:
         radius = float(torch.linalg.eigvals(pd_step_matrix(kp, kd, mass, dt)).abs().max())
@@ -54,7 +60,9 @@ def test_pd_bound_is_where_the_step_matrix_becomes_unstable():
             check_pd_stable(kp, kd, mass, dt)  # must not raise
             stable += 1
         elif radius > 1 + 1e-9:
-            with pytest.raises(ValueError, match="dt = .* kp = .*kp dt\\^2 / mass \\+ 2 kd dt / mass < 4"):
+            with pytest.raises(
+                ValueError, match="dt = .* kp = .*kp dt\\^2 / mass \\+ 2 kd dt / mass < 4"
+            ):
                 check_pd_stable(kp, kd, mass, dt)
             refused += 1
     assert stable > 20 and refused > 20  # both sides of the bound are exercised
@@ -104,7 +112,11 @@ def test_track_matches_a_hand_written_loop():
     t = check_timing(0.05, 1.0, 0.2)
     sys_ = Spring(w)
     run = track(sys_, p, t, 3, None)
-    assert run.positions.shape == (3, t.total + 1, 2) and run.weights.shape == (3, t.total + 1, p.num_weights)
+    assert run.positions.shape == (3, t.total + 1, 2) and run.weights.shape == (
+        3,
+        t.total + 1,
+        p.num_weights,
+    )
     assert [s[0] for s in sys_.seen] == list(range(t.total + 1))  # one answer per instant
     x = v = None
     for k in range(t.total + 1):
@@ -120,4 +132,6 @@ def test_track_matches_a_hand_written_loop():
     start = torch.tensor([1.0, 2.0], dtype=F64)
     quiet = track(Spring(w), p, t, 3, start, record=False)
     assert quiet.markers is None and quiet.weights is None
-    assert bool((quiet.positions[:, 0] == start).all()) and bool((quiet.velocities[:, 0] == 0).all())
+    assert bool((quiet.positions[:, 0] == start).all()) and bool(
+        (quiet.velocities[:, 0] == 0).all()
+    )

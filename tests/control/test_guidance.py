@@ -28,18 +28,29 @@ def test_stiffness_is_inversely_proportional_to_the_std_within_the_clip():
     std = torch.tensor([1e-4, 1e-3, 0.01, 0.02, 0.05, 0.1, 1.0, 0.0], dtype=F64)
     k = stiffness_law(std, gain=30.0, k_max=3000.0, k_min=100.0)
     inside = (30.0 / std > 100.0) & (30.0 / std < 3000.0)
-    torch.testing.assert_close(k[inside] * std[inside], torch.full((int(inside.sum()),), 30.0, dtype=F64))
+    torch.testing.assert_close(
+        k[inside] * std[inside], torch.full((int(inside.sum()),), 30.0, dtype=F64)
+    )
     assert inside.sum() == 3  # 0.02, 0.05, 0.1: K = 1500, 600, 300
-    torch.testing.assert_close(k[:3], torch.full((3,), 3000.0, dtype=F64))  # small std (and 0.01 exactly): k_max
+    torch.testing.assert_close(
+        k[:3], torch.full((3,), 3000.0, dtype=F64)
+    )  # small std (and 0.01 exactly): k_max
     assert float(k[6]) == 100.0  # wide: k_min
     assert float(k[7]) == 3000.0  # zero std: k_max, not inf or NaN
     # halving the std doubles the stiffness (inside the clip)
-    ratio = stiffness_law(torch.tensor(0.025), 30.0, 3000.0) / stiffness_law(torch.tensor(0.05), 30.0, 3000.0)
+    ratio = stiffness_law(torch.tensor(0.025), 30.0, 3000.0) / stiffness_law(
+        torch.tensor(0.05), 30.0, 3000.0
+    )
     assert float(ratio) == pytest.approx(2.0)
 
 
-@pytest.mark.parametrize("kw, message", [(dict(gain=-1.0, k_max=1.0), "gain must be >= 0"),
-                                         (dict(gain=1.0, k_max=1.0, k_min=2.0), "k_min must be <= k_max")])
+@pytest.mark.parametrize(
+    "kw, message",
+    [
+        (dict(gain=-1.0, k_max=1.0), "gain must be >= 0"),
+        (dict(gain=1.0, k_max=1.0, k_min=2.0), "k_min must be <= k_max"),
+    ],
+)
 def test_bad_stiffness_settings_are_refused(kw, message):
     with pytest.raises(ValueError, match=message):
         stiffness_law(torch.ones(3), **kw)
@@ -71,15 +82,21 @@ def test_force_points_from_the_device_to_the_mean_with_size_k_times_distance(pro
     torch.testing.assert_close(guide.force(z, mu), torch.zeros(7, 7, dtype=F64))
     # a rotation error: the quaternion force reduces it; -q feels the same force
     x2 = mu.clone()
-    x2[:, 3:] = torch.nn.functional.normalize(mu[:, 3:] + 0.1 * torch.tensor([0.0, 1.0, 0.0, 0.0], dtype=F64), dim=-1)
+    x2[:, 3:] = torch.nn.functional.normalize(
+        mu[:, 3:] + 0.1 * torch.tensor([0.0, 1.0, 0.0, 0.0], dtype=F64), dim=-1
+    )
     f2 = guide.force(z, x2)
     x3 = x2.clone()
     x3[:, 3:] = -x3[:, 3:]
     torch.testing.assert_close(guide.force(z, x3), f2)
     stepped = torch.nn.functional.normalize(x2[:, 3:] + 1e-3 * f2[:, 3:] / k[:, 3:], dim=-1)
-    assert (quaternion_distance(stepped, mu[:, 3:]) < quaternion_distance(x2[:, 3:], mu[:, 3:])).all()
+    assert (
+        quaternion_distance(stepped, mu[:, 3:]) < quaternion_distance(x2[:, 3:], mu[:, 3:])
+    ).all()
     # the functional form: F = K (mu - x)
-    torch.testing.assert_close(guidance_force(torch.full((7,), 2.0, dtype=F64), mu[0], x[0])[:3], -2.0 * offset)
+    torch.testing.assert_close(
+        guidance_force(torch.full((7,), 2.0, dtype=F64), mu[0], x[0])[:3], -2.0 * offset
+    )
 
 
 def test_stiffness_follows_the_promps_std_over_the_phase(promp):
@@ -97,7 +114,9 @@ def test_assisted_device_balances_hand_and_fixture(promp, device, gen):
     intended, model = intended.to(device), promp.copy().to(device)
     guide = HapticGuidance(model)
     k_h = 300.0
-    res = guide.assist(intended, lengths=lengths, human_position_stiffness=k_h, human_rotation_stiffness=3.0)
+    res = guide.assist(
+        intended, lengths=lengths, human_position_stiffness=k_h, human_rotation_stiffness=3.0
+    )
     assert res.poses.shape == intended.shape and res.poses.device.type == device
     idx = res.phase_index  # (B, T): the clock over each trial
     t = torch.arange(intended.shape[1], device=device)
@@ -105,15 +124,21 @@ def test_assisted_device_balances_hand_and_fixture(promp, device, gen):
     assert torch.equal(idx, expected)
     # the balance of the two springs on the position: K_h (x_h - x) + K (mu - x) = 0
     mu, k = guide.mean[idx], guide.stiffness[idx]
-    residual = k_h * (intended[..., :3] - res.poses[..., :3]) + k[..., :3] * (mu[..., :3] - res.poses[..., :3])
+    residual = k_h * (intended[..., :3] - res.poses[..., :3]) + k[..., :3] * (
+        mu[..., :3] - res.poses[..., :3]
+    )
     assert float(residual.abs().max()) < 1e-9
     ones = torch.ones(intended.shape[:2], dtype=F64, device=device)
     torch.testing.assert_close(res.poses[..., 3:].norm(dim=-1), ones)
     # limits: a limp hand follows the mean exactly; no fixture (gain 0) leaves the person alone
-    limp = guide.assist(intended, lengths=lengths, human_position_stiffness=0.0, human_rotation_stiffness=0.0)
+    limp = guide.assist(
+        intended, lengths=lengths, human_position_stiffness=0.0, human_rotation_stiffness=0.0
+    )
     assert float(quaternion_distance(limp.poses[..., 3:], mu[..., 3:]).max()) < 1e-6
     torch.testing.assert_close(limp.poses[..., :3], mu[..., :3])
-    off = HapticGuidance(model, position_gain=0.0, rotation_gain=0.0).assist(intended, lengths=lengths)
+    off = HapticGuidance(model, position_gain=0.0, rotation_gain=0.0).assist(
+        intended, lengths=lengths
+    )
     torch.testing.assert_close(off.poses[..., :3], intended[..., :3])
     assert float(quaternion_distance(off.poses[..., 3:], intended[..., 3:]).max()) < 1e-6
     # q and -q in the intended poses: the same assisted poses (up to their sign)

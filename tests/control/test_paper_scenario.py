@@ -7,7 +7,12 @@ from __future__ import annotations
 import pytest
 import torch
 
-from protorch.control.paper_scenario import PAPER_START, paper_walk, run_paper_episodes, sample_paper_envs
+from protorch.control.paper_scenario import (
+    PAPER_START,
+    paper_walk,
+    run_paper_episodes,
+    sample_paper_envs,
+)
 from protorch.control.particle import run_episodes
 from protorch.primitives.promp import ProMP
 from protorch.tasks import PointParticleTask
@@ -53,11 +58,15 @@ def test_walk_is_the_authors_change_env_step_by_step():
 def test_walk_ranges_speed_and_fixed_start():
     env0 = sample_paper_envs(TASK, 50, torch.Generator().manual_seed(2))
     walk = paper_walk(TASK, env0, 200)  # (50, 201, 6)
-    assert bool((walk[..., 0] == PAPER_START[0]).all()) and bool((walk[..., 1] == PAPER_START[1]).all())
+    assert bool((walk[..., 0] == PAPER_START[0]).all()) and bool(
+        (walk[..., 1] == PAPER_START[1]).all()
+    )
     wx, wy, gx, gy = walk[..., 2], walk[..., 3], walk[..., 4], walk[..., 5]
     assert float(wx.min()) >= 2 - 1e-9 and float(wx.max()) <= 8 + 1e-9
     assert float(wy.min()) >= 1 - 1e-9 and float(wy.max()) <= 9 + 1e-9
-    assert float(gy.min()) >= -1e-9 and float(gy.max()) <= 10 + 1e-9 and float(gx.max()) <= 10 + 1e-9
+    assert (
+        float(gy.min()) >= -1e-9 and float(gy.max()) <= 10 + 1e-9 and float(gx.max()) <= 10 + 1e-9
+    )
     # the hole's y and the goal's y move 0.1 every step, or 0 when a step is undone at a bound
     for x in (wy, gy):
         step = x[:, 1:200].diff(dim=1).abs()  # (50, 198)

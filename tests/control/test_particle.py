@@ -62,7 +62,9 @@ def static_walk(env: torch.Tensor, duration: float, dt: float) -> torch.Tensor:
 # ------------------------------------------------------------------ random walk
 def test_random_walk_stays_in_bounds_and_keeps_start_and_wall(gen):
     env0 = TASK.sample_envs(50, gen)
-    walk = random_walk_envs(TASK, env0, 500, step_std=0.5, generator=gen)  # big steps: many reflections
+    walk = random_walk_envs(
+        TASK, env0, 500, step_std=0.5, generator=gen
+    )  # big steps: many reflections
     assert walk.shape == (50, 501, 6)
     assert torch.equal(walk[:, 0], env0)
     lo, hi = walk_bounds(TASK, walk)  # (E, S+1, 3)
@@ -132,7 +134,9 @@ def test_run_episodes_markers_follow_the_mean_in_phase():
     p = promp()
     w = line_weights(p, (1.0, 5.0), (9.0, 5.0))
     # duration 0.99 s at dt 0.01: control phase t / 99 is exactly the ProMP's grid phase t
-    res = run_episodes(FixedModel(p, w), TASK, walk=static_walk(ENV, 0.99, 0.01), duration=0.99, hold=0.0)
+    res = run_episodes(
+        FixedModel(p, w), TASK, walk=static_walk(ENV, 0.99, 0.01), duration=0.99, hold=0.0
+    )
     torch.testing.assert_close(res.markers[0], p.trajectory(w), rtol=0, atol=1e-10)
 
 
@@ -153,7 +157,9 @@ def test_marker_is_retimed_from_the_current_phase():
     res = run_episodes(Switch(p, w_low), TASK, walk=walk, duration=2.0, hold=0.0)
     for t, w in ((119, w_low), (120, w_high), (150, w_high)):
         z = t * 0.01 / 2.0
-        torch.testing.assert_close(res.markers[0, t], p.trajectory(w, phase=[z])[0], rtol=0, atol=1e-10)
+        torch.testing.assert_close(
+            res.markers[0, t], p.trajectory(w, phase=[z])[0], rtol=0, atol=1e-10
+        )
     assert float((res.markers[0, 120] - res.markers[0, 119]).norm()) > 0.5  # a jump, mid-path
 
 
@@ -162,8 +168,16 @@ def test_first_steps_are_semi_implicit_euler_pd():
     p = promp()
     w = line_weights(p, (2.0, 5.0), (9.0, 5.0))  # starts 1 to the right of the env's start
     kp, kd, dt, dur = 1000.0, 30.0, 0.01, 2.0
-    res = run_episodes(FixedModel(p, w), TASK, walk=static_walk(ENV, dur, dt), duration=dur, dt=dt,
-                       kp=kp, kd=kd, mass=2.0)
+    res = run_episodes(
+        FixedModel(p, w),
+        TASK,
+        walk=static_walk(ENV, dur, dt),
+        duration=dur,
+        dt=dt,
+        kp=kp,
+        kd=kd,
+        mass=2.0,
+    )
     x, v = ENV[:2].clone(), torch.zeros(2, dtype=F64)
     torch.testing.assert_close(res.positions[0, 0], x)
     for t in range(3):
@@ -191,7 +205,9 @@ def test_pd_tracks_a_straight_path_through_the_hole():
 
 def test_straight_path_through_the_wall_collides():
     p = promp()
-    env = torch.tensor([1.0, 1.0, 5.0, 7.0, 9.0, 1.0], dtype=F64)  # hole at y in (6, 8), path at y = 1
+    env = torch.tensor(
+        [1.0, 1.0, 5.0, 7.0, 9.0, 1.0], dtype=F64
+    )  # hole at y in (6, 8), path at y = 1
     w = line_weights(p, (1.0, 1.0), (9.0, 1.0))
     res = run_episodes(FixedModel(p, w), TASK, walk=static_walk(env, 2.0, 0.01))
     assert bool(res.collided[0]) and not bool(res.success[0])
@@ -247,7 +263,9 @@ def test_map_is_queried_once_per_step_with_all_episodes(gen):
         assert env.shape == (7, 6)
         assert torch.equal(env, res.envs[:, t])  # the current environments, all episodes at once
     assert bool((res.envs[:, 50, 3:] != res.envs[:, 0, 3:]).any())  # they moved
-    assert torch.equal(res.envs[:, 50:], res.envs[:, 50:51].expand(-1, 11, -1))  # frozen for the hold
+    assert torch.equal(
+        res.envs[:, 50:], res.envs[:, 50:51].expand(-1, 11, -1)
+    )  # frozen for the hold
 
 
 def test_bare_callable_model_and_record_false(gen):
@@ -333,8 +351,14 @@ def test_bad_environments_raise():
 def _result() -> EpisodeResult:
     p = promp()
     model = FixedModel(p, line_weights(p, (1.0, 5.0), (9.0, 5.0)))
-    return run_episodes(model, TASK, ENV[None].repeat(2, 1), duration=0.5, hold=0.1,
-                        generator=torch.Generator().manual_seed(0))
+    return run_episodes(
+        model,
+        TASK,
+        ENV[None].repeat(2, 1),
+        duration=0.5,
+        hold=0.1,
+        generator=torch.Generator().manual_seed(0),
+    )
 
 
 def test_frames_png_and_gif(tmp_path):
@@ -352,7 +376,10 @@ def test_frames_png_and_gif(tmp_path):
     gif = write_episode_gif(tmp_path / "episode.gif", **ep, max_frames=5)
     with Image.open(gif) as im:
         assert im.format == "GIF" and im.n_frames == 5
-    assert sorted(f.name for f in tmp_path.iterdir()) == ["episode.gif", "sub"]  # no temp files left
+    assert sorted(f.name for f in tmp_path.iterdir()) == [
+        "episode.gif",
+        "sub",
+    ]  # no temp files left
     assert [f.name for f in (tmp_path / "sub").iterdir()] == ["frames.png"]
 
 
@@ -372,7 +399,10 @@ def test_frame_inputs_are_checked(tmp_path):
     "kwargs, match",
     [
         # kp dt^2 = 10: the explicit PD step diverges (a goal distance of ~1e25 if it ran)
-        ({"dt": 0.1, "kp": 1000.0}, r"dt = 0\.1 with kp = 1000.*kp dt\^2 / mass \+ 2 kd dt / mass < 4, got 16"),
+        (
+            {"dt": 0.1, "kp": 1000.0},
+            r"dt = 0\.1 with kp = 1000.*kp dt\^2 / mass \+ 2 kd dt / mass < 4, got 16",
+        ),
         ({"kp": 1e6}, r"dt = 0\.01 with kp = 1e\+06.*< 4, got 100\.6"),  # NaN positions if it ran
         ({"kd": 300.0, "mass": 1.0}, r"kd = 300.*< 4, got 6\.1"),  # the damping alone overshoots
         ({"dt": 1e-6}, r"2500000 control steps per episode, over the limit of 1000000"),
@@ -391,6 +421,8 @@ def test_gains_just_inside_the_bound_stay_bounded():
     # kp dt^2 + 2 kd dt = 3.9 at dt = 0.05 (kp = 1000, kd = 14): stable, if badly damped
     p = promp()
     model = FixedModel(p, line_weights(p, (1.0, 5.0), (9.0, 5.0)))
-    res = run_episodes(model, TASK, walk=static_walk(ENV, 2.0, 0.05), dt=0.05, kp=1000.0, kd=14.0, hold=5.0)
+    res = run_episodes(
+        model, TASK, walk=static_walk(ENV, 2.0, 0.05), dt=0.05, kp=1000.0, kd=14.0, hold=5.0
+    )
     assert bool(torch.isfinite(res.positions).all())
     assert float(res.final_goal_distance[0]) < 0.2

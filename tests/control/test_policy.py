@@ -19,11 +19,10 @@ import torch
 
 from protorch import ProMP
 from protorch.control.episodes import promp_state_at
-from protorch.policy.means import ClassMeans
-from protorch.policy.policy import Policy
-from protorch.policy.means import MAX_RANK
 from protorch.gp import make_env_map
 from protorch.gp.model import label_aware_mean
+from protorch.policy.means import MAX_RANK, ClassMeans
+from protorch.policy.policy import Policy
 
 F64 = torch.float64
 
@@ -55,11 +54,15 @@ def toy_policy(nearest_k=None, seed=0, backend="torch", **kw) -> Policy:
     VAR = 10 ** (-3 + torch.rand(m, promp.num_weights, generator=g, dtype=F64))  # (M, N)
     labels = torch.arange(m) % 2
     env_map = make_env_map(backend, 3.0, nearest_k=nearest_k).fit(E, MU, VAR, labels)
-    return Policy(promp, env_map, "two_ways", task=TwoWays(), **{"duration": 2.0, "switch_margin": 0.05, **kw})
+    return Policy(
+        promp, env_map, "two_ways", task=TwoWays(), **{"duration": 2.0, "switch_margin": 0.05, **kw}
+    )
 
 
-@pytest.mark.parametrize("nearest_k, backend", [(None, "torch"), (8, "torch"), (8, "gpytorch"), (8, "sparse"),
-                                                (20, "torch")])  # 20: every entry of a class, the same rows in both
+@pytest.mark.parametrize(
+    "nearest_k, backend",
+    [(None, "torch"), (8, "torch"), (8, "gpytorch"), (8, "sparse"), (20, "torch")],
+)  # 20: every entry of a class, the same rows in both
 def test_class_means_equal_the_maps_prediction(nearest_k, backend):
     pol = toy_policy(nearest_k, backend=backend)
     envs = torch.rand(20, 2, generator=torch.Generator().manual_seed(1), dtype=F64)
@@ -82,12 +85,18 @@ def test_class_means_along_a_walk_equal_the_maps_prediction():
     env_map = make_env_map("torch", 30.0, nearest_k=10).fit(E, MU, VAR, torch.arange(m) % 2)
     means = ClassMeans(env_map)
     steps = torch.linspace(0, 1, 400, dtype=F64)[:, None]
-    walk = torch.tensor([0.2, 0.3], dtype=F64) + steps * torch.tensor([0.5, 0.4], dtype=F64)  # (400, 2)
-    walk = walk + 2e-3 * torch.randn(walk.shape, generator=g, dtype=F64)  # noisy: sets flip back and forth
+    walk = torch.tensor([0.2, 0.3], dtype=F64) + steps * torch.tensor(
+        [0.5, 0.4], dtype=F64
+    )  # (400, 2)
+    walk = walk + 2e-3 * torch.randn(
+        walk.shape, generator=g, dtype=F64
+    )  # noisy: sets flip back and forth
     for i, e in enumerate(walk):
         fast = means(e) if i % 3 == 0 else means(e, [i % 2])  # (K', N)
         want = env_map.predict_mean(e.expand(2, -1), torch.tensor([0, 1]))  # (2, N)
-        torch.testing.assert_close(fast, want if i % 3 == 0 else want[i % 2:i % 2 + 1], rtol=0, atol=1e-12)
+        torch.testing.assert_close(
+            fast, want if i % 3 == 0 else want[i % 2 : i % 2 + 1], rtol=0, atol=1e-12
+        )
     assert means.updates > 20 and means.misses > means.updates  # both kinds of solve ran
     assert means.full_searches < 0.5 * 400  # the candidates served most searches
     # a set's inverses readied ahead of its next swap, or its pending swap terms written into them
@@ -99,14 +108,25 @@ def test_class_means_along_a_walk_equal_the_maps_prediction():
         torch.testing.assert_close(ready(e), want, rtol=0, atol=1e-12)
         torch.testing.assert_close(lazy(e), want, rtol=0, atol=1e-12)
         prepared += ready.prepare(0) + ready.prepare(1)
-    assert prepared > ready.misses - ready.updates >= 2 and ready.updates == lazy.updates > 20  # every factorised set, and more
-    assert all(s.U is None or 2 * s.U.shape[-1] <= MAX_RANK for s in ready.base)  # spare calls wrote the larger ones
+    assert (
+        prepared > ready.misses - ready.updates >= 2 and ready.updates == lazy.updates > 20
+    )  # every factorised set, and more
+    assert all(
+        s.U is None or 2 * s.U.shape[-1] <= MAX_RANK for s in ready.base
+    )  # spare calls wrote the larger ones
     # a set taken back from the cache holds no inverse once newer sets pushed it out of the factor
     # cache (one set here): the next change still swaps, from the class's newest set holding one
     small = ClassMeans(env_map, factor_cache=1)
     for e in walk:
-        torch.testing.assert_close(small(e), env_map.predict_mean(e.expand(2, -1), torch.tensor([0, 1])), rtol=0, atol=1e-12)
-    assert small.misses == lazy.misses and small.misses - small.updates <= 4  # (76 of 123 factorised before)
+        torch.testing.assert_close(
+            small(e),
+            env_map.predict_mean(e.expand(2, -1), torch.tensor([0, 1])),
+            rtol=0,
+            atol=1e-12,
+        )
+    assert (
+        small.misses == lazy.misses and small.misses - small.updates <= 4
+    )  # (76 of 123 factorised before)
 
 
 class _Node:
@@ -135,7 +155,9 @@ def test_the_fast_end_effector_equals_the_kinematics():
     from protorch.tasks.arm.reach import ArmReachTask
 
     kin = ArmReachTask().kinematics
-    q = kin.lower + (kin.upper - kin.lower) * torch.rand(40, 7, generator=torch.Generator().manual_seed(6), dtype=F64)
+    q = kin.lower + (kin.upper - kin.lower) * torch.rand(
+        40, 7, generator=torch.Generator().manual_seed(6), dtype=F64
+    )
     torch.testing.assert_close(EndEffector(kin)(q), kin.ee_position(q), rtol=0, atol=1e-12)
 
 
@@ -153,12 +175,16 @@ def test_reference_at_a_fixed_environment_is_the_label_aware_mean(nearest_k):
             pos, dpos = promp_state_at(pol.promp, best.mean[0], z)
             assert r.label == int(best.label[0])
             torch.testing.assert_close(r.q, pos, rtol=0, atol=1e-12)
-            torch.testing.assert_close(r.qd, dpos / pol.duration if z < 1 else torch.zeros_like(pos), rtol=0, atol=1e-12)
+            torch.testing.assert_close(
+                r.qd, dpos / pol.duration if z < 1 else torch.zeros_like(pos), rtol=0, atol=1e-12
+            )
             if 0 < z < 1:  # the acceleration: the velocity's derivative
                 h = 1e-5
                 _, d1 = promp_state_at(pol.promp, best.mean[0], z + h / pol.duration)
                 _, d0 = promp_state_at(pol.promp, best.mean[0], z - h / pol.duration)
-                torch.testing.assert_close(r.qdd, (d1 - d0) / pol.duration / (2 * h), rtol=1e-5, atol=1e-6)
+                torch.testing.assert_close(
+                    r.qdd, (d1 - d0) / pol.duration / (2 * h), rtol=1e-5, atol=1e-6
+                )
         labels.add(int(best.label[0]))
     assert labels == {0, 1}  # both classes were chosen somewhere
     assert pol.mean_trajectory(envs).shape == (12, 50, 2)  # chooses the class itself
@@ -196,12 +222,15 @@ def test_past_the_end_the_last_point_is_held():
     assert float(late.qd.abs().max()) == 0 and float(late.qdd.abs().max()) == 0
 
 
-@pytest.mark.parametrize("env, t, match", [
-    (torch.zeros(3, dtype=F64), 0.0, r"env must be \(2,\)"),
-    (torch.tensor([0.1, float("nan")], dtype=F64), 0.0, "env holds NaN"),
-    (torch.tensor([0.1, 0.2], dtype=F64), -0.01, "t must be a finite time >= 0"),
-    (torch.tensor([0.1, 0.2], dtype=F64), float("nan"), "t must be a finite time >= 0"),
-])
+@pytest.mark.parametrize(
+    "env, t, match",
+    [
+        (torch.zeros(3, dtype=F64), 0.0, r"env must be \(2,\)"),
+        (torch.tensor([0.1, float("nan")], dtype=F64), 0.0, "env holds NaN"),
+        (torch.tensor([0.1, 0.2], dtype=F64), -0.01, "t must be a finite time >= 0"),
+        (torch.tensor([0.1, 0.2], dtype=F64), float("nan"), "t must be a finite time >= 0"),
+    ],
+)
 def test_bad_input_is_refused_with_the_argument_named(env, t, match):
     with pytest.raises(ValueError, match=match):
         toy_policy(8).reference(env, t)
@@ -222,7 +251,9 @@ def test_a_run_folder_of_another_experiment_or_format_is_refused(tmp_path):
     other = tmp_path / "fig3"
     other.mkdir()
     (other / "config.yaml").write_text("name: fig3_toy\nseed: 0\n")
-    with pytest.raises(ValueError, match=r"run=.*fig3.*experiment 'fig3_toy' is not a self-improvement run"):
+    with pytest.raises(
+        ValueError, match=r"run=.*fig3.*experiment 'fig3_toy' is not a self-improvement run"
+    ):
         protorch.load(other)
     old = tmp_path / "old"
     old.mkdir()
@@ -251,7 +282,9 @@ BLOCKED_RUNNER = textwrap.dedent("""
 """)
 
 
-def check_export(pol: Policy, tmp_path: Path, envs: torch.Tensor, calls: int = 1000, seed: int = 0) -> None:
+def check_export(
+    pol: Policy, tmp_path: Path, envs: torch.Tensor, calls: int = 1000, seed: int = 0
+) -> None:
     """``pol.export``'s program run in a fresh process where protorch cannot be imported equals
     ``reset(); reference(env, t)`` over ``calls`` random calls to 1e-9."""
     g = torch.Generator().manual_seed(seed)
@@ -261,8 +294,18 @@ def check_export(pol: Policy, tmp_path: Path, envs: torch.Tensor, calls: int = 1
     torch.save({"env": env, "t": t}, tmp_path / "inputs.pt")
     script = tmp_path / "run_program.py"
     script.write_text(BLOCKED_RUNNER)
-    proc = subprocess.run([sys.executable, str(script), str(program), str(tmp_path / "inputs.pt"),
-                           str(tmp_path / "out.pt")], capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(script),
+            str(program),
+            str(tmp_path / "inputs.pt"),
+            str(tmp_path / "out.pt"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     out = torch.load(tmp_path / "out.pt", weights_only=True)
     labels = set()
@@ -280,20 +323,32 @@ def check_export(pol: Policy, tmp_path: Path, envs: torch.Tensor, calls: int = 1
 @pytest.mark.parametrize("nearest_k", [None, 8])
 def test_the_exported_program_runs_without_protorch_and_equals_reference(tmp_path, nearest_k):
     pol = toy_policy(nearest_k)
-    check_export(pol, tmp_path, torch.rand(300, 2, generator=torch.Generator().manual_seed(4), dtype=F64), calls=300)
+    check_export(
+        pol,
+        tmp_path,
+        torch.rand(300, 2, generator=torch.Generator().manual_seed(4), dtype=F64),
+        calls=300,
+    )
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(shutil.which("c++") is None and shutil.which("g++") is None,
-                    reason="AOTInductor compiles C++: no compiler on this machine")
+@pytest.mark.skipif(
+    shutil.which("c++") is None and shutil.which("g++") is None,
+    reason="AOTInductor compiles C++: no compiler on this machine",
+)
 def test_the_aoti_compiled_program_equals_reference(tmp_path):
     """``export(aoti=True)``: the package AOTInductor builds, loaded by torch alone, gives the
     reference and the class of ``reset(); reference(env, t)`` (the hold included)."""
     pol = toy_policy(8)
-    program = torch._inductor.aoti_load_package(str(pol.export(tmp_path / "policy_aoti.pt2", aoti=True)))
+    program = torch._inductor.aoti_load_package(
+        str(pol.export(tmp_path / "policy_aoti.pt2", aoti=True))
+    )
     g = torch.Generator().manual_seed(6)
     labels = set()
-    for env, t in zip(torch.rand(100, 2, generator=g, dtype=F64), 1.3 * pol.duration * torch.rand(100, generator=g, dtype=F64)):
+    for env, t in zip(
+        torch.rand(100, 2, generator=g, dtype=F64),
+        1.3 * pol.duration * torch.rand(100, generator=g, dtype=F64),
+    ):
         q, qd, qdd, label = program(env, t)
         pol.reset()
         r = pol.reference(env, float(t))

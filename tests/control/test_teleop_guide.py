@@ -19,7 +19,9 @@ START, END = TASK.endpoint_poses()
 def guide():
     trajs, envs = careful_demonstrations(TASK, 6, 3, torch.Generator().manual_seed(0))
     promp = ProMP(7, 10, 100)
-    ds = demonstration_dataset(promp, trajs, envs, labels=TASK.label(torch.stack(trajs), envs), var_floor=1e-6)
+    ds = demonstration_dataset(
+        promp, trajs, envs, labels=TASK.label(torch.stack(trajs), envs), var_floor=1e-6
+    )
     factory = lambda: make_env_map("torch", alpha=3.0)  # noqa: E731
     env_map = factory().fit(ds.env, ds.mean, ds.var, ds.label)
     return MixtureGuide(promp, env_map, variance_map(factory, env_map), [0, 1], END[:3] - START[:3])
@@ -43,7 +45,8 @@ def test_following_one_class_the_belief_goes_to_it_and_the_guide_leaves_the_mean
         assert float(out[-1][1][cls]) > 0.99
         z = torch.stack([o[2][cls] for o in out])
         assert bool((z[1:] >= z[:-1]).all())  # the phase never runs back
-        # on the mean the pull is ~0: the executed pose is the wish (the other class weighs <= the floor)
+        # on the mean the pull is ~0: the executed pose is the wish (the other class weighs <= the
+        # floor)
         gap = torch.stack([(o[0][0, :3] - mu[0, cls, t, :3]).norm() for t, o in enumerate(out)])
         assert float(gap[40:].max()) < 0.02
 
@@ -51,9 +54,13 @@ def test_following_one_class_the_belief_goes_to_it_and_the_guide_leaves_the_mean
 def test_the_guide_is_re_inferred_at_each_wall_pose(guide):
     envs = guide.env_map.E[guide.env_map.labels == 0]  # walls demonstrated in class 0
     mu, _ = guide.infer(envs)  # (G, 2, T, 7)
-    assert float(torch.cdist(envs[:, :3], envs[:, :3]).max()) > 0.1  # walls far apart: no one path fits all
+    assert (
+        float(torch.cdist(envs[:, :3], envs[:, :3]).max()) > 0.1
+    )  # walls far apart: no one path fits all
     for g in range(envs.shape[0]):
-        d = torch.linalg.vector_norm(mu[g, 0, :, :3] - envs[g, :3], dim=-1)  # to this wall's window centre
+        d = torch.linalg.vector_norm(
+            mu[g, 0, :, :3] - envs[g, :3], dim=-1
+        )  # to this wall's window centre
         assert float(d.min()) < 0.03
 
 

@@ -1,7 +1,11 @@
-"""Bags as labs record them (protorch.data.import_bag), written here with rosbags' own writers: a clock
-offset between topics, zero header stamps, header-stamp jitter, a backward jump that is not jitter, poses
-on /tf through a two-level tree (with /tf_static), constant environment columns, a motionless take, a
-session of two demonstrations split at idle, and bad input. Each test asserts the imported values."""
+"""Bags as labs record them (protorch.data.import_bag), written here with rosbags' own writers: a
+clock
+offset between topics, zero header stamps, header-stamp jitter, a backward jump that is not jitter,
+poses
+on /tf through a two-level tree (with /tf_static), constant environment columns, a motionless take,
+a
+session of two demonstrations split at idle, and bad input. Each test asserts the imported
+values."""
 
 from __future__ import annotations
 
@@ -25,14 +29,16 @@ ENV = "can=/can_pose,goal=/target_pose"
 
 
 def motion(t: np.ndarray) -> np.ndarray:
-    """Joint angles ``(T, 7)`` at ``t (T,)`` seconds: at rest, 1.5 s of motion from 0.3 s, at rest."""
+    """Joint angles ``(T, 7)`` at ``t (T,)`` seconds: at rest, 1.5 s of motion from 0.3
+    s, at rest."""
     u = np.clip((t - 0.3) / 1.5, 0, 1)
     s = u**3 * (10 - 15 * u + 6 * u**2)
     return REST + np.outer(s, [0.4, 0.3, -0.2, 0.5, 0.1, -0.3, 0.2])
 
 
 class Bag:
-    """A bag's messages before writing: ``add(topic, type, log_ns, msg)``, then ``write(path, kind)``."""
+    """A bag's messages before writing: ``add(topic, type, log_ns, msg)``, then ``write(path,
+    kind)``."""
 
     def __init__(self, kind: str = "mcap") -> None:
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
@@ -40,7 +46,9 @@ class Bag:
         self.kind, self.ros1 = kind, kind == "ros1"
         self.ts = get_typestore(Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE)
         if self.ros1:
-            tf = get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage")
+            tf = get_types_from_msg(
+                "geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage"
+            )
             self.ts.register(tf)
         self.T, self.msgs = self.ts.types, []
 
@@ -52,27 +60,47 @@ class Bag:
     def joints(self, log_ns, stamp_ns, q, names=JOINTS, topic="/joint_states"):
         js, empty = self.T["sensor_msgs/msg/JointState"], np.zeros(0)
         for lg, st, row in zip(log_ns, stamp_ns, q):
-            self.msgs.append((topic, js, int(lg), js(header=self.header(int(st)), name=list(names),
-                                                     position=np.asarray(row, dtype=np.float64), velocity=empty,
-                                                     effort=empty)))
+            self.msgs.append(
+                (
+                    topic,
+                    js,
+                    int(lg),
+                    js(
+                        header=self.header(int(st)),
+                        name=list(names),
+                        position=np.asarray(row, dtype=np.float64),
+                        velocity=empty,
+                        effort=empty,
+                    ),
+                )
+            )
 
     def poses(self, topic, log_ns, stamp_ns, xyz):
         T = self.T
         for lg, st, p in zip(log_ns, stamp_ns, xyz):
             quat = T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
-            pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=p[0], y=p[1], z=p[2]),
-                                               orientation=quat)
-            msg = T["geometry_msgs/msg/PoseStamped"](header=self.header(int(st), "world"), pose=pose)
+            pose = T["geometry_msgs/msg/Pose"](
+                position=T["geometry_msgs/msg/Point"](x=p[0], y=p[1], z=p[2]), orientation=quat
+            )
+            msg = T["geometry_msgs/msg/PoseStamped"](
+                header=self.header(int(st), "world"), pose=pose
+            )
             self.msgs.append((topic, T["geometry_msgs/msg/PoseStamped"], int(lg), msg))
 
     def tf(self, topic, log_ns, parent, child, xyz, quat=(0.0, 0.0, 0.0, 1.0)):
         T = self.T
         for lg, p in zip(log_ns, xyz):
             tr = T["geometry_msgs/msg/Transform"](
-                translation=T["geometry_msgs/msg/Vector3"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
-                rotation=T["geometry_msgs/msg/Quaternion"](x=quat[0], y=quat[1], z=quat[2], w=quat[3]))
-            ts_ = T["geometry_msgs/msg/TransformStamped"](header=self.header(int(lg), parent), child_frame_id=child,
-                                                          transform=tr)
+                translation=T["geometry_msgs/msg/Vector3"](
+                    x=float(p[0]), y=float(p[1]), z=float(p[2])
+                ),
+                rotation=T["geometry_msgs/msg/Quaternion"](
+                    x=quat[0], y=quat[1], z=quat[2], w=quat[3]
+                ),
+            )
+            ts_ = T["geometry_msgs/msg/TransformStamped"](
+                header=self.header(int(lg), parent), child_frame_id=child, transform=tr
+            )
             tf = T["tf2_msgs/msg/TFMessage"]
             self.msgs.append((topic, tf, int(lg), tf(transforms=[ts_])))
 
@@ -103,7 +131,9 @@ def take(kind="mcap", seconds=2.1, rate=100, env_rate=50):
     ns = T0 + np.arange(int(seconds * rate)) * (10**9 // rate)
     q = motion((ns - T0) / 1e9)
     m_ns = T0 - 5_000_000 + np.arange(int(seconds * env_rate) + 1) * (10**9 // env_rate)
-    can = np.stack([0.5 + 1e-3 * np.arange(m_ns.size), np.full(m_ns.size, 0.05), np.zeros(m_ns.size)], 1)
+    can = np.stack(
+        [0.5 + 1e-3 * np.arange(m_ns.size), np.full(m_ns.size, 0.05), np.zeros(m_ns.size)], 1
+    )
     goal = np.tile([0.7, -0.1, 0.0], (m_ns.size, 1))
     return bag, ns, q, m_ns, can, goal
 
@@ -113,8 +143,17 @@ def held(at_ns, ns, values):
 
 
 def imported(tmp_path, name="b", **kw):
-    (csv,) = import_bags([tmp_path / name], "/joint_states", parse_env(kw.pop("env", ENV)), tmp_path / "out", FMT, **kw)
-    return read_recording(csv, FMT), json.loads(csv.with_name(csv.stem + ".import.json").read_text())
+    (csv,) = import_bags(
+        [tmp_path / name],
+        "/joint_states",
+        parse_env(kw.pop("env", ENV)),
+        tmp_path / "out",
+        FMT,
+        **kw,
+    )
+    return read_recording(csv, FMT), json.loads(
+        csv.with_name(csv.stem + ".import.json").read_text()
+    )
 
 
 def test_clock_offset_reads_receive_times(tmp_path):
@@ -127,13 +166,18 @@ def test_clock_offset_reads_receive_times(tmp_path):
     bag.poses("/target_pose", m_ns + 1_000_000, m_ns, goal)
     bag.write(tmp_path / "b")
     rec, rep = imported(tmp_path)
-    assert rep["used"] == dict.fromkeys(["topic '/joint_states'", "topic '/can_pose'", "topic '/target_pose'"], "log")
+    assert rep["used"] == dict.fromkeys(
+        ["topic '/joint_states'", "topic '/can_pose'", "topic '/target_pose'"], "log"
+    )
     assert "clock offset" in rep["reason"]["all"] and "-3600" in rep["reason"]["all"]
     np.testing.assert_array_equal(rec.time, (log - log[0]) / 1e9)
     np.testing.assert_array_equal(rec.env_rows[:, 0], held(log, m_ns + 1_000_000, can[:, 0]))
     assert np.unique(rec.env_rows[:, 0]).size == 105 and np.array_equal(rec.values, q)
     rec_h, rep_h = imported(tmp_path, stamp="header")  # as before: the can frozen at its last pose
-    assert rep_h["used"]["topic '/joint_states'"] == "header" and np.unique(rec_h.env_rows[:, 0]).size == 1
+    assert (
+        rep_h["used"]["topic '/joint_states'"] == "header"
+        and np.unique(rec_h.env_rows[:, 0]).size == 1
+    )
 
 
 def test_zero_header_stamps_read_receive_times(tmp_path):
@@ -144,21 +188,34 @@ def test_zero_header_stamps_read_receive_times(tmp_path):
     bag.poses("/target_pose", m_ns + 1_000_000, m_ns, goal)
     bag.write(tmp_path / "b")
     rec, rep = imported(tmp_path)
-    assert rep["used"] == {"topic '/joint_states'": "log", "topic '/can_pose'": "header",
-                           "topic '/target_pose'": "header"}
-    assert rep["reason"] == {"topic '/joint_states'": f"{ns.size} of {ns.size} header stamps are zero"}
+    assert rep["used"] == {
+        "topic '/joint_states'": "log",
+        "topic '/can_pose'": "header",
+        "topic '/target_pose'": "header",
+    }
+    assert rep["reason"] == {
+        "topic '/joint_states'": f"{ns.size} of {ns.size} header stamps are zero"
+    }
     np.testing.assert_array_equal(rec.time, (log - log[0]) / 1e9)
-    np.testing.assert_array_equal(rec.env_rows[:, 0], held(log, m_ns, can[:, 0]))  # the can by its header stamps
-    with pytest.raises(ValueError, match=r"b: topic '/joint_states' message 0 has a zero header stamp; --stamp auto"):
+    np.testing.assert_array_equal(
+        rec.env_rows[:, 0], held(log, m_ns, can[:, 0])
+    )  # the can by its header stamps
+    with pytest.raises(
+        ValueError,
+        match=r"b: topic '/joint_states' message 0 has a zero header stamp; --stamp auto",
+    ):
         imported(tmp_path, stamp="header")
 
 
 def test_jitter_is_sorted_and_a_jump_back_refused(tmp_path):
     """4 ms of header-stamp jitter at 250 Hz (messages logged in arrival order): sorted by stamp,
-    the rows follow their stamps. A stamp 0.3 s back is refused naming the message, with the hint."""
+    the rows follow their stamps. A stamp 0.3 s back is refused naming the message, with the
+    hint."""
     bag, ns, q, m_ns, can, goal = take(rate=250)
     rng = np.random.default_rng(0)
-    stamp = ns + rng.integers(-4_000_000, 4_000_000, ns.size)  # +-4 ms on a 4 ms period: out of order
+    stamp = ns + rng.integers(
+        -4_000_000, 4_000_000, ns.size
+    )  # +-4 ms on a 4 ms period: out of order
     bag.joints(ns + 5_000_000, stamp, q)
     bag.poses("/can_pose", m_ns + 1_000_000, m_ns, can)
     bag.poses("/target_pose", m_ns + 1_000_000, m_ns, goal)
@@ -176,9 +233,12 @@ def test_jitter_is_sorted_and_a_jump_back_refused(tmp_path):
     bad[0].poses("/can_pose", m_ns, m_ns, can)
     bad[0].poses("/target_pose", m_ns, m_ns, goal)
     bad[0].write(tmp_path / "jump")
-    with pytest.raises(ValueError, match=r"jump: topic '/joint_states' message 120: stamp steps back 0\.29 s below "
-                                         r"message 119's, more than the jitter tolerance 0\.05 s \(not jitter\); "
-                                         r"the bag's receive times: --stamp log"):
+    with pytest.raises(
+        ValueError,
+        match=r"jump: topic '/joint_states' message 120: stamp steps back 0\.29 s below "
+        r"message 119's, more than the jitter tolerance 0\.05 s \(not jitter\); "
+        r"the bag's receive times: --stamp log",
+    ):
         imported(tmp_path, "jump")
     assert not (tmp_path / "out" / "jump.csv").exists()
     rec, rep = imported(tmp_path, "jump", stamp="log")
@@ -193,24 +253,51 @@ def test_poses_on_tf_two_levels(tmp_path):
     bag.joints(ns + 300_000, ns, q)
     bag.poses("/target_pose", m_ns + 1_000_000, m_ns, goal)
     half = np.sqrt(0.5)
-    bag.tf("/tf_static", [T0 - 10**9], "/world", "table", [(0.5, -0.2, 0.0)], (0.0, 0.0, half, half))
-    local = np.stack([0.3 + 1e-3 * np.arange(m_ns.size), np.zeros(m_ns.size), np.zeros(m_ns.size)], 1)
+    bag.tf(
+        "/tf_static", [T0 - 10**9], "/world", "table", [(0.5, -0.2, 0.0)], (0.0, 0.0, half, half)
+    )
+    local = np.stack(
+        [0.3 + 1e-3 * np.arange(m_ns.size), np.zeros(m_ns.size), np.zeros(m_ns.size)], 1
+    )
     bag.tf("/tf", m_ns, "table", "can", local)
-    bag.tf("/tf_static", [T0 - 10**9], "world", "target", [(0.7, -0.1, 0.0)])  # placed once: static only
+    bag.tf(
+        "/tf_static", [T0 - 10**9], "world", "target", [(0.7, -0.1, 0.0)]
+    )  # placed once: static only
     bag.write(tmp_path / "b.bag")
-    (csv,) = import_bags([tmp_path / "b.bag"], "/joint_states", parse_env("can=tf:can,goal=tf:target"),
-                         tmp_path / "out", FMT)
+    (csv,) = import_bags(
+        [tmp_path / "b.bag"],
+        "/joint_states",
+        parse_env("can=tf:can,goal=tf:target"),
+        tmp_path / "out",
+        FMT,
+    )
     rec = read_recording(csv, FMT)
     assert np.array_equal(rec.env_rows[:, 2:], np.tile([0.7, -0.1], (ns.size, 1)))
     np.testing.assert_allclose(rec.env_rows[:, 0], 0.5, atol=1e-12)
     np.testing.assert_allclose(rec.env_rows[:, 1], -0.2 + held(ns, m_ns, local[:, 0]), atol=1e-12)
-    (csv,) = import_bags([tmp_path / "b.bag"], "/joint_states", parse_env("can=tf:can,goal=/target_pose"),
-                         tmp_path / "local", FMT, root="table")
-    np.testing.assert_allclose(read_recording(csv, FMT).env_rows[:, :2], held(ns, m_ns, local[:, :2]), atol=1e-12)
-    with pytest.raises(ValueError, match=r"no transform on /tf or /tf_static has child_frame_id 'mug' "
-                                         r"\(the frames: \['can', 'table', 'target', 'world'\]\)"):
-        import_bags([tmp_path / "b.bag"], "/joint_states", parse_env("can=tf:mug,goal=/target_pose"),
-                    tmp_path / "x", FMT)
+    (csv,) = import_bags(
+        [tmp_path / "b.bag"],
+        "/joint_states",
+        parse_env("can=tf:can,goal=/target_pose"),
+        tmp_path / "local",
+        FMT,
+        root="table",
+    )
+    np.testing.assert_allclose(
+        read_recording(csv, FMT).env_rows[:, :2], held(ns, m_ns, local[:, :2]), atol=1e-12
+    )
+    with pytest.raises(
+        ValueError,
+        match=r"no transform on /tf or /tf_static has child_frame_id 'mug' "
+        r"\(the frames: \['can', 'table', 'target', 'world'\]\)",
+    ):
+        import_bags(
+            [tmp_path / "b.bag"],
+            "/joint_states",
+            parse_env("can=tf:mug,goal=/target_pose"),
+            tmp_path / "x",
+            FMT,
+        )
 
 
 def test_constants_alone_or_beside_topics(tmp_path):
@@ -225,9 +312,13 @@ def test_constants_alone_or_beside_topics(tmp_path):
     rec, _ = imported(tmp_path, env="can=/can_pose", consts={"goal_x": 0.7, "goal_y": -0.1})
     np.testing.assert_array_equal(rec.env_rows[:, 0], held(ns, m_ns, can[:, 0]))
     assert np.array_equal(rec.env_rows[:, 2:], np.tile([0.7, -0.1], (ns.size, 1)))
-    with pytest.raises(ValueError, match=r"--const mug_x=\.\.\.: not an environment column of the task"):
+    with pytest.raises(
+        ValueError, match=r"--const mug_x=\.\.\.: not an environment column of the task"
+    ):
         parse_const("mug_x=1", FMT.env_names)
-    with pytest.raises(ValueError, match=r"can_x is both --const can_x=\.\.\. and --env can=\.\.\.: give one"):
+    with pytest.raises(
+        ValueError, match=r"can_x is both --const can_x=\.\.\. and --env can=\.\.\.: give one"
+    ):
         imported(tmp_path, env="can=/can_pose", consts={"can_x": 0.5, "goal_x": 0.7, "goal_y": 0.0})
 
 
@@ -240,14 +331,25 @@ def test_motionless_take_is_excluded(tmp_path):
             q = REST + 1e-5 * np.sin(np.arange(ns.size))[:, None]
         bag.joints(ns + 300_000, ns, q)
         bag.write(tmp_path / name)
-    written = import_bags([tmp_path / n for n in ("a", "b", "still")], "/joint_states", {}, tmp_path / "out", FMT,
-                          consts=dict(zip(FMT.env_names, (0.56, 0.0, 0.7, 0.0))))
+    written = import_bags(
+        [tmp_path / n for n in ("a", "b", "still")],
+        "/joint_states",
+        {},
+        tmp_path / "out",
+        FMT,
+        consts=dict(zip(FMT.env_names, (0.56, 0.0, 0.7, 0.0))),
+    )
     assert [p.name for p in written] == ["a.csv", "b.csv", "still.csv"]
     folder, _ = read_recordings(tmp_path / "out", FMT)
     rep = folder.report
     assert [f[0].name for f in folder.files] == ["a.csv", "b.csv"] and len(folder.demos) == 2
-    assert rep["excluded"] == [{"file": "still.csv", "reason": "motionless: its joints span at most 2e-05 rad "
-                                                               "(panda_joint4), less than 0.02 rad"}]
+    assert rep["excluded"] == [
+        {
+            "file": "still.csv",
+            "reason": "motionless: its joints span at most 2e-05 rad "
+            "(panda_joint4), less than 0.02 rad",
+        }
+    ]
     assert rep["summary"][0].startswith("excluded still.csv: motionless")
     assert rep["recordings"][0]["import"]["used"]["topic '/joint_states'"] == "header"
 
@@ -258,12 +360,24 @@ def test_session_split_at_idle(tmp_path):
     bag = Bag("sqlite3")
     ns = T0 + np.arange(700) * 10_000_000  # 7 s at 100 Hz
     t = (ns - T0) / 1e9
-    back = motion(np.full(1, 9.0)) - (motion(t - 3.5) - REST)  # from where the first ended back to rest
-    q = np.where(t[:, None] < 3.5, motion(t), back)  # motions 0.3-1.8 s and 3.8-5.3 s, at rest between
+    back = motion(np.full(1, 9.0)) - (
+        motion(t - 3.5) - REST
+    )  # from where the first ended back to rest
+    q = np.where(
+        t[:, None] < 3.5, motion(t), back
+    )  # motions 0.3-1.8 s and 3.8-5.3 s, at rest between
     bag.joints(ns + 300_000, ns, q)
     bag.write(tmp_path / "session")
-    written = import_bags([tmp_path / "session"], "/joint_states", {}, tmp_path / "out", FMT, split="idle", idle=1.0,
-                          consts=dict(zip(FMT.env_names, (0.56, 0.0, 0.7, 0.0))))
+    written = import_bags(
+        [tmp_path / "session"],
+        "/joint_states",
+        {},
+        tmp_path / "out",
+        FMT,
+        split="idle",
+        idle=1.0,
+        consts=dict(zip(FMT.env_names, (0.56, 0.0, 0.7, 0.0))),
+    )
     assert [p.name for p in written] == ["session_1.csv", "session_2.csv"]
     one, two = (read_recording(p, FMT) for p in written)
     cut = one.time.size
@@ -282,17 +396,50 @@ def test_bad_input_names_the_problem_and_writes_nothing(tmp_path, capsys):
     bag.poses("/can_pose", m_ns, m_ns, can)
     bag.poses("/target_pose", m_ns, m_ns, goal)
     bag.write(tmp_path / "b")
-    with pytest.raises(ValueError, match=r"topic '/five' \(can=\) is sensor_msgs/msg/JointState, not one of "
-                                         r"PoseStamped, "
-                                         r"Pose, PointStamped, Point, TransformStamped; for poses on /tf give can=tf:FRAME"):
+    with pytest.raises(
+        ValueError,
+        match=r"topic '/five' \(can=\) is sensor_msgs/msg/JointState, not one of "
+        r"PoseStamped, "
+        r"Pose, PointStamped, Point, TransformStamped; for poses on /tf give can=tf:FRAME",
+    ):
         imported(tmp_path, env="can=/five,goal=/target_pose")
-    with pytest.raises(ValueError, match=r"topic '/five' message 0 lacks the robot's joint\(s\) \['panda_joint3', "
-                                         r"'panda_joint4'\]"):
+    with pytest.raises(
+        ValueError,
+        match=r"topic '/five' message 0 lacks the robot's joint\(s\) \['panda_joint3', "
+        r"'panda_joint4'\]",
+    ):
         import_bags([tmp_path / "b"], "/five", parse_env(ENV), tmp_path / "out", FMT)
-    assert main([str(tmp_path / "b"), "--joints", "/joint_states", "--env", "can=/can_pose", "--const", "goal_x=0.7",
-                 "--out", str(tmp_path / "out")]) == 2
+    assert (
+        main(
+            [
+                str(tmp_path / "b"),
+                "--joints",
+                "/joint_states",
+                "--env",
+                "can=/can_pose",
+                "--const",
+                "goal_x=0.7",
+                "--out",
+                str(tmp_path / "out"),
+            ]
+        )
+        == 2
+    )
     assert "nothing fills the environment column 'goal_y'" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
-    assert main([str(tmp_path / "b"), "--joints", "/joint_states", "--env", ENV, "--out", str(tmp_path / "out")]) == 0
+    assert (
+        main(
+            [
+                str(tmp_path / "b"),
+                "--joints",
+                "/joint_states",
+                "--env",
+                ENV,
+                "--out",
+                str(tmp_path / "out"),
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "time from header stamps (--stamp auto)" in printed and "wrote 1 recording(s)" in printed

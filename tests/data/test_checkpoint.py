@@ -1,4 +1,5 @@
-"""protorch.data.checkpoint: a trained run loads as a plain torch module; checkpoints are atomic and safe."""
+"""protorch.data.checkpoint: a trained run loads as a plain torch module; checkpoints are atomic
+and safe."""
 
 import numpy as np
 import pytest
@@ -21,7 +22,14 @@ def _run(tmp_path, **gp):
     MU = torch.randn(12, 8, generator=g, dtype=torch.float64)
     VAR = 0.01 + 0.1 * torch.rand(12, 8, generator=g, dtype=torch.float64)
     ds.append(E[:4], MU[:4], VAR[:4], origin="demonstration")
-    ds.append(E[4:8], MU[4:8], VAR[4:8], origin="learned", converged=True, label=torch.tensor([0, 1, 0, 1]))
+    ds.append(
+        E[4:8],
+        MU[4:8],
+        VAR[4:8],
+        origin="learned",
+        converged=True,
+        label=torch.tensor([0, 1, 0, 1]),
+    )
     ds.append(E[8:], MU[8:], VAR[8:], origin="learned", converged=False)  # excluded from the map
     save_model(tmp_path / "run", ds, **gp)
     return ds, E, MU, VAR
@@ -29,10 +37,16 @@ def _run(tmp_path, **gp):
 
 def test_load_run_dir_gives_the_env_map_of_the_usable_entries(tmp_path):
     ds, E, MU, VAR = _run(tmp_path, backend="torch", alpha=2.0, nearest_k=5)
-    assert checkpoint_path(tmp_path / "run") == tmp_path / "run" / "checkpoint" / "dataset.safetensors"
+    assert (
+        checkpoint_path(tmp_path / "run") == tmp_path / "run" / "checkpoint" / "dataset.safetensors"
+    )
     model = load(tmp_path / "run")
     assert isinstance(model, EnvToProMP) and isinstance(model, torch.nn.Module)
-    assert model.task_name == "particle" and model.promp.num_weights == 8 and model.promp.num_steps == 30
+    assert (
+        model.task_name == "particle"
+        and model.promp.num_weights == 8
+        and model.promp.num_steps == 30
+    )
     keep = torch.tensor([1] * 8 + [0] * 4, dtype=torch.bool)
     labels = ds.label[keep]
     ref = make_env_map("torch", 2.0, nearest_k=5).fit(E[keep], MU[keep], VAR[keep], labels)
@@ -40,12 +54,19 @@ def test_load_run_dir_gives_the_env_map_of_the_usable_entries(tmp_path):
     lab = torch.tensor([0, 1, 0])
     mu, var = model(Q, lab)
     rmu, rvar = ref.predict(Q, lab)
-    assert mu.shape == (3, 8) and torch.allclose(mu, rmu, atol=1e-12) and torch.allclose(var, rvar, atol=1e-12)
+    assert (
+        mu.shape == (3, 8)
+        and torch.allclose(mu, rmu, atol=1e-12)
+        and torch.allclose(var, rvar, atol=1e-12)
+    )
     traj = model.promp.trajectory(mu)
     assert traj.shape == (3, 30, 2)
     assert torch.allclose(model.mean_trajectory(Q, lab), traj)
     # the same file, named three ways, and another backend give the same map
-    for where in (tmp_path / "run" / "checkpoint", tmp_path / "run" / "checkpoint" / "dataset.safetensors"):
+    for where in (
+        tmp_path / "run" / "checkpoint",
+        tmp_path / "run" / "checkpoint" / "dataset.safetensors",
+    ):
         assert torch.allclose(load(where)(Q, lab)[0], mu, atol=1e-12)
     assert torch.allclose(load(tmp_path / "run", backend="gpytorch")(Q, lab)[0], mu, atol=1e-8)
 
@@ -53,7 +74,9 @@ def test_load_run_dir_gives_the_env_map_of_the_usable_entries(tmp_path):
 def test_include_unconverged_keeps_every_learned_entry(tmp_path):
     ds, E, MU, VAR = _run(tmp_path, backend="torch", alpha=2.0, include_unconverged=True)
     model = load(tmp_path / "run")
-    assert model.env_map.num_points == 12  # demonstrations, converged and unconverged learned entries
+    assert (
+        model.env_map.num_points == 12
+    )  # demonstrations, converged and unconverged learned entries
     ref = make_env_map("torch", 2.0).fit(E, MU, VAR, ds.label)
     Q = torch.rand(3, 2, dtype=torch.float64)
     lab = torch.tensor([0, 1, 0])
@@ -92,8 +115,14 @@ def test_float32_load_and_no_hydra(tmp_path):
     with pytest.raises(ValueError, match="several labels"):
         model(torch.zeros(1, 2, dtype=torch.float32))
     # a trained run is usable without Hydra: library code never imports it
-    files = [Path(protorch.data.checkpoint.__file__), Path(protorch.data.dataset.__file__), *Path(protorch.gp.__file__).parent.glob("*.py")]
-    assert not [f.name for f in files if "import hydra" in f.read_text() or "from hydra" in f.read_text()]
+    files = [
+        Path(protorch.data.checkpoint.__file__),
+        Path(protorch.data.dataset.__file__),
+        *Path(protorch.gp.__file__).parent.glob("*.py"),
+    ]
+    assert not [
+        f.name for f in files if "import hydra" in f.read_text() or "from hydra" in f.read_text()
+    ]
 
 
 def test_atomic_write_replaces_whole_file(tmp_path):
@@ -114,7 +143,9 @@ def test_header_lengths_that_look_like_a_pickle_or_zip_still_load(tmp_path, firs
     tensors = {"x": torch.arange(3.0)}
     path = tmp_path / "c.safetensors"
     for pad in range(300):
-        atomic_write_safetensors(path, tensors, {"format": "f", "schema_version": 1, "pad": "#" * pad})
+        atomic_write_safetensors(
+            path, tensors, {"format": "f", "schema_version": 1, "pad": "#" * pad}
+        )
         if path.read_bytes()[0] == first_byte:
             break
     else:  # pragma: no cover

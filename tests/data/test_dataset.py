@@ -23,9 +23,15 @@ def _dataset(m=6, seed=0):
     g = torch.Generator().manual_seed(seed)
     ds = TrajectoryDataset(PROMP, 3, task_name="window")
     for i in range(m):
-        ds.append(torch.rand(3, generator=g, dtype=torch.float64), torch.randn(10, generator=g, dtype=torch.float64),
-                  torch.rand(10, generator=g, dtype=torch.float64), label=i % 2, origin=ORIGINS[i % 3],
-                  converged=bool(i % 2), cost=float(i) if i % 3 else float("nan"))
+        ds.append(
+            torch.rand(3, generator=g, dtype=torch.float64),
+            torch.randn(10, generator=g, dtype=torch.float64),
+            torch.rand(10, generator=g, dtype=torch.float64),
+            label=i % 2,
+            origin=ORIGINS[i % 3],
+            converged=bool(i % 2),
+            cost=float(i) if i % 3 else float("nan"),
+        )
     return ds
 
 
@@ -41,10 +47,22 @@ def test_append_and_entries():
     ds = _dataset(5)
     assert len(ds) == 5 and ds.mean.shape == (5, 10) and ds.env.shape == (5, 3)
     e = ds[4]
-    assert e.origin == "prior" and ds[2].origin == "learned" and e.label == 0 and e.converged is False and e.cost == 4.0
+    assert (
+        e.origin == "prior"
+        and ds[2].origin == "learned"
+        and e.label == 0
+        and e.converged is False
+        and e.cost == 4.0
+    )
     assert torch.equal(e.mean, ds.mean[4]) and torch.equal(ds[-1].env, ds.env[4])
-    ds.append(torch.zeros(4, 3), torch.zeros(4, 10), torch.ones(4, 10), label=torch.tensor([0, 1, 2, 3]),
-              origin="prior", converged=True)  # a batch
+    ds.append(
+        torch.zeros(4, 3),
+        torch.zeros(4, 10),
+        torch.ones(4, 10),
+        label=torch.tensor([0, 1, 2, 3]),
+        origin="prior",
+        converged=True,
+    )  # a batch
     assert len(ds) == 9 and ds.label[-4:].tolist() == [0, 1, 2, 3] and bool(ds.converged[-4:].all())
     assert ds[-1].origin == "prior" and ds.cost[-1].isnan()
     with pytest.raises(IndexError):
@@ -77,10 +95,14 @@ def test_append_rejects_bad_input_without_change(kwargs, match):
 def test_save_load_roundtrip(tmp_path):
     ds = _dataset(40)  # grows the storage several times
     ds.save(tmp_path / "ckpt" / "dataset.safetensors", extra={"note": "hi"})
-    back = TrajectoryDataset.load(tmp_path / "ckpt" / "dataset.safetensors", promp=ProMP(**PROMP), task_name="window")
+    back = TrajectoryDataset.load(
+        tmp_path / "ckpt" / "dataset.safetensors", promp=ProMP(**PROMP), task_name="window"
+    )
     _same(ds, back)
     assert back.metadata["note"] == "hi"
-    assert [f for f in os.listdir(tmp_path / "ckpt")] == ["dataset.safetensors"]  # no temp file left
+    assert [f for f in os.listdir(tmp_path / "ckpt")] == [
+        "dataset.safetensors"
+    ]  # no temp file left
     empty = TrajectoryDataset(PROMP, 3)
     empty.save(tmp_path / "empty.safetensors")
     assert len(TrajectoryDataset.load(tmp_path / "empty.safetensors")) == 0
@@ -118,16 +140,24 @@ def test_refuses_bad_files(tmp_path):
     # foreign schema version / foreign format
     from protorch.data.files import atomic_write_safetensors, read_safetensors
 
-    tensors, meta = read_safetensors(p, fmt="protorch.trajectory_dataset", schema_version=2,
-                                     keys=("env", "mean", "var", "label", "origin", "converged", "cost"))
+    tensors, meta = read_safetensors(
+        p,
+        fmt="protorch.trajectory_dataset",
+        schema_version=2,
+        keys=("env", "mean", "var", "label", "origin", "converged", "cost"),
+    )
     atomic_write_safetensors(tmp_path / "v3.safetensors", tensors, {**meta, "schema_version": 3})
     with pytest.raises(CheckpointError, match="schema version 3"):
         TrajectoryDataset.load(tmp_path / "v3.safetensors")
-    atomic_write_safetensors(tmp_path / "map.safetensors", tensors, {**meta, "format": "protorch.env_map"})
+    atomic_write_safetensors(
+        tmp_path / "map.safetensors", tensors, {**meta, "format": "protorch.env_map"}
+    )
     with pytest.raises(CheckpointError, match="expected 'protorch.trajectory_dataset'"):
         TrajectoryDataset.load(tmp_path / "map.safetensors")
     # metadata that lies about the ProMP size
-    atomic_write_safetensors(tmp_path / "n.safetensors", tensors, {**meta, "promp": {**meta["promp"], "num_basis": 6}})
+    atomic_write_safetensors(
+        tmp_path / "n.safetensors", tensors, {**meta, "promp": {**meta["promp"], "num_basis": 6}}
+    )
     with pytest.raises(CheckpointError, match="shape"):
         TrajectoryDataset.load(tmp_path / "n.safetensors")
     with pytest.raises(FileNotFoundError):
@@ -155,8 +185,12 @@ _WRITER = textwrap.dedent(
 
 
 # the writer imports this checkout's protorch, not whichever one the interpreter has installed
-_THIS_REPO = {**os.environ, "PYTHONPATH": os.pathsep.join(
-    [str(Path(__file__).resolve().parents[2]), *filter(None, [os.environ.get("PYTHONPATH")])])}
+_THIS_REPO = {
+    **os.environ,
+    "PYTHONPATH": os.pathsep.join(
+        [str(Path(__file__).resolve().parents[2]), *filter(None, [os.environ.get("PYTHONPATH")])]
+    ),
+}
 
 
 @pytest.mark.slow
@@ -167,11 +201,17 @@ def test_sigkill_at_random_moments_leaves_a_complete_checkpoint(tmp_path):
     rng = random.Random(0)
     last_saved = -1
     for _ in range(4):
-        proc = subprocess.Popen([sys.executable, str(script), str(path)], stdout=subprocess.PIPE, text=True,
-                                env=_THIS_REPO)
+        proc = subprocess.Popen(
+            [sys.executable, str(script), str(path)],
+            stdout=subprocess.PIPE,
+            text=True,
+            env=_THIS_REPO,
+        )
         try:
             assert proc.stdout.readline().startswith("start")
-            time.sleep(rng.uniform(0.05, 0.4))  # then kill at an arbitrary instant, mid-write or not
+            time.sleep(
+                rng.uniform(0.05, 0.4)
+            )  # then kill at an arbitrary instant, mid-write or not
             proc.send_signal(signal.SIGKILL)
             out = proc.communicate()[0]
         finally:
@@ -183,6 +223,10 @@ def test_sigkill_at_random_moments_leaves_a_complete_checkpoint(tmp_path):
         m = len(ds)
         assert m >= last_saved + 1, f"entries acknowledged as saved were lost: {m} <= {last_saved}"
         ar = torch.arange(m, dtype=torch.float64)
-        assert torch.equal(ds.env[:, 0], ar) and torch.equal(ds.mean[:, 9], ar) and torch.equal(ds.var[:, 0], ar + 1)
+        assert (
+            torch.equal(ds.env[:, 0], ar)
+            and torch.equal(ds.mean[:, 9], ar)
+            and torch.equal(ds.var[:, 0], ar + 1)
+        )
         assert torch.equal(ds.label, torch.arange(m) % 3) and ds.task_name == "crash"
     assert last_saved >= 1  # the writer did make progress between kills

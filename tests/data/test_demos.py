@@ -18,9 +18,12 @@ from protorch.data.demos import (
 )
 from protorch.tasks.point_particle import PointParticleTask
 
-HUMAN = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "point_particle_human_demos"
+HUMAN = (
+    Path(__file__).resolve().parents[2].parent / "shared" / "data" / "point_particle_human_demos"
+)
 needs_human = pytest.mark.skipif(
-    not HUMAN.is_dir(), reason=f"human demonstrations not found at {HUMAN} (../shared beside the repo)"
+    not HUMAN.is_dir(),
+    reason=f"human demonstrations not found at {HUMAN} (../shared beside the repo)",
 )
 
 
@@ -105,11 +108,18 @@ def test_empty_folder(tmp_path):
         load_human_demos(tmp_path)
 
 
-@pytest.mark.parametrize("which, message", [("traj", r"traj files without env file for K = \[1\]"),
-                                             ("env", r"env files without traj file for K = \[1\]")])
+@pytest.mark.parametrize(
+    "which, message",
+    [
+        ("traj", r"traj files without env file for K = \[1\]"),
+        ("env", r"env files without traj file for K = \[1\]"),
+    ],
+)
 def test_unpaired_files(tmp_path, which, message):
     _write(tmp_path, 0, "1,5\n2,5\n", ENV_TEXT)
-    _write(tmp_path, 1, "1,5\n2,5\n" if which == "traj" else None, ENV_TEXT if which == "env" else None)
+    _write(
+        tmp_path, 1, "1,5\n2,5\n" if which == "traj" else None, ENV_TEXT if which == "env" else None
+    )
     with pytest.raises(ValueError, match=message):
         load_human_demos(tmp_path)
 
@@ -150,7 +160,9 @@ def test_a_binary_file_is_named(tmp_path):
 
 def test_a_row_outside_the_workspace_names_file_row_and_bound(tmp_path):
     folder = _write_pair(tmp_path / "d", traj="1,2\n1e308,1e308\n5,5\n")
-    with pytest.raises(ValueError, match=r"traj0\.out:2: .*outside the workspace \[0(\.0)?, 10(\.0)?\]"):
+    with pytest.raises(
+        ValueError, match=r"traj0\.out:2: .*outside the workspace \[0(\.0)?, 10(\.0)?\]"
+    ):
         load_human_demos(folder)
 
 
@@ -184,14 +196,20 @@ def test_write_demo_round_trips_exactly_in_the_authors_layout(tmp_path):
 
 
 def test_a_format_of_other_columns_names_them(tmp_path):
-    fmt = DemoFormat(("a", "b", "c"), ("p", "q"), ((0, 1),) * 3, ((0, 10), (0, 10)), "the box", "the room")
+    fmt = DemoFormat(
+        ("a", "b", "c"), ("p", "q"), ((0, 1),) * 3, ((0, 10), (0, 10)), "the box", "the room"
+    )
     (tmp_path / "traj0.out").write_text("0,0,0\n0.5,2,0\n")
     (tmp_path / "env0.out").write_text("1\n2\n")
     with pytest.raises(ValueError, match=r"traj0\.out:2: b = 2 lies outside the box \[0, 1\]"):
         read_demos(tmp_path, fmt)
     (tmp_path / "traj0.out").write_text("0,0,0\n0.5,1,0\n")
     out = read_demos(tmp_path, fmt)
-    assert out.indices == [0] and out.envs.tolist() == [[1.0, 2.0]] and out.files[0][0].name == "traj0.out"
+    assert (
+        out.indices == [0]
+        and out.envs.tolist() == [[1.0, 2.0]]
+        and out.files[0][0].name == "traj0.out"
+    )
     with pytest.raises(ValueError, match="one \\(lo, hi\\) per name"):
         DemoFormat(("a",), ("p",), ((0, 1), (0, 1)))
 
@@ -201,7 +219,9 @@ def test_an_environment_with_one_demonstration_is_named_by_its_files(tmp_path):
     for k in range(3):
         write_demo(tmp_path, k, torch.rand(3, 2, dtype=torch.float64), env + (k == 2))
     out = read_demos(tmp_path, PARTICLE_FORMAT)
-    with pytest.raises(ValueError, match=r"env2\.out: this environment has 1 demonstration\(s\) \(traj2\.out\)"):
+    with pytest.raises(
+        ValueError, match=r"env2\.out: this environment has 1 demonstration\(s\) \(traj2\.out\)"
+    ):
         check_demo_groups(out.envs, out.files)
     check_demo_groups(out.envs[:2], out.files[:2])  # two of one environment are enough
 
@@ -219,25 +239,48 @@ def test_lone_sides_take_their_sides_pooled_variance(tmp_path):
     labels = torch.tensor([0, 0, 1, 1, 1, 0, 1, 1])
     demos = [torch.randn(30, 2, generator=gen, dtype=torch.float64).cumsum(0) for _ in range(8)]
     files = [(Path(f"t{i}"), Path(f"e{i}")) for i in range(8)]
-    with pytest.raises(ValueError, match=r"e2: this environment has 1 demonstration\(s\) passing right \(t2\)"):
+    with pytest.raises(
+        ValueError, match=r"e2: this environment has 1 demonstration\(s\) passing right \(t2\)"
+    ):
         check_demo_groups(envs, files, labels, label_names={0: "left", 1: "right"})
     rep = check_demo_groups(envs, files, labels, label_names={0: "left", 1: "right"}, lone="pool")
-    assert rep["lone"] == [{"files": ["t2"], "label": 1, "side": "right"}, {"files": ["t5"], "label": 0, "side": "left"}]
+    assert rep["lone"] == [
+        {"files": ["t2"], "label": 1, "side": "right"},
+        {"files": ["t5"], "label": 0, "side": "left"},
+    ]
     promp = ProMP(2, num_basis=5, num_steps=30)
     ds = demonstration_dataset(promp, demos, envs, labels=labels, lone="pool")
     w = promp.weights(demos).to(torch.float64)
     var = lambda idx: (w[idx] - w[idx].mean(0)).pow(2).mean(0)
-    assert ds.env.shape[0] == 5 and ds.label.tolist() == [0, 1, 1, 0, 1]  # A left, A right, B, C left, C right
-    for k, want in enumerate([var([0, 1]), (var([3, 4]) + var([6, 7])) / 2, var([3, 4]), var([0, 1]), var([6, 7])]):
+    assert ds.env.shape[0] == 5 and ds.label.tolist() == [
+        0,
+        1,
+        1,
+        0,
+        1,
+    ]  # A left, A right, B, C left, C right
+    for k, want in enumerate(
+        [var([0, 1]), (var([3, 4]) + var([6, 7])) / 2, var([3, 4]), var([0, 1]), var([6, 7])]
+    ):
         assert torch.allclose(ds.var[k], want, rtol=1e-9, atol=0)
     assert torch.allclose(ds.mean[1], w[2]) and torch.allclose(ds.mean[3], w[5])
     with pytest.raises(ValueError, match=r"has 1 demonstration; a weight variance needs >= 2"):
         demonstration_dataset(promp, demos, envs, labels=labels)
     keep = [0, 1, 2, 3, 4]  # A (2 left, 1 right), B (2 right): right pools from B
-    ds = demonstration_dataset(promp, [demos[i] for i in keep], envs[keep], labels=labels[keep], lone="pool")
+    ds = demonstration_dataset(
+        promp, [demos[i] for i in keep], envs[keep], labels=labels[keep], lone="pool"
+    )
     assert torch.allclose(ds.var[1], var([3, 4]), rtol=1e-9, atol=0)
     only = [2, 3, 4, 5]  # no environment with 2 left demonstrations: C's lone left cannot be pooled
-    with pytest.raises(ValueError, match=r"e5: this environment has 1 demonstration\(s\) passing left \(t5\) and no "
-                                         r"environment has >= 2 demonstrations passing left to pool"):
-        check_demo_groups(envs[only], [files[i] for i in only], labels[only], label_names={0: "left", 1: "right"},
-                          lone="pool")
+    with pytest.raises(
+        ValueError,
+        match=r"e5: this environment has 1 demonstration\(s\) passing left \(t5\) and no "
+        r"environment has >= 2 demonstrations passing left to pool",
+    ):
+        check_demo_groups(
+            envs[only],
+            [files[i] for i in only],
+            labels[only],
+            label_names={0: "left", 1: "right"},
+            lone="pool",
+        )

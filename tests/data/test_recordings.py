@@ -1,4 +1,5 @@
-"""Timestamped recordings (protorch.data.recordings): reading by time, bad input, trimming, alignment,
+"""Timestamped recordings (protorch.data.recordings): reading by time, bad input, trimming,
+alignment,
 grouping, and the authors' folders read as before."""
 
 from __future__ import annotations
@@ -29,7 +30,14 @@ from protorch.data.recordings import (
 
 ROOT = Path(__file__).resolve().parents[2]
 HUMAN = ROOT.parent / "shared" / "data" / "point_particle_human_demos"
-FMT = DemoFormat(("j1", "j2"), ("can_x", "can_y"), ((-2.0, 2.0),) * 2, ((-1.0, 1.0),) * 2, "the joint limits", "the table")
+FMT = DemoFormat(
+    ("j1", "j2"),
+    ("can_x", "can_y"),
+    ((-2.0, 2.0),) * 2,
+    ((-1.0, 1.0),) * 2,
+    "the joint limits",
+    "the table",
+)
 
 
 def path_at(phase: np.ndarray) -> np.ndarray:
@@ -42,9 +50,16 @@ def minjerk(u: np.ndarray) -> np.ndarray:
     return u**3 * (10 - 15 * u + 6 * u**2)
 
 
-def recording(t: np.ndarray, pre: float, motion: float, env=(0.1, 0.2), pause: tuple[float, float] | None = None):
+def recording(
+    t: np.ndarray,
+    pre: float,
+    motion: float,
+    env=(0.1, 0.2),
+    pause: tuple[float, float] | None = None,
+):
     """Rows ``time, j1, j2, can_x, can_y`` of the motion at times ``t``: at rest ``pre`` s, then
-    ``motion`` s of min-jerk progress (``pause = (progress, seconds)`` stops there), then at rest."""
+    ``motion`` s of min-jerk progress (``pause = (progress, seconds)`` stops there), then at
+    rest."""
     tm = t - pre
     if pause:
         stop = motion * _inverse_minjerk(pause[0])
@@ -85,7 +100,8 @@ def test_read_by_time_at_varying_rates(tmp_path):
     # the kept part: the motion, its onset and stop blurred by the 0.05 s smoothing window
     for r, pre in ((ra, 0.5), (rb, 1.4)):
         assert abs(r["trimmed_start_s"] - pre) <= 0.035 and abs(r["kept_s"] - 3.0) <= 0.07
-    # with encoder noise (2e-4 rad at 1000 Hz) the onset is found within 0.1 s and the stop within 0.3 s
+    # with encoder noise (2e-4 rad at 1000 Hz) the onset is found within 0.1 s and the stop within
+    # 0.3 s
     # (where less than 1 % of the path is left)
     noisy = b.copy()
     noisy[:, 1:3] += 2e-4 * rng.standard_normal((b.shape[0], 2))
@@ -97,12 +113,18 @@ def test_read_by_time_at_varying_rates(tmp_path):
     assert r0["trimmed_start_s"] == 0 and np.allclose(off[:8], off[0], atol=1e-9)
 
 
-@pytest.mark.parametrize("edit, message", [
-    (lambda t: t.__setitem__((5, 0), t[3, 0]), r"bad\.csv:7: time .* goes backwards from"),
-    (lambda t: t.__setitem__((5, 0), t[4, 0]), r"bad\.csv:7: time .* repeats"),
-    (lambda t: t.__setitem__((9, 2), np.nan), r"bad\.csv:11: j2 is nan \(NaN or infinite\)"),
-    (lambda t: t.__setitem__((12, 1), 2.5), r"bad\.csv:14: j1 = 2\.5 lies outside the joint limits \[-2, 2\]"),
-])
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda t: t.__setitem__((5, 0), t[3, 0]), r"bad\.csv:7: time .* goes backwards from"),
+        (lambda t: t.__setitem__((5, 0), t[4, 0]), r"bad\.csv:7: time .* repeats"),
+        (lambda t: t.__setitem__((9, 2), np.nan), r"bad\.csv:11: j2 is nan \(NaN or infinite\)"),
+        (
+            lambda t: t.__setitem__((12, 1), 2.5),
+            r"bad\.csv:14: j1 = 2\.5 lies outside the joint limits \[-2, 2\]",
+        ),
+    ],
+)
 def test_bad_rows_name_file_and_line(tmp_path, edit, message):
     table = recording(np.linspace(0, 2, 50), 0.2, 1.5)
     edit(table)
@@ -114,16 +136,24 @@ def test_bad_rows_name_file_and_line(tmp_path, edit, message):
 def test_bad_files(tmp_path):
     table = recording(np.linspace(0, 2, 50), 0.2, 1.5)
     write(tmp_path / "short.csv", table[:10])  # 0.37 s
-    with pytest.raises(ValueError, match=r"short\.csv: the recording lasts 0\.367 s, shorter than the minimum 0\.5 s"):
+    with pytest.raises(
+        ValueError,
+        match=r"short\.csv: the recording lasts 0\.367 s, shorter than the minimum 0\.5 s",
+    ):
         read_recordings(tmp_path, FMT)
     (tmp_path / "short.csv").unlink()
     write(tmp_path / "nojoint.csv", table[:, [0, 1, 3, 4]], header=("time", "j1", "can_x", "can_y"))
     with pytest.raises(ValueError, match=r"nojoint\.csv:1: no column for joint 'j2'"):
         read_recordings(tmp_path, FMT)
     (tmp_path / "nojoint.csv").unlink()
-    write(tmp_path / "still.csv", np.concatenate([table[:, :1], np.zeros((50, 2)), table[:, 3:]], 1))
-    with pytest.raises(ValueError, match=r"no recording remains to train on \(excluded: still\.csv: motionless: its "
-                                         r"joints span at most 0 rad \(j1\), less than 0\.02 rad\)"):
+    write(
+        tmp_path / "still.csv", np.concatenate([table[:, :1], np.zeros((50, 2)), table[:, 3:]], 1)
+    )
+    with pytest.raises(
+        ValueError,
+        match=r"no recording remains to train on \(excluded: still\.csv: motionless: its "
+        r"joints span at most 0 rad \(j1\), less than 0\.02 rad\)",
+    ):
         read_recordings(tmp_path, FMT)
     (tmp_path / "still.csv").unlink()
     (tmp_path / "text.csv").write_text("time,j1,j2,can_x,can_y\n0,1,2,0,0\n0.1,x,2,0,0\n")
@@ -139,7 +169,9 @@ def test_bad_files(tmp_path):
 def test_env_from_sidecar(tmp_path):
     table = recording(np.linspace(0, 2, 50), 0.2, 1.5)
     write(tmp_path / "a.csv", table[:, :3], header=("time", "j1", "j2"))
-    with pytest.raises(ValueError, match=r"a\.csv: no environment columns \['can_x', 'can_y'\] and no a\.json"):
+    with pytest.raises(
+        ValueError, match=r"a\.csv: no environment columns \['can_x', 'can_y'\] and no a\.json"
+    ):
         read_recording(tmp_path / "a.csv", FMT)
     (tmp_path / "a.json").write_text('{"env": {"can_x": 0.3, "can_y": -0.25}}')
     assert read_recording(tmp_path / "a.csv", FMT).env.tolist() == [0.3, -0.25]
@@ -177,7 +209,11 @@ def test_grouping_within_a_derived_tolerance():
     envs = np.repeat(centres, 3, 0) + 0.003 * rng.standard_normal((9, 2))
     group, tol, report = group_envs(envs, None)
     assert group.tolist() == [0, 0, 0, 1, 1, 1, 2, 2, 2]
-    assert report["derived"] and report["how"]["below"] < tol < report["how"]["above"] and 0.005 < tol < 0.1
+    assert (
+        report["derived"]
+        and report["how"]["below"] < tol < report["how"]["above"]
+        and 0.005 < tol < 0.1
+    )
     assert group_envs(np.repeat(centres, 2, 0), None)[0].tolist() == [0, 0, 1, 1, 2, 2]
     assert group_envs(envs, 0.5)[0].tolist() == [0] * 9
 
@@ -196,15 +232,26 @@ def test_cleaning_settings():
 def test_authors_folder_unchanged(tmp_path):
     """A trajK.out / envK.out folder reads exactly as read_demos reads it (no cleaning, no
     report, every row kept)."""
-    write_demo(tmp_path, 0, torch.tensor([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]]), torch.tensor([1.0, 2, 5, 5, 8, 8]))
-    write_demo(tmp_path, 1, torch.tensor([[1.5, 2.0], [3.0, 4.5]]), torch.tensor([1.0, 2, 5, 5, 8, 8]))
+    write_demo(
+        tmp_path,
+        0,
+        torch.tensor([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]]),
+        torch.tensor([1.0, 2, 5, 5, 8, 8]),
+    )
+    write_demo(
+        tmp_path, 1, torch.tensor([[1.5, 2.0], [3.0, 4.5]]), torch.tensor([1.0, 2, 5, 5, 8, 8])
+    )
     out, labels = read_demo_folder(tmp_path, PARTICLE_FORMAT, Cleaning())
     ref = read_demos(tmp_path, PARTICLE_FORMAT)
     assert labels is None and out.report == {} and out.indices == [0, 1]
-    assert all(torch.equal(a, b) for a, b in zip(out.demos, ref.demos)) and torch.equal(out.envs, ref.envs)
+    assert all(torch.equal(a, b) for a, b in zip(out.demos, ref.demos)) and torch.equal(
+        out.envs, ref.envs
+    )
 
 
-@pytest.mark.skipif(not HUMAN.is_dir(), reason="the authors' human demonstrations are not on this machine")
+@pytest.mark.skipif(
+    not HUMAN.is_dir(), reason="the authors' human demonstrations are not on this machine"
+)
 def test_authors_human_demos_unchanged():
     demos, envs = load_human_demos(HUMAN)
     ref = read_demos(HUMAN, PARTICLE_FORMAT)
@@ -220,11 +267,16 @@ def test_point_particle_recordings(tmp_path):
         t = np.arange(0, 3.0, 1 / rate)
         p = minjerk((t - 0.5) / 2.0)[:, None]
         xy = np.array([1.0, 2.0]) + p * np.array([7.0, 6.0])
-        write_recording(tmp_path / f"{name}.csv", ["time", "x", "y", "start_x", "start_y", "wall_x", "hole_y", "goal_x",
-                                                   "goal_y"], np.concatenate([t[:, None], xy, np.tile(env, (t.size, 1))], 1))
+        write_recording(
+            tmp_path / f"{name}.csv",
+            ["time", "x", "y", "start_x", "start_y", "wall_x", "hole_y", "goal_x", "goal_y"],
+            np.concatenate([t[:, None], xy, np.tile(env, (t.size, 1))], 1),
+        )
     demos, envs = load_human_demos(tmp_path)
     assert len(demos) == 2 and demos[0].shape == (200, 2) and torch.equal(envs[0], envs[1])
-    assert torch.allclose(demos[0], demos[1], atol=0.05)  # 0.7 % of the motion: 60 Hz samples interpolated
+    assert torch.allclose(
+        demos[0], demos[1], atol=0.05
+    )  # 0.7 % of the motion: 60 Hz samples interpolated
 
 
 def test_excluded_and_reported(tmp_path):
@@ -244,11 +296,22 @@ def test_excluded_and_reported(tmp_path):
     write(tmp_path / "d_still.csv", still)
     write(tmp_path / "e_quick.csv", recording(t, 1.0, 0.3))
     folder, _ = read_recordings(tmp_path, FMT)
-    assert [e["file"] for e in folder.report["excluded"]] == ["c_short.csv", "d_still.csv", "e_quick.csv"]
+    assert [e["file"] for e in folder.report["excluded"]] == [
+        "c_short.csv",
+        "d_still.csv",
+        "e_quick.csv",
+    ]
     reasons = [e["reason"] for e in folder.report["excluded"]]
-    assert reasons[0] == "the recording lasts 0.37 s, shorter than the minimum 0.5 s (task.recordings.min_duration)"
-    assert reasons[1].startswith("motionless: its joints span at most 0.000") and reasons[2].startswith("it moves for 0.")
-    assert all(torch.equal(x, y) for x, y in zip(folder.demos, alone.demos)) and len(folder.demos) == 2
+    assert (
+        reasons[0] == "the recording lasts 0.37 s, shorter than the minimum 0.5 s "
+        "(task.recordings.min_duration)"
+    )
+    assert reasons[1].startswith("motionless: its joints span at most 0.000") and reasons[
+        2
+    ].startswith("it moves for 0.")
+    assert (
+        all(torch.equal(x, y) for x, y in zip(folder.demos, alone.demos)) and len(folder.demos) == 2
+    )
     bad = good.copy()
     bad[150:, 3] += 0.02  # the can pushed 2 cm along x half way
     bad[:, 3:] += 5e-4 * rng.standard_normal((301, 2))
@@ -260,17 +323,35 @@ def test_excluded_and_reported(tmp_path):
     bad[200:, 2] += 2 * np.pi  # an encoder wrap at 2 s
     bad = np.delete(bad, range(251, 270), axis=0)  # 0.2 s without samples at 2.5 s
     write(tmp_path / "a.csv", bad)
-    with pytest.raises(ValueError, match=r"a\.csv:202: j2 = 5\.78462 lies outside the joint limits"):
+    with pytest.raises(
+        ValueError, match=r"a\.csv:202: j2 = 5\.78462 lies outside the joint limits"
+    ):
         read_recordings(tmp_path, FMT)  # the wrap leaves the limits here
-    wide = DemoFormat(("j1", "j2"), ("can_x", "can_y"), ((-9.0, 9.0),) * 2, ((-1.0, 1.0),) * 2, "the limits", "the table")
-    (r,) = [e for e in read_recordings(tmp_path, wide)[0].report["excluded"] if e["file"] == "a.csv"]
-    assert r["reason"].startswith("it moves for 0.455 s only")  # the jump is the peak speed the trimming measures against
-    assert r["jumps"] == [{"time_s": 2.0, "joint": "j2", "step": pytest.approx(2 * np.pi, abs=0.01)}]
+    wide = DemoFormat(
+        ("j1", "j2"),
+        ("can_x", "can_y"),
+        ((-9.0, 9.0),) * 2,
+        ((-1.0, 1.0),) * 2,
+        "the limits",
+        "the table",
+    )
+    (r,) = [
+        e for e in read_recordings(tmp_path, wide)[0].report["excluded"] if e["file"] == "a.csv"
+    ]
+    assert r["reason"].startswith(
+        "it moves for 0.455 s only"
+    )  # the jump is the peak speed the trimming measures against
+    assert r["jumps"] == [
+        {"time_s": 2.0, "joint": "j2", "step": pytest.approx(2 * np.pi, abs=0.01)}
+    ]
     assert r["gaps"] == [{"time_s": 2.5, "seconds": pytest.approx(0.2)}]
     held = good.copy()
     held[:, 3:] += 5e-4 * rng.standard_normal((301, 2))
     held[100:, 3:] = held[99, 3:]  # the stream ends at 0.99 s of 3 s, held since
     write(tmp_path / "a.csv", held)
     r = read_recordings(tmp_path, FMT)[0].report
-    assert r["recordings"][0]["env_stream_ends_s"] == pytest.approx(0.99) and "env_moved" not in r["recordings"][0]
+    assert (
+        r["recordings"][0]["env_stream_ends_s"] == pytest.approx(0.99)
+        and "env_moved" not in r["recordings"][0]
+    )
     assert "a.csv: the environment stream ends at 0.99 s of 3.00 s (held since)" in r["summary"]

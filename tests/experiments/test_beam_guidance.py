@@ -5,7 +5,11 @@ import pytest
 import torch
 
 from protorch.experiments.beam_guidance import (
-    compare_guidance, compare_settings, free_force, free_phase_mask, optimize_with,
+    compare_guidance,
+    compare_settings,
+    free_force,
+    free_phase_mask,
+    optimize_with,
 )
 from protorch.primitives.pose import PoseProMP
 from protorch.tasks.beam_window import BeamWindowTask, SimulatedOperator
@@ -17,7 +21,19 @@ def test_free_phase_mask_excludes_the_via_neighbourhoods():
     idx = torch.arange(11)[None]  # (1, 11) phases 0, 0.1, ..., 1 on an 11-step grid
     vias = torch.tensor([0.0, 0.5, 1.0], dtype=F64)
     mask = free_phase_mask(idx, 11, vias, 0.15)
-    assert mask[0].tolist() == [False, False, True, True, False, False, False, True, True, False, False]
+    assert mask[0].tolist() == [
+        False,
+        False,
+        True,
+        True,
+        False,
+        False,
+        False,
+        True,
+        True,
+        False,
+        False,
+    ]
     with pytest.raises(ValueError, match="margin"):
         free_phase_mask(idx, 11, vias, 0.5)
 
@@ -33,9 +49,15 @@ def test_free_force_is_the_mean_position_force_magnitude():
         free_force(force, torch.zeros(2, 3, dtype=torch.bool))
 
 
-@pytest.mark.parametrize("cfg, match", [
-    ({"budget": 1}, "budget"), ({"margin": 0.6}, "margin"), ({"enabled": "yes"}, "enabled"), ({"bogus": 1}, "bogus"),
-])
+@pytest.mark.parametrize(
+    "cfg, match",
+    [
+        ({"budget": 1}, "budget"),
+        ({"margin": 0.6}, "margin"),
+        ({"enabled": "yes"}, "enabled"),
+        ({"bogus": 1}, "bogus"),
+    ],
+)
 def test_bad_settings(cfg, match):
     with pytest.raises(ValueError, match=match):
         compare_settings(cfg)
@@ -58,10 +80,32 @@ def test_wider_distribution_pushes_less_in_the_free_phases(beam):
     wide = model.copy()
     wide.set_distribution(position=(model.position.mean, model.position.var * 16))
     gains = {"position_gain": 30.0, "position_max": 3000.0}
-    out = compare_guidance(task, model, model, intended, lengths, guidance=gains, hand={}, beta=200.0, budget=2,
-                           seed=0, names=())
-    out_wide = compare_guidance(task, model, wide, intended, lengths, guidance=gains, hand={}, beta=200.0, budget=2,
-                                seed=0, names=())
+    out = compare_guidance(
+        task,
+        model,
+        model,
+        intended,
+        lengths,
+        guidance=gains,
+        hand={},
+        beta=200.0,
+        budget=2,
+        seed=0,
+        names=(),
+    )
+    out_wide = compare_guidance(
+        task,
+        model,
+        wide,
+        intended,
+        lengths,
+        guidance=gains,
+        hand={},
+        beta=200.0,
+        budget=2,
+        seed=0,
+        names=(),
+    )
     assert set(out) == {"PRO"}
     assert out_wide["PRO"]["free_force"] < out["PRO"]["free_force"]
     assert out_wide["PRO"]["free_stiffness"] < out["PRO"]["free_stiffness"]
@@ -70,8 +114,9 @@ def test_wider_distribution_pushes_less_in_the_free_phases(beam):
 def test_tiny_budget_comparison_runs_every_peer(beam):
     task, model, intended, lengths = beam
     before = model.position.mean.clone()
-    out = compare_guidance(task, model, model, intended, lengths, guidance={}, hand={}, beta=200.0, budget=60,
-                           seed=0)
+    out = compare_guidance(
+        task, model, model, intended, lengths, guidance={}, hand={}, beta=200.0, budget=60, seed=0
+    )
     assert list(out) == ["PRO", "EPRO", "RWR", "CEM", "CMA-ES"]
     for r in out.values():
         assert 0 <= r["assisted_success_rate"] <= 1 and r["free_force"] >= 0
@@ -85,8 +130,14 @@ def test_tiny_budget_comparison_runs_every_peer(beam):
 def test_pro_stage_rollouts_counts_probes_and_objective_batches():
     from protorch.experiments.beam_guidance import pro_stage_rollouts
 
-    assert pro_stage_rollouts({"max_iter": 150, "num_samples": 200, "pro": {"relevance_samples": 200}}) == 150_000
-    assert pro_stage_rollouts({"max_iter": 3, "num_samples": 20, "pro": {"relevance_samples": 20}}) == 300
+    assert (
+        pro_stage_rollouts({"max_iter": 150, "num_samples": 200, "pro": {"relevance_samples": 200}})
+        == 150_000
+    )
+    assert (
+        pro_stage_rollouts({"max_iter": 3, "num_samples": 20, "pro": {"relevance_samples": 20}})
+        == 300
+    )
 
 
 @pytest.mark.slow
@@ -95,15 +146,35 @@ def test_experiment_metrics_hold_every_optimiser(tmp_path):
     from protorch.experiments.beam_window import run
 
     opt = dict(beta=200.0, num_samples=20, max_iter=3, tol=0.0, pro=dict(relevance_samples=20))
-    m = run(tmp_path, optimizer=opt, plot=True, num_demos=4, eval_samples=20, teleop={"trials": 5},
-            promp={"num_steps": 60})
+    m = run(
+        tmp_path,
+        optimizer=opt,
+        plot=True,
+        num_demos=4,
+        eval_samples=20,
+        teleop={"trials": 5},
+        promp={"num_steps": 60},
+    )
     assert list(m["guidance"]) == ["PRO", "EPRO", "RWR", "CEM", "CMA-ES"]
     assert m["guidance"]["PRO"]["assisted_success_rate"] == m["teleop"]["assisted_success_rate"]
     assert (tmp_path / "guidance.png").is_file()
-    off = run(tmp_path / "off", optimizer=opt, plot=False, num_demos=4, eval_samples=20, teleop={"trials": 5},
-              promp={"num_steps": 60}, guidance_compare={"enabled": False})
+    off = run(
+        tmp_path / "off",
+        optimizer=opt,
+        plot=False,
+        num_demos=4,
+        eval_samples=20,
+        teleop={"trials": 5},
+        promp={"num_steps": 60},
+        guidance_compare={"enabled": False},
+    )
     assert "guidance" not in off
+
     def timeless(d):
-        return {k: timeless(v) if isinstance(v, dict) else v for k, v in d.items() if k not in ("seconds", "guidance")}
+        return {
+            k: timeless(v) if isinstance(v, dict) else v
+            for k, v in d.items()
+            if k not in ("seconds", "guidance")
+        }
 
     assert timeless(off) == timeless(m)  # the comparison only adds keys

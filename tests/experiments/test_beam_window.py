@@ -12,8 +12,15 @@ from protorch.primitives.pose import PoseProMP
 from protorch.tasks.beam_window import BeamWindowTask, SimulatedOperator
 
 F64 = torch.float64
-TINY_PRO = dict(beta=200.0, num_samples=40, max_iter=12, tol=0.0, relevance_samples=40, relevance_var=1e-5,
-                noise_floor=3.0)
+TINY_PRO = dict(
+    beta=200.0,
+    num_samples=40,
+    max_iter=12,
+    tol=0.0,
+    relevance_samples=40,
+    relevance_var=1e-5,
+    noise_floor=3.0,
+)
 
 
 def _cfg(**optimizer):
@@ -27,7 +34,9 @@ def _cfg(**optimizer):
     plain = OmegaConf.to_container(cfg, resolve=False)
     plain.pop("hydra", None)
     plain["optimizer"].update(optimizer)
-    return OmegaConf.to_container(OmegaConf.create(plain), resolve=True)  # baseline_optimizer: ${optimizer.*}
+    return OmegaConf.to_container(
+        OmegaConf.create(plain), resolve=True
+    )  # baseline_optimizer: ${optimizer.*}
 
 
 def test_config_holds_the_papers_settings():
@@ -55,7 +64,9 @@ def test_two_stage_optimisation_at_a_tiny_budget():
     assert not torch.equal(model.position.mean, before.position.mean)
     assert not torch.equal(model.orientation.mean, before.orientation.mean)
     # the orientation's window via points sit where the optimised position mean passes them
-    torch.testing.assert_close(stages["phases"], task.window_phases(model.position.mean_trajectory()))
+    torch.testing.assert_close(
+        stages["phases"], task.window_phases(model.position.mean_trajectory())
+    )
     assert 0 < float(stages["phases"][1]) < float(stages["phases"][2]) < 1
     # both problems improved their mean's costs (4 via points + 0.1 len + 1e5 jerk each)
     z = stages["phases"]
@@ -63,7 +74,12 @@ def test_two_stage_optimisation_at_a_tiny_budget():
     pos_after = task.position_costs(model.position.mean_trajectory()).sum()
     rot_before = task.orientation_costs(before.orientation.mean_trajectory(), z).sum()
     rot_after = task.orientation_costs(model.orientation.mean_trajectory(), z).sum()
-    assert pos_after < pos_before and rot_after < 0.8 * rot_before, (pos_before, pos_after, rot_before, rot_after)
+    assert pos_after < pos_before and rot_after < 0.8 * rot_before, (
+        pos_before,
+        pos_after,
+        rot_before,
+        rot_after,
+    )
     with pytest.raises(ValueError, match="beta must be > 0"):
         optimize_pose_promp(task, model, optimizer={**TINY_PRO, "beta": 0.0})
 
@@ -78,7 +94,9 @@ def test_the_papers_claims_at_a_reduced_budget(tmp_path):
     m = run_experiment(cfg, tmp_path)
     assert torch.get_num_threads() == threads  # restored
     assert m["demos"]["collision_free_rate"] <= 0.5  # most demonstrations hit the wall
-    assert m["demos"]["promp_samples_collision_free_rate"] < 0.2  # and so do the demonstrations' ProMP's samples
+    assert (
+        m["demos"]["promp_samples_collision_free_rate"] < 0.2
+    )  # and so do the demonstrations' ProMP's samples
     assert m["optimized"]["mean_collision_free"] and m["optimized"]["mean_success"]
     assert m["optimized"]["samples_collision_free_rate"] >= 0.9
     assert max(m["optimized"]["via_errors"]["position_m"]) < 0.005  # mm-level via points
@@ -87,7 +105,9 @@ def test_the_papers_claims_at_a_reduced_budget(tmp_path):
     assert t["assisted_success_rate"] >= 0.9
     assert t["assisted_success_rate"] >= 3 * t["unassisted_success_rate"]
     assert t["paired"]["broken_by_guidance"] == 0
-    assert t["assisted_by_demos_promp_success_rate"] < 0.6  # guidance from the unoptimised ProMP does not do it
+    assert (
+        t["assisted_by_demos_promp_success_rate"] < 0.6
+    )  # guidance from the unoptimised ProMP does not do it
     assert (tmp_path / "metrics.json").is_file()
 
 
@@ -95,8 +115,14 @@ def test_the_papers_claims_at_a_reduced_budget(tmp_path):
     "change, message",
     [
         (dict(optimizer={"beta": -1.0}), "beta must be > 0"),
-        (dict(task={"start_quaternion": [1.0, 0.0, 0.0, 0.3]}), "start_quaternion must be a unit quaternion"),
-        (dict(task={"wall_quaternion": [1.0, 0.0, float("nan"), 0.0]}), "wall_quaternion contains NaN"),
+        (
+            dict(task={"start_quaternion": [1.0, 0.0, 0.0, 0.3]}),
+            "start_quaternion must be a unit quaternion",
+        ),
+        (
+            dict(task={"wall_quaternion": [1.0, 0.0, float("nan"), 0.0]}),
+            "wall_quaternion contains NaN",
+        ),
         (dict(teleop={"trials": 0}), "teleop.trials must be an int >= 1"),
         (dict(teleop={"speed": 1.0}), "unknown teleop setting"),
         (dict(guidance={"position_max": -5.0}), "position_max must be finite and >= 0"),

@@ -14,7 +14,14 @@ def _strict_load(path):
 
 def test_write_json_writes_undefined_metrics_as_null(tmp_path):
     path = tmp_path / "metrics.json"
-    write_json(path, {"rate": float("nan"), "nested": {"up": float("inf"), "ok": 0.5}, "list": [1.0, float("-inf")]})
+    write_json(
+        path,
+        {
+            "rate": float("nan"),
+            "nested": {"up": float("inf"), "ok": 0.5},
+            "list": [1.0, float("-inf")],
+        },
+    )
     data = _strict_load(path)  # parses as standard JSON
     assert data == {"rate": None, "nested": {"up": None, "ok": 0.5}, "list": [1.0, None]}
     assert [p.name for p in tmp_path.iterdir()] == ["metrics.json"]  # no temp file left

@@ -19,7 +19,9 @@ def _cfg(name, **optimizer):
     plain = OmegaConf.to_container(cfg, resolve=False)
     plain.pop("hydra", None)
     plain["optimizer"].update(optimizer)
-    return OmegaConf.to_container(OmegaConf.create(plain), resolve=True)  # baseline_optimizer: ${optimizer.*}
+    return OmegaConf.to_container(
+        OmegaConf.create(plain), resolve=True
+    )  # baseline_optimizer: ${optimizer.*}
 
 
 def test_fig3_pro_keeps_the_irrelevant_std_and_rwr_loses_it(tmp_path):

@@ -11,8 +11,14 @@ import pytest
 from protorch.experiments import EXPERIMENTS, run_experiment
 from protorch.experiments.run_folder import check_run_folder
 
-FIG3 = {"name": "fig3_toy", "seed": 0, "plot": False, "threads": 1,
-        "optimizer": {"beta": 20.0, "max_iter": 5, "num_samples": 20}, "settings": {"eval_samples": 50}}
+FIG3 = {
+    "name": "fig3_toy",
+    "seed": 0,
+    "plot": False,
+    "threads": 1,
+    "optimizer": {"beta": 20.0, "max_iter": 5, "num_samples": 20},
+    "settings": {"eval_samples": 50},
+}
 
 
 def test_a_finished_run_writes_summary_and_status_readable_by_others(tmp_path):
@@ -21,7 +27,10 @@ def test_a_finished_run_writes_summary_and_status_readable_by_others(tmp_path):
     assert status["status"] == "ok" and status["experiment"] == "fig3_toy"
     saved = json.loads((tmp_path / "metrics.json").read_text())
     assert saved["summary"] == status["summary"] == metrics["summary"]
-    assert saved["summary"]["headline"]["pro.irrelevant_std_ratio"]["value"] == saved["pro"]["irrelevant_std_ratio"]
+    assert (
+        saved["summary"]["headline"]["pro.irrelevant_std_ratio"]["value"]
+        == saved["pro"]["irrelevant_std_ratio"]
+    )
     for name in ("metrics.json", "status.json"):
         mode = stat.S_IMODE((tmp_path / name).stat().st_mode)
         assert mode & 0o044 == 0o044, oct(mode)  # group and others may read (umask 022 -> 0644)

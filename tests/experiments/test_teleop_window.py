@@ -4,19 +4,29 @@ import pytest
 
 from protorch.experiments import SettingsError, teleop_window
 
-OPT = {"name": "pro", "beta": 50.0, "num_samples": 12, "max_iter": 2, "tol": 0.0, "relevance_samples": 12}
+OPT = {
+    "name": "pro",
+    "beta": 50.0,
+    "num_samples": 12,
+    "max_iter": 2,
+    "tol": 0.0,
+    "relevance_samples": 12,
+}
 
 
 def _run(tmp_path, **kw):
     return teleop_window.run(tmp_path / "run", optimizer=OPT, **kw)
 
 
-@pytest.mark.parametrize("teleop, message", [
-    ({"conditions": ["none", "sometimes"]}, "unknown condition 'sometimes'"),
-    ({"operator": "nowhere.py:Op"}, "no file nowhere.py"),
-    ({"operators": 0}, "teleop.operators"),
-    ({"wall": {"speed": 1.0}}, "unknown wall setting"),
-])
+@pytest.mark.parametrize(
+    "teleop, message",
+    [
+        ({"conditions": ["none", "sometimes"]}, "unknown condition 'sometimes'"),
+        ({"operator": "nowhere.py:Op"}, "no file nowhere.py"),
+        ({"operators": 0}, "teleop.operators"),
+        ({"wall": {"speed": 1.0}}, "unknown wall setting"),
+    ],
+)
 def test_bad_settings_are_refused_with_one_line_before_any_work(tmp_path, teleop, message):
     with pytest.raises(SettingsError, match=message) as info:
         _run(tmp_path, teleop=teleop)
@@ -26,9 +36,11 @@ def test_bad_settings_are_refused_with_one_line_before_any_work(tmp_path, teleop
 
 def test_an_operator_without_the_protocol_or_returning_nan_is_refused(tmp_path):
     path = tmp_path / "ops.py"
-    path.write_text("import math\n\nclass Lazy:\n    def __init__(self, seed):\n        pass\n\n"
-                    "class Nan(Lazy):\n    def reset(self, start, end, wall):\n        pass\n\n"
-                    "    def act(self, t, pose, wall):\n        return [math.nan] * 7\n")
+    path.write_text(
+        "import math\n\nclass Lazy:\n    def __init__(self, seed):\n        pass\n\n"
+        "class Nan(Lazy):\n    def reset(self, start, end, wall):\n        pass\n\n"
+        "    def act(self, t, pose, wall):\n        return [math.nan] * 7\n"
+    )
     with pytest.raises(SettingsError, match="class Lazy lacks reset, act"):
         _run(tmp_path, teleop={"operator": f"{path}:Lazy"})
     with pytest.raises(SettingsError, match="Nan.act returned a non-finite pose"):
@@ -37,9 +49,14 @@ def test_an_operator_without_the_protocol_or_returning_nan_is_refused(tmp_path):
 
 @pytest.mark.slow
 def test_a_tiny_run_measures_the_three_conditions_and_the_freedom(tmp_path):
-    m = _run(tmp_path, demos={"envs": 4, "per_env": 2}, loop={"num_envs": 2, "batch_size": 2},
-             promp={"num_steps": 50}, freedom_optimizers=["cem"],
-             teleop={"operators": 3, "dt": 0.05, "time_limit": 6.0})
+    m = _run(
+        tmp_path,
+        demos={"envs": 4, "per_env": 2},
+        loop={"num_envs": 2, "batch_size": 2},
+        promp={"num_steps": 50},
+        freedom_optimizers=["cem"],
+        teleop={"operators": 3, "dt": 0.05, "time_limit": 6.0},
+    )
     assert set(m["teleop"]) == {"none", "fixed", "adaptive"}
     for cond, r in m["teleop"].items():
         assert set(r) >= {"success_rate", "collision_rate", "time", "effort", "freedom"}

@@ -44,7 +44,6 @@ def make_data(m, n, d=4, *, seed=0, var_lo=1e-2, var_hi=1e-1):
     return E, MU, VAR
 
 
-
 def local_reference(E, MU, VAR, Q, alpha, k):
     """The sparse map without ``nearest_k``: per query, Eq. 7 and 8 solved on its ``k`` nearest
     environments (stable order), with the prior mean and average variance of all the data."""
@@ -53,8 +52,11 @@ def local_reference(E, MU, VAR, Q, alpha, k):
     m0, v0 = MU.mean(0), VAR.mean(0)
     for q in range(Q.shape[0]):
         near = np.argsort(((E - Q[q]) ** 2).sum(1), kind="stable")[:k]
-        # Eq. 7 / 8 on the subset, then swap its own prior mean and average variance for the global ones
-        sub_mu, sub_var = reference_eq78(E[near], MU[near] - m0, VAR[near], Q[q : q + 1], alpha, center=False)
+        # Eq. 7 / 8 on the subset, then swap its own prior mean and average variance for the global
+        # ones
+        sub_mu, sub_var = reference_eq78(
+            E[near], MU[near] - m0, VAR[near], Q[q : q + 1], alpha, center=False
+        )
         mu[q], var[q] = m0 + sub_mu[0], sub_var[0] - VAR[near].mean(0) + v0
     return mu, var
 
@@ -67,6 +69,8 @@ def smooth_data(m, n, d=4, *, seed=0, side=0.6):
     E = side * torch.rand(m, d, generator=g, dtype=torch.float64)  # (M, d)
     freq = 4.0 * torch.randn(8, d, generator=g, dtype=torch.float64)  # (8, d)
     amp = torch.randn(8, n, generator=g, dtype=torch.float64) / 8**0.5  # (8, N)
-    MU = torch.sin(E @ freq.T + 6.3 * torch.rand(8, generator=g, dtype=torch.float64)) @ amp  # (M, N)
+    MU = (
+        torch.sin(E @ freq.T + 6.3 * torch.rand(8, generator=g, dtype=torch.float64)) @ amp
+    )  # (M, N)
     VAR = 10 ** (-4 + 2 * torch.rand(m, n, generator=g, dtype=torch.float64))  # (M, N)
     return E, MU, VAR

@@ -23,8 +23,9 @@ def test_add_of_a_known_environment_with_zero_variance_is_finite(offset):
     mu, var = gp.predict(E)
     assert bool(torch.isfinite(mu).all()) and bool(torch.isfinite(var).all())
     # the same rows fitted at once: two conflicting exact observations average to 0.5
-    ref = make_env_map("torch", alpha=1e-2).fit(torch.cat([E, E + offset]), torch.cat([z, z + 1]),
-                                                torch.cat([z, z]))
+    ref = make_env_map("torch", alpha=1e-2).fit(
+        torch.cat([E, E + offset]), torch.cat([z, z + 1]), torch.cat([z, z])
+    )
     torch.testing.assert_close(mu, ref.predict(E)[0], atol=1e-3, rtol=0)
     torch.testing.assert_close(mu, torch.full_like(mu, 0.5), atol=1e-3, rtol=0)
 
@@ -56,7 +57,9 @@ def test_conflicting_near_duplicates_warn_with_the_bound(step):
     grp = gp.groups["0"]
     bound = grp.coef[: grp.m].abs().sum(0)  # (N,)
     assert bool(((mu - grp.mu0).abs() <= bound * (1 + 1e-9)).all())  # the bound holds
-    assert float((mu - grp.mu0).abs().max()) > 10 * float((MU - MU.mean(0)).abs().max())  # and is real
+    assert float((mu - grp.mu0).abs().max()) > 10 * float(
+        (MU - MU.mean(0)).abs().max()
+    )  # and is real
 
 
 def test_consistent_data_does_not_warn():

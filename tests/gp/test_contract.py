@@ -62,7 +62,11 @@ def test_tiny_variances_are_not_floored(backend):
 def test_prior_mean_and_variance_far_away(backend):
     """Far from every known environment k_e = 0: mu = average mean, var = 1 + average var."""
     E, MU, VAR = make_data(20, 3)
-    mu, var = make_env_map(backend, ALPHA).fit(E, MU, VAR).predict(torch.full((1, 4), 100.0, dtype=torch.float64))
+    mu, var = (
+        make_env_map(backend, ALPHA)
+        .fit(E, MU, VAR)
+        .predict(torch.full((1, 4), 100.0, dtype=torch.float64))
+    )
     _close(mu[0], MU.mean(0), 1e-12)
     _close(var[0], 1.0 + VAR.mean(0), 1e-12)
 
@@ -104,9 +108,16 @@ def test_add_changes_prior_mean(backend):
     gp = make_env_map(backend, ALPHA).fit(E, MU, VAR)
     far = torch.full((1, 4), 50.0, dtype=torch.float64)
     gp.predict(far)
-    gp.add(torch.full((1, 4), 30.0, dtype=torch.float64), torch.full((1, 2), 100.0, dtype=torch.float64),
-           torch.full((1, 2), 0.05, dtype=torch.float64))
-    _close(gp.predict(far)[0][0], torch.cat([MU, torch.full((1, 2), 100.0, dtype=torch.float64)]).mean(0), 1e-12)
+    gp.add(
+        torch.full((1, 4), 30.0, dtype=torch.float64),
+        torch.full((1, 2), 100.0, dtype=torch.float64),
+        torch.full((1, 2), 0.05, dtype=torch.float64),
+    )
+    _close(
+        gp.predict(far)[0][0],
+        torch.cat([MU, torch.full((1, 2), 100.0, dtype=torch.float64)]).mean(0),
+        1e-12,
+    )
 
 
 def test_torch_backend_extends_in_place():
@@ -273,8 +284,12 @@ def test_approx_variance(backend):
     gp = make_env_map(backend, ALPHA, **opts).fit(E, MU, VAR)
     Q = make_data(20, 1, seed=32)[0]
     mu, var = gp.predict(Q)
-    with torch.random.fork_rng():  # LOVE's Lanczos start is random (the global RNG): seeded, the test is
-        torch.manual_seed(0)  # the same whatever ran before (its error over 40 seeds: 0.070 to 0.099)
+    with (
+        torch.random.fork_rng()
+    ):  # LOVE's Lanczos start is random (the global RNG): seeded, the test is
+        torch.manual_seed(
+            0
+        )  # the same whatever ran before (its error over 40 seeds: 0.070 to 0.099)
         mu_a, var_a = gp.predict(Q, approx_var=True)
     _close(mu_a, mu, 0.0)  # the mean stays exact
     if backend == "gpytorch":
@@ -336,8 +351,14 @@ def test_float32_and_module_to(backend):
 
 @pytest.mark.parametrize(
     "kw, match",
-    [({"capacity": 0}, "capacity"), ({"block": 1.5}, "block"), ({"var_rank": 0}, "var_rank"),
-     ({"growth": 1.0}, "growth"), ({"var_tol": -1.0}, "var_tol"), ({"var_dtype": "float16"}, "var_dtype")],
+    [
+        ({"capacity": 0}, "capacity"),
+        ({"block": 1.5}, "block"),
+        ({"var_rank": 0}, "var_rank"),
+        ({"growth": 1.0}, "growth"),
+        ({"var_tol": -1.0}, "var_tol"),
+        ({"var_dtype": "float16"}, "var_dtype"),
+    ],
 )
 def test_torch_backend_refuses_bad_options(kw, match):
     with pytest.raises(ValueError, match=match):

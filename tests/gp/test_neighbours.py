@@ -29,8 +29,14 @@ def _stable_nearest(Q, P, k):
 @pytest.mark.parametrize("kind", ["kdtree", "brute"])
 def test_query_equals_a_stable_sort_of_every_distance(kind):
     P = _points()
-    Q = torch.cat([P[:20], torch.rand(30, 3, generator=torch.Generator().manual_seed(1), dtype=F64),
-                   torch.full((1, 3), 0.5, dtype=F64), torch.tensor([[0.125, 0.125, 0.5]], dtype=F64)])
+    Q = torch.cat(
+        [
+            P[:20],
+            torch.rand(30, 3, generator=torch.Generator().manual_seed(1), dtype=F64),
+            torch.full((1, 3), 0.5, dtype=F64),
+            torch.tensor([[0.125, 0.125, 0.5]], dtype=F64),
+        ]
+    )
     index = NeighbourIndex(3, kind=kind, min_tree=16, max_tree=64)
     for s, e in [(0, 1), (1, 7), (7, 60), (60, 61), (61, 300), (300, 495)]:
         index.add(P[s:e])
@@ -42,8 +48,12 @@ def test_query_equals_a_stable_sort_of_every_distance(kind):
 
 def test_ties_beyond_the_candidates_fall_back_to_the_full_sort():
     """40 copies of one point: the 3 nearest of a query at it are its first three copies."""
-    P = torch.cat([torch.rand(100, 2, dtype=F64, generator=torch.Generator().manual_seed(2)) + 1,
-                   torch.zeros(40, 2, dtype=F64)])
+    P = torch.cat(
+        [
+            torch.rand(100, 2, dtype=F64, generator=torch.Generator().manual_seed(2)) + 1,
+            torch.zeros(40, 2, dtype=F64),
+        ]
+    )
     index = NeighbourIndex(2, min_tree=1, max_tree=1000)
     index.add(P)
     assert index.n_tree == 140 and len(index.trees) == 1

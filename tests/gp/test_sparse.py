@@ -26,13 +26,18 @@ def test_beyond_the_neighbours_it_is_eq78_on_the_nearest_with_the_label_prior(in
     labels = (E[:, 1] > 1).long()
     Q = make_data(12, 1, seed=4)[0]
     ql = torch.arange(12) % 2
-    gp = make_env_map("sparse", ALPHA, neighbours=16, index=index).fit(E[:100], MU[:100], VAR[:100], labels[:100])
+    gp = make_env_map("sparse", ALPHA, neighbours=16, index=index).fit(
+        E[:100], MU[:100], VAR[:100], labels[:100]
+    )
     gp.add(E[100:], MU[100:], VAR[100:], labels[100:])
     mu, var = gp.predict(Q, ql)
     for g in (0, 1):
         s, sq = labels == g, ql == g
         rmu, rvar = local_reference(E[s], MU[s], VAR[s], Q[sq], ALPHA, 16)
-        assert _maxerr(mu[sq], torch.as_tensor(rmu)) < 1e-9 and _maxerr(var[sq], torch.as_tensor(rvar)) < 1e-9
+        assert (
+            _maxerr(mu[sq], torch.as_tensor(rmu)) < 1e-9
+            and _maxerr(var[sq], torch.as_tensor(rvar)) < 1e-9
+        )
 
 
 def test_both_index_kinds_give_the_same_map():
@@ -49,7 +54,9 @@ def test_nearest_k_is_the_exact_backends_nearest_k_bit_for_bit():
     labels = torch.arange(700) % 2
     Q = smooth_data(40, 1, seed=2)[0]
     ql = torch.arange(40) % 2
-    sparse = make_env_map("sparse", 30.0, nearest_k=30).fit(E[:300], MU[:300], VAR[:300], labels[:300])
+    sparse = make_env_map("sparse", 30.0, nearest_k=30).fit(
+        E[:300], MU[:300], VAR[:300], labels[:300]
+    )
     for s in range(300, 700, 100):
         sparse.add(E[s : s + 100], MU[s : s + 100], VAR[s : s + 100], labels[s : s + 100])
     exact = make_env_map("torch", 30.0, nearest_k=30).fit(E, MU, VAR, labels)
@@ -72,7 +79,9 @@ def test_error_against_the_exact_map_shrinks_with_the_neighbours():
     assert errs[0][0] > errs[1][0] > errs[2][0] > 1e-6 > errs[3][0] and errs[3][1] < 1e-9
     assert errs[0][1] > errs[1][1] > errs[2][1]
     # a subset of the data with the label's own prior variance: never more certain than all of it
-    assert bool((make_env_map("sparse", 30.0).fit(E, MU, VAR).predict(Q)[1] >= exact_var - 1e-12).all())
+    assert bool(
+        (make_env_map("sparse", 30.0).fit(E, MU, VAR).predict(Q)[1] >= exact_var - 1e-12).all()
+    )
     assert errs[1][0] < 0.05  # the default's 32 neighbours: median error under 5 % of the spread
 
 
@@ -96,8 +105,14 @@ def test_options_survive_save_and_load(tmp_path):
     assert torch.equal(back.predict(Q)[0], gp.predict(Q)[0])
 
 
-@pytest.mark.parametrize("kw, match", [({"neighbours": 0}, "neighbours"), ({"neighbours": 2.5}, "neighbours"),
-                                       ({"index": "faiss"}, "index")])
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        ({"neighbours": 0}, "neighbours"),
+        ({"neighbours": 2.5}, "neighbours"),
+        ({"index": "faiss"}, "index"),
+    ],
+)
 def test_bad_options(kw, match):
     with pytest.raises(ValueError, match=match):
         make_env_map("sparse", ALPHA, **kw)
@@ -112,13 +127,17 @@ def test_on_device(device, index):
     mu, var = gp.predict(Q)
     assert mu.device.type == device
     ref = local_reference(E, MU, VAR, Q, ALPHA, 16)
-    assert np.abs(mu.cpu().numpy() - ref[0]).max() < 1e-9 and np.abs(var.cpu().numpy() - ref[1]).max() < 1e-9
+    assert (
+        np.abs(mu.cpu().numpy() - ref[0]).max() < 1e-9
+        and np.abs(var.cpu().numpy() - ref[1]).max() < 1e-9
+    )
 
 
 @pytest.mark.parametrize("nearest_k", [None, 30])
 def test_adds_across_storage_blocks_and_trees_equal_one_bulk_fit(nearest_k, tmp_path):
     """2,600 environments added in batches of 1 to 700 (storage blocks of 1,024, 1,024, 2,048 rows;
-    a k-d tree and a brute-force tail per label) predict what one fit of them predicts: the same neighbours and solves
+    a k-d tree and a brute-force tail per label) predict what one fit of them predicts: the same
+    neighbours and solves
     (bit for bit with nearest_k; the label prior's running sums round differently without), and
     so does the map saved and loaded."""
     m = 2600
@@ -126,14 +145,18 @@ def test_adds_across_storage_blocks_and_trees_equal_one_bulk_fit(nearest_k, tmp_
     labels = (E[:, 0] > 0.4).long()
     Q = smooth_data(60, 1, seed=12)[0]
     ql = torch.arange(60) % 2
-    grown = make_env_map("sparse", 30.0, nearest_k=nearest_k).fit(E[:30], MU[:30], VAR[:30], labels[:30])
+    grown = make_env_map("sparse", 30.0, nearest_k=nearest_k).fit(
+        E[:30], MU[:30], VAR[:30], labels[:30]
+    )
     s = 30
     for b in [1] * 1100 + [700, 3, 500] + [1] * 267:
         grown.add(E[s : s + b], MU[s : s + b], VAR[s : s + b], labels[s : s + b])
         s += b
     assert s == m and len(grown._data.blocks) == 3
     index = grown.groups["0"].index
-    assert index.trees and index.n > index.n_tree and len(index.points.blocks) == 2  # trees, a tail, 2 blocks
+    assert (
+        index.trees and index.n > index.n_tree and len(index.points.blocks) == 2
+    )  # trees, a tail, 2 blocks
     bulk = make_env_map("sparse", 30.0, nearest_k=nearest_k).fit(E, MU, VAR, labels)
     back = load_env_map(grown.save(tmp_path / "map.safetensors"))
     assert torch.equal(back.E, E) and torch.equal(back.labels, labels)

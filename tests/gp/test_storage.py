@@ -20,7 +20,9 @@ def _filled(batches, shape=(3,), min_block=4):
 
 def test_reads_equal_one_array_across_block_boundaries():
     store, ref = _filled([1, 2, 1, 7, 0, 3, 13, 1, 1, 40, 2])  # 71 rows
-    assert store.n == 71 and len(store.blocks) > 3  # 4, 4, 8, 16, 40: the batch of 40 gets its own block
+    assert (
+        store.n == 71 and len(store.blocks) > 3
+    )  # 4, 4, 8, 16, 40: the batch of 40 gets its own block
     assert torch.equal(store.rows(), ref)
     for lo, hi in [(0, 4), (3, 5), (2, 30), (17, 71), (70, 71), (5, 5)]:
         assert torch.equal(store.rows(lo, hi), ref[lo:hi]), (lo, hi)
@@ -32,7 +34,10 @@ def test_reads_equal_one_array_across_block_boundaries():
 
 
 def test_parts_append_as_their_columns_side_by_side():
-    store, ref = GrowingRows((5,), min_block=4), torch.arange(50.0, dtype=torch.float64).reshape(10, 5)
+    store, ref = (
+        GrowingRows((5,), min_block=4),
+        torch.arange(50.0, dtype=torch.float64).reshape(10, 5),
+    )
     for s, e in [(0, 3), (3, 9), (9, 10)]:
         store.append(ref[s:e, :1], ref[s:e, 1:3], ref[s:e, 3:])
     assert torch.equal(store.rows(), ref)

@@ -14,9 +14,20 @@ from .test_loop import setup
 
 def run(ds, num_envs, **kw):
     task, promp, _ = setup()
-    return self_improve(task, promp, ds, optimizer=PRO, env_map=lambda: make_env_map("torch", 1.0),
-                        optimizer_kwargs={"beta": 20.0, "num_samples": 20, "max_iter": 5, "relevance_samples": 20},
-                        num_envs=num_envs, batch_size=2, add_only="all", seed=0, choice="dataset", **kw)
+    return self_improve(
+        task,
+        promp,
+        ds,
+        optimizer=PRO,
+        env_map=lambda: make_env_map("torch", 1.0),
+        optimizer_kwargs={"beta": 20.0, "num_samples": 20, "max_iter": 5, "relevance_samples": 20},
+        num_envs=num_envs,
+        batch_size=2,
+        add_only="all",
+        seed=0,
+        choice="dataset",
+        **kw,
+    )
 
 
 def test_the_pool_is_the_data_sets_distinct_environments_in_order():

@@ -20,12 +20,20 @@ def test_the_callers_data_set_is_left_alone_and_two_calls_agree():
     task, promp, ds = setup()
     before = (len(ds), ds.env.clone(), ds.mean.clone(), ds.var.clone(), dict(ds.metadata))
     first = loop(task, promp, ds, num_envs=6, batch_size=3, add_only="all")
-    assert len(ds) == before[0] == 4 and len(first.dataset) == 4 + 6  # the grown one is the result's
-    assert torch.equal(ds.env, before[1]) and torch.equal(ds.mean, before[2]) and torch.equal(ds.var, before[3])
+    assert (
+        len(ds) == before[0] == 4 and len(first.dataset) == 4 + 6
+    )  # the grown one is the result's
+    assert (
+        torch.equal(ds.env, before[1])
+        and torch.equal(ds.mean, before[2])
+        and torch.equal(ds.var, before[3])
+    )
     assert ds.metadata == before[4]
     second = loop(task, promp, ds, num_envs=6, batch_size=3, add_only="all")  # the same start again
     assert len(ds) == 4 and second.tried == first.tried
-    assert torch.equal(second.dataset.mean, first.dataset.mean) and torch.equal(second.dataset.var, first.dataset.var)
+    assert torch.equal(second.dataset.mean, first.dataset.mean) and torch.equal(
+        second.dataset.var, first.dataset.var
+    )
     assert [r.get("success") for r in second.metrics] == [r.get("success") for r in first.metrics]
     assert second.dataset is not ds and first.dataset is not second.dataset
 
@@ -90,8 +98,15 @@ def test_checkpoint_round_trip_through_resume(tmp_path):
     _, promp, ds = setup()
     settings = LoopSettings(num_envs=4, batch_size=2, seed=3)
     gp = make_env_map("torch", 1.0)
-    sig = run_signature(settings, type("PRO", (), {}), {"beta": 1.0, "shape": (1, 2)}, gp, torch.float64,
-                        solved=False, labels=True)
+    sig = run_signature(
+        settings,
+        type("PRO", (), {}),
+        {"beta": 1.0, "shape": (1, 2)},
+        gp,
+        torch.float64,
+        solved=False,
+        labels=True,
+    )
     assert sig["optimizer_kwargs"] == {"beta": 1.0, "shape": [1, 2]} and sig["labels"] is True
     assert "each_label" not in sig and sig["seed"] == 3
     state = RunState(sig, tmp_path, save=save_model)

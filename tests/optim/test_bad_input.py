@@ -9,16 +9,21 @@ import math
 import pytest
 import torch
 
+import protorch.optim.pro as pro_module
 from protorch import PRO, RWR
 from protorch.optim.cem import CEM
-import protorch.optim.pro as pro_module
 
 F64 = torch.float64
 
 
 def _state(opt):
-    return (opt.mean.clone(), opt.var.clone(), opt.iteration, opt.num_objectives,
-            opt.generator.get_state().clone())
+    return (
+        opt.mean.clone(),
+        opt.var.clone(),
+        opt.iteration,
+        opt.num_objectives,
+        opt.generator.get_state().clone(),
+    )
 
 
 def _same(a, b):
@@ -29,8 +34,14 @@ def _same(a, b):
 @pytest.mark.parametrize("cls", [RWR, CEM])
 def test_objective_weights_of_the_wrong_length_fail_every_time_without_consuming(cls):
     kw = {} if cls is CEM else {"beta": 5.0}
-    opt = cls(torch.zeros(3, dtype=F64), torch.ones(3, dtype=F64), objective_weights=[1, 1, 1],
-              num_samples=10, seed=0, **kw)
+    opt = cls(
+        torch.zeros(3, dtype=F64),
+        torch.ones(3, dtype=F64),
+        objective_weights=[1, 1, 1],
+        num_samples=10,
+        seed=0,
+        **kw,
+    )
     w = opt.ask()
     before = _state(opt)
     for _ in range(3):
@@ -43,8 +54,15 @@ def test_objective_weights_of_the_wrong_length_fail_every_time_without_consuming
 
 
 def test_costs_that_overflow_float32_are_refused_before_anything_changes():
-    opt = PRO(torch.zeros(3), torch.ones(3), beta=5.0, num_samples=10, relevance_samples=10, seed=0,
-              dtype=torch.float32)
+    opt = PRO(
+        torch.zeros(3),
+        torch.ones(3),
+        beta=5.0,
+        num_samples=10,
+        relevance_samples=10,
+        seed=0,
+        dtype=torch.float32,
+    )
     w = opt.ask()
     before = _state(opt)
     for _ in range(2):
@@ -55,8 +73,15 @@ def test_costs_that_overflow_float32_are_refused_before_anything_changes():
 
 
 def test_huge_float32_costs_give_a_finite_relevance():
-    opt = PRO(torch.zeros(3), torch.ones(3), beta=5.0, num_samples=10, relevance_samples=20, seed=0,
-              dtype=torch.float32)
+    opt = PRO(
+        torch.zeros(3),
+        torch.ones(3),
+        beta=5.0,
+        num_samples=10,
+        relevance_samples=20,
+        seed=0,
+        dtype=torch.float32,
+    )
     w = opt.ask()
     opt.tell(1e37 * (2 + 100 * w[:, :1]))  # finite in float32, but its square is not
     assert bool(torch.isfinite(opt.relevance).all()) and float(opt.relevance.max()) == 1.0
@@ -68,10 +93,17 @@ def test_relevance_var_must_be_finite_and_positive(value):
         PRO(torch.zeros(3, dtype=F64), torch.ones(3, dtype=F64), beta=1.0, relevance_var=value)
 
 
-@pytest.mark.parametrize("kw, match", [({"num_samples": 2.9}, "num_samples"), ({"max_iter": 3.5}, "max_iter"),
-                                       ({"tol": math.nan}, "tol"), ({"noise_floor": math.nan}, "noise_floor"),
-                                       ({"relevance_samples": 10.5}, "relevance_samples"),
-                                       ({"window": math.nan}, "window")])
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        ({"num_samples": 2.9}, "num_samples"),
+        ({"max_iter": 3.5}, "max_iter"),
+        ({"tol": math.nan}, "tol"),
+        ({"noise_floor": math.nan}, "noise_floor"),
+        ({"relevance_samples": 10.5}, "relevance_samples"),
+        ({"window": math.nan}, "window"),
+    ],
+)
 def test_fractional_or_nan_settings_are_refused(kw, match):
     with pytest.raises(ValueError, match=match):
         PRO(torch.zeros(3, dtype=F64), torch.ones(3, dtype=F64), beta=1.0, **kw)
@@ -80,9 +112,16 @@ def test_fractional_or_nan_settings_are_refused(kw, match):
 def test_a_failure_inside_an_update_restarts_the_iteration(monkeypatch):
     """Whatever raises inside ``tell`` (here: the update itself, once), the optimiser is back at
     the start of its iteration: nothing half-applied, and the next ask repeats the same draw."""
+
     def make():
-        return PRO(torch.zeros(2, 3, dtype=F64), torch.ones(2, 3, dtype=F64), beta=5.0, num_samples=10,
-                   relevance_samples=10, seed=3)
+        return PRO(
+            torch.zeros(2, 3, dtype=F64),
+            torch.ones(2, 3, dtype=F64),
+            beta=5.0,
+            num_samples=10,
+            relevance_samples=10,
+            seed=3,
+        )
 
     def cost(w):
         return torch.stack([(w[..., 0] - 1) ** 2, w[..., 2].abs()], -1)

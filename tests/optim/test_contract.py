@@ -1,7 +1,9 @@
 """One contract suite for every optimiser: ask / tell / stop / result over B problems at once.
 
-Each test runs for every optimiser registered in ``protorch.optim.OPTIMIZERS`` (PRO, RWR, RWPO with a
-tiny relevance-learning budget, the peers CEM and CMA-ES with pycma behind the same contract, and any
+Each test runs for every optimiser registered in ``protorch.optim.OPTIMIZERS`` (PRO, RWR, RWPO with
+a
+tiny relevance-learning budget, the peers CEM and CMA-ES with pycma behind the same contract, and
+any
 optimiser registered later, with its default settings).
 """
 
@@ -17,8 +19,12 @@ SMALL = {
     PRO: {"relevance_samples": 50},
     RWR: {},
     RWPO: {"relevance_iters": 3, "theta_samples": 8, "trajectory_samples": 4},
-    CEM: {"extra_var": 1e-2},  # the noisy CEM: plain CEM collapses within the 12 iterations a test watches
-    CMAES: {"pycma_stop": False},  # the contract's stopping rule alone (test_peers.py checks pycma's)
+    CEM: {
+        "extra_var": 1e-2
+    },  # the noisy CEM: plain CEM collapses within the 12 iterations a test watches
+    CMAES: {
+        "pycma_stop": False
+    },  # the contract's stopping rule alone (test_peers.py checks pycma's)
 }
 RANK_BASED = (CEM, CMAES)  # no reward temperature: only the order of the costs matters
 # a registered optimiser not listed in SMALL runs with its defaults; RWPO-like ones needing more
@@ -149,7 +155,9 @@ def test_per_problem_beta(make):
         # factor (what a per-problem beta would do to exp(-beta c)) leaves the run unchanged
         scale = torch.tensor([0.5, 1.0, 20.0], dtype=F64)[:, None, None]
         a = make(torch.zeros(3, 4, dtype=F64), max_iter=4, tol=0.0).minimize(two_objectives)
-        b = make(torch.zeros(3, 4, dtype=F64), max_iter=4, tol=0.0).minimize(lambda w: scale * two_objectives(w))
+        b = make(torch.zeros(3, 4, dtype=F64), max_iter=4, tol=0.0).minimize(
+            lambda w: scale * two_objectives(w)
+        )
         assert torch.equal(a.mean, b.mean) and torch.equal(a.var, b.var)
         return
     opt = make(torch.zeros(3, 4, dtype=F64), beta=torch.tensor([0.5, 1.0, 2.0]))
@@ -263,7 +271,9 @@ def test_rollouts_count_the_samples_told_while_a_problem_was_active(make):
         told += opt.active.long() * w.shape[1]
         opt.tell(two_objectives(w))
     res = opt.result()
-    assert res.rollouts.tolist() == told.tolist() and res.rollouts[1] == 0 and res.rollouts[0] >= 4 * 2
+    assert (
+        res.rollouts.tolist() == told.tolist() and res.rollouts[1] == 0 and res.rollouts[0] >= 4 * 2
+    )
     unbatched = make(torch.zeros(4, dtype=F64), max_iter=2, tol=0.0)
     assert int(unbatched.minimize(two_objectives).rollouts) > 0
 

@@ -1,4 +1,5 @@
-"""The stop rules: protorch's mean-cost window and the authors' every-sample rule with thresholds."""
+"""The stop rules: protorch's mean-cost window and the authors' every-sample rule with
+thresholds."""
 
 import pytest
 import torch
@@ -66,8 +67,17 @@ def quadratic(w):
 
 
 def run(convergence, seed=0):
-    opt = PRO(torch.zeros(4, 3, dtype=F64), torch.ones(4, 3, dtype=F64), beta=50.0, num_samples=50,
-              relevance_samples=50, max_iter=150, seed=seed, convergence=convergence, noise_floor=4.0)
+    opt = PRO(
+        torch.zeros(4, 3, dtype=F64),
+        torch.ones(4, 3, dtype=F64),
+        beta=50.0,
+        num_samples=50,
+        relevance_samples=50,
+        max_iter=150,
+        seed=seed,
+        convergence=convergence,
+        noise_floor=4.0,
+    )
     return opt.minimize(quadratic)
 
 
@@ -77,13 +87,22 @@ def test_pro_default_is_the_mean_rule_and_the_authors_rule_stops_where_every_sam
     assert torch.equal(default.mean, same.mean) and torch.equal(default.converged, same.converged)
     authors = run("authors")
     h = authors.history  # cost / cost_min / cost_max (I, B, O), mean (I, B, N)
-    assert bool((h["cost_min"] <= h["cost"] + 1e-12).all()) and bool((h["cost"] <= h["cost_max"] + 1e-12).all())
+    assert bool((h["cost_min"] <= h["cost"] + 1e-12).all()) and bool(
+        (h["cost"] <= h["cost_max"] + 1e-12).all()
+    )
     assert bool(authors.converged.any()), "the test problem should converge under the authors' rule"
     for b in torch.nonzero(authors.converged).flatten().tolist():
-        ok = [bool(((h["cost_max"][i - 5:i, b].amax(0) - h["cost_min"][i - 5:i, b].amin(0)) <= 1e-3).all())
-              for i in range(5, h["cost"].shape[0] + 1)]
+        ok = [
+            bool(
+                (
+                    (h["cost_max"][i - 5 : i, b].amax(0) - h["cost_min"][i - 5 : i, b].amin(0))
+                    <= 1e-3
+                ).all()
+            )
+            for i in range(5, h["cost"].shape[0] + 1)
+        ]
         first = ok.index(True) + 5  # iterations done when the rule first held
-        frozen = h["mean"][first - 1:, b]  # (I - first + 1, N)
+        frozen = h["mean"][first - 1 :, b]  # (I - first + 1, N)
         assert torch.equal(frozen, frozen[:1].expand_as(frozen))  # it stopped moving there
     # every sample within tol implies the mean within tol: the authors' rule never stops a problem
     # the mean rule would keep running (both runs draw the same samples until one of them stops)

@@ -9,7 +9,12 @@ import pytest
 import torch
 
 from protorch.optim.evidence import (
-    NUM_TESTS, accumulate_evidence, batch_log_evidence, evidence_threshold, fit_surrogate, rank_scores,
+    NUM_TESTS,
+    accumulate_evidence,
+    batch_log_evidence,
+    evidence_threshold,
+    fit_surrogate,
+    rank_scores,
     standard_scores,
 )
 
@@ -17,7 +22,9 @@ F64 = torch.float64
 
 
 def test_rank_scores_are_normal_quantiles_of_the_ranks():
-    c = torch.tensor([[3.0, 1.0], [1.0, 1.0], [2.0, 1.0], [2.0, 1.0]], dtype=F64)  # (S, O): a tie, a constant
+    c = torch.tensor(
+        [[3.0, 1.0], [1.0, 1.0], [2.0, 1.0], [2.0, 1.0]], dtype=F64
+    )  # (S, O): a tie, a constant
     x = rank_scores(c)
     assert x[:, 1].abs().max() == 0  # a constant objective says nothing
     assert x[1, 0] < x[2, 0] == x[3, 0] < x[0, 0]  # order kept, ties share a score
@@ -31,7 +38,9 @@ def _batches(g, p, n):
     """``p`` samples of ``n`` weights whose two costs read weight 0 only, as 20-sample batches'
     (eps, ranks, scores)."""
     eps = torch.randn(p // 20, 20, n, generator=g, dtype=F64)
-    costs = torch.stack([eps[..., 0] + 0.3 * eps[..., 0] ** 2, eps[..., 0].abs()], -1)  # (p / 20, 20, 2)
+    costs = torch.stack(
+        [eps[..., 0] + 0.3 * eps[..., 0] ** 2, eps[..., 0].abs()], -1
+    )  # (p / 20, 20, 2)
     return tuple(x.reshape(p, -1) for x in (eps, rank_scores(costs), standard_scores(costs)))
 
 
@@ -49,7 +58,10 @@ def test_log_e_values_are_ratios_of_densities():
     a = px.T @ px + 4.0 * torch.eye(2, dtype=F64)  # prior std 0.5
     beta = torch.linalg.solve(a, px.T @ pe)  # (2, N)
     cov = torch.eye(20, dtype=F64) + x @ torch.linalg.solve(a, x.T)
-    linear = torch.stack([MultivariateNormal(x @ beta[:, k], cov).log_prob(eps[:, k]) for k in range(4)]) - phi
+    linear = (
+        torch.stack([MultivariateNormal(x @ beta[:, k], cov).log_prob(eps[:, k]) for k in range(4)])
+        - phi
+    )
     torch.testing.assert_close(log_e[0], linear)
     gamma = 0.5 * torch.linalg.solve(a, px.T @ (pe**2 - 1))
     eta = (x @ gamma).clamp(-2, 2)  # (S, N)
@@ -57,7 +69,7 @@ def test_log_e_values_are_ratios_of_densities():
     coef, noise = fit_surrogate(pe, py)
     s2 = noise.clamp_min(0.05)
     for k in range(4):  # the posterior of eps_k given the costs and the other samples, by hand
-        rest = y - eps @ coef + eps[:, k:k + 1] * coef[k]  # (S, O)
+        rest = y - eps @ coef + eps[:, k : k + 1] * coef[k]  # (S, O)
         prec = 1 + (coef[k] ** 2 / s2).sum()
         mu = (rest * coef[k] / s2).sum(-1) / prec
         log_q = Normal(mu, prec**-0.5).log_prob(eps[:, k]) - Normal(0.0, 1.0).log_prob(eps[:, k])
@@ -87,7 +99,9 @@ def test_surrogate_noise_is_the_leave_one_out_residual():
         loo = []
         for i in range(p):
             keep = torch.arange(p) != i
-            b = torch.linalg.solve(eps[keep].T @ eps[keep] + 5.0 * torch.eye(n, dtype=F64), eps[keep].T @ y[keep])
+            b = torch.linalg.solve(
+                eps[keep].T @ eps[keep] + 5.0 * torch.eye(n, dtype=F64), eps[keep].T @ y[keep]
+            )
             loo.append(y[i] - eps[i] @ b)
         torch.testing.assert_close(noise, torch.stack(loo).pow(2).mean(0))
 
@@ -98,11 +112,15 @@ def test_running_statistic_is_the_best_start_minus_its_threshold():
     d = torch.tensor(-math.inf, dtype=F64)
     for t in range(1, 31):
         d = accumulate_evidence(d, log_e[t - 1], evidence_threshold(t, 6, 0.05))
-        best = max(float(log_e[s - 1:t].sum()) - evidence_threshold(s, 6, 0.05) for s in range(1, t + 1))
+        best = max(
+            float(log_e[s - 1 : t].sum()) - evidence_threshold(s, 6, 0.05) for s in range(1, t + 1)
+        )
         assert float(d) == pytest.approx(best)
     assert evidence_threshold(1, 6, 0.05) == pytest.approx(math.log(6 * 2 / 0.05))
     # the starts' levels add up to the family-wise level: sum_s a / (K s (s + 1)) -> a / K
-    assert sum(math.exp(-evidence_threshold(s, 6, 0.05)) for s in range(1, 100_000)) == pytest.approx(0.05 / 6, rel=1e-4)
+    assert sum(
+        math.exp(-evidence_threshold(s, 6, 0.05)) for s in range(1, 100_000)
+    ) == pytest.approx(0.05 / 6, rel=1e-4)
 
 
 def test_read_weights_are_confirmed_and_unread_ones_never():
@@ -115,10 +133,14 @@ def test_read_weights_are_confirmed_and_unread_ones_never():
     past = None
     for t in range(1, 31):
         eps = torch.randn(s, n, generator=g, dtype=F64)
-        costs = torch.stack([2 * eps[:, 0] + 0.4 * eps[:, 1] + 0.4 * eps[:, 2], eps[:, 3].abs()], -1)  # (S, 2)
+        costs = torch.stack(
+            [2 * eps[:, 0] + 0.4 * eps[:, 1] + 0.4 * eps[:, 2], eps[:, 3].abs()], -1
+        )  # (S, 2)
         batch = (eps, rank_scores(costs), standard_scores(costs))
         log_e = batch_log_evidence(*batch, *(past or ()))  # (3, N)
         d = accumulate_evidence(d, log_e, evidence_threshold(t, NUM_TESTS * n, level))
-        past = batch if past is None else tuple(torch.cat([a, b])[-200:] for a, b in zip(past, batch))
+        past = (
+            batch if past is None else tuple(torch.cat([a, b])[-200:] for a, b in zip(past, batch))
+        )
     read = (d >= 0).any(0)
     assert read[:4].all() and not read[4:].any(), d

@@ -167,7 +167,8 @@ def test_pearson_float32_small_cost_spread_around_a_large_cost(gen, offset):
 
 
 def test_pro_float32_moves_a_weight_whose_cost_sits_on_a_large_offset():
-    # 1000 + |w_1 - 2| in float32: the relevance must see w_1 through the offset and PRO reach w_1 = 2
+    # 1000 + |w_1 - 2| in float32: the relevance must see w_1 through the offset and PRO reach w_1 =
+    # 2
     opt = PRO(torch.zeros(2), torch.ones(2), beta=20.0, num_samples=100, max_iter=300, seed=0)
     res = opt.minimize(lambda w: 1000.0 + (w[..., 1:] - 2.0).abs())
     assert abs(float(res.mean[1]) - 2.0) < 0.05
@@ -312,10 +313,20 @@ def test_stable_rewards_bad_beta_raises(beta):
 
 def test_beta_of_the_wrong_shape_is_named():
     costs = torch.zeros(2, 3)  # (B=2, S=3)
-    with pytest.raises(ValueError, match=r"beta of shape \(3,\) does not broadcast against the costs' problems \(2,\)"):
+    with pytest.raises(
+        ValueError,
+        match=r"beta of shape \(3,\) does not broadcast against the costs' problems \(2,\)",
+    ):
         stable_rewards(costs, torch.ones(3))
     with pytest.raises(ValueError, match=r"beta of shape \(4,\)"):
-        pro_update(torch.zeros(2, 1), torch.ones(2, 1), torch.zeros(2, 3, 1), costs, torch.ones(2, 1), torch.ones(4))
+        pro_update(
+            torch.zeros(2, 1),
+            torch.ones(2, 1),
+            torch.zeros(2, 3, 1),
+            costs,
+            torch.ones(2, 1),
+            torch.ones(4),
+        )
 
 
 @pytest.mark.parametrize("bad, word", [(float("nan"), "NaN"), (float("inf"), "inf")])
@@ -532,7 +543,9 @@ def test_pro_update_promotes_integer_tensors():
     samples = torch.tensor([[2, 0, 1], [1, 1, 0], [3, 0, 1], [0, 1, 2]])
     costs, rel = torch.tensor([1, 3, 2, 4]), torch.tensor([1, 1, 1])
     got = pro_update(mean, var, samples, costs, rel, 1.0)
-    want = pro_update(mean.double(), var.double(), samples.double(), costs.double(), rel.double(), 1.0)
+    want = pro_update(
+        mean.double(), var.double(), samples.double(), costs.double(), rel.double(), 1.0
+    )
     for g, w in zip(got, want):
         assert g.dtype == torch.float64
         torch.testing.assert_close(g, w, rtol=0, atol=0)
@@ -541,4 +554,6 @@ def test_pro_update_promotes_integer_tensors():
 
 def test_stable_rewards_of_integer_costs_keep_a_fractional_beta():
     got = stable_rewards(torch.tensor([3, 1, 2]), 0.5)
-    torch.testing.assert_close(got, torch.exp(-0.5 * torch.tensor([2.0, 0.0, 1.0], dtype=torch.float64)))
+    torch.testing.assert_close(
+        got, torch.exp(-0.5 * torch.tensor([2.0, 0.0, 1.0], dtype=torch.float64))
+    )

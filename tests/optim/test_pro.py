@@ -147,7 +147,11 @@ def _count_probe_asks(opt, fn):
 
 def _probe_pro(mean, **kw):
     """A small PRO on ``two_objectives`` whose probe asks are recognisable by their size (30)."""
-    return PRO(mean, 1.0, **{"beta": 2.0, "num_samples": 20, "relevance_samples": 30, "tol": 0.0, "seed": 0, **kw})
+    return PRO(
+        mean,
+        1.0,
+        **{"beta": 2.0, "num_samples": 20, "relevance_samples": 30, "tol": 0.0, "seed": 0, **kw},
+    )
 
 
 def test_relevance_every_zero_computes_relevance_once():
@@ -251,8 +255,16 @@ def test_asked_objective_names_the_only_column_an_update_reads():
     updates; filling the other columns with zeros changes nothing."""
     runs, seen = [], []
     for sparse in (False, True):
-        opt = PRO(torch.zeros(2, 4, dtype=torch.float64), torch.ones(2, 4, dtype=torch.float64), beta=2.0,
-                  num_samples=20, relevance_samples=20, max_iter=4, tol=0.0, seed=0)
+        opt = PRO(
+            torch.zeros(2, 4, dtype=torch.float64),
+            torch.ones(2, 4, dtype=torch.float64),
+            beta=2.0,
+            num_samples=20,
+            relevance_samples=20,
+            max_iter=4,
+            tol=0.0,
+            seed=0,
+        )
         while not opt.stop():
             w = opt.ask()
             o = opt.asked_objective
@@ -270,7 +282,9 @@ def test_asked_objective_names_the_only_column_an_update_reads():
 
 
 @pytest.mark.parametrize("cls, n", [(PRO, 20), (PRO, 70), (RWR, 70)])
-def test_an_update_of_the_moving_problems_gives_them_the_numbers_of_one_over_all(cls, n, monkeypatch):
+def test_an_update_of_the_moving_problems_gives_them_the_numbers_of_one_over_all(
+    cls, n, monkeypatch
+):
     """Updates computed for the moving problems only (whole blocks of them: a BLAS kernel's
     rounding depends on the 64-byte alignment of each problem's matrices, and 70 float32
     weights per sample do not fill whole 64-byte lines) equal those computed for all B."""
@@ -279,16 +293,28 @@ def test_an_update_of_the_moving_problems_gives_them_the_numbers_of_one_over_all
     done = torch.rand(40, generator=g) < 0.7
 
     def cost(w):
-        return torch.stack([(w[..., :5] - 1).pow(2).sum(-1), w[..., 5:].abs().mean(-1), w.sum(-1).abs()], -1)
+        return torch.stack(
+            [(w[..., :5] - 1).pow(2).sum(-1), w[..., 5:].abs().mean(-1), w.sum(-1).abs()], -1
+        )
 
     def run():
-        opt = cls(mean, var, beta=5.0, num_samples=30, max_iter=6, tol=0.0, seed=1,
-                  **({"relevance_samples": 30} if cls is PRO else {}))
+        opt = cls(
+            mean,
+            var,
+            beta=5.0,
+            num_samples=30,
+            max_iter=6,
+            tol=0.0,
+            seed=1,
+            **({"relevance_samples": 30} if cls is PRO else {}),
+        )
         opt.mark_converged(done)
         return opt.minimize(cost)
 
     part = run()
-    monkeypatch.setattr(cls, "_active_rows", lambda self: None)  # every problem, converged ones masked
+    monkeypatch.setattr(
+        cls, "_active_rows", lambda self: None
+    )  # every problem, converged ones masked
     whole = run()
     assert torch.equal(part.mean, whole.mean) and torch.equal(part.var, whole.var)
     assert torch.equal(part.mean[done], mean[done])  # the converged ones never moved

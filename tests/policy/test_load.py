@@ -43,17 +43,39 @@ NO_HYDRA = textwrap.dedent("""
 def test_load_imports_neither_hydra_nor_omegaconf(tmp_path):
     from protorch.experiments import run_experiment
 
-    cfg = {"name": "point_particle", "seed": 0, "plot": False,
-           "optimizer": {"name": "pro", "beta": 20.0, "max_iter": 3, "num_samples": 10, "relevance_samples": 10},
-           "gp": {"backend": "torch", "alpha": 1e-3, "var_floor": 1e-4},
-           "task": {"_target_": "protorch.tasks.PointParticleTask", "demo_envs": 4},
-           "settings": {"loop": {"num_envs": 6, "batch_size": 6}, "test": {"num_envs": 3},
-                        "dynamic": {"episodes": 1}, "dynamic_paper": {"episodes": 1}, "baselines": [],
-                        "progress": False}}
+    cfg = {
+        "name": "point_particle",
+        "seed": 0,
+        "plot": False,
+        "optimizer": {
+            "name": "pro",
+            "beta": 20.0,
+            "max_iter": 3,
+            "num_samples": 10,
+            "relevance_samples": 10,
+        },
+        "gp": {"backend": "torch", "alpha": 1e-3, "var_floor": 1e-4},
+        "task": {"_target_": "protorch.tasks.PointParticleTask", "demo_envs": 4},
+        "settings": {
+            "loop": {"num_envs": 6, "batch_size": 6},
+            "test": {"num_envs": 3},
+            "dynamic": {"episodes": 1},
+            "dynamic_paper": {"episodes": 1},
+            "baselines": [],
+            "progress": False,
+        },
+    }
     run_experiment(cfg, tmp_path)
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    out = subprocess.run([sys.executable, "-c", NO_HYDRA, str(tmp_path), "thread"], capture_output=True, text=True, check=False,
-                         env=env, cwd=ROOT, timeout=300)
+    out = subprocess.run(
+        [sys.executable, "-c", NO_HYDRA, str(tmp_path), "thread"],
+        capture_output=True,
+        text=True,
+        check=False,
+        env=env,
+        cwd=ROOT,
+        timeout=300,
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.startswith("ok")
 
@@ -61,9 +83,16 @@ def test_load_imports_neither_hydra_nor_omegaconf(tmp_path):
 def test_the_config_is_read_as_omegaconf_wrote_it(tmp_path):
     """Floats without a dot (``1e-3``) are floats, as OmegaConf reads them, not strings."""
     p = tmp_path / "config.yaml"
-    p.write_text("name: arm_reach\ngp:\n  var_floor: 1e-3\n  alpha: 30.0\n  nearest_k: 30\nflag: true\nnone: null\n")
-    assert read_config(p) == {"name": "arm_reach", "gp": {"var_floor": 1e-3, "alpha": 30.0, "nearest_k": 30},
-                              "flag": True, "none": None}
+    p.write_text(
+        "name: arm_reach\ngp:\n  var_floor: 1e-3\n  alpha: 30.0\n  nearest_k: 30\nflag: "
+        "true\nnone: null\n"
+    )
+    assert read_config(p) == {
+        "name": "arm_reach",
+        "gp": {"var_floor": 1e-3, "alpha": 30.0, "nearest_k": 30},
+        "flag": True,
+        "none": None,
+    }
     p.write_text("- a list\n")
     with pytest.raises(ValueError, match="not a mapping"):
         read_config(p)

@@ -14,8 +14,8 @@ import pytest
 import torch
 
 from protorch.policy.limits import JerkLimiter, robot_limits
-from protorch.robots.published import FRANKA_JOINT_LIMITS
 from protorch.policy.two_rate import basis3_np
+from protorch.robots.published import FRANKA_JOINT_LIMITS
 from tests.control.test_policy import toy_policy
 
 F64 = torch.float64
@@ -37,7 +37,9 @@ def test_the_tracker_on_plans_made_at_every_call_is_the_inline_reference():
     inline = toy_policy(nearest_k=8)
     threaded = toy_policy(nearest_k=8, planner="thread", plan_period=1e6)
     envs = walk(300)
-    ts = [i * 1e-3 for i in range(250)] + [0.25 + 0.0173 * i for i in range(50)]  # off the grid at the end
+    ts = [i * 1e-3 for i in range(250)] + [
+        0.25 + 0.0173 * i for i in range(50)
+    ]  # off the grid at the end
     q0 = torch.tensor([0.1, -0.2], dtype=F64)
     for pol in (inline, threaded):
         pol.reset()
@@ -46,7 +48,9 @@ def test_the_tracker_on_plans_made_at_every_call_is_the_inline_reference():
         q = q0 if i == 0 else None
         if i > 0:  # the planner's step on this call's inputs
             with threaded._planner.lock:
-                threaded._planner.plan = threaded._plan(threaded._motion, envs[i].numpy(), t, None, None)
+                threaded._planner.plan = threaded._plan(
+                    threaded._motion, envs[i].numpy(), t, None, None
+                )
         a, b = inline.reference(envs[i], t, q), threaded.reference(envs[i], t, q)
         assert a.label == b.label and b.plan_t == t
         labels.add(a.label)
@@ -141,13 +145,19 @@ def test_the_limiter_keeps_the_limits_and_gives_the_wanted_state_back():
     the wanted state is sent exactly again."""
     lim = limiter()
     k = np.arange(7)
-    a1 = np.linspace(-12.0, 12.0, 7)  # rad/s^2 added from t = 0.1 s on, taken back from t = 0.2 s on
+    a1 = np.linspace(
+        -12.0, 12.0, 7
+    )  # rad/s^2 added from t = 0.1 s on, taken back from t = 0.2 s on
 
     def wanted_at(t: float) -> np.ndarray:  # (3, D)
         s1, s2 = max(t - 0.1, 0.0), max(t - 0.2, 0.0)
-        return np.stack([0.3 * np.sin(t + k) + 0.5 * a1 * (s1 ** 2 - s2 ** 2),
-                         0.3 * np.cos(t + k) + a1 * (s1 - s2),
-                         -0.3 * np.sin(t + k) + a1 * ((t >= 0.1) - float(t >= 0.2))])
+        return np.stack(
+            [
+                0.3 * np.sin(t + k) + 0.5 * a1 * (s1**2 - s2**2),
+                0.3 * np.cos(t + k) + a1 * (s1 - s2),
+                -0.3 * np.sin(t + k) + a1 * ((t >= 0.1) - float(t >= 0.2)),
+            ]
+        )
 
     sent, wanted = [], []
     for i in range(600):
@@ -161,5 +171,7 @@ def test_the_limiter_keeps_the_limits_and_gives_the_wanted_state_back():
     assert (jerk <= lim.jmax * (1 + 1e-6)).all()
     assert jerk.max() > 0.99 * lim.jmax.max()  # the steps did need the limiter
     np.testing.assert_array_equal(s[:100], w[:100])  # nothing to limit before the first step
-    np.testing.assert_array_equal(s[300:], w[300:])  # the hand-over met the wanted motion: passed through again
+    np.testing.assert_array_equal(
+        s[300:], w[300:]
+    )  # the hand-over met the wanted motion: passed through again
     assert 0 < lim.following <= 3 and lim.failed == 0

@@ -48,8 +48,15 @@ def test_distance_is_the_rotation_angle_and_sign_invariant(gen):
     rel = axis_angle_to_quaternion(axes / axes.norm(dim=-1, keepdim=True) * angles[:, None])
     w1, x1, y1, z1 = q1.unbind(-1)
     w2, x2, y2, z2 = rel.unbind(-1)  # q2 = q1 * rel: the rotation angle between them is `angles`
-    q2 = torch.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                      w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], -1)
+    q2 = torch.stack(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ],
+        -1,
+    )
     d = quaternion_distance(q1, q2)
     torch.testing.assert_close(d, angles, atol=1e-10, rtol=0)
     torch.testing.assert_close(quaternion_distance(-q1, q2), d, atol=1e-12, rtol=0)
@@ -57,13 +64,18 @@ def test_distance_is_the_rotation_angle_and_sign_invariant(gen):
     assert float(quaternion_distance(q1, -q1).max()) < 1e-7  # the same rotation
     # exact near zero (where 2 acos |<q1, q2>| loses half its digits)
     tiny = axis_angle_to_quaternion(torch.tensor([1e-9, 0.0, 0.0], dtype=F64))
-    assert abs(float(quaternion_distance(torch.tensor([1.0, 0, 0, 0], dtype=F64), tiny)) - 1e-9) < 1e-18
+    assert (
+        abs(float(quaternion_distance(torch.tensor([1.0, 0, 0, 0], dtype=F64), tiny)) - 1e-9)
+        < 1e-18
+    )
     # and the rotation matrices agree for q and -q
     torch.testing.assert_close(quaternion_to_matrix(q1), quaternion_to_matrix(-q1))
 
 
 def test_align_makes_a_trajectory_sign_continuous_without_changing_rotations(gen):
-    q = rotating_poses(torch.linspace(0, 3 * math.pi, 200, dtype=F64))[:, 3:]  # turns 1.5 times: w changes sign
+    q = rotating_poses(torch.linspace(0, 3 * math.pi, 200, dtype=F64))[
+        :, 3:
+    ]  # turns 1.5 times: w changes sign
     flipped = random_flip(q, gen)
     aligned = align_quaternions(flipped, reference=q[0])
     torch.testing.assert_close(aligned, q)  # the smooth one back, first one in q[0]'s hemisphere
@@ -77,7 +89,9 @@ def test_align_makes_a_trajectory_sign_continuous_without_changing_rotations(gen
 def test_path_length_and_slerp(gen):
     q = rotating_poses(torch.linspace(0, 2.0, 101, dtype=F64), axis=(1.0, 2.0, 0.5))[:, 3:]
     torch.testing.assert_close(quaternion_path_length(q), torch.tensor(2.0, dtype=F64))
-    torch.testing.assert_close(quaternion_path_length(random_flip(q, gen)), torch.tensor(2.0, dtype=F64))
+    torch.testing.assert_close(
+        quaternion_path_length(random_flip(q, gen)), torch.tensor(2.0, dtype=F64)
+    )
     t = torch.linspace(0, 1, 11, dtype=F64)
     s = quaternion_slerp(q[0], -q[-1], t)  # the other sign of the end: the same, shorter arc
     torch.testing.assert_close(quaternion_distance(s, q[0]), 2.0 * t, atol=1e-10, rtol=0)
@@ -139,8 +153,12 @@ def _demos(gen, n=6):
 @pytest.mark.parametrize("device", DEVICES)
 def test_pose_promp_fit_ignores_quaternion_signs(gen, device):
     demos = [d.to(device) for d in _demos(gen)]
-    flipped = [torch.cat([d[:, :3], random_flip(d[:, 3:].cpu(), gen).to(device)], -1) for d in demos]
-    flipped[2] = torch.cat([demos[2][:, :3], -demos[2][:, 3:]], -1)  # a whole demonstration flipped too
+    flipped = [
+        torch.cat([d[:, :3], random_flip(d[:, 3:].cpu(), gen).to(device)], -1) for d in demos
+    ]
+    flipped[2] = torch.cat(
+        [demos[2][:, :3], -demos[2][:, 3:]], -1
+    )  # a whole demonstration flipped too
     ref = PoseProMP(8, 50, device=device).fit(demos)
     other = PoseProMP(8, 50, device=device).fit(flipped, reference=demos[0][0, 3:])
     torch.testing.assert_close(other.position.mean, ref.position.mean)
@@ -149,11 +167,18 @@ def test_pose_promp_fit_ignores_quaternion_signs(gen, device):
     # the opposite reference hemisphere gives the antipodal weights, the same rotations
     anti = PoseProMP(8, 50, device=device).fit(demos, reference=-demos[0][0, 3:])
     torch.testing.assert_close(anti.orientation.mean, -ref.orientation.mean)
-    assert float(quaternion_distance(anti.mean_trajectory()[:, 3:], ref.mean_trajectory()[:, 3:]).max()) < 1e-6
+    assert (
+        float(
+            quaternion_distance(anti.mean_trajectory()[:, 3:], ref.mean_trajectory()[:, 3:]).max()
+        )
+        < 1e-6
+    )
     # the mean follows the demonstrations' average turn; its quaternions are unit and continuous
     mean = ref.mean_trajectory()  # (T, 7)
     torch.testing.assert_close(mean[:, 3:].norm(dim=-1), torch.ones(50, dtype=F64, device=device))
-    end_angle = float(quaternion_distance(mean[-1, 3:], torch.tensor([1.0, 0, 0, 0], dtype=F64, device=device)))
+    end_angle = float(
+        quaternion_distance(mean[-1, 3:], torch.tensor([1.0, 0, 0, 0], dtype=F64, device=device))
+    )
     assert abs(end_angle - math.radians(90)) < math.radians(3)
 
 

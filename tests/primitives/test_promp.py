@@ -448,11 +448,18 @@ def test_bad_constructor_arguments_raise(args, kw, message):
 
 
 # ---------------------------------------------------------------- the audit's bad inputs
-@pytest.mark.parametrize("kw, match", [
-    ({"ridge": float("nan")}, "ridge"), ({"ridge": -1.0}, "ridge"), ({"ridge": float("inf")}, "ridge"),
-    ({"num_basis": 2.7}, "num_basis"), ({"num_dof": 1.5}, "num_dof"), ({"num_steps": float("nan")}, "num_steps"),
-    ({"width": float("nan")}, "width"),
-])
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        ({"ridge": float("nan")}, "ridge"),
+        ({"ridge": -1.0}, "ridge"),
+        ({"ridge": float("inf")}, "ridge"),
+        ({"num_basis": 2.7}, "num_basis"),
+        ({"num_dof": 1.5}, "num_dof"),
+        ({"num_steps": float("nan")}, "num_steps"),
+        ({"width": float("nan")}, "width"),
+    ],
+)
 def test_bad_constructor_settings_are_refused(kw, match):
     args = {"num_dof": 1, "num_basis": 5, **kw}
     with pytest.raises(ValueError, match=match):
@@ -460,7 +467,9 @@ def test_bad_constructor_settings_are_refused(kw, match):
 
 
 def _fitted(var=1.0):
-    return ProMP(1, 5).set_distribution(torch.zeros(5, dtype=torch.float64), var=torch.full((5,), var))
+    return ProMP(1, 5).set_distribution(
+        torch.zeros(5, dtype=torch.float64), var=torch.full((5,), var)
+    )
 
 
 @pytest.mark.parametrize("n", [-1, 2.5, float("nan"), True])

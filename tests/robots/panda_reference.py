@@ -1,4 +1,5 @@
-"""The Panda's numbers that the robot description must not change (``tests/robots/test_panda_unchanged.py``).
+"""The Panda's numbers that the robot description must not change
+(``tests/robots/test_panda_unchanged.py``).
 
 :func:`compute` runs a small deterministic computation on the default Panda with
 ``collision=skeleton`` (and, for the capsules, ``volume``): forward kinematics, capsule end
@@ -7,7 +8,8 @@ masses, inertias, damping, armature and motor limits, and a short MuJoCo rollout
 torques. Only APIs that existed before the robot description are used, so the same function ran
 on main at 9e99b1a (before ``protorch.robots.Robot``) and wrote ``data/panda_9e99b1a.json``::
 
-    git checkout 9e99b1a && PYTHONPATH=. python tests/robots/panda_reference.py tests/robots/data/panda_9e99b1a.json
+    git checkout 9e99b1a && PYTHONPATH=. python tests/robots/panda_reference.py
+    tests/robots/data/panda_9e99b1a.json
 
 The test recomputes it on the current tree and asserts equality (float64 values written with
 ``repr``: exact)."""
@@ -24,13 +26,24 @@ F64 = torch.float64
 
 
 def _trajectories(task) -> tuple[torch.Tensor, torch.Tensor]:
-    """Four fixed joint trajectories ``(4, 50, J)`` around the start and four environments ``(4, 4)``."""
+    """Four fixed joint trajectories ``(4, 50, J)`` around the start and four environments ``(4,
+    4)``."""
     q0 = task.start_config(F64)  # (J,)
     t = torch.linspace(0.0, 1.0, 50, dtype=F64)[:, None]  # (T, 1)
     j = torch.arange(q0.shape[0], dtype=F64)[None]  # (1, J)
-    trajs = [q0 + a * torch.sin(math.pi * t * (1.0 + 0.3 * j) + k) * t for k, a in enumerate((0.1, 0.25, 0.4, 0.6))]
-    envs = torch.tensor([[0.55, 0.0, 0.7, 0.1], [0.6, 0.1, 0.7, -0.2], [0.52, -0.1, 0.72, 0.2],
-                         [0.58, 0.05, 0.68, 0.0]], dtype=F64)
+    trajs = [
+        q0 + a * torch.sin(math.pi * t * (1.0 + 0.3 * j) + k) * t
+        for k, a in enumerate((0.1, 0.25, 0.4, 0.6))
+    ]
+    envs = torch.tensor(
+        [
+            [0.55, 0.0, 0.7, 0.1],
+            [0.6, 0.1, 0.7, -0.2],
+            [0.52, -0.1, 0.72, 0.2],
+            [0.58, 0.05, 0.68, 0.0],
+        ],
+        dtype=F64,
+    )
     return torch.stack(trajs), envs
 
 
@@ -61,16 +74,26 @@ def compute() -> dict:
     out["ik/success"] = task.success(q_ik, ik_envs).tolist()
     out["ik/costs"] = task.costs(q_ik, ik_envs).flatten().tolist()
     try:
-        import numpy as np
         import mujoco
+        import numpy as np
 
         from protorch.sim.scene import build_scene, controller_model
     except ImportError:
         return out
     scene = build_scene(ArmReachTask(collision="volume"))
     m = scene.model
-    for name in ("body_mass", "body_ipos", "body_inertia", "body_iquat", "dof_damping", "dof_armature",
-                 "actuator_forcerange", "geom_size", "geom_pos", "jnt_range"):
+    for name in (
+        "body_mass",
+        "body_ipos",
+        "body_inertia",
+        "body_iquat",
+        "dof_damping",
+        "dof_armature",
+        "actuator_forcerange",
+        "geom_size",
+        "geom_pos",
+        "jnt_range",
+    ):
         out[f"mj/{name}"] = np.asarray(getattr(m, name)).flatten().tolist()
     out["mj/torque_limits"] = scene.torque_limits.tolist()
     data = mujoco.MjData(m)

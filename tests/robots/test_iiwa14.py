@@ -34,7 +34,8 @@ def test_the_chain_has_kukas_dimensions(kin):
     pos = kin.link_positions(torch.zeros(7, dtype=F64))  # (F, 3): straight up at q = 0
     assert torch.allclose(pos[:, :2], torch.zeros_like(pos[:, :2]), atol=1e-6)
     height = dict(zip(kin.frame_names, pos[:, 2].tolist()))
-    # KUKA's data sheet: shoulder (joint 2) 0.36 m, elbow (joint 4) +0.42, wrist (joint 6) +0.40, flange +0.126
+    # KUKA's data sheet: shoulder (joint 2) 0.36 m, elbow (joint 4) +0.42, wrist (joint 6) +0.40,
+    # flange +0.126
     assert height["iiwa_link_2"] == pytest.approx(0.36, abs=1e-6)
     assert height["iiwa_link_4"] == pytest.approx(0.78, abs=1e-6)
     assert height["iiwa_link_6"] == pytest.approx(1.18, abs=1e-6)
@@ -49,7 +50,9 @@ def test_limits_torques_and_speeds_are_kukas():
     assert deg == pytest.approx([170, 120, 170, 120, 170, 120, 175], abs=1e-9)
     assert [float(x.get("lower")) for x in lim] == [-float(x.get("upper")) for x in lim]
     assert [float(x.get("effort")) for x in lim] == [320, 320, 176, 176, 110, 40, 40]
-    assert [math.degrees(float(x.get("velocity"))) for x in lim] == pytest.approx([85, 85, 100, 75, 130, 135, 135])
+    assert [math.degrees(float(x.get("velocity"))) for x in lim] == pytest.approx(
+        [85, 85, 100, 75, 130, 135, 135]
+    )
     assert len(DESC["max_acceleration"]) == 7 and min(DESC["max_acceleration"]) > 0
 
 
@@ -59,10 +62,20 @@ def test_inertials_are_physical():
         el = link.find("inertial")
         if el is None:
             continue
-        i = {k: float(el.find("inertia").get(k)) for k in ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")}
-        mat = np.array([[i["ixx"], i["ixy"], i["ixz"]], [i["ixy"], i["iyy"], i["iyz"]], [i["ixz"], i["iyz"], i["izz"]]])
+        i = {
+            k: float(el.find("inertia").get(k)) for k in ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")
+        }
+        mat = np.array(
+            [
+                [i["ixx"], i["ixy"], i["ixz"]],
+                [i["ixy"], i["iyy"], i["iyz"]],
+                [i["ixz"], i["iyz"], i["izz"]],
+            ]
+        )
         eig = np.linalg.eigvalsh(mat)
-        assert eig[0] > 0 and eig[0] + eig[1] >= eig[2], link.get("name")  # a rigid body's principal moments
+        assert eig[0] > 0 and eig[0] + eig[1] >= eig[2], link.get(
+            "name"
+        )  # a rigid body's principal moments
         total += float(el.find("mass").get("value"))
     assert total == pytest.approx(31.41)  # 30.61 kg of arm (Drake's) and the 0.8 kg gripper
 
@@ -106,14 +119,21 @@ def test_the_mujoco_scene_has_the_same_frames_inertials_and_motors(kin, gen):
     from protorch.sim.scene import ARM_BITS, build_scene
     from protorch.tasks import ArmReachTask
 
-    task = ArmReachTask(robot="iiwa14", collision="volume", can_box=((0.60, 0.70), (-0.12, 0.12)),
-                        goal_box=((0.74, 0.78), (-0.16, 0.16)))
+    task = ArmReachTask(
+        robot="iiwa14",
+        collision="volume",
+        can_box=((0.60, 0.70), (-0.12, 0.12)),
+        goal_box=((0.74, 0.78), (-0.16, 0.16)),
+    )
     scene = build_scene(task)
     model, data = scene.model, mujoco.MjData(scene.model)
     assert model.nv == 7 and float(model.body("iiwa_link_2").mass[0]) == pytest.approx(6.35)
     assert scene.torque_limits.tolist() == [320, 320, 176, 176, 110, 40, 40]
-    # the colliding geometry is the fitted capsules alone (the URDF's cylinders and boxes inside them)
-    arm = [g for g in range(model.ngeom) if model.body(model.geom_bodyid[g]).name.startswith("iiwa")]
+    # the colliding geometry is the fitted capsules alone (the URDF's cylinders and boxes inside
+    # them)
+    arm = [
+        g for g in range(model.ngeom) if model.body(model.geom_bodyid[g]).name.startswith("iiwa")
+    ]
     colliding = [g for g in arm if model.geom_contype[g] or model.geom_conaffinity[g]]
     assert len(colliding) == len(task.robot.capsule_list()) == 12
     assert all(model.geom_type[g] == mujoco.mjtGeom.mjGEOM_CAPSULE for g in colliding)
@@ -126,7 +146,9 @@ def test_the_mujoco_scene_has_the_same_frames_inertials_and_motors(kin, gen):
         for k, name in enumerate(kin.frame_names):
             body = model.body(name).id
             assert np.allclose(data.xpos[body], frames[i, k, :3, 3].numpy(), atol=1e-6)
-            assert np.allclose(data.xmat[body].reshape(3, 3), frames[i, k, :3, :3].numpy(), atol=1e-6)
+            assert np.allclose(
+                data.xmat[body].reshape(3, 3), frames[i, k, :3, :3].numpy(), atol=1e-6
+            )
     # at home, the can in its box: no contact with the can or the table
     data.qpos[:] = task.robot.home
     data.mocap_pos[scene.can_mocap] = [0.65, 0.0, task.can_height / 2]
@@ -143,18 +165,34 @@ def test_a_tiny_run_of_the_iiwa_goes_end_to_end_through_mujoco(tmp_path):
     from protorch.experiments import run_experiment
     from tests.experiments.test_arm_reach import cfg
 
-    m = run_experiment(cfg("robot=iiwa14", "task.collision=volume", "settings.baselines=[]"), tmp_path)
-    assert m["robot"]["name"] == "KUKA LBR iiwa 14" and m["robot"]["joints"] == 7 and m["robot"]["capsules"] == 12
+    m = run_experiment(
+        cfg("robot=iiwa14", "task.collision=volume", "settings.baselines=[]"), tmp_path
+    )
+    assert (
+        m["robot"]["name"] == "KUKA LBR iiwa 14"
+        and m["robot"]["joints"] == 7
+        and m["robot"]["capsules"] == 12
+    )
     for section in ("test", "dynamic"):
-        assert 0 <= m["physics"][section]["success_rate"] <= 1 and m["physics"][section]["failures"]["diverged"] == 0
+        assert (
+            0 <= m["physics"][section]["success_rate"] <= 1
+            and m["physics"][section]["failures"]["diverged"] == 0
+        )
     with np.load(tmp_path / m["physics"]["episodes_file"]) as f:
         q, can, target = f["q"], f["can"], f["target"]
-    assert q.shape[-1] == 7 and q.shape[0] == m["physics"]["test"]["episodes"] + m["physics"]["dynamic"]["episodes"]
+    assert (
+        q.shape[-1] == 7
+        and q.shape[0] == m["physics"]["test"]["episodes"] + m["physics"]["dynamic"]["episodes"]
+    )
     held_out = m["physics"]["test"]["episodes"]
-    # the held-out environments lie in the iiwa's workspace (conf/robot/iiwa14.yaml), not the Panda's
-    assert (can[:held_out, 0, 0] >= 0.60 - 1e-9).all() and (target[:held_out, 0, 0] >= 0.74 - 1e-9).all()
+    # the held-out environments lie in the iiwa's workspace (conf/robot/iiwa14.yaml), not the
+    # Panda's
+    assert (can[:held_out, 0, 0] >= 0.60 - 1e-9).all() and (
+        target[:held_out, 0, 0] >= 0.74 - 1e-9
+    ).all()
     # every MuJoCo success ends with the gripper's tool centre point (protorch's kinematics of the
-    # recorded joints) at the target (benchmarks/replay_physics.py re-derives the Panda's frames only)
+    # recorded joints) at the target (benchmarks/replay_physics.py re-derives the Panda's frames
+    # only)
     with np.load(tmp_path / m["physics"]["episodes_file"]) as f:
         success = f["success"]
     kin = ArmKinematics(URDF, end_link=DESC["end_link"])

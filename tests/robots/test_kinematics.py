@@ -1,4 +1,5 @@
-"""The arm's kinematics (protorch.robots.kinematics, protorch.robots): the shipped Panda URDF against an
+"""The arm's kinematics (protorch.robots.kinematics, protorch.robots): the shipped Panda URDF
+against an
 independent Denavit-Hartenberg computation, batched shapes, the compiled end-effector path, the
 Jacobian, damped-least-squares IK, and clear errors for bad URDFs and joint tensors."""
 
@@ -18,7 +19,9 @@ PANDA = load_robot("panda")
 PANDA_URDF = PANDA.urdf
 PANDA_LIMITS = tuple(zip(PANDA.lower, PANDA.upper))
 PANDA_MAX_VELOCITY = (2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61)  # rad/s, Franka's data sheet
-with benchmark_module("replay_physics.py", "_replay_physics") as _replay:  # the independent DH model
+with benchmark_module(
+    "replay_physics.py", "_replay_physics"
+) as _replay:  # the independent DH model
     PANDA_DH, PANDA_FLANGE, PANDA_TCP = _replay.PANDA_DH, _replay.PANDA_FLANGE, _replay.PANDA_TCP
 
 
@@ -28,8 +31,10 @@ def kin():
 
 
 def dh_frames(q: torch.Tensor) -> torch.Tensor:
-    """Independent reference: Craig's modified DH, ``T_i = RotX(alpha) TransX(a) RotZ(q) TransZ(d)``,
-    then the flange, the hand's yaw and the TCP offset. ``q (P, 7) -> (P, 11, 4, 4)`` (base first)."""
+    """Independent reference: Craig's modified DH, ``T_i = RotX(alpha) TransX(a) RotZ(q)
+    TransZ(d)``,
+    then the flange, the hand's yaw and the TCP offset. ``q (P, 7) -> (P, 11, 4, 4)`` (base
+    first)."""
 
     def rot_x(a):
         c, s = math.cos(a), math.sin(a)
@@ -73,7 +78,9 @@ def test_urdf_matches_an_independent_dh_computation(kin, gen):
 
 def test_zero_configuration_is_the_known_panda_pose(kin):
     pos = kin.link_positions(torch.zeros(7, dtype=F64))  # (11, 3)
-    assert torch.allclose(pos[8], torch.tensor([0.088, 0.0, 0.926], dtype=F64), atol=1e-6)  # the flange
+    assert torch.allclose(
+        pos[8], torch.tensor([0.088, 0.0, 0.926], dtype=F64), atol=1e-6
+    )  # the flange
     assert torch.allclose(pos[-1], torch.tensor([0.088, 0.0, 0.926 - 0.1034], dtype=F64), atol=1e-6)
 
 
@@ -83,7 +90,9 @@ def test_limits_come_from_the_urdf(kin):
     assert torch.equal(kin.max_velocity, torch.tensor(PANDA_MAX_VELOCITY, dtype=F64))
     assert kin.joint_names == [f"panda_joint{i}" for i in range(1, 8)]
     inside = (lo + hi) / 2
-    assert bool(kin.within_limits(inside)) and not bool(kin.within_limits(inside + torch.eye(7, dtype=F64)[3] * 3))
+    assert bool(kin.within_limits(inside)) and not bool(
+        kin.within_limits(inside + torch.eye(7, dtype=F64)[3] * 3)
+    )
 
 
 def test_batched_fk_of_sample_by_time_tensors_in_one_call(kin, gen):
@@ -107,7 +116,11 @@ def test_compiled_skeleton_equals_pytorch_kinematics(kin, gen, dtype, atol):
     q = random_q(300, gen).reshape(3, 100, 7)
     ref = kin.link_positions(q)  # (3, 100, 11, 3)
     fast = kin.skeleton(q.to(dtype))
-    assert fast.shape == ref.shape and fast.dtype == dtype and torch.allclose(fast.double(), ref, atol=atol)
+    assert (
+        fast.shape == ref.shape
+        and fast.dtype == dtype
+        and torch.allclose(fast.double(), ref, atol=atol)
+    )
     assert torch.equal(kin.skeleton(q[0, 0]), kin.skeleton(q)[0, 0])  # unbatched, one configuration
 
 
@@ -126,21 +139,30 @@ def test_compiled_path_folds_any_joint_axis(tmp_path, gen):
     q = 6 * torch.rand(300, 2, generator=gen, dtype=F64) - 3
     assert torch.allclose(toy.ee_position(q), toy.link_positions(q)[:, -1], atol=1e-6)
     assert torch.allclose(toy.skeleton(q), toy.link_positions(q), atol=1e-6)
-    assert toy.num_joints == 2 and ArmKinematics(urdf, end_link="tip").num_frames == 4  # the XML text works too
+    assert (
+        toy.num_joints == 2 and ArmKinematics(urdf, end_link="tip").num_frames == 4
+    )  # the XML text works too
 
 
 def test_jacobian_matches_finite_differences(kin, gen):
     q = random_q(3, gen)
     jac = kin.jacobian(q)  # (3, 6, 7)
     eps = 1e-6
-    num = torch.stack([(kin.ee_position(q + eps * e) - kin.ee_position(q - eps * e)) / (2 * eps)
-                       for e in torch.eye(7, dtype=F64)], -1)  # (3, 3, 7)
+    num = torch.stack(
+        [
+            (kin.ee_position(q + eps * e) - kin.ee_position(q - eps * e)) / (2 * eps)
+            for e in torch.eye(7, dtype=F64)
+        ],
+        -1,
+    )  # (3, 3, 7)
     assert torch.allclose(jac[:, :3], num, atol=1e-5)
 
 
 def test_damped_least_squares_ik_reaches_a_pose_within_limits(kin, gen):
     q0 = torch.tensor([0, -0.785, 0, -2.356, 0, 1.571, 0.785], dtype=F64).expand(16, 7)  # "ready"
-    q_true = q0 + 0.8 * (torch.rand(16, 7, generator=gen, dtype=F64) - 0.5)  # poses around it (a local method)
+    q_true = q0 + 0.8 * (
+        torch.rand(16, 7, generator=gen, dtype=F64) - 0.5
+    )  # poses around it (a local method)
     pose = kin.ee_pose(q_true)
     q, err = kin.inverse(pose[:, :3, 3], q0, rotation=pose[:, :3, :3], iters=300)
     got = kin.ee_pose(q)
@@ -171,9 +193,14 @@ def test_bad_urdf_files_are_refused(tmp_path):
         ArmKinematics("<robot><link name='a'></robot>")
     with pytest.raises(ValueError, match="not a URDF"):
         ArmKinematics("<sdf><link name='a'/></sdf>", end_link="a")
-    with pytest.raises(ValueError, match="could not be read by pytorch_kinematics"):  # <limit> without effort
-        ArmKinematics("""<robot name="r"><link name="a"/><link name="b"/><joint name="j" type="revolute">
-          <parent link="a"/><child link="b"/><limit lower="0" upper="1"/></joint></robot>""", end_link="b")
+    with pytest.raises(
+        ValueError, match="could not be read by pytorch_kinematics"
+    ):  # <limit> without effort
+        ArmKinematics(
+            """<robot name="r"><link name="a"/><link name="b"/><joint name="j" type="revolute">
+          <parent link="a"/><child link="b"/><limit lower="0" upper="1"/></joint></robot>""",
+            end_link="b",
+        )
     prismatic = """<robot name="p"><link name="a"/><link name="b"/>
       <joint name="j" type="prismatic"><parent link="a"/><child link="b"/><axis xyz="1 0 0"/>
       <limit lower="0" upper="1" effort="1" velocity="1"/></joint></robot>"""
@@ -193,7 +220,9 @@ def test_wrong_number_of_joints_is_refused(kin, bad):
             fn(bad)
     with pytest.raises(ValueError, match="NaN"):
         kin.frames(torch.full((7,), float("nan")))
-    assert bool(kin.ee_position(torch.full((7,), float("nan"))).isnan().all())  # the unchecked hot path
+    assert bool(
+        kin.ee_position(torch.full((7,), float("nan"))).isnan().all()
+    )  # the unchecked hot path
 
 
 def test_compiled_end_frame_equals_the_full_chain(kin, gen):
@@ -216,19 +245,28 @@ def test_carried_points_equal_the_full_chains_frames(robot, gen):
     k = desc.kinematics()
     caps = desc.capsule_list()
     links = [c.link for c in caps]
-    plan = k.point_plan(links + links, torch.tensor([c.a for c in caps] + [c.b for c in caps], dtype=F64))
-    q = torch.tensor(desc.home, dtype=F64) + 0.5 * torch.randn(4, 6, k.num_joints, generator=gen, dtype=F64)
+    plan = k.point_plan(
+        links + links, torch.tensor([c.a for c in caps] + [c.b for c in caps], dtype=F64)
+    )
+    q = torch.tensor(desc.home, dtype=F64) + 0.5 * torch.randn(
+        4, 6, k.num_joints, generator=gen, dtype=F64
+    )
     a, b, _ = capsule_segments(k.frames(q), k.frame_names, caps)  # (4, 6, C, 3)
     ends = k.carry_points(q, plan)  # (4, 6, 2C, 3)
     assert ends.shape == (4, 6, 2 * len(caps), 3)
-    tol = 1e-12 if robot == "panda" else 1e-6  # the iiwa's URDF angles are snapped to within 1e-7 (module docstring)
+    tol = (
+        1e-12 if robot == "panda" else 1e-6
+    )  # the iiwa's URDF angles are snapped to within 1e-7 (module docstring)
     assert torch.allclose(ends, torch.cat([a, b], -2), atol=tol)
     assert torch.allclose(k.carry_points(q.float(), plan).double(), ends, atol=2e-5)
     x, y, z = k.carry_points_rows(q, plan)  # (2C, P) component-major
     assert torch.equal(torch.stack([x, y, z], -1).transpose(0, 1).reshape(ends.shape), ends)
-    # the functional path (torch.cat, nothing written in place: what AOTInductor compiles) to the bit
+    # the functional path (torch.cat, nothing written in place: what AOTInductor compiles) to the
+    # bit
     assert torch.equal(k.carry_points(q, plan, functional=True), ends)
-    assert torch.equal(k.carry_points(q.float(), plan, functional=True), k.carry_points(q.float(), plan))
+    assert torch.equal(
+        k.carry_points(q.float(), plan, functional=True), k.carry_points(q.float(), plan)
+    )
     with pytest.raises(ValueError, match="no frame 'nope'"):
         k.point_plan(["nope"], torch.zeros(1, 3))
     with pytest.raises(ValueError, match=r"points must be \(2, 3\)"):
@@ -239,7 +277,9 @@ def test_carried_points_equal_the_full_chains_frames(robot, gen):
 def test_compiled_jacobian_and_pose_equal_pytorch_kinematics(robot, gen):
     desc = load_robot(robot)
     k = desc.kinematics()
-    q = torch.tensor(desc.home, dtype=F64) + 0.7 * torch.randn(50, k.num_joints, generator=gen, dtype=F64)
+    q = torch.tensor(desc.home, dtype=F64) + 0.7 * torch.randn(
+        50, k.num_joints, generator=gen, dtype=F64
+    )
     jac, pose = k.jacobian_pose(q)  # (50, 6, J), (50, 4, 4)
     tol = 1e-12 if robot == "panda" else 1e-6
     assert torch.allclose(jac, k.jacobian(q), atol=tol)

@@ -9,7 +9,8 @@ from pathlib import Path
 import protorch
 
 PACKAGE = Path(protorch.__file__).resolve().parent
-# a Panda link / joint name ("panda_link5", "panda_hand_tcp", "panda_joint1"), a PANDA_* constant, or
+# a Panda link / joint name ("panda_link5", "panda_hand_tcp", "panda_joint1"), a PANDA_* constant,
+# or
 # an import of a Panda module
 PANDA = re.compile(r"panda_(link|hand|joint|finger)|PANDA_|robots\.panda\b|import panda\b")
 
@@ -31,4 +32,6 @@ def test_no_module_outside_robots_names_the_pandas_links(tmp_path):
     (tmp_path / "robots").mkdir()
     (tmp_path / "robots" / "ok.py").write_text('END = "panda_hand_tcp"\n')
     (tmp_path / "scene.py").write_text('hand = spec.body("panda_hand")\n')
-    assert offending_lines(tmp_path) == [f"{tmp_path.name}/scene.py:1: hand = spec.body(\"panda_hand\")"]
+    assert offending_lines(tmp_path) == [
+        f'{tmp_path.name}/scene.py:1: hand = spec.body("panda_hand")'
+    ]

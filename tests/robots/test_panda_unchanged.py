@@ -24,7 +24,11 @@ import pytest
 from tests.robots.panda_reference import compute
 
 REFERENCE = Path(__file__).parent / "data" / "panda_9e99b1a.json"
-MKL_PATHS = ("frames", "ik/q", "ik/costs")  # through MKL's products and solves: vendor-dependent last bits
+MKL_PATHS = (
+    "frames",
+    "ik/q",
+    "ik/costs",
+)  # through MKL's products and solves: vendor-dependent last bits
 
 
 def _intel() -> bool:

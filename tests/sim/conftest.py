@@ -9,7 +9,11 @@ import torch
 from protorch.primitives.promp import ProMP
 from protorch.tasks import ArmReachTask
 
-pytest.importorskip("mujoco", minversion="4.0", reason="the physics extra is not installed: pip install protorch[physics]")
+pytest.importorskip(
+    "mujoco",
+    minversion="4.0",
+    reason="the physics extra is not installed: pip install protorch[physics]",
+)
 
 
 @pytest.fixture(scope="module")

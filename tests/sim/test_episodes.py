@@ -22,8 +22,15 @@ GAINS = dict(kp=400.0, kd=40.0, ref_kp=10.0, max_acceleration=PANDA_MAX_ACCELERA
 
 def _run(task, promp, w, envs, mass_scale=1.0):
     walk = envs[:, None].expand(-1, TIMING.total + 1, -1)
-    return run_physics_episodes(build_scene(task), controller_model(task, mass_scale=mass_scale), FixedMeans(w),
-                                promp, TIMING, walk, **GAINS)
+    return run_physics_episodes(
+        build_scene(task),
+        controller_model(task, mass_scale=mass_scale),
+        FixedMeans(w),
+        promp,
+        TIMING,
+        walk,
+        **GAINS,
+    )
 
 
 def test_a_clear_reach_succeeds_and_a_can_in_the_way_is_hit(task, reach):
@@ -60,7 +67,10 @@ def test_a_broken_mean_is_a_named_failure_not_a_crash(task, reach):
     assert res.success.tolist() == [True, False]
     assert res.failures["diverged"][1] or res.failures["saturated"][1]
     s = res.summary()
-    assert s["nonfinite_torque_episodes"] == 1 and s["failures"]["diverged"] + s["failures"]["saturated"] >= 1
+    assert (
+        s["nonfinite_torque_episodes"] == 1
+        and s["failures"]["diverged"] + s["failures"]["saturated"] >= 1
+    )
     assert all(np.isfinite(v) for v in s.values() if isinstance(v, float))
 
 
@@ -88,10 +98,23 @@ def test_a_torque_feasible_reference_slows_where_the_motors_cannot_follow(task, 
     timing = check_timing(0.02, 2.0, 0.6)
     walk = env[:, None].expand(-1, timing.total + 1, -1)
     gains = GAINS | {"max_acceleration": [3 * a for a in PANDA_MAX_ACCELERATION]}
-    runs = {f: run_physics_episodes(build_scene(task), controller_model(task), _SwitchAt(w, other, 50), promp, timing,
-                                    walk, **gains, feasible=f) for f in (None, 0.9)}
+    runs = {
+        f: run_physics_episodes(
+            build_scene(task),
+            controller_model(task),
+            _SwitchAt(w, other, 50),
+            promp,
+            timing,
+            walk,
+            **gains,
+            feasible=f,
+        )
+        for f in (None, 0.9)
+    }
     plain, feasible = runs[None], runs[0.9]
-    assert plain.max_torque_ratio[0] > 1.0 and plain.failures["saturated"][0] and not plain.success[0]
+    assert (
+        plain.max_torque_ratio[0] > 1.0 and plain.failures["saturated"][0] and not plain.success[0]
+    )
     assert feasible.max_torque_ratio[0] <= 0.9 + 1e-9 and feasible.success[0]
     assert feasible.tracking_rms[0] < 1e-4 < plain.tracking_rms[0]
     assert feasible.final_goal_distance[0] < 2e-3
@@ -110,8 +133,11 @@ def test_the_executed_velocities_and_applied_torques_are_recorded(task, reach):
 
     limits = _scene(task).torque_limits  # (J,)
     assert res.qd.shape == res.q.shape and res.tau.shape == res.q.shape
-    assert np.all(np.abs(res.tau) <= limits + 1e-12) and np.abs(res.tau).max() > 1.0  # gravity alone needs torque
-    # the joints move by their recorded velocities: q(t + dt) - q(t) = the velocities' integral, which the
+    assert (
+        np.all(np.abs(res.tau) <= limits + 1e-12) and np.abs(res.tau).max() > 1.0
+    )  # gravity alone needs torque
+    # the joints move by their recorded velocities: q(t + dt) - q(t) = the velocities' integral,
+    # which the
     # velocities at both ends bracket to second order (dt = 20 ms, smooth motion)
     dq = res.q[:, 1:] - res.q[:, :-1]  # (E, T, J)
     trapezoid = 0.5 * (res.qd[:, 1:] + res.qd[:, :-1]) * TIMING.dt

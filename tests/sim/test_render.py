@@ -21,9 +21,21 @@ from protorch.sim.scene import build_scene, controller_model
 def test_a_reach_is_rendered_as_a_gif_and_frames(task, reach, tmp_path):
     promp, w = reach
     timing = check_timing(0.02, 0.6, 0.1)
-    envs = torch.tensor([[0.55, 0.30, 0.70, -0.10]], dtype=torch.float64)[:, None].expand(-1, timing.total + 1, -1)
-    res = run_physics_episodes(build_scene(task), controller_model(task), FixedMeans(w), promp, timing, envs,
-                               kp=400.0, kd=40.0, ref_kp=10.0, max_acceleration=PANDA_MAX_ACCELERATION)
+    envs = torch.tensor([[0.55, 0.30, 0.70, -0.10]], dtype=torch.float64)[:, None].expand(
+        -1, timing.total + 1, -1
+    )
+    res = run_physics_episodes(
+        build_scene(task),
+        controller_model(task),
+        FixedMeans(w),
+        promp,
+        timing,
+        envs,
+        kp=400.0,
+        kd=40.0,
+        ref_kp=10.0,
+        max_acceleration=PANDA_MAX_ACCELERATION,
+    )
     path = save_episodes(tmp_path / "episodes.npz", res, None, res.success, None, task)
     kwargs = {"collision": "volume"}
     line = render_in_subprocess(path, tmp_path, kwargs, {"reach": 0})
@@ -34,7 +46,11 @@ def test_a_reach_is_rendered_as_a_gif_and_frames(task, reach, tmp_path):
     assert gif.n_frames == res.q.shape[1]  # every control instant (fewer than 50)
     frame = np.asarray(gif.convert("RGB"))
     assert frame.shape == (360, 480, 3) and frame.std() > 10  # a scene, not a blank image
-    red = (frame[..., 0] > 80) & (frame[..., 0] > 2 * frame[..., 1].astype(int)) & (frame[..., 0] > 2 * frame[..., 2].astype(int))
+    red = (
+        (frame[..., 0] > 80)
+        & (frame[..., 0] > 2 * frame[..., 1].astype(int))
+        & (frame[..., 0] > 2 * frame[..., 2].astype(int))
+    )
     assert red.sum() > 50  # the can is in the picture
     strip = np.asarray(Image.open(tmp_path / "physics_reach_frames.png").convert("RGB"))
     assert strip.shape[1] > 3 * strip.shape[0]

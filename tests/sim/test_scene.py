@@ -40,8 +40,12 @@ def test_inertials_capsules_motors_and_joints(scene):
         assert np.allclose(m.body(name).ipos, inertial.com), name
     caps = [g for g in range(m.ngeom) if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_CAPSULE]
     assert len(caps) == len(robot.capsule_list())
-    assert sorted(float(m.geom_size[g, 0]) for g in caps) == sorted(c.radius for c in robot.capsule_list())
-    assert np.allclose(m.actuator_forcerange, np.stack([-scene.torque_limits, scene.torque_limits], 1))
+    assert sorted(float(m.geom_size[g, 0]) for g in caps) == sorted(
+        c.radius for c in robot.capsule_list()
+    )
+    assert np.allclose(
+        m.actuator_forcerange, np.stack([-scene.torque_limits, scene.torque_limits], 1)
+    )
     assert np.allclose(m.jnt_range, np.stack([robot.lower, robot.upper], 1))
     assert np.allclose(scene.torque_limits, robot.max_torque)  # the URDF's effort
     assert np.allclose(m.dof_damping, robot.damping) and np.allclose(m.dof_armature, robot.armature)
@@ -76,9 +80,13 @@ def test_a_users_arm_gets_its_urdfs_inertials_motors_and_visual_mesh(tmp_path):
     from protorch.tasks.arm.reach import ArmReachTask
     from tests.robots.user_arm import user_arm_home, user_arm_urdf
 
-    mesh = tmp_path / "my_arm_description" / "meshes" / "forearm.obj"  # a ROS-like package beside the URDF
+    mesh = (
+        tmp_path / "my_arm_description" / "meshes" / "forearm.obj"
+    )  # a ROS-like package beside the URDF
     mesh.parent.mkdir(parents=True)
-    mesh.write_text("v 0 0 0\nv 0.05 0 0\nv 0 0.05 0\nv 0 0 0.4\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 1 4 3\n")
+    mesh.write_text(
+        "v 0 0 0\nv 0.05 0 0\nv 0 0.05 0\nv 0 0 0.4\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 1 4 3\n"
+    )
     urdf = tmp_path / "my_arm_description" / "urdf" / "my_arm.urdf"
     urdf.parent.mkdir()
     urdf.write_text(user_arm_urdf(visual="package://my_arm_description/meshes/forearm.obj"))
@@ -91,7 +99,9 @@ def test_a_users_arm_gets_its_urdfs_inertials_motors_and_visual_mesh(tmp_path):
     meshes = [g for g in range(m.ngeom) if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH]
     assert len(meshes) == 1 and m.geom_group[meshes[0]] == VISUAL_GROUP and scene.visuals
     arm = [g for g in range(m.ngeom) if m.geom_contype[g] == 1]  # what collides: the capsules only
-    assert len(arm) == len(robot.capsule_list()) and all(m.geom_group[g] == CAPSULE_GROUP for g in arm)
+    assert len(arm) == len(robot.capsule_list()) and all(
+        m.geom_group[g] == CAPSULE_GROUP for g in arm
+    )
     assert m.body("tool0").mass[0] == 0.0  # the URDF's geometry adds no mass
     data = mujoco.MjData(m)
     data.qpos[:] = task.start_q

@@ -113,24 +113,32 @@ def test_objective_cost_is_one_column_of_the_costs(objectives, gen):
     traj = 10 * torch.rand(6, 5, 30, 2, generator=gen, dtype=F64)  # (6, 5, 30, 2)
     full = task.costs(traj, env)  # (6, 5, 3)
     for o in range(3):
-        torch.testing.assert_close(task.objective_cost(traj, env, o), full[..., o], rtol=0, atol=1e-12)
+        torch.testing.assert_close(
+            task.objective_cost(traj, env, o), full[..., o], rtol=0, atol=1e-12
+        )
     with pytest.raises(ValueError, match="index"):
         task.objective_cost(traj, env, 3)
 
 
 @pytest.mark.parametrize("objectives", ["hole", "clearance"])
-def test_an_objective_reads_only_its_time_steps_and_any_memory_layout_gives_the_same_numbers(objectives, gen):
+def test_an_objective_reads_only_its_time_steps_and_any_memory_layout_gives_the_same_numbers(
+    objectives, gen
+):
     task = PointParticleTask(objectives=objectives)
     env = task.sample_envs(6, gen)[:, None]  # (6, 1, 6)
     traj = 10 * torch.rand(6, 5, 30, 2, generator=gen, dtype=torch.float32)  # (6, 5, 30, 2)
-    planes = traj.permute(2, 3, 0, 1).contiguous().permute(2, 3, 0, 1)  # the same values, x- and y-planes in memory
+    planes = (
+        traj.permute(2, 3, 0, 1).contiguous().permute(2, 3, 0, 1)
+    )  # the same values, x- and y-planes in memory
     full = task.costs(traj, env)  # (6, 5, 3)
     assert torch.equal(task.costs(planes, env), full)  # bit for bit, not only close
     for o in range(3):
         steps = task.objective_steps(o)
         part = traj if steps is None else traj[..., list(steps), :]  # only the steps it reads
         assert torch.equal(task.objective_cost(part, env, o), full[..., o])
-    assert task.objective_steps(1) is None and task.objective_steps(0) == task.objective_steps(2) == (0, -1)
+    assert task.objective_steps(1) is None and task.objective_steps(0) == task.objective_steps(
+        2
+    ) == (0, -1)
     with pytest.raises(ValueError, match="index"):
         task.objective_steps(3)
 
@@ -139,12 +147,16 @@ def test_costs_are_differentiable_in_the_path(gen):
     """The in-place arithmetic of the signed distance leaves autograd's graph intact."""
     task = PointParticleTask(objectives="clearance")
     env = ENV.expand(4, 6)
-    traj = line((1, 5), (5, 4.6), (9, 5), steps=10).expand(4, -1, -1).clone().requires_grad_()  # (4, 21, 2)
+    traj = (
+        line((1, 5), (5, 4.6), (9, 5), steps=10).expand(4, -1, -1).clone().requires_grad_()
+    )  # (4, 21, 2)
     task.costs(traj, env)[..., 1].sum().backward()
     ref = traj.detach().clone().requires_grad_()
     qx = (ref[..., 0] - 5.0).abs() - 1  # the formula written out of place: wall x 5, hole y 5
     qy = 1 - (ref[..., 1] - 5.0).abs()
-    sd = torch.hypot(qx.clamp_min(0), qy.clamp_min(0)) + torch.maximum(qx, qy).clamp_max(0)  # (4, 21)
+    sd = torch.hypot(qx.clamp_min(0), qy.clamp_min(0)) + torch.maximum(qx, qy).clamp_max(
+        0
+    )  # (4, 21)
     (1 - sd.amin(-1)).clamp_min(0).sum().backward()
     torch.testing.assert_close(traj.grad, ref.grad, rtol=0, atol=0)
     assert bool(traj.grad.abs().sum() > 0)
@@ -154,12 +166,16 @@ def test_infinite_wall_signed_distance_matches_the_two_box_formula(gen):
     """The fast path (one box, the nearer rectangle) equals the minimum over both rectangles."""
     task = PointParticleTask()
     env = task.sample_envs(40, gen)[:, None]  # (40, 1, 6)
-    p = -2 + 14 * torch.rand(40, 300, 2, generator=gen, dtype=F64)  # (40, 300, 2) also outside [0, 10]^2
+    p = -2 + 14 * torch.rand(
+        40, 300, 2, generator=gen, dtype=F64
+    )  # (40, 300, 2) also outside [0, 10]^2
     wx, hy = env[..., 2], env[..., 3]
     qx = ((p[..., 0] - wx).abs() - 1)[..., None]  # (40, 300, 1)
     qy = torch.stack([p[..., 1] - (hy - 1), (hy + 1) - p[..., 1]], -1)  # (40, 300, 2)
     qx = qx.expand_as(qy)
-    ref = (torch.hypot(qx.clamp_min(0), qy.clamp_min(0)) + torch.maximum(qx, qy).clamp_max(0)).amin(-1)
+    ref = (torch.hypot(qx.clamp_min(0), qy.clamp_min(0)) + torch.maximum(qx, qy).clamp_max(0)).amin(
+        -1
+    )
     torch.testing.assert_close(task.signed_distance_to_wall(p, env), ref, rtol=0, atol=1e-12)
 
 
@@ -189,7 +205,9 @@ def test_success_endpoint_tolerance():
 
 def test_touching_a_face_is_not_a_collision_but_entering_is():
     task = PointParticleTask()
-    assert not bool(task.collides(line((1.0, 6.0), (9.0, 6.0)), ENV))  # along the upper rectangle's face
+    assert not bool(
+        task.collides(line((1.0, 6.0), (9.0, 6.0)), ENV)
+    )  # along the upper rectangle's face
     assert not bool(task.collides(line((1.0, 4.0), (9.0, 4.0)), ENV))  # along the lower one's
     assert bool(task.collides(line((1.0, 6.001), (9.0, 6.001)), ENV))
     assert bool(task.collides(line((5.0, 8.0), (5.0, 8.0)), ENV))  # a zero-length segment inside
@@ -200,7 +218,9 @@ def test_touching_a_face_is_not_a_collision_but_entering_is():
 def test_going_around_the_wall_outside_the_workspace():
     detour = line((1.0, 5.0), (1.0, 10.5), (9.0, 10.5), (9.0, 5.0))
     assert bool(PointParticleTask().collides(detour, ENV))  # the wall continues
-    assert not bool(PointParticleTask(infinite_wall=False).collides(detour, ENV))  # the authors' rectangles
+    assert not bool(
+        PointParticleTask(infinite_wall=False).collides(detour, ENV)
+    )  # the authors' rectangles
 
 
 def test_exact_collision_agrees_with_dense_resampling(gen):
@@ -211,7 +231,9 @@ def test_exact_collision_agrees_with_dense_resampling(gen):
     via = 10 * torch.rand(400, 4, 2, generator=gen, dtype=F64)  # (400, 4, 2)
     exact = task.collides(via, env)  # (400,)
     s = torch.linspace(0, 1, 101, dtype=F64)[:, None]  # (101, 1)
-    dense = torch.cat([via[:, i, None] + s * (via[:, i + 1, None] - via[:, i, None]) for i in range(3)], 1)  # (400, 303, 2)
+    dense = torch.cat(
+        [via[:, i, None] + s * (via[:, i + 1, None] - via[:, i, None]) for i in range(3)], 1
+    )  # (400, 303, 2)
     sd = task.signed_distance_to_wall(dense, env[:, None])  # (400, 303)
     dense_hit = (sd < 0).any(-1)  # (400,)
     assert bool((exact | ~dense_hit).all())  # dense hit => exact hit
@@ -298,7 +320,11 @@ def test_dtypes_and_devices(device, dtype, gen):
     torch.testing.assert_close(c.cpu().double(), ref_c, rtol=1e-4, atol=1e-4)
     assert float((ok.cpu() == ref_ok).double().mean()) >= 0.95  # float32 may flip grazing paths
     demos, demo_envs = task.demonstrations(e[:2], 2, gen)
-    assert demos[0].dtype == dtype and demos[0].device.type == device and demo_envs.device.type == device
+    assert (
+        demos[0].dtype == dtype
+        and demos[0].device.type == device
+        and demo_envs.device.type == device
+    )
 
 
 def test_bad_input_raises_clear_errors():
@@ -332,7 +358,9 @@ def test_module_function_matches_the_method(gen):
     task = PointParticleTask()
     env = task.sample_envs(3, gen)
     p = 10 * torch.rand(3, 50, 2, generator=gen, dtype=F64)
-    torch.testing.assert_close(signed_distance_to_wall(p, env[:, None]), task.signed_distance_to_wall(p, env[:, None]))
+    torch.testing.assert_close(
+        signed_distance_to_wall(p, env[:, None]), task.signed_distance_to_wall(p, env[:, None])
+    )
 
 
 # ------------------------------------------------------------------ synthetic demonstrator
@@ -351,7 +379,10 @@ def test_synthetic_demonstrator_is_imperfect_like_a_mouse():
     c = torch.stack([task.costs(d, e) for d, e in zip(demos, envs)])  # (600, 3)
     # start and end slightly off: never exact, mostly within the success tolerance
     assert float(c[:, 0].min()) > 0 and float(c[:, 2].min()) > 0
-    assert float((c[:, 0] <= 0.2).double().mean()) >= 0.9 and float((c[:, 2] <= 0.2).double().mean()) >= 0.9
+    assert (
+        float((c[:, 0] <= 0.2).double().mean()) >= 0.9
+        and float((c[:, 2] <= 0.2).double().mean()) >= 0.9
+    )
     assert float(c[:, 0].median()) < 0.15
     # the hole is aimed at: the median pass is well inside it
     assert float(c[:, 1].median()) < 0.8

@@ -7,8 +7,13 @@ import torch
 
 from protorch.primitives.pose import quaternion_distance
 from protorch.tasks import TeleopWindowTask
-from protorch.tasks.teleop_operators import (ScreenOperator, VariedOperator, careful_demonstrations,
-                                             load_operator, probe_operator)
+from protorch.tasks.teleop_operators import (
+    ScreenOperator,
+    VariedOperator,
+    careful_demonstrations,
+    load_operator,
+    probe_operator,
+)
 from protorch.tasks.teleop_trials import draw_schedules, run_trials
 
 TASK = TeleopWindowTask()
@@ -23,7 +28,16 @@ def _demos(n_envs=4, per_env=2, seed=0):
 def test_careful_demonstrations_pass_and_carry_the_class_they_were_made_in():
     trajs, envs = _demos()
     assert bool(TASK.success(trajs, envs).all())
-    assert TASK.label(trajs, envs).tolist() == [0, 0, 1, 1, 0, 0, 1, 1]  # classes alternate between walls
+    assert TASK.label(trajs, envs).tolist() == [
+        0,
+        0,
+        1,
+        1,
+        0,
+        0,
+        1,
+        1,
+    ]  # classes alternate between walls
     moved = envs.clone()
     moved[:, 1] += 0.15  # the same paths with the wall slid 15 cm along y: the upright beam hits it
     assert bool(TASK.collides(trajs, moved).all())
@@ -34,11 +48,15 @@ def test_careful_demonstrations_pass_and_carry_the_class_they_were_made_in():
 def test_the_two_classes_stand_the_beam_upright_rolled_opposite_ways():
     env = torch.tensor([[0.6, 0.0, 0.5, 0.3]], dtype=torch.float64)
     q = TASK.passing_quaternions(env)[0]  # (2, 4)
-    assert float(quaternion_distance(q[0], q[1])) == pytest.approx(math.pi, abs=1e-9)  # a half turn apart
+    assert float(quaternion_distance(q[0], q[1])) == pytest.approx(
+        math.pi, abs=1e-9
+    )  # a half turn apart
     centre = env[0, :3]
     for k in (0, 1):
         assert not bool(TASK.collides_at(torch.cat([centre, q[k]]), env[0]))
-    assert bool(TASK.collides_at(torch.cat([centre, START[3:]]), env[0]))  # lying flat: it hits the wall
+    assert bool(
+        TASK.collides_at(torch.cat([centre, START[3:]]), env[0])
+    )  # lying flat: it hits the wall
 
 
 def test_wall_schedules_start_where_drawn_move_and_stay_in_range():
@@ -46,7 +64,10 @@ def test_wall_schedules_start_where_drawn_move_and_stay_in_range():
     assert torch.equal(walls.at(0.0), walls.env0)
     late = walls.at(100.0)
     assert bool((late != walls.env0).any(-1).all())  # every wall moved
-    lo, hi = torch.tensor(TASK.env_low, dtype=torch.float64), torch.tensor(TASK.env_high, dtype=torch.float64)
+    lo, hi = (
+        torch.tensor(TASK.env_low, dtype=torch.float64),
+        torch.tensor(TASK.env_high, dtype=torch.float64),
+    )
     assert bool(((late >= lo - 1e-12) & (late <= hi + 1e-12)).all())
     assert torch.equal(draw_schedules(TASK, 20, seed=3).delta, walls.delta)  # the seed fixes them
 
@@ -102,12 +123,23 @@ def test_a_plugin_operator_from_a_file_outside_the_package_runs(tmp_path):
     path.write_text(PLUGIN)
     cls = load_operator(f"{path}:Straight")
     probe_operator(cls, TASK, START, END, draw_schedules(TASK, 1, 0).env0[0])
-    r = run_trials(TASK, [cls(i) for i in range(2)], draw_schedules(TASK, 2, seed=1), "none", dt=0.1, time_limit=4.0)
-    assert bool(r["arrived"].all()) and bool(r["collided"].all())  # straight through a wall: it arrives, touching
+    r = run_trials(
+        TASK,
+        [cls(i) for i in range(2)],
+        draw_schedules(TASK, 2, seed=1),
+        "none",
+        dt=0.1,
+        time_limit=4.0,
+    )
+    assert bool(r["arrived"].all()) and bool(
+        r["collided"].all()
+    )  # straight through a wall: it arrives, touching
     with pytest.raises(ValueError, match="class NoAct lacks act"):
         load_operator(f"{path}:NoAct")
     with pytest.raises(ValueError, match=r"Broken.act returned a non-finite pose"):
-        probe_operator(load_operator(f"{path}:Broken"), TASK, START, END, draw_schedules(TASK, 1, 0).env0[0])
+        probe_operator(
+            load_operator(f"{path}:Broken"), TASK, START, END, draw_schedules(TASK, 1, 0).env0[0]
+        )
     with pytest.raises(ValueError, match="no file"):
         load_operator(f"{tmp_path / 'missing.py'}:Straight")
     assert load_operator("varied") is VariedOperator
@@ -115,7 +147,9 @@ def test_a_plugin_operator_from_a_file_outside_the_package_runs(tmp_path):
 
 
 def test_the_varied_population_differs_between_seeds_and_repeats_with_one():
-    traits = [(op.duration, op.lag, op.tilt_std, op.cls_p) for op in (VariedOperator(i) for i in range(6))]
+    traits = [
+        (op.duration, op.lag, op.tilt_std, op.cls_p) for op in (VariedOperator(i) for i in range(6))
+    ]
     assert len(set(traits)) == 6
     a, b = VariedOperator(4), VariedOperator(4)
     wall = draw_schedules(TASK, 1, 0).env0[0]

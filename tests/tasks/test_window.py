@@ -16,11 +16,17 @@ from protorch.tasks import WindowTask
 
 def test_costs_are_the_start_window_and_end_distances():
     task = WindowTask()  # start (0.1, 0.1), centre (0.5, 0.5), end (0.9, 0.9)
-    traj = torch.tensor([[0.1, 0.4], [0.5, 0.8], [0.9, 0.9], [0.9, 0.6]], dtype=torch.float64)  # (T=4, 2)
+    traj = torch.tensor(
+        [[0.1, 0.4], [0.5, 0.8], [0.9, 0.9], [0.9, 0.6]], dtype=torch.float64
+    )  # (T=4, 2)
     c = task.costs(traj)  # (3,)
     # start 0.3 away along y; nearest sample to the centre (0.5, 0.8) is 0.3 away; end 0.3 away
-    torch.testing.assert_close(c, torch.tensor([0.3, 0.3, 0.3], dtype=torch.float64), rtol=0, atol=1e-15)
-    assert math.isclose(float(task.costs(traj[:1])[1]), math.hypot(0.4, 0.1), rel_tol=1e-15)  # one step
+    torch.testing.assert_close(
+        c, torch.tensor([0.3, 0.3, 0.3], dtype=torch.float64), rtol=0, atol=1e-15
+    )
+    assert math.isclose(
+        float(task.costs(traj[:1])[1]), math.hypot(0.4, 0.1), rel_tol=1e-15
+    )  # one step
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
@@ -31,15 +37,21 @@ def test_each_objective_alone_is_its_column_of_the_costs_bit_for_bit(dtype):
     ev = Evaluator.build(task, promp, eval_dtype=None, sample_steps=None, labeler=None, dtype=dtype)
     g = torch.Generator().manual_seed(1)
     for batch in ((3, 7), (40, 100)):  # (B, S): a tail and whole vector blocks
-        w = promp.mean + promp.var.sqrt() * torch.randn(*batch, promp.num_weights, generator=g, dtype=dtype)
+        w = promp.mean + promp.var.sqrt() * torch.randn(
+            *batch, promp.num_weights, generator=g, dtype=dtype
+        )
         traj = promp.trajectory(w)  # (B, S, T, 2), the einsum's own memory layout
         full = task.costs(traj)  # (B, S, 3)
         for o in range(3):
             assert torch.equal(task.objective_cost(traj, o), full[..., o])
             steps = task.objective_steps(o)
-            part = traj if steps is None else ev.sample_trajectory(w, steps)  # only the steps it reads
+            part = (
+                traj if steps is None else ev.sample_trajectory(w, steps)
+            )  # only the steps it reads
             assert torch.equal(task.objective_cost(part, o), full[..., o])
-    assert task.objective_steps(1) is None and task.objective_steps(0) == task.objective_steps(2) == (0, -1)
+    assert task.objective_steps(1) is None and task.objective_steps(0) == task.objective_steps(
+        2
+    ) == (0, -1)
 
 
 def test_bad_index_or_shape_is_refused():

@@ -22,7 +22,9 @@ def make_particle_run(run_dir, *, objectives: str = "clearance"):
     demos, envs = task.demonstrations(30, 3, torch.Generator().manual_seed(0))
     ds = demonstration_dataset(promp, demos, envs, task_name=task.name, var_floor=1e-4)
     save_model(run_dir, ds, backend="torch", alpha=1e-3)
-    (run_dir / "config.yaml").write_text(f"name: point_particle\ntask:\n  objectives: {objectives}\n  demo_envs: 30\n")
+    (run_dir / "config.yaml").write_text(
+        f"name: point_particle\ntask:\n  objectives: {objectives}\n  demo_envs: 30\n"
+    )
     return run_dir
 
 
@@ -48,24 +50,38 @@ def arm_run_dir(tmp_path_factory):
     q, _ = task.ik_path(task.straight_paths(goals, promp.num_steps))  # (4, T, 7)
     w = promp.weights(q)  # (4, N)
     env = task.sample_envs(200, gen)  # (M, 4)
-    mean = w[torch.cdist(env[:, 2:], goals[:, 2:]).argmin(1)] + 0.01 * torch.randn(200, w.shape[1], generator=gen,
-                                                                                   dtype=torch.float64)
+    mean = w[torch.cdist(env[:, 2:], goals[:, 2:]).argmin(1)] + 0.01 * torch.randn(
+        200, w.shape[1], generator=gen, dtype=torch.float64
+    )
     ds = TrajectoryDataset(promp, 4, task_name=task.name)
-    ds.append(env, mean, torch.full_like(mean, 1e-4), label=torch.randint(0, 2, (200,), generator=gen),
-              origin="prior", converged=True)
+    ds.append(
+        env,
+        mean,
+        torch.full_like(mean, 1e-4),
+        label=torch.randint(0, 2, (200,), generator=gen),
+        origin="prior",
+        converged=True,
+    )
     save_model(out, ds, backend="torch", alpha=30.0, nearest_k=30)
     return out
 
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-CHROMIUM_ARGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+    "--ignore-gpu-blocklist",
+]
 
 
 @pytest.fixture(scope="session")
 def browser():
     """Headless Chromium (software WebGL), one per test session."""
     pytest.importorskip("viser", reason="viser is not installed (pip install -e '.[view]')")
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install -e '.[test]')")
+    sync_api = pytest.importorskip(
+        "playwright.sync_api", reason="playwright is not installed (pip install -e '.[test]')"
+    )
     if CHROMIUM is None:
         pytest.skip("no chromium on PATH (apt-get install -y chromium)")
     with sync_api.sync_playwright() as pw:

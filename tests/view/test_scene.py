@@ -29,7 +29,14 @@ def run(particle_run_dir):
 def test_open_run_rebuilds_the_task_from_the_config(run):
     assert run.kind == "particle" and run.model.task_name == "point_particle"
     assert run.task.objectives == "clearance"  # from config.yaml, not the class default "hole"
-    assert [p.name for p in run.params] == ["start_x", "start_y", "wall_x", "hole_y", "goal_x", "goal_y"]
+    assert [p.name for p in run.params] == [
+        "start_x",
+        "start_y",
+        "wall_x",
+        "hole_y",
+        "goal_x",
+        "goal_y",
+    ]
 
 
 def test_scene_state_is_the_maps_answer(run):
@@ -42,7 +49,9 @@ def test_scene_state_is_the_maps_answer(run):
     sample0 = run.model.promp.trajectory(mu + var.sqrt() * eps[:1])[0]
     assert torch.allclose(torch.as_tensor(s.samples[0, :, :2]), sample0)
     assert s.success == bool(run.task.success(mean[None], env[None])[0])
-    assert s.costs == pytest.approx(dict(zip(run.task.objective_names, run.task.costs(mean, env).tolist())))
+    assert s.costs == pytest.approx(
+        dict(zip(run.task.objective_names, run.task.costs(mean, env).tolist()))
+    )
     assert 0 < s.infer_ms <= s.total_ms
     # a zero-variance direction: a sample with eps = 0 is the mean itself
     z = scene_state(run, env, torch.zeros(1, run.model.promp.num_weights, dtype=torch.float64))
@@ -90,17 +99,26 @@ def test_live_particle_tracks_a_static_environment_to_the_goal(run):
 @pytest.mark.slow
 def test_arm_state_is_the_label_aware_answer(arm_run_dir):
     run = open_run(arm_run_dir)
-    assert run.kind == "arm" and [p.name for p in run.params] == ["can_x", "can_y", "goal_x", "goal_y"]
+    assert run.kind == "arm" and [p.name for p in run.params] == [
+        "can_x",
+        "can_y",
+        "goal_x",
+        "goal_y",
+    ]
     env = run.env0
     s = scene_state(run, env, weight_noise(run.model.promp.num_weights, 4))
-    best = label_aware_mean(run.model.env_map, run.model.promp, run.task, env[None], dtype=torch.float64)
+    best = label_aware_mean(
+        run.model.env_map, run.model.promp, run.task, env[None], dtype=torch.float64
+    )
     traj = run.model.promp.trajectory(best.mean)  # (1, T, 7)
     assert s.label == {0: "left", 1: "right"}[int(best.label[0])]
     assert s.scores == pytest.approx(dict(zip(["left", "right"], best.scores[0].tolist())))
     assert torch.allclose(torch.as_tensor(s.mean), run.task.ee_path(traj)[0])
     assert s.success == bool(run.task.success(traj, env[None])[0])
     assert s.links.shape == (5, run.task.kinematics.num_frames, 3)
-    assert torch.allclose(torch.as_tensor(s.links[-1, -1]), torch.as_tensor(s.mean[-1]))  # the hand ends the path
+    assert torch.allclose(
+        torch.as_tensor(s.links[-1, -1]), torch.as_tensor(s.mean[-1])
+    )  # the hand ends the path
     p = ArmPlayer(run)
     p.reset()
     while not p.done:
@@ -113,16 +131,41 @@ def test_an_arm_run_is_rebuilt_with_its_robot_and_the_teach_page_takes_one(tmp_p
     from protorch.view.scene import build_task
     from tests.robots.user_arm import user_arm_home, write_user_arm
 
-    robot = {"base": None, "urdf": str(write_user_arm(tmp_path)), "end_link": "tool0", "home": user_arm_home()}
+    robot = {
+        "base": None,
+        "urdf": str(write_user_arm(tmp_path)),
+        "end_link": "tool0",
+        "home": user_arm_home(),
+    }
     task = build_task("arm_reach", {"goal_tol": 0.03, "goal_box": [[0.6, 0.7], [-0.2, 0.2]]}, robot)
     assert task.num_dof == 6 and task.robot.name == "my_arm" and task.goal_tol == 0.03
     assert task.goal_box == ((0.6, 0.7), (-0.2, 0.2))
     assert build_task("arm_reach", {}).robot.name == "Panda"  # a run from before the robot setting
-    volume = build_task("arm_reach", {"collision": "volume", "deviation": "time", "demos": "synthetic", "priors": 20})
-    assert (volume.collision, volume.can_objective, volume.deviation) == ("volume", "volume", "time")  # the run's models
-    assert volume.capsule_plan is not None and volume.margin == 0.01  # checked as the run was, not by the skeleton
-    (tmp_path / "robot.yaml").write_text(f"urdf: {robot['urdf']}\nend_link: tool0\nhome: {user_arm_home()}\n")
-    args = parse_args(["--teach", "arm_reach", "--robot", str(tmp_path / "robot.yaml"), "--out", str(tmp_path / "d")])
+    volume = build_task(
+        "arm_reach",
+        {"collision": "volume", "deviation": "time", "demos": "synthetic", "priors": 20},
+    )
+    assert (volume.collision, volume.can_objective, volume.deviation) == (
+        "volume",
+        "volume",
+        "time",
+    )  # the run's models
+    assert (
+        volume.capsule_plan is not None and volume.margin == 0.01
+    )  # checked as the run was, not by the skeleton
+    (tmp_path / "robot.yaml").write_text(
+        f"urdf: {robot['urdf']}\nend_link: tool0\nhome: {user_arm_home()}\n"
+    )
+    args = parse_args(
+        [
+            "--teach",
+            "arm_reach",
+            "--robot",
+            str(tmp_path / "robot.yaml"),
+            "--out",
+            str(tmp_path / "d"),
+        ]
+    )
     session, _ = teach_session(args)
     assert session.teach.task.num_dof == 6
 
@@ -135,10 +178,14 @@ def test_the_live_arm_is_the_moving_tests_arm(arm_run_dir):
 
     run = open_run(arm_run_dir)
     p = ArmPlayer(run, duration=1.0, hold=0.2)
-    assert p.policy.check and p.policy.switch_clearance == 0.01  # the moving test's defaults (no config.yaml)
+    assert (
+        p.policy.check and p.policy.switch_clearance == 0.01
+    )  # the moving test's defaults (no config.yaml)
     m = p.moving
     y = torch.linspace(0.08, -0.08, m + 1, dtype=torch.float64)
-    walk = torch.stack([torch.full_like(y, 0.56), y, torch.full_like(y, 0.70), torch.full_like(y, 0.02)], -1)  # (M + 1, 4)
+    walk = torch.stack(
+        [torch.full_like(y, 0.56), y, torch.full_like(y, 0.70), torch.full_like(y, 0.02)], -1
+    )  # (M + 1, 4)
     res = run_arm_episodes(run.model, run.task, walk=walk[None], duration=1.0, hold=0.2, dt=p.dt)
     p.reset()
     labels, qs = [], [p.q]
@@ -146,10 +193,14 @@ def test_the_live_arm_is_the_moving_tests_arm(arm_run_dir):
         p.step(walk[min(p.t, m)])
         labels.append(int(p.cand[p.current]))
         qs.append(p.q)
-    assert labels == res.labels[0, :p.total].tolist()
+    assert labels == res.labels[0, : p.total].tolist()
     torch.testing.assert_close(torch.stack(qs), res.q[0], rtol=0, atol=1e-9)
     seen = walk[torch.arange(p.total).clamp(max=m)]  # (total, 4) the environment at each step
-    gaps = run.task.can_gap(res.q[0, 1:p.total + 1, None], seen)  # (total,) each new pose against that step's can
-    assert p.min_distance == pytest.approx(float(gaps.min()), abs=1e-9)  # the task's collision model (volumes)
+    gaps = run.task.can_gap(
+        res.q[0, 1 : p.total + 1, None], seen
+    )  # (total,) each new pose against that step's can
+    assert p.min_distance == pytest.approx(
+        float(gaps.min()), abs=1e-9
+    )  # the task's collision model (volumes)
     assert p.collided == bool(gaps.min() <= run.task.margin)
     assert len(set(labels)) == 2  # the sliding can makes the arm change sides

@@ -27,7 +27,9 @@ from protorch.view.teach import TeachSession, failing_envs
 from protorch.view.teach_server import board_point, teach_markdown
 from protorch.view.teach_tasks import ArmTeach, HandFollower, ParticleTeach
 
-HUMAN = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "point_particle_human_demos"
+HUMAN = (
+    Path(__file__).resolve().parents[2].parent / "shared" / "data" / "point_particle_human_demos"
+)
 ENV = torch.tensor([1.0, 2.0, 5.0, 6.5, 9.0, 3.0], dtype=torch.float64)
 HOLE = [(1.0, 2.0), (2.5, 4.5), (3.6, 6.4), (5.0, 6.5), (6.4, 6.4), (7.8, 4.6), (9.0, 3.0)]
 WALL = [(1.0, 2.0), (3.0, 2.5), (5.0, 2.5), (7.0, 2.8), (9.0, 3.0)]
@@ -36,8 +38,11 @@ WALL = [(1.0, 2.0), (3.0, 2.5), (5.0, 2.5), (7.0, 2.8), (9.0, 3.0)]
 def stroke(points, per_segment: int = 4) -> torch.Tensor:
     """A pointer stroke through ``points``: ``per_segment`` samples per straight segment."""
     p = torch.tensor(points, dtype=torch.float64)
-    parts = [p[:1]] + [p[i] + (p[i + 1] - p[i]) * torch.linspace(0, 1, per_segment + 1, dtype=torch.float64)[1:, None]
-                       for i in range(len(p) - 1)]
+    parts = [p[:1]] + [
+        p[i]
+        + (p[i + 1] - p[i]) * torch.linspace(0, 1, per_segment + 1, dtype=torch.float64)[1:, None]
+        for i in range(len(p) - 1)
+    ]
     return torch.cat(parts)  # (1 + per_segment (len - 1), 2)
 
 
@@ -53,7 +58,11 @@ def session(tmp_path):
 def test_every_human_demonstration_passes_the_checks():
     demos, envs = load_human_demos(HUMAN)
     teach = ParticleTeach()
-    flagged = [i for i, (d, e) in enumerate(zip(demos, envs)) if not teach.quality(d, resample(d, 100), e).ok]
+    flagged = [
+        i
+        for i, (d, e) in enumerate(zip(demos, envs))
+        if not teach.quality(d, resample(d, 100), e).ok
+    ]
     assert flagged == []
 
 
@@ -67,7 +76,9 @@ def test_particle_checks_name_what_failed():
     assert q.flags == ("collides",) and "enters the wall" in q.messages[0]
     late = stroke([(3.0, 6.5), *HOLE[3:]])  # starts 4.9 from the start
     q = teach.quality(late, resample(late, 100), ENV)
-    assert q.flags == ("start",) and q.values["start_distance"] == pytest.approx(float(np.hypot(2.0, 4.5)))
+    assert q.flags == ("start",) and q.values["start_distance"] == pytest.approx(
+        float(np.hypot(2.0, 4.5))
+    )
     short = stroke(HOLE, per_segment=1)  # 7 samples
     q = teach.quality(short, resample(short, 100), ENV)
     assert q.flags == ("short",)
@@ -91,9 +102,18 @@ def test_keep_writes_the_resampled_demonstration_exactly(session):
     torch.testing.assert_close(shown.traj, resample(good, 100), rtol=0, atol=0)
     assert session.keep() == 0
     back = read_demos(session.folder, PARTICLE_FORMAT)
-    assert torch.equal(back.demos[0], shown.traj) and torch.equal(back.envs[0], ENV)  # %.18e round-trips
-    assert session.progress() == {"envs_done": 0, "num_envs": 2, "kept_here": 1, "per_env": 2, "kept": 1,
-                                  "marked": 0, "finished": False}
+    assert torch.equal(back.demos[0], shown.traj) and torch.equal(
+        back.envs[0], ENV
+    )  # %.18e round-trips
+    assert session.progress() == {
+        "envs_done": 0,
+        "num_envs": 2,
+        "kept_here": 1,
+        "per_env": 2,
+        "kept": 1,
+        "marked": 0,
+        "finished": False,
+    }
     assert not list(session.folder.glob(".*.tmp"))
 
 
@@ -104,7 +124,9 @@ def test_a_flagged_demonstration_is_kept_only_when_insisted_and_is_marked(sessio
     assert session.kept == 0
     assert session.keep(insist=True) == 0
     record = json.loads((session.folder / "teach.json").read_text())
-    assert record["demos"]["0"]["flags"] == ["collides"] and record["demos"]["0"]["insisted"] is True
+    assert (
+        record["demos"]["0"]["flags"] == ["collides"] and record["demos"]["0"]["insisted"] is True
+    )
     assert read_marks(session.folder) == {0: ["collides"]} and session.marked == 1
     with pytest.raises(ValueError, match="no demonstration to keep"):
         session.keep()
@@ -128,7 +150,11 @@ def test_the_environment_is_locked_until_complete_then_the_next_one_comes(sessio
     assert session.envs_done == 1 and not session.locked and not torch.equal(session.env, ENV)
     assert session.kept_here == 0 and session.kept_paths() == []
     md = teach_markdown(session)
-    assert "**1 of 2** done" in md and "**0 of 2** kept" in md and "demonstrations kept: 2 (0 marked)" in md
+    assert (
+        "**1 of 2** done" in md
+        and "**0 of 2** kept" in md
+        and "demonstrations kept: 2 (0 marked)" in md
+    )
 
 
 def test_a_reopened_folder_continues_where_it_stopped(session, tmp_path):
@@ -137,14 +163,24 @@ def test_a_reopened_folder_continues_where_it_stopped(session, tmp_path):
     session.record(stroke(WALL))  # on show, never kept: the page was closed
     folder = session.folder
     (folder / ".traj1.out.abc.tmp").write_text("half")  # a write killed mid-way
-    (folder / "env1.out").write_text((folder / "env0.out").read_text())  # a keep killed before its trajectory
+    (folder / "env1.out").write_text(
+        (folder / "env0.out").read_text()
+    )  # a keep killed before its trajectory
     again = TeachSession(ParticleTeach(), folder, per_env=2, num_envs=2, seed=1)
-    assert torch.equal(again.env, ENV) and again.kept_here == 1 and again.locked and again.next_k == 1
-    assert len(again.notes) == 2 and not (folder / "env1.out").exists() and not list(folder.glob(".*.tmp"))
+    assert (
+        torch.equal(again.env, ENV) and again.kept_here == 1 and again.locked and again.next_k == 1
+    )
+    assert (
+        len(again.notes) == 2
+        and not (folder / "env1.out").exists()
+        and not list(folder.glob(".*.tmp"))
+    )
     assert len(again.kept_paths()) == 1 and again.pending is None
     again.record(stroke(HOLE))
     assert again.keep() == 1 and again.envs_done == 1
-    assert torch.equal(again.env, again.proposals[0])  # ENV was set by hand: the proposals start over
+    assert torch.equal(
+        again.env, again.proposals[0]
+    )  # ENV was set by hand: the proposals start over
 
 
 def test_a_reopened_folder_proposes_no_environment_it_holds(tmp_path):
@@ -173,7 +209,8 @@ def test_bad_folders_are_refused_naming_file_and_line(tmp_path):
 
 # ------------------------------------------------------------------ the arm
 def hand_stroke(follower, waypoints, steps: int = 4):
-    """Joint angles recorded while the hand is dragged through ``waypoints`` (and the worst miss)."""
+    """Joint angles recorded while the hand is dragged through ``waypoints`` (and the
+    worst miss)."""
     follower.reset()
     prev, qs, err = follower.hand.copy(), [follower.q.clone()], 0.0
     for w in waypoints:
@@ -194,7 +231,8 @@ ARM_ENV = torch.tensor([0.56, 0.02, 0.70, 0.06], dtype=torch.float64)
 
 
 def around(dy: float, h: float = 0.1):
-    """Hand waypoints from the start (0.40, 0) past the can on the left (dy > 0) or right to the target."""
+    """Hand waypoints from the start (0.40, 0) past the can on the left (dy > 0) or right to the
+    target."""
     return [(0.46, 0.5 * dy, h), (0.56, dy, h), (0.66, 0.75 * dy, h), (0.70, 0.06, h)]
 
 
@@ -232,8 +270,12 @@ def test_arm_checks_and_a_folder_that_trains(arm_teach, tmp_path):
     assert s.envs_done == 1 and s.progress()["finished"]
     back = read_demos(s.folder, arm_demo_format(arm_teach.task))
     assert [d.shape for d in back.demos] == [(100, 7), (100, 7)]
-    exp = arm_reach.prepare(optimizer={"name": "pro", "beta": 200.0, "max_iter": 2, "num_samples": 10},
-                            task={"demos": str(s.folder), "priors": 0}, test={"num_envs": 2}, dynamic={"episodes": 0})
+    exp = arm_reach.prepare(
+        optimizer={"name": "pro", "beta": 200.0, "max_iter": 2, "num_samples": 10},
+        task={"demos": str(s.folder), "priors": 0},
+        test={"num_envs": 2},
+        dynamic={"episodes": 0},
+    )
     assert exp.demo_labels.tolist() == [0, 0] and torch.equal(exp.demos[1], back.demos[1])
     assert exp.describe()["demos"]["success_rate"] == 1.0  # both taught demonstrations succeed
 
@@ -247,16 +289,25 @@ def test_arm_folders_are_checked_naming_file_and_line(arm_teach, tmp_path):
     with pytest.raises(ValueError, match=r"traj0\.out:2: expected 7 value"):
         read_demos(folder, arm_demo_format(arm_teach.task))
     (folder / "traj0.out").write_text(f"{q0}\n{q0.replace('-2.7266', '-3.5', 1)}\n")
-    with pytest.raises(ValueError, match=r"traj0\.out:2: panda_joint4 = -3\.5 lies outside the joint limits"):
+    with pytest.raises(
+        ValueError, match=r"traj0\.out:2: panda_joint4 = -3\.5 lies outside the joint limits"
+    ):
         read_demos(folder, arm_demo_format(arm_teach.task))
     (folder / "traj0.out").write_text(f"{q0}\n{q0}\n")
     (folder / "env0.out").write_text("0.56\n0.02\n2.0\n0.06\n")
     with pytest.raises(ValueError, match=r"env0\.out:3: goal_x = 2 lies outside the table"):
         read_demos(folder, arm_demo_format(arm_teach.task))
     (folder / "env0.out").write_text("0.56\n0.02\n0.7\n0.06\n")
-    with pytest.raises(ValueError, match=r"env0\.out: this environment has 1 demonstration\(s\) passing left \(traj0"):
-        arm_reach.prepare(optimizer={"name": "pro", "beta": 200.0}, task={"demos": str(folder), "priors": 0},
-                          test={"num_envs": 2}, dynamic={"episodes": 0})
+    with pytest.raises(
+        ValueError,
+        match=r"env0\.out: this environment has 1 demonstration\(s\) passing left \(traj0",
+    ):
+        arm_reach.prepare(
+            optimizer={"name": "pro", "beta": 200.0},
+            task={"demos": str(folder), "priors": 0},
+            test={"num_envs": 2},
+            dynamic={"episodes": 0},
+        )
 
 
 # ------------------------------------------------------------------ with a trained run
@@ -269,7 +320,13 @@ def exact_run(tmp_path_factory):
     demos, envs = task.demonstrations(10, 3, torch.Generator().manual_seed(0))
     demo = demonstration_dataset(promp, demos, envs, task_name=task.name)
     ds = TrajectoryDataset(promp, 6, task_name=task.name)
-    ds.append(demo.env, demo.mean, torch.full_like(demo.mean, 1e-8), origin="demonstration", converged=True)
+    ds.append(
+        demo.env,
+        demo.mean,
+        torch.full_like(demo.mean, 1e-8),
+        origin="demonstration",
+        converged=True,
+    )
     save_model(out, ds, backend="torch", alpha=1e-3)
     (out / "config.yaml").write_text("name: point_particle\ntask:\n  objectives: hole\n")
     return out, demo.env
@@ -278,16 +335,31 @@ def exact_run(tmp_path_factory):
 def test_a_run_proposes_where_its_map_fails_first(exact_run, tmp_path):
     run_dir, known = exact_run
     run = open_run(run_dir)
-    candidates = torch.cat([known, run.task.sample_envs(10, torch.Generator().manual_seed(5))])  # (20, 6)
+    candidates = torch.cat(
+        [known, run.task.sample_envs(10, torch.Generator().manual_seed(5))]
+    )  # (20, 6)
     envs = failing_envs(run, candidates)
     ok = run.task.success(run.model.mean_trajectory(envs), envs)
     n_fail = int((~ok).sum())
     assert 5 <= n_fail <= 15 and not bool(ok[:n_fail].any()) and bool(ok[n_fail:].all())
     assert sorted(envs.tolist()) == sorted(candidates.tolist())
-    session, run2 = teach_session(parse_args(["--teach", "point_particle", str(run_dir), "--out",
-                                              str(tmp_path / "more"), "--envs", "5"]))
+    session, run2 = teach_session(
+        parse_args(
+            [
+                "--teach",
+                "point_particle",
+                str(run_dir),
+                "--out",
+                str(tmp_path / "more"),
+                "--envs",
+                "5",
+            ]
+        )
+    )
     assert run2 is not None and session.num_steps == run.model.promp.num_steps
-    assert not bool(run.task.success(run.model.mean_trajectory(session.env[None]), session.env[None])[0])
+    assert not bool(
+        run.task.success(run.model.mean_trajectory(session.env[None]), session.env[None])[0]
+    )
     assert "the map's mean here: **FAILURE**" in teach_markdown(session, "FAILURE")
     with pytest.raises(ValueError, match="is a point_particle run, not arm_reach"):
         teach_session(parse_args(["--teach", "arm_reach", str(run_dir)]))
@@ -296,21 +368,42 @@ def test_a_run_proposes_where_its_map_fails_first(exact_run, tmp_path):
 def test_a_taught_particle_folder_with_a_lone_demonstration_is_refused(session):
     session.record(stroke(HOLE))
     session.keep()
-    with pytest.raises(ValueError, match=r"env0\.out: this environment has 1 demonstration\(s\) \(traj0\.out\)"):
-        point_particle.prepare(optimizer={"beta": 20.0}, task={"demos": str(session.folder)}, test={"num_envs": 2},
-                               dynamic={"episodes": 0}, dynamic_paper={"episodes": 0})
+    with pytest.raises(
+        ValueError, match=r"env0\.out: this environment has 1 demonstration\(s\) \(traj0\.out\)"
+    ):
+        point_particle.prepare(
+            optimizer={"beta": 20.0},
+            task={"demos": str(session.folder)},
+            test={"num_envs": 2},
+            dynamic={"episodes": 0},
+            dynamic_paper={"episodes": 0},
+        )
 
 
 def test_the_arm_run_proposes_its_label_aware_failures_first(arm_teach, tmp_path):
     """A map of 4 environments holding the exact straight-path weights (IK), the can beside the
     path: it succeeds there, and fails at random environments."""
     task, promp = arm_teach.task, ProMP(7, num_basis=10, num_steps=100)
-    known = torch.tensor([[0.56, -0.12, 0.70, 0.20], [0.56, 0.12, 0.70, -0.20], [0.52, -0.10, 0.66, 0.12],
-                          [0.60, 0.10, 0.72, -0.16]], dtype=torch.float64)
+    known = torch.tensor(
+        [
+            [0.56, -0.12, 0.70, 0.20],
+            [0.56, 0.12, 0.70, -0.20],
+            [0.52, -0.10, 0.66, 0.12],
+            [0.60, 0.10, 0.72, -0.16],
+        ],
+        dtype=torch.float64,
+    )
     q, _ = task.ik_path(task.straight_paths(known, promp.num_steps))  # (4, T, 7)
     ds = TrajectoryDataset(promp, 4, task_name=task.name)
     w = promp.weights(q)
-    ds.append(known, w, torch.full_like(w, 1e-8), label=task.side(q, known), origin="prior", converged=True)
+    ds.append(
+        known,
+        w,
+        torch.full_like(w, 1e-8),
+        label=task.side(q, known),
+        origin="prior",
+        converged=True,
+    )
     save_model(tmp_path, ds, backend="torch", alpha=30.0)
     run = open_run(tmp_path)
     envs = torch.cat([known, task.sample_envs(8, torch.Generator().manual_seed(2))])  # (12, 4)
@@ -339,16 +432,27 @@ def test_the_csv_format_writes_timestamped_recordings_that_train(tmp_path):
 
     s = TeachSession(ParticleTeach(), tmp_path / "demos", per_env=2, num_envs=2, seed=1, fmt="csv")
     s.set_env(ENV)
-    for path in (HOLE, [(1.0, 2.0), (2.6, 4.4), (3.7, 6.3), (5.0, 6.4), (6.3, 6.3), (7.7, 4.7), (9.0, 3.0)]):
+    for path in (
+        HOLE,
+        [(1.0, 2.0), (2.6, 4.4), (3.7, 6.3), (5.0, 6.4), (6.3, 6.3), (7.7, 4.7), (9.0, 3.0)],
+    ):
         raw = stroke(path, 10)  # (61, 2)
-        times = 0.5 + torch.arange(raw.shape[0], dtype=torch.float64) / 30  # 30 samples a second, 2 s
+        times = (
+            0.5 + torch.arange(raw.shape[0], dtype=torch.float64) / 30
+        )  # 30 samples a second, 2 s
         s.record(raw, times=times)
         s.keep()
     assert sorted(p.name for p in s.folder.glob("*.csv")) == ["demo0.csv", "demo1.csv"]
     rec = read_recording(s.folder / "demo0.csv", PARTICLE_FORMAT)
-    assert rec.time[0] == 0 and abs(rec.time[-1] - 2.0) < 1e-12 and torch.equal(torch.as_tensor(rec.values), stroke(HOLE, 10))
+    assert (
+        rec.time[0] == 0
+        and abs(rec.time[-1] - 2.0) < 1e-12
+        and torch.equal(torch.as_tensor(rec.values), stroke(HOLE, 10))
+    )
     assert rec.env.tolist() == ENV.tolist()
-    again = TeachSession(ParticleTeach(), tmp_path / "demos", per_env=2, num_envs=2, seed=1, fmt="csv")
+    again = TeachSession(
+        ParticleTeach(), tmp_path / "demos", per_env=2, num_envs=2, seed=1, fmt="csv"
+    )
     assert again.next_k == 2 and again.kept == 2 and again.envs_done == 1
     with pytest.raises(ValueError, match=r"holds \*\.csv recordings: teach the csv format there"):
         TeachSession(ParticleTeach(), tmp_path / "demos", per_env=2, num_envs=2, seed=1)

@@ -44,7 +44,9 @@ def wait_until(cond, what: str, timeout: float = 120.0) -> None:
 
 
 def open_page(browser, teacher):
-    page = browser.new_page(viewport={"width": 640, "height": 480})  # small: software WebGL renders each move
+    page = browser.new_page(
+        viewport={"width": 640, "height": 480}
+    )  # small: software WebGL renders each move
     page.goto(teacher.url)
     page.get_by_text("environments:").wait_for(timeout=120_000)
     return page
@@ -62,11 +64,15 @@ def to_page(page, teacher):
     def settled() -> bool:
         box.update(canvas.bounding_box())
         return abs(cam.aspect - box["width"] / box["height"]) < 1e-3
+
     wait_until(settled, "the camera's aspect to match the canvas")
 
     def px(p):
-        (u, v), = screen_points(cam.position, cam.wxyz, cam.fov, cam.aspect, np.asarray([p], dtype=np.float64))
+        ((u, v),) = screen_points(
+            cam.position, cam.wxyz, cam.fov, cam.aspect, np.asarray([p], dtype=np.float64)
+        )
         return box["x"] + u * box["width"], box["y"] + v * box["height"]
+
     return px
 
 
@@ -75,7 +81,9 @@ def drag(page, px, teacher, points, reached, *, grab=(0.0, 0.0, 0.0), release: b
     ``reached(point)``, release (or not)."""
     pts = [np.asarray(p, dtype=np.float64) for p in points]
     off = np.asarray(grab, dtype=np.float64)
-    for attempt in range(8):  # a press can land before the page has drawn the control there (2 in 6 runs
+    for attempt in range(
+        8
+    ):  # a press can land before the page has drawn the control there (2 in 6 runs
         x0, y0 = px(pts[0] + off)  # missed it): release and press again, the camera read anew
         page.mouse.move(x0, y0)
         page.mouse.down()
@@ -98,7 +106,9 @@ def drag(page, px, teacher, points, reached, *, grab=(0.0, 0.0, 0.0), release: b
 
 def draw_particle(page, teacher, points, **kw) -> None:
     xy = [(x, y, 0.0) for x, y in points]
-    near = lambda p: bool(teacher.stroke) and float(np.abs(teacher.stroke[-1].numpy() - p[:2]).max()) < 0.06
+    near = lambda p: (
+        bool(teacher.stroke) and float(np.abs(teacher.stroke[-1].numpy() - p[:2]).max()) < 0.06
+    )
     drag(page, to_page(page, teacher), teacher, xy, near, **kw)
 
 
@@ -116,14 +126,19 @@ def test_draw_keep_close_reopen_and_train(browser, tmp_path):
     torch.set_num_threads(1)
     folder = tmp_path / "demos"
     proposals = torch.tensor([ENV_A, ENV_B, ENV_C], dtype=torch.float64)
-    session = TeachSession(ParticleTeach(min_samples=5), folder, per_env=2, num_envs=2, proposals=proposals)
+    session = TeachSession(
+        ParticleTeach(min_samples=5), folder, per_env=2, num_envs=2, proposals=proposals
+    )
     teacher = Teacher(session, port=0)
     try:
         page = open_page(browser, teacher)
         shows(page, "this one: 0 of 2 kept")
         draw_particle(page, teacher, HOLE_A)  # through the hole
         shows(page, "steps: OK")
-        assert session.pending.quality.ok and page.get_by_role("button", name="Keep anyway").is_disabled()
+        assert (
+            session.pending.quality.ok
+            and page.get_by_role("button", name="Keep anyway").is_disabled()
+        )
         click(page, "Keep")
         wait_until(lambda: session.kept == 1, "the first keep")
         draw_particle(page, teacher, WALL_A)  # into the wall
@@ -141,11 +156,23 @@ def test_draw_keep_close_reopen_and_train(browser, tmp_path):
             wait_until(lambda: session.kept == k, f"keep {k}")
         shows(page, "target reached")
         strokes = teacher.strokes
-        draw_particle(page, teacher, [(1.0, 5.0), (2.0, 5.0), (3.0, 5.1)], release=False)  # mid-stroke ...
+        draw_particle(
+            page, teacher, [(1.0, 5.0), (2.0, 5.0), (3.0, 5.1)], release=False
+        )  # mid-stroke ...
         page.close()  # ... the page goes away: viser ends the drag for it
-        wait_until(lambda: teacher.strokes == strokes + 1 and not teacher.server.get_clients(), "the disconnect")
-        assert read_demos(folder, PARTICLE_FORMAT).indices == [0, 1, 2, 3]  # every kept one is on disk
-        assert session.kept == 4 and session.pending.raw.shape[0] >= 3  # the stroke is shown, never written
+        wait_until(
+            lambda: teacher.strokes == strokes + 1 and not teacher.server.get_clients(),
+            "the disconnect",
+        )
+        assert read_demos(folder, PARTICLE_FORMAT).indices == [
+            0,
+            1,
+            2,
+            3,
+        ]  # every kept one is on disk
+        assert (
+            session.kept == 4 and session.pending.raw.shape[0] >= 3
+        )  # the stroke is shown, never written
         page = open_page(browser, teacher)  # reopened: the session goes on
         shows(page, "environments: 2 of 2 done")
         shows(page, "demonstrations kept: 4 (1 marked)")
@@ -155,20 +182,37 @@ def test_draw_keep_close_reopen_and_train(browser, tmp_path):
         torch.set_num_threads(threads)
     out = read_demos(folder, PARTICLE_FORMAT)
     assert out.indices == [0, 1, 2, 3] and [d.shape for d in out.demos] == [(100, 2)] * 4
-    assert torch.equal(out.envs, proposals[:2].repeat_interleave(2, 0)) and read_marks(folder) == {1: ["collides"]}
+    assert torch.equal(out.envs, proposals[:2].repeat_interleave(2, 0)) and read_marks(folder) == {
+        1: ["collides"]
+    }
     task = ParticleTeach().task
     assert task.collides(torch.stack(out.demos), out.envs).tolist() == [False, True, False, False]
-    for d, drawn in zip(out.demos, (HOLE_A, WALL_A, HOLE_B, HOLE_B2)):  # where the mouse pressed and let go
+    for d, drawn in zip(
+        out.demos, (HOLE_A, WALL_A, HOLE_B, HOLE_B2)
+    ):  # where the mouse pressed and let go
         assert float((d[[0, -1]] - torch.tensor(drawn)[[0, -1]]).abs().max()) < 0.03
     # the folder trains a small point_particle run
-    m = point_particle.run(tmp_path / "run", optimizer={"beta": 20.0, "num_samples": 50, "max_iter": 30}, plot=False,
-                           task={"demos": str(folder)}, loop={"num_envs": 20, "batch_size": 20}, test={"num_envs": 20},
-                           dynamic={"episodes": 0}, dynamic_paper={"episodes": 0}, baselines=["demos_only"],
-                           progress=False)
+    m = point_particle.run(
+        tmp_path / "run",
+        optimizer={"beta": 20.0, "num_samples": 50, "max_iter": 30},
+        plot=False,
+        task={"demos": str(folder)},
+        loop={"num_envs": 20, "batch_size": 20},
+        test={"num_envs": 20},
+        dynamic={"episodes": 0},
+        dynamic_paper={"episodes": 0},
+        baselines=["demos_only"],
+        progress=False,
+    )
     assert m["demos"] == {"source": str(folder), "count": 4, "envs": 2, "marked": 1}
-    demo_rate, loop_rate = m["baselines"]["demos_only"]["test"]["success_rate"], m["test"]["success_rate"]
-    print(f"taught 4 demonstrations in 2 environments: demonstrations-only success {demo_rate:.3f}, "
-          f"loop success {loop_rate:.3f} on {m['test']['num_envs']} held-out environments")
+    demo_rate, loop_rate = (
+        m["baselines"]["demos_only"]["test"]["success_rate"],
+        m["test"]["success_rate"],
+    )
+    print(
+        f"taught 4 demonstrations in 2 environments: demonstrations-only success {demo_rate:.3f}, "
+        f"loop success {loop_rate:.3f} on {m['test']['num_envs']} held-out environments"
+    )
     assert 0.0 <= demo_rate <= 1.0 and 0.0 <= loop_rate <= 1.0 and m["loop"]["envs_tried"] == 20
 
 
@@ -180,20 +224,34 @@ def test_the_arm_taught_by_dragging_its_hand(browser, tmp_path):
     env = torch.tensor([[0.56, 0.02, 0.70, 0.06]], dtype=torch.float64)
     session = TeachSession(teach, tmp_path / "arm", per_env=2, num_envs=1, proposals=env)
     teacher = Teacher(session, port=0)
-    grab = (0.243 * 0.15, 0.243 * 0.15, 0.0)  # the centre of the control's x-y square (drei's PivotControls)
+    grab = (
+        0.243 * 0.15,
+        0.243 * 0.15,
+        0.0,
+    )  # the centre of the control's x-y square (drei's PivotControls)
     hand = np.asarray(teacher.follower.hand)
-    at = lambda p: float(np.abs(np.asarray(teacher.hand.position) - p).max()) < 0.012  # a pixel is ~3 mm there
+    at = lambda p: (
+        float(np.abs(np.asarray(teacher.hand.position) - p).max()) < 0.012
+    )  # a pixel is ~3 mm there
     try:
         page = open_page(browser, teacher)
         px = to_page(page, teacher)
         for dy in (0.16, 0.12):  # two demonstrations passing the can on the left
-            way = [hand, hand + (0.06, 0.5 * dy, 0), hand + (0.16, dy, 0), hand + (0.26, 0.75 * dy, 0),
-                   np.array([0.70, 0.06, hand[2]])]
+            way = [
+                hand,
+                hand + (0.06, 0.5 * dy, 0),
+                hand + (0.16, dy, 0),
+                hand + (0.26, 0.75 * dy, 0),
+                np.array([0.70, 0.06, hand[2]]),
+            ]
             drag(page, px, teacher, way, at, grab=grab)
             shows(page, "steps: OK")
             assert session.pending.quality.values["side"] == "left"
             click(page, "Keep")
-            wait_until(lambda: session.pending is None and teacher.follower.hand[0] < 0.41, "the arm back at its start")
+            wait_until(
+                lambda: session.pending is None and teacher.follower.hand[0] < 0.41,
+                "the arm back at its start",
+            )
         shows(page, "target reached")
         page.close()
     finally:
@@ -201,7 +259,10 @@ def test_the_arm_taught_by_dragging_its_hand(browser, tmp_path):
         torch.set_num_threads(threads)
     out = read_demos(session.folder, arm_demo_format(teach.task))
     assert len(out.demos) == 2 and torch.equal(out.envs, env.expand(2, 4))
-    exp = arm_reach.prepare(optimizer={"name": "pro", "beta": 200.0, "max_iter": 2, "num_samples": 10},
-                            task={"demos": str(session.folder), "priors": 0}, test={"num_envs": 2},
-                            dynamic={"episodes": 0})
+    exp = arm_reach.prepare(
+        optimizer={"name": "pro", "beta": 200.0, "max_iter": 2, "num_samples": 10},
+        task={"demos": str(session.folder), "priors": 0},
+        test={"num_envs": 2},
+        dynamic={"episodes": 0},
+    )
     assert exp.demo_labels.tolist() == [0, 0] and exp.describe()["demos"]["success_rate"] == 1.0

@@ -6,10 +6,9 @@ import json
 
 import pytest
 import torch
+from teleop_run import make_teleop_run  # tests/view/teleop_run.py (this folder is on sys.path)
 
 from protorch.view.teleop import CSV_COLUMNS, TeleopSession, study_order
-
-from teleop_run import make_teleop_run  # tests/view/teleop_run.py (this folder is on sys.path)
 
 
 @pytest.fixture(scope="module")
@@ -47,7 +46,14 @@ def test_the_adaptive_guide_steers_a_forward_push_through_and_no_guide_does_not(
 
 
 def test_study_mode_runs_the_conditions_counterbalanced(run_dir, tmp_path):
-    assert study_order(["none", "fixed", "adaptive"], 2) == ["none", "fixed", "adaptive", "fixed", "adaptive", "none"]
+    assert study_order(["none", "fixed", "adaptive"], 2) == [
+        "none",
+        "fixed",
+        "adaptive",
+        "fixed",
+        "adaptive",
+        "none",
+    ]
     session = TeleopSession(run_dir, study=1, conditions=["none", "adaptive"], out=tmp_path)
     assert session.start("adaptive")["condition"] == "none"  # the plan's, not the page's choice
     with pytest.raises(ValueError, match="unknown condition 'sometimes'"):

@@ -34,10 +34,14 @@ def test_a_scripted_person_drives_a_full_adaptive_trial(browser, tmp_path):
         page.click("#start")
         page.wait_for_function("() => document.getElementById('result').textContent === 'running'")
         page.keyboard.down("w")
-        page.wait_for_function("() => parseFloat(document.getElementById('time').textContent) > 1.5", timeout=60_000)
+        page.wait_for_function(
+            "() => parseFloat(document.getElementById('time').textContent) > 1.5", timeout=60_000
+        )
         page.screenshot(path=str(tmp_path / "running.png"))
-        page.wait_for_function("() => ['SUCCESS', 'FAILURE'].includes(document.getElementById('result').textContent)",
-                               timeout=90_000)
+        page.wait_for_function(
+            "() => ['SUCCESS', 'FAILURE'].includes(document.getElementById('result').textContent)",
+            timeout=90_000,
+        )
         page.keyboard.up("w")
         result = page.inner_text("#result")
         info = page.inner_text("#info")
@@ -47,9 +51,13 @@ def test_a_scripted_person_drives_a_full_adaptive_trial(browser, tmp_path):
         torch.set_num_threads(threads)
     rows = list(csv.DictReader((tmp_path / "study" / "trials.csv").open()))
     assert len(rows) == 1 and rows[0]["condition"] == "adaptive", info
-    assert rows[0]["success"] == ("1" if result == "SUCCESS" else "0")  # the page shows the trial's result
-    # pushing only forward, the guide brought the beam, rolled upright and back, to the end pose (not the
-    # time limit); touching the moving wall on the way is possible when a loaded machine makes the page slow
+    assert rows[0]["success"] == (
+        "1" if result == "SUCCESS" else "0"
+    )  # the page shows the trial's result
+    # pushing only forward, the guide brought the beam, rolled upright and back, to the end pose
+    # (not the
+    # time limit); touching the moving wall on the way is possible when a loaded machine makes the
+    # page slow
     assert float(rows[0]["time"]) < 60.0 and float(rows[0]["effort"]) > 0
     assert (tmp_path / "study" / "poses_000.csv").stat().st_size > 1000
     assert (tmp_path / "running.png").stat().st_size > 10_000

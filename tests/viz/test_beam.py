@@ -1,4 +1,5 @@
-"""Fig. 5 (c): via quaternions are drawn with the sign of the mean's curve (q and -q are one pose)."""
+"""Fig. 5 (c): via quaternions are drawn with the sign of the mean's curve (q and -q
+are one pose)."""
 
 import matplotlib
 
@@ -17,7 +18,9 @@ def test_via_markers_follow_the_curves_sign():
     phase = torch.linspace(0, 1, 51, dtype=torch.float64)
     curve = quaternion_slerp(q0, q1, phase)  # (51, 4)
     via_phases = phase[[0, 20, 50]]
-    via = curve[[0, 20, 50]] * torch.tensor([[1.0], [-1.0], [-1.0]], dtype=torch.float64)  # two given as -q
+    via = curve[[0, 20, 50]] * torch.tensor(
+        [[1.0], [-1.0], [-1.0]], dtype=torch.float64
+    )  # two given as -q
     fig, ax = plt.subplots()
     plot_quaternion_components(ax, phase, curve, via_phases=via_phases, via=via)
     markers = [line for line in ax.get_lines() if line.get_marker() == "o"]

@@ -35,14 +35,18 @@ def test_relevance_of_one_dofs_weights_and_its_labels():
     rel = torch.rand(3, 20, generator=torch.Generator().manual_seed(0))  # (O, N), 2 DoF x 10
     fig = new_figure((4, 3))
     ax = fig.subplots()
-    plot_relevance(ax, rel[:, :10], ["start", "window", "end"], xlabel="x weight index", legend_loc="below")
+    plot_relevance(
+        ax, rel[:, :10], ["start", "window", "end"], xlabel="x weight index", legend_loc="below"
+    )
     lines = ax.get_lines()
     assert len(lines) == 3 and all(len(line.get_xdata()) == 10 for line in lines)
     np.testing.assert_allclose(lines[1].get_ydata(), rel[1, :10].numpy())
     assert ax.get_xlabel() == "x weight index" and "relevance" in ax.get_ylabel()
     fig.canvas.draw()
     renderer = fig.canvas.get_renderer()
-    assert not _overlaps(ax.get_legend().get_window_extent(renderer), ax.get_window_extent(renderer))
+    assert not _overlaps(
+        ax.get_legend().get_window_extent(renderer), ax.get_window_extent(renderer)
+    )
 
 
 @pytest.mark.parametrize("panel", ["window", "particle", "online"])
@@ -60,8 +64,12 @@ def test_every_workspace_panel_has_axis_labels_with_units(panel):
         draw_online_frame(ax, pos, env, np.repeat(pos[None], 3, 0), t=2, legend=True)
         fig.canvas.draw()
         renderer = fig.canvas.get_renderer()
-        assert not _overlaps(ax.get_legend().get_window_extent(renderer), ax.get_window_extent(renderer))
-    assert "(" in ax.get_xlabel() and "(" in ax.get_ylabel()  # "x (unit square)", "y (workspace units)"
+        assert not _overlaps(
+            ax.get_legend().get_window_extent(renderer), ax.get_window_extent(renderer)
+        )
+    assert (
+        "(" in ax.get_xlabel() and "(" in ax.get_ylabel()
+    )  # "x (unit square)", "y (workspace units)"
 
 
 def test_every_marker_of_a_point_particle_panel_is_in_its_legend():
@@ -70,16 +78,30 @@ def test_every_marker_of_a_point_particle_panel_is_in_its_legend():
     ax = fig.subplots()
     plot_point_particle(ax, task, task.sample_envs(1, torch.Generator().manual_seed(0))[0])
     drawn = [a for a in (*ax.get_lines(), *ax.patches)]
-    assert drawn and all(not a.get_label().startswith("_") for a in drawn)  # nothing drawn without a label
+    assert drawn and all(
+        not a.get_label().startswith("_") for a in drawn
+    )  # nothing drawn without a label
     assert {"wall", "hole centre", "start", "goal"} <= {a.get_label() for a in drawn}
 
 
 def test_the_path_before_the_wall_moved_is_faded():
     t = 30
-    wall_x = np.r_[np.linspace(2.0, 5.0, 21), np.full(t + 1 - 21, 5.0)]  # the wall moves, then stops at step 20
-    env = np.column_stack([np.full(t + 1, 1.0), np.full(t + 1, 5.0), wall_x, np.full(t + 1, 5.0),
-                           np.full(t + 1, 9.0), np.full(t + 1, 5.0)])  # (T+1, 6)
-    assert past_path_split(env, t, 5) == 20  # solid since the wall stopped (more than the last 5 steps)
+    wall_x = np.r_[
+        np.linspace(2.0, 5.0, 21), np.full(t + 1 - 21, 5.0)
+    ]  # the wall moves, then stops at step 20
+    env = np.column_stack(
+        [
+            np.full(t + 1, 1.0),
+            np.full(t + 1, 5.0),
+            wall_x,
+            np.full(t + 1, 5.0),
+            np.full(t + 1, 9.0),
+            np.full(t + 1, 5.0),
+        ]
+    )  # (T+1, 6)
+    assert (
+        past_path_split(env, t, 5) == 20
+    )  # solid since the wall stopped (more than the last 5 steps)
     assert past_path_split(env, 15, 5) == 10  # moving: the last 5 steps only
     assert past_path_split(env[:, [0, 1, 2, 3, 4, 5]] * 0 + 1, t, 5) == 0  # never moved: all solid
     pos = np.column_stack([np.linspace(1, 8, t + 1), np.full(t + 1, 5.0)])
@@ -88,4 +110,8 @@ def test_the_path_before_the_wall_moved_is_faded():
     draw_online_frame(ax, pos, env, np.repeat(pos[None], t + 1, 0), t=15, dt=0.01, recent=0.05)
     paths = {line.get_label(): line for line in ax.get_lines() if "path" in line.get_label()}
     faded = paths["path earlier, faded: the wall has moved since"]
-    assert faded.get_alpha() < 0.5 and len(faded.get_xdata()) == 11 and len(paths["path"].get_xdata()) == 6
+    assert (
+        faded.get_alpha() < 0.5
+        and len(faded.get_xdata()) == 11
+        and len(paths["path"].get_xdata()) == 6
+    )

@@ -1,10 +1,12 @@
 """The GP map plus the self-improvement loop on fancy_gym's box pushing, over the box's goal pose.
 
-Set up once (its own venv; fancy_gym pins mujoco 2.3.3): ``bash benchmarks/studies/external/setup.sh``, then
+Set up once (its own venv; fancy_gym pins mujoco 2.3.3): ``bash
+benchmarks/studies/external/setup.sh``, then
 
-    benchmarks/studies/external/.venv/bin/python benchmarks/studies/external/loop.py --smoke     # minutes
+    benchmarks/studies/external/.venv/bin/python benchmarks/studies/external/loop.py --smoke
     benchmarks/studies/external/.venv/bin/python benchmarks/studies/external/loop.py \\
-        --train 20 --heldout 30 --max-iter 30 --json benchmarks/studies/results/external/loop/box_goal_loop.json
+        --train 20 --heldout 30 --max-iter 30 --json
+        benchmarks/studies/results/external/loop/box_goal_loop.json
 
 The task (:class:`BoxGoalTask`) is a task of the user's-own-task kind (docs/your_own_task.md):
 the environment vector is the goal pose ``(x, y, yaw)`` of ``fancy_ProMP/BoxPushingDense-v0``,
@@ -65,13 +67,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from protorch.data.files import atomic_write_bytes
 
-NUM_DOF, NUM_BASIS = 7, 5  # fancy_gym's box-pushing ProMP: 7 joints x 5 basis functions = 35 weights
-# the goal poses: the box starts at (0.4, 0.3) with yaw pi (fancy_gym's box_init_pos quaternion (0, 0, 0, 1))
+NUM_DOF, NUM_BASIS = (
+    7,
+    5,
+)  # fancy_gym's box-pushing ProMP: 7 joints x 5 basis functions = 35 weights
+# the goal poses: the box starts at (0.4, 0.3) with yaw pi (fancy_gym's box_init_pos quaternion (0,
+# 0, 0, 1))
 X_RANGE, Y_RANGE, YAW_RANGE = (0.35, 0.55), (-0.35, -0.05), (0.75 * math.pi, 1.25 * math.pi)
 
 
 def identity_promp(dtype: torch.dtype = torch.float64):
-    """A protorch ProMP whose trajectory is its weights: ``(..., 35) -> (..., 5, 7)``, basis ``I``."""
+    """A protorch ProMP whose trajectory is its weights: ``(..., 35) -> (..., 5, 7)``,
+    basis ``I``."""
     from protorch import ProMP
 
     promp = ProMP(NUM_DOF, NUM_BASIS, NUM_BASIS, width=1e-3, dtype=dtype)
@@ -81,7 +88,8 @@ def identity_promp(dtype: torch.dtype = torch.float64):
 
 
 class BoxGoalTask:
-    """Box pushing with the goal pose as the environment: a :class:`protorch.tasks.SelfImprovementTask`.
+    """Box pushing with the goal pose as the environment: a
+    :class:`protorch.tasks.SelfImprovementTask`.
 
     Args:
         episode: ``(weights (S, 35) float64, goals (S, 3) = (x, y, yaw)) -> S outcomes`` with
@@ -94,12 +102,22 @@ class BoxGoalTask:
     num_dof = NUM_DOF
     env_dim = 3
 
-    def __init__(self, episode: Callable | None = None, *, x_range=X_RANGE, y_range=Y_RANGE, yaw_range=YAW_RANGE,
-                 workers: int = 1) -> None:
+    def __init__(
+        self,
+        episode: Callable | None = None,
+        *,
+        x_range=X_RANGE,
+        y_range=Y_RANGE,
+        yaw_range=YAW_RANGE,
+        workers: int = 1,
+    ) -> None:
         self.lo = np.array([x_range[0], y_range[0], yaw_range[0]], dtype=np.float64)  # (3,)
         self.hi = np.array([x_range[1], y_range[1], yaw_range[1]], dtype=np.float64)  # (3,)
         if not np.all(self.hi >= self.lo):
-            raise ValueError(f"each range must be (low, high) with low <= high, got {x_range}, {y_range}, {yaw_range}")
+            raise ValueError(
+                f"each range must be (low, high) with low <= high, got {x_range}, {y_range}, "
+                f"{yaw_range}"
+            )
         self._episode, self.workers = episode, int(workers)
         self.cache: dict[bytes, object] = {}
         self.heldout: set[bytes] = set()  # env keys whose episodes count as held-out checks
@@ -109,10 +127,15 @@ class BoxGoalTask:
     # ---------------------------------------------------------------- poses
     def pose(self, env: Tensor) -> np.ndarray:
         """``env (..., 3)`` in the unit cube -> goal poses ``(..., 3) = (x, y, yaw)``."""
-        e = np.asarray(env.detach().cpu().double().numpy() if isinstance(env, Tensor) else env, dtype=np.float64)
+        e = np.asarray(
+            env.detach().cpu().double().numpy() if isinstance(env, Tensor) else env,
+            dtype=np.float64,
+        )
         return self.lo + e * (self.hi - self.lo)
 
-    def sample_envs(self, n: int, generator: torch.Generator, dtype: torch.dtype = torch.float64) -> Tensor:
+    def sample_envs(
+        self, n: int, generator: torch.Generator, dtype: torch.dtype = torch.float64
+    ) -> Tensor:
         """``n`` goal poses drawn uniformly in the ranges, as unit-cube vectors ``(n, 3)``."""
         return torch.rand(n, 3, generator=generator, dtype=torch.float64).to(dtype)
 
@@ -124,10 +147,13 @@ class BoxGoalTask:
     # ---------------------------------------------------------------- episodes
     @staticmethod
     def weights(traj: Tensor) -> Tensor:
-        """The identity ProMP's trajectories ``(..., 5, 7)`` -> its weights ``(..., 35)`` (DoF-major)."""
+        """The identity ProMP's trajectories ``(..., 5, 7)`` -> its weights ``(..., 35)``
+        (DoF-major)."""
         if traj.shape[-2:] != (NUM_BASIS, NUM_DOF):
-            raise ValueError(f"trajectories must be (..., {NUM_BASIS}, {NUM_DOF}) (identity_promp), "
-                             f"got {tuple(traj.shape)}")
+            raise ValueError(
+                f"trajectories must be (..., {NUM_BASIS}, {NUM_DOF}) (identity_promp), "
+                f"got {tuple(traj.shape)}"
+            )
         return traj.transpose(-1, -2).flatten(-2)
 
     def outcomes(self, traj: Tensor, env: Tensor) -> list:
@@ -135,8 +161,17 @@ class BoxGoalTask:
         each distinct (weights, goal) pair runs one episode, the rest come from the cache."""
         w = self.weights(traj)  # (..., 35)
         batch = torch.broadcast_shapes(w.shape[:-1], env.shape[:-1])
-        w = w.expand(*batch, w.shape[-1]).reshape(-1, w.shape[-1]).detach().cpu().double().numpy()  # (M, 35)
-        e = env.expand(*batch, env.shape[-1]).reshape(-1, env.shape[-1]).detach().cpu().double().numpy()  # (M, 3)
+        w = (
+            w.expand(*batch, w.shape[-1]).reshape(-1, w.shape[-1]).detach().cpu().double().numpy()
+        )  # (M, 35)
+        e = (
+            env.expand(*batch, env.shape[-1])
+            .reshape(-1, env.shape[-1])
+            .detach()
+            .cpu()
+            .double()
+            .numpy()
+        )  # (M, 3)
         keys = [wi.tobytes() + ei.tobytes() for wi, ei in zip(w, e)]
         todo = sorted({k: i for i, k in enumerate(keys) if k not in self.cache}.values())
         if todo:
@@ -147,7 +182,9 @@ class BoxGoalTask:
                 self._episode = lambda ws, gs: ep(ws, 0, gs)
             outs = self._episode(w[todo], self.pose(e[todo]))
             if len(outs) != len(todo):
-                raise ValueError(f"the episode function returned {len(outs)} outcomes for {len(todo)} episodes")
+                raise ValueError(
+                    f"the episode function returned {len(outs)} outcomes for {len(todo)} episodes"
+                )
             for i, o in zip(todo, outs):
                 self.cache[keys[i]] = o
                 if e[i].tobytes() in self.heldout:
@@ -170,7 +207,9 @@ class BoxGoalTask:
         return torch.tensor([bool(o.success) for o in out], device=traj.device).reshape(shape)
 
     def demonstrations(self, num_envs: int, per_env: int, generator: torch.Generator):
-        raise NotImplementedError("box pushing has no demonstrations here: the loop starts from a prior entry")
+        raise NotImplementedError(
+            "box pushing has no demonstrations here: the loop starts from a prior entry"
+        )
 
 
 def prior_dataset(task: BoxGoalTask, promp, start_std: float):
@@ -179,25 +218,45 @@ def prior_dataset(task: BoxGoalTask, promp, start_std: float):
 
     n = promp.num_weights
     ds = TrajectoryDataset(promp, task.env_dim, task_name=task.name, dtype=torch.float64)
-    ds.append(torch.full((task.env_dim,), 0.5, dtype=torch.float64), torch.zeros(n, dtype=torch.float64),
-              torch.full((n,), float(start_std) ** 2, dtype=torch.float64), origin="prior")
+    ds.append(
+        torch.full((task.env_dim,), 0.5, dtype=torch.float64),
+        torch.zeros(n, dtype=torch.float64),
+        torch.full((n,), float(start_std) ** 2, dtype=torch.float64),
+        origin="prior",
+    )
     return ds
 
 
 def describe(task: BoxGoalTask, promp, mean: Tensor, env: Tensor) -> list[dict]:
-    """Per pose: the pose, and the return, success and box distances of ``mean (P, 35)`` at ``env (P, 3)``."""
+    """Per pose: the pose, and the return, success and box distances of ``mean (P, 35)`` at ``env
+    (P, 3)``."""
     outs = task.outcomes(promp.trajectory(mean.to(promp.basis.dtype)), env.to(promp.basis.dtype))
     poses = task.pose(env)
-    return [{"x": float(p[0]), "y": float(p[1]), "yaw": float(p[2]), "return": o.ret, "success": bool(o.success),
-             "pos_dist": o.pos_dist, "rot_dist": o.rot_dist} for p, o in zip(poses, outs)]
+    return [
+        {
+            "x": float(p[0]),
+            "y": float(p[1]),
+            "yaw": float(p[2]),
+            "return": o.ret,
+            "success": bool(o.success),
+            "pos_dist": o.pos_dist,
+            "rot_dist": o.rot_dist,
+        }
+        for p, o in zip(poses, outs)
+    ]
 
 
 def summarise(rows: list[dict]) -> dict:
     if not rows:
         return {}
     med = lambda k: float(np.median([r[k] for r in rows]))  # noqa: E731
-    return {"poses": len(rows), "success": sum(r["success"] for r in rows), "median_return": med("return"),
-            "median_pos_dist": med("pos_dist"), "median_rot_dist": med("rot_dist")}
+    return {
+        "poses": len(rows),
+        "success": sum(r["success"] for r in rows),
+        "median_return": med("return"),
+        "median_pos_dist": med("pos_dist"),
+        "median_rot_dist": med("rot_dist"),
+    }
 
 
 def floats(text: str) -> tuple[float, float]:
@@ -221,29 +280,44 @@ def report(path: str) -> str:
     s, rows, st = out.get("summary", {}), out["rows"], out["meta"]["settings"]
     h, t = s.get("heldout", {}), s.get("train", {})
     started = sum(r.get("initial_success", 0) for r in rows[1:])
-    curve = ", ".join(f"{r['envs_done']}: {r['eval_success']:.2f}" for r in rows
-                      if r["envs_done"] % 5 == 0 or r is rows[-1])
-    cm = lambda d: f"{100 * d['median_pos_dist']:.1f} cm, {d['median_rot_dist']:.2f} rad" if d else "-"  # noqa: E731
+    curve = ", ".join(
+        f"{r['envs_done']}: {r['eval_success']:.2f}"
+        for r in rows
+        if r["envs_done"] % 5 == 0 or r is rows[-1]
+    )
+    cm = lambda d: (
+        f"{100 * d['median_pos_dist']:.1f} cm, {d['median_rot_dist']:.2f} rad" if d else "-"
+    )  # noqa: E731
     lines = [
-        "| quantity | value |", "|---|---|",
+        "| quantity | value |",
+        "|---|---|",
         f"| training goal poses tried (loop steps, `B = 1`) | {rows[-1]['envs_done']} |",
-        f"| training poses whose optimised mean succeeds | {sum(r.get('success', 0) for r in rows[1:])} / {rows[-1]['envs_done']} |",
+        "| training poses whose optimised mean succeeds | "
+        f"{sum(r.get('success', 0) for r in rows[1:])} / {rows[-1]['envs_done']} |",
         f"| ... already solved by the map's prediction (0 iterations) | {started} |",
-        f"| training episodes (optimiser samples + distinct means executed) | {s.get('episodes', rows[-1]['episodes'])} |",
+        "| training episodes (optimiser samples + distinct means executed) | "
+        f"{s.get('episodes', rows[-1]['episodes'])} |",
         f"| optimiser samples (`loop.rollouts`) | {s.get('rollouts', '-')} |",
-        f"| **held-out unseen goal poses: the map's mean succeeds** | **{h.get('success', '-')} / {h.get('poses', '-')}** |",
+        f"| **held-out unseen goal poses: the map's mean succeeds** | **{h.get('success', '-')} / "
+        f"{h.get('poses', '-')}** |",
         f"| held-out: median box distance to its goal (position, rotation) | {cm(h)} |",
-        f"| held-out: median return of the map's mean | {h.get('median_return', float('nan')):.1f} |",
+        f"| held-out: median return of the map's mean | {h.get('median_return', float('nan')):.1f} "
+        "|",
         f"| training poses: median box distance of the optimised means | {cm(t)} |",
         f"| held-out success against training poses tried | {curve} |",
-        f"| wall time (shared 2-core machine, `nice -n 19`) | {s.get('wall_seconds', rows[-1]['wall_seconds']) / 60:.0f} min |",
+        "| wall time (shared 2-core machine, `nice -n 19`) | "
+        f"{s.get('wall_seconds', rows[-1]['wall_seconds']) / 60:.0f} min |",
         f"| goal poses (x m, y m, yaw rad) | {fmt_ranges(out['meta']['ranges'])} |",
-        f"| settings | {st['optimizer']}, {st['samples']} samples, <= {st['max_iter']} iterations a pose, "
-        f"start N(0, {st['start_std']}^2 I), alpha {st['alpha']}, min_var {st['min_var']}, var_floor {st['var_floor']}, "
+        f"| settings | {st['optimizer']}, {st['samples']} samples, <= {st['max_iter']} iterations "
+        "a pose, "
+        f"start N(0, {st['start_std']}^2 I), alpha {st['alpha']}, min_var {st['min_var']}, "
+        f"var_floor {st['var_floor']}, "
         f"add_only {st['add_only']}, choice {st['choice']}, seed {st['seed']} |",
     ]
     if out.get("partial"):
-        lines.append(f"| (partial: the run had tried {rows[-1]['envs_done']} of {st['train']} poses) | |")
+        lines.append(
+            f"| (partial: the run had tried {rows[-1]['envs_done']} of {st['train']} poses) | |"
+        )
     return "\n".join(lines)
 
 
@@ -251,25 +325,61 @@ def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--train", type=int, default=20, help="training goal poses the loop tries")
     ap.add_argument("--heldout", type=int, default=30, help="unseen goal poses of the test")
-    ap.add_argument("--optimizer", default="CMAES", choices=("CMAES", "EPRO", "PRO", "CEM"), help="the loop's optimiser")
+    ap.add_argument(
+        "--optimizer",
+        default="CMAES",
+        choices=("CMAES", "EPRO", "PRO", "CEM"),
+        help="the loop's optimiser",
+    )
     ap.add_argument("--samples", type=int, default=20, help="samples per iteration")
     ap.add_argument("--max-iter", type=int, default=30, help="iterations per training pose at most")
-    ap.add_argument("--start-std", type=float, default=1.0, help="the prior entry is N(0, start_std^2 I)")
-    ap.add_argument("--min-var", type=float, default=0.04, help="floor on the map's predicted variance")
-    ap.add_argument("--var-floor", type=float, default=0.01, help="floor on a new entry's variance (its GP noise)")
-    ap.add_argument("--alpha", type=float, default=5.0, help="GP kernel exp(-alpha |e - e'|^2) on the unit cube")
+    ap.add_argument(
+        "--start-std", type=float, default=1.0, help="the prior entry is N(0, start_std^2 I)"
+    )
+    ap.add_argument(
+        "--min-var", type=float, default=0.04, help="floor on the map's predicted variance"
+    )
+    ap.add_argument(
+        "--var-floor",
+        type=float,
+        default=0.01,
+        help="floor on a new entry's variance (its GP noise)",
+    )
+    ap.add_argument(
+        "--alpha", type=float, default=5.0, help="GP kernel exp(-alpha |e - e'|^2) on the unit cube"
+    )
     ap.add_argument("--add-only", default="all", choices=("all", "success", "converged"))
-    ap.add_argument("--choice", default="nearest", choices=("nearest", "random"),
-                    help="the next training pose: the untried one nearest a known pose (the authors' curriculum) or in draw order")
+    ap.add_argument(
+        "--choice",
+        default="nearest",
+        choices=("nearest", "random"),
+        help="the next training pose: the untried one nearest a known pose (the authors' "
+        "curriculum) or in draw order",
+    )
     ap.add_argument("--x-range", type=floats, default=X_RANGE, metavar="LO,HI", help="goal x (m)")
     ap.add_argument("--y-range", type=floats, default=Y_RANGE, metavar="LO,HI", help="goal y (m)")
-    ap.add_argument("--yaw-range", type=floats, default=YAW_RANGE, metavar="LO,HI",
-                    help="goal yaw (rad about z; the box starts at pi)")
-    ap.add_argument("--seed", type=int, default=0, help="training poses and optimiser seeds; held-out: seed + 1")
+    ap.add_argument(
+        "--yaw-range",
+        type=floats,
+        default=YAW_RANGE,
+        metavar="LO,HI",
+        help="goal yaw (rad about z; the box starts at pi)",
+    )
+    ap.add_argument(
+        "--seed", type=int, default=0, help="training poses and optimiser seeds; held-out: seed + 1"
+    )
     ap.add_argument("--workers", type=int, default=1, help="processes the episodes are spread over")
-    ap.add_argument("--json", default=None, help="results file (default benchmarks/studies/results/external/loop/box_goal_loop.json)")
-    ap.add_argument("--smoke", action="store_true", help="2 training poses, 3 iterations, 3 held-out poses")
-    ap.add_argument("--report", metavar="JSON", help="print the markdown table of a results file and exit")
+    ap.add_argument(
+        "--json",
+        default=None,
+        help="results file (default benchmarks/studies/results/external/loop/box_goal_loop.json)",
+    )
+    ap.add_argument(
+        "--smoke", action="store_true", help="2 training poses, 3 iterations, 3 held-out poses"
+    )
+    ap.add_argument(
+        "--report", metavar="JSON", help="print the markdown table of a results file and exit"
+    )
     args = ap.parse_args(argv)
     if args.report:
         print(report(args.report))
@@ -277,10 +387,15 @@ def main(argv: list[str] | None = None) -> dict:
     if args.smoke:
         args.train, args.heldout, args.max_iter = 2, 3, 3
         args.json = args.json or "/tmp/box_goal_loop_smoke.json"
-    args.json = args.json or str(Path(__file__).resolve().parents[3] / "benchmarks/studies/results/external/loop/box_goal_loop.json")
+    args.json = args.json or str(
+        Path(__file__).resolve().parents[3]
+        / "benchmarks/studies/results/external/loop/box_goal_loop.json"
+    )
     for name in ("train", "heldout", "samples", "max_iter", "workers"):
         if getattr(args, name) < 1:
-            raise SystemExit(f"error: --{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+            raise SystemExit(
+                f"error: --{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}"
+            )
     import fancy_gym
     import mujoco
     from run import commit
@@ -293,17 +408,28 @@ def main(argv: list[str] | None = None) -> dict:
     torch.set_num_threads(1)
     optimizer = {"CMAES": CMAES, "EPRO": EPRO, "PRO": PRO, "CEM": CEM}[args.optimizer]
     kwargs = {"num_samples": args.samples, "max_iter": args.max_iter, "tol": 0.0}
-    kwargs.update({"PRO": {"beta": 0.05, "relevance_samples": args.samples, "noise_floor": 3.0},
-                   "CEM": {"elite_frac": 0.1}}.get(args.optimizer, {}))
-    task = BoxGoalTask(x_range=args.x_range, y_range=args.y_range, yaw_range=args.yaw_range, workers=args.workers)
+    kwargs.update(
+        {
+            "PRO": {"beta": 0.05, "relevance_samples": args.samples, "noise_floor": 3.0},
+            "CEM": {"elite_frac": 0.1},
+        }.get(args.optimizer, {})
+    )
+    task = BoxGoalTask(
+        x_range=args.x_range, y_range=args.y_range, yaw_range=args.yaw_range, workers=args.workers
+    )
     promp = identity_promp()
     heldout = task.sample_envs(args.heldout, torch.Generator().manual_seed(args.seed + 1))  # (Q, 3)
     task.mark_heldout(heldout)
-    meta = {"command": "python benchmarks/studies/external/loop.py " + shlex.join(sys.argv[1:] if argv is None else argv),
-            "commit": commit(), "fancy_gym": getattr(fancy_gym, "__version__", "0.3.0"), "mujoco": mujoco.__version__,
-            "ranges": {"x": list(args.x_range), "y": list(args.y_range), "yaw": list(args.yaw_range)},
-            "settings": {k: v for k, v in vars(args).items() if k != "json"},
-            "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+    meta = {
+        "command": "python benchmarks/studies/external/loop.py "
+        + shlex.join(sys.argv[1:] if argv is None else argv),
+        "commit": commit(),
+        "fancy_gym": getattr(fancy_gym, "__version__", "0.3.0"),
+        "mujoco": mujoco.__version__,
+        "ranges": {"x": list(args.x_range), "y": list(args.y_range), "yaw": list(args.yaw_range)},
+        "settings": {k: v for k, v in vars(args).items() if k != "json"},
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+    }
     out: dict = {"meta": meta, "rows": [], "partial": True}
     t0 = time.perf_counter()
 
@@ -311,27 +437,59 @@ def main(argv: list[str] | None = None) -> dict:
         atomic_write_bytes(args.json, json.dumps(out, indent=1).encode())
 
     def on_step(row: dict) -> None:
-        out["rows"].append({**row, "episodes": task.episodes, "heldout_episodes": task.heldout_episodes,
-                            "wall_seconds": round(time.perf_counter() - t0, 1)})
+        out["rows"].append(
+            {
+                **row,
+                "episodes": task.episodes,
+                "heldout_episodes": task.heldout_episodes,
+                "wall_seconds": round(time.perf_counter() - t0, 1),
+            }
+        )
         write()
-        print(f"step {row['step']}: success {row['success']} (start {row['initial_success']}), "
-              f"iterations {row['iterations_mean']}, held-out {row['eval_success']}, episodes {task.episodes}, "
-              f"{time.perf_counter() - t0:.0f} s", flush=True)
+        print(
+            f"step {row['step']}: success {row['success']} (start {row['initial_success']}), "
+            f"iterations {row['iterations_mean']}, held-out {row['eval_success']}, episodes "
+            f"{task.episodes}, "
+            f"{time.perf_counter() - t0:.0f} s",
+            flush=True,
+        )
 
-    res = self_improve(task, promp, prior_dataset(task, promp, args.start_std), optimizer=optimizer,
-                       optimizer_kwargs=kwargs, env_map=lambda: make_env_map("torch", args.alpha), num_envs=args.train,
-                       batch_size=1, add_only=args.add_only, choice=args.choice, solved=task.success, seed=args.seed, eval_envs=heldout,
-                       min_var=args.min_var, var_floor=args.var_floor, threads=1, on_step=on_step)
-    out["rows"].insert(0, {**res.metrics[0], "episodes": 0, "heldout_episodes": 0, "wall_seconds": 0.0})
+    res = self_improve(
+        task,
+        promp,
+        prior_dataset(task, promp, args.start_std),
+        optimizer=optimizer,
+        optimizer_kwargs=kwargs,
+        env_map=lambda: make_env_map("torch", args.alpha),
+        num_envs=args.train,
+        batch_size=1,
+        add_only=args.add_only,
+        choice=args.choice,
+        solved=task.success,
+        seed=args.seed,
+        eval_envs=heldout,
+        min_var=args.min_var,
+        var_floor=args.var_floor,
+        threads=1,
+        on_step=on_step,
+    )
+    out["rows"].insert(
+        0, {**res.metrics[0], "episodes": 0, "heldout_episodes": 0, "wall_seconds": 0.0}
+    )
     mean_q = res.env_map.predict_mean(heldout)  # (Q, 35)
     out["heldout"] = describe(task, promp, mean_q, heldout)
     ds = res.dataset
     keep = ds.origin == ORIGINS.index("learned")  # (M,) the loop's solutions
     out["train"] = describe(task, promp, ds.mean[keep], ds.env[keep])
-    out["summary"] = {"heldout": summarise(out["heldout"]), "train": summarise(out["train"]),
-                      "episodes": task.episodes, "heldout_episodes": task.heldout_episodes,
-                      "rollouts": int(sum(r.get("rollouts") or 0 for r in res.metrics[1:])),
-                      "loop_seconds": round(res.seconds, 1), "wall_seconds": round(time.perf_counter() - t0, 1)}
+    out["summary"] = {
+        "heldout": summarise(out["heldout"]),
+        "train": summarise(out["train"]),
+        "episodes": task.episodes,
+        "heldout_episodes": task.heldout_episodes,
+        "rollouts": int(sum(r.get("rollouts") or 0 for r in res.metrics[1:])),
+        "loop_seconds": round(res.seconds, 1),
+        "wall_seconds": round(time.perf_counter() - t0, 1),
+    }
     out["partial"] = False
     write()
     print(json.dumps(out["summary"], indent=1))

@@ -1,6 +1,7 @@
 """The external harness's episodes with and without :func:`tasks.speed_up`, side by side.
 
-    benchmarks/studies/external/.venv/bin/python benchmarks/studies/external/speed.py --tasks via_point_reacher,hole_reacher
+    benchmarks/studies/external/.venv/bin/python benchmarks/studies/external/speed.py --tasks
+    via_point_reacher,hole_reacher
 
 Per task: (1) a short optimiser run (``--optimizer``, seed 0, context 1, ``--episodes``) on each
 env, the two results compared field by field (every curve point, the best sample, the first
@@ -34,7 +35,8 @@ TIMINGS = ("seconds", "cpu_seconds")
 
 
 def same_run(task: str, optimizer: str, episodes: int) -> tuple[bool, dict, dict]:
-    """One ``run.run_one`` on the plain env and one on the sped-up env: equal but for the timings?"""
+    """One ``run.run_one`` on the plain env and one on the sped-up env: equal but for
+    the timings?"""
     from run import make_optimizer, run_one
     from tasks import Episodes
 
@@ -48,7 +50,8 @@ def same_run(task: str, optimizer: str, episodes: int) -> tuple[bool, dict, dict
 
 
 def timing(task: str, batches: int, seed: int = 0) -> tuple[float, float]:
-    """Median milliseconds per episode (plain, sped up) over ``batches`` interleaved batches of 20."""
+    """Median milliseconds per episode (plain, sped up) over ``batches`` interleaved
+    batches of 20."""
     from tasks import Episodes
 
     plain, fast = Episodes(task, fast=False), Episodes(task, fast=True)
@@ -65,7 +68,14 @@ def timing(task: str, batches: int, seed: int = 0) -> tuple[float, float]:
     return statistics.median(per[False]), statistics.median(per[True])
 
 
-PROFILED = ("get_trajectory", "get_wrapper_attr", "warn", "_check_self_collision", "check_wall_collision", "render")
+PROFILED = (
+    "get_trajectory",
+    "get_wrapper_attr",
+    "warn",
+    "_check_self_collision",
+    "check_wall_collision",
+    "render",
+)
 
 
 def profile(task: str, episodes: int, seed: int = 0) -> None:
@@ -77,7 +87,9 @@ def profile(task: str, episodes: int, seed: int = 0) -> None:
 
     for fast in (False, True):
         env = make_env(task, fast)
-        w = np.random.default_rng(seed).standard_normal((episodes + 1, env.action_space.shape[0]))  # (E + 1, N)
+        w = np.random.default_rng(seed).standard_normal(
+            (episodes + 1, env.action_space.shape[0])
+        )  # (E + 1, N)
         run_episode(env, w[0], 1)  # warm-up: imports, first allocations
         prof = cProfile.Profile()
         prof.enable()
@@ -88,32 +100,48 @@ def profile(task: str, episodes: int, seed: int = 0) -> None:
         share: dict[str, float] = {}
         for (_, _, fn), (_, _, _, cum, _) in stats.stats.items():
             if fn in PROFILED:
-                share[fn] = max(share.get(fn, 0.0), cum / stats.total_tt)  # the outermost call of a recursion
+                share[fn] = max(
+                    share.get(fn, 0.0), cum / stats.total_tt
+                )  # the outermost call of a recursion
         parts = ", ".join(f"{fn} {100 * share.get(fn, 0.0):.1f} %" for fn in PROFILED)
-        print(f"{task} ({'sped up' if fast else 'plain'}), shares of the profiled time: {parts}", flush=True)
+        print(
+            f"{task} ({'sped up' if fast else 'plain'}), shares of the profiled time: {parts}",
+            flush=True,
+        )
 
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--tasks", default="via_point_reacher,hole_reacher")
     ap.add_argument("--optimizer", default="EPRO")
-    ap.add_argument("--episodes", type=int, default=400, help="budget of the compared optimiser runs")
+    ap.add_argument(
+        "--episodes", type=int, default=400, help="budget of the compared optimiser runs"
+    )
     ap.add_argument("--batches", type=int, default=10, help="timed batches of 20 episodes per env")
-    ap.add_argument("--profile", action="store_true", help="where an episode's time goes, instead of the table")
+    ap.add_argument(
+        "--profile", action="store_true", help="where an episode's time goes, instead of the table"
+    )
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     if args.profile:
         for task in args.tasks.split(","):
             profile(task, 20 * args.batches)
         return
-    print("| task | optimiser run (seed 0, context 1) | plain env, ms / episode | sped up, ms / episode | ratio |")
+    print(
+        "| task | optimiser run (seed 0, context 1) | plain env, ms / episode | sped up, ms / "
+        "episode | ratio |"
+    )
     print("|---|---|---|---|---|")
     for task in args.tasks.split(","):
         equal, a, _ = same_run(task, args.optimizer, args.episodes)
         slow, fast = timing(task, args.batches)
         verdict = "identical" if equal else "DIFFERENT"
-        print(f"| {task} | {args.optimizer}, {a['episodes']} episodes, final return {a['final_return']!r}: {verdict} | "
-              f"{slow:.1f} | {fast:.1f} | {slow / fast:.2f} |", flush=True)
+        print(
+            f"| {task} | {args.optimizer}, {a['episodes']} episodes, final return "
+            f"{a['final_return']!r}: {verdict} | "
+            f"{slow:.1f} | {fast:.1f} | {slow / fast:.2f} |",
+            flush=True,
+        )
         if not equal:
             raise SystemExit(f"{task}: the sped-up env changed a result")
 

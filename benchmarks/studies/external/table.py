@@ -1,8 +1,10 @@
-"""Tables of docs/external.md from the JSON files of benchmarks/studies/external/run.py (any Python with
+"""Tables of docs/external.md from the JSON files of benchmarks/studies/external/run.py (any Python
+with
 protorch; fancy_gym is not needed):
 
     python benchmarks/studies/external/table.py benchmarks/studies/results/external/*.json --at 1600
-    python benchmarks/studies/external/table.py FILES... --at 1600 --doc docs/external.md --marker summary
+    python benchmarks/studies/external/table.py FILES... --at 1600 --doc docs/external.md --marker
+    summary
 
 Per (task, optimiser), over its runs (contexts x seeds) that reached ``--at`` episodes: how many
 final means succeed, the median return of the mean at ``--at`` episodes, how many runs drew a
@@ -31,7 +33,9 @@ def load(paths: list[str]) -> tuple[list[dict], list[dict]]:
         data = json.loads(Path(p).read_text())
         metas.append(data["meta"])
         for r in data["runs"]:
-            runs.append({"commit": data["meta"].get("commit", "?"), **r, "file": Path(p).name})  # a run's own commit first
+            runs.append(
+                {"commit": data["meta"].get("commit", "?"), **r, "file": Path(p).name}
+            )  # a run's own commit first
     return runs, metas
 
 
@@ -59,33 +63,50 @@ def summary(runs: list[dict], episodes: int) -> list[str]:
         c = at(r, episodes)
         if c is not None and r["episodes"] + 20 > episodes:  # the run had this budget
             groups[(r["task"], r["optimizer"])].append((r, c))
-    head = ("| task | optimiser | runs (contexts x seeds) | final mean succeeds | median return of the mean | "
-            "a sample succeeded | median episode of the first success | median best sample's return | "
-            "box: median mean's distance to goal (cm, rad) |")
+    head = (
+        "| task | optimiser | runs (contexts x seeds) | final mean succeeds | median return of the "
+        "mean | "
+        "a sample succeeded | median episode of the first success | median best sample's return | "
+        "box: median mean's distance to goal (cm, rad) |"
+    )
     lines = [head, "|---|---|---|---|---|---|---|---|---|"]
     for (task, opt), items in sorted(groups.items()):
         n = len(items)
         ctx = sorted({r["context"] for r, _ in items})
         seeds = sorted({r["seed"] for r, _ in items})
-        firsts = [r["first_success"] for r, _ in items if r["first_success"] is not None and r["first_success"] <= episodes]
+        firsts = [
+            r["first_success"]
+            for r, _ in items
+            if r["first_success"] is not None and r["first_success"] <= episodes
+        ]
         box = "-"
         if task == "box_pushing":
-            pos, rot = median([c["mean_pos_dist"] * 100 for _, c in items]), median([c["mean_rot_dist"] for _, c in items])
+            pos, rot = (
+                median([c["mean_pos_dist"] * 100 for _, c in items]),
+                median([c["mean_rot_dist"] for _, c in items]),
+            )
             box = f"{fmt(pos)}, {fmt(rot, '.2f')}"
         lines.append(
-            f"| {task} | {opt} | {n} ({len(ctx)} x {len(seeds)}) | {sum(c['mean_success'] for _, c in items)} / {n} | "
-            f"{fmt(median([c['mean_return'] for _, c in items]))} | {len(firsts)} / {n} | {fmt(median(firsts), '.0f')} | "
-            f"{fmt(median([c['best_return'] for _, c in items]))} | {box} |")
+            f"| {task} | {opt} | {n} ({len(ctx)} x {len(seeds)}) | "
+            f"{sum(c['mean_success'] for _, c in items)} / {n} | "
+            f"{fmt(median([c['mean_return'] for _, c in items]))} | {len(firsts)} / {n} | "
+            f"{fmt(median(firsts), '.0f')} | "
+            f"{fmt(median([c['best_return'] for _, c in items]))} | {box} |"
+        )
     return lines
 
 
 def curve(runs: list[dict], points: list[int]) -> list[str]:
     groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for r in runs:
-        if not r.get("partial"):  # a run cut short (still going, or stopped) is not a run of its budget
+        if not r.get(
+            "partial"
+        ):  # a run cut short (still going, or stopped) is not a run of its budget
             groups[(r["task"], r["optimizer"])].append(r)
-    lines = ["| task | optimiser | runs | " + " | ".join(f"{p}" for p in points) + " |",
-             "|---|---|---|" + "---|" * len(points)]
+    lines = [
+        "| task | optimiser | runs | " + " | ".join(f"{p}" for p in points) + " |",
+        "|---|---|---|" + "---|" * len(points),
+    ]
     for (task, opt), rs in sorted(groups.items()):
         cells = []
         for p in points:
@@ -112,19 +133,37 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("files", nargs="+")
     ap.add_argument("--at", type=int, default=1600, help="episodes the summary is read at")
-    ap.add_argument("--curve", default="", help="comma-separated episode counts: the mean's median return there")
+    ap.add_argument(
+        "--curve", default="", help="comma-separated episode counts: the mean's median return there"
+    )
     ap.add_argument("--doc", default=None)
     ap.add_argument("--marker", default="summary")
     args = ap.parse_args(argv)
     runs, metas = load(args.files)
-    lines = curve(runs, [int(x) for x in args.curve.split(",")]) if args.curve else summary(runs, args.at)
+    lines = (
+        curve(runs, [int(x) for x in args.curve.split(",")])
+        if args.curve
+        else summary(runs, args.at)
+    )
     commits = sorted({r["commit"] for r in runs} or {m.get("commit", "?") for m in metas})
-    cmd = "python benchmarks/studies/external/table.py " + shlex.join(sys.argv[1:] if argv is None else argv)
+    cmd = "python benchmarks/studies/external/table.py " + shlex.join(
+        sys.argv[1:] if argv is None else argv
+    )
     runs_cmds = sorted({m["command"] for m in metas})
-    first = commits[0].split("+")[0]  # the docs' convention (tests/docs_tables.py): commit and command above the table
+    first = commits[0].split("+")[
+        0
+    ]  # the docs' convention (tests/docs_tables.py): commit and command above the table
     comment = f'<!-- measured: commit={first} command="{cmd}" -->'
-    text = comment + "\n" + "\n".join(lines) + "\n\n" + f"Table: `{cmd}`; runs at commit(s) {', '.join(commits)}:\n" + "\n".join(
-        f"`{c}`" + ("" if i == len(runs_cmds) - 1 else ",") for i, c in enumerate(runs_cmds))
+    text = (
+        comment
+        + "\n"
+        + "\n".join(lines)
+        + "\n\n"
+        + f"Table: `{cmd}`; runs at commit(s) {', '.join(commits)}:\n"
+        + "\n".join(
+            f"`{c}`" + ("" if i == len(runs_cmds) - 1 else ",") for i, c in enumerate(runs_cmds)
+        )
+    )
     if args.doc:
         write_doc(Path(args.doc), args.marker, text)
     print(text)

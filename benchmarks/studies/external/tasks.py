@@ -1,5 +1,6 @@
 """fancy_gym's ProMP tasks as black-box objectives: one episode per weight vector, one context per
-``env.reset(seed=context)`` (needs the external venv: ``bash benchmarks/studies/external/setup.sh``).
+``env.reset(seed=context)`` (needs the external venv: ``bash
+benchmarks/studies/external/setup.sh``).
 
 An episode: ``env.reset(seed=context)`` then one ``env.step(weights)``, which runs the whole
 ProMP trajectory with the task's own tracking controller and returns the episode's return and
@@ -36,7 +37,9 @@ def task_id(name: str) -> str:
         return TASKS[name]
     if name in TASKS.values():
         return name
-    raise ValueError(f"unknown task {name!r}; choose one of {sorted(TASKS)} (or their fancy_gym ids)")
+    raise ValueError(
+        f"unknown task {name!r}; choose one of {sorted(TASKS)} (or their fancy_gym ids)"
+    )
 
 
 def short_name(name: str) -> str:
@@ -44,7 +47,8 @@ def short_name(name: str) -> str:
 
 
 def patch_via_point_reward() -> None:
-    """Make ViaPointReacher's non-evaluation steps cost their acceleration term only (see module)."""
+    """Make ViaPointReacher's non-evaluation steps cost their acceleration term only
+    (see module)."""
     from fancy_gym.envs.classic_control.viapoint_reacher.viapoint_reacher import ViaPointReacherEnv
 
     if getattr(ViaPointReacherEnv, "_protorch_patched", False):
@@ -56,7 +60,7 @@ def patch_via_point_reward() -> None:
         if reward == -math.inf and not info["is_collided"]:
             target = {100: self._via_point, 199: self._goal}.get(self._steps)
             dist = 0.0 if target is None else float(np.linalg.norm(self.end_effector - target))
-            reward = -dist**2 - 5e-8 * float(np.sum(np.asarray(acc) ** 2))
+            reward = -(dist**2) - 5e-8 * float(np.sum(np.asarray(acc) ** 2))
         return reward, info
 
     ViaPointReacherEnv._get_reward = _get_reward
@@ -169,17 +173,31 @@ def _memo_collisions(cls: type) -> type:
             def compute():
                 if self.allow_self_collision:
                     return False
-                if np.any(self._joint_angles > self.j_max) or np.any(self._joint_angles < self.j_min):
+                if np.any(self._joint_angles > self.j_max) or np.any(
+                    self._joint_angles < self.j_min
+                ):
                     return True
-                pts = self._joints.tolist()  # (n_links + 1, 2) floats: link i runs pts[i] -> pts[i + 1]
+                pts = (
+                    self._joints.tolist()
+                )  # (n_links + 1, 2) floats: link i runs pts[i] -> pts[i + 1]
                 n = len(pts) - 1
-                return any(intersect(pts[i], pts[i + 1], pts[j], pts[j + 1]) for i in range(n) for j in range(i + 2, n))
+                return any(
+                    intersect(pts[i], pts[i + 1], pts[j], pts[j + 1])
+                    for i in range(n)
+                    for j in range(i + 2, n)
+                )
 
             return once(self, "self", compute)
 
-        body = {"_check_self_collision": _check_self_collision, "_protorch_memo": True, "__module__": cls.__module__}
+        body = {
+            "_check_self_collision": _check_self_collision,
+            "_protorch_memo": True,
+            "__module__": cls.__module__,
+        }
         if hasattr(cls, "check_wall_collision"):
-            body["check_wall_collision"] = lambda self: once(self, "wall", lambda: cls.check_wall_collision(self))
+            body["check_wall_collision"] = lambda self: once(
+                self, "wall", lambda: cls.check_wall_collision(self)
+            )
 
         def reset(self, *args, **kwargs):
             self.__dict__.pop("_protorch_collisions", None)
@@ -201,7 +219,8 @@ class Outcome:
 
 
 def set_box_goal(env, goal) -> None:
-    """Put box pushing's goal pose at ``goal = (x, y, yaw)`` (metres, radians about z), after a reset.
+    """Put box pushing's goal pose at ``goal = (x, y, yaw)`` (metres, radians about z), after a
+    reset.
 
     fancy_gym 0.3.0's ``BoxPushingEnvBase.reset_model`` draws the goal and writes it into the MuJoCo
     model's bodies ``target_pos`` and ``replan_target_pos`` (position and quaternion, ``w`` first);
@@ -226,10 +245,17 @@ def run_episode(env, weights: np.ndarray, context: int, goal=None) -> Outcome:
     if goal is not None:
         set_box_goal(env, goal)
     _, ret, _, _, info = env.step(np.asarray(weights, dtype=np.float64))
-    last = {k: np.asarray(v).reshape(-1)[-1] for k, v in info.items()
-            if k in ("is_success", "box_goal_pos_dist", "box_goal_rot_dist") and np.size(v)}
-    return Outcome(float(ret), bool(last.get("is_success", False)),
-                   float(last.get("box_goal_pos_dist", math.nan)), float(last.get("box_goal_rot_dist", math.nan)))
+    last = {
+        k: np.asarray(v).reshape(-1)[-1]
+        for k, v in info.items()
+        if k in ("is_success", "box_goal_pos_dist", "box_goal_rot_dist") and np.size(v)
+    }
+    return Outcome(
+        float(ret),
+        bool(last.get("is_success", False)),
+        float(last.get("box_goal_pos_dist", math.nan)),
+        float(last.get("box_goal_rot_dist", math.nan)),
+    )
 
 
 class Episodes:
@@ -244,7 +270,9 @@ class Episodes:
         if self.workers > 1:
             import multiprocessing as mp
 
-            self.pool = mp.get_context("spawn").Pool(self.workers, initializer=_init_worker, initargs=(self.name, fast))
+            self.pool = mp.get_context("spawn").Pool(
+                self.workers, initializer=_init_worker, initargs=(self.name, fast)
+            )
 
     @property
     def num_weights(self) -> int:

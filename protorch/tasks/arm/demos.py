@@ -8,11 +8,18 @@ from torch import Tensor
 
 from ...checks import check_tensor
 from ...data.demos import DemoFolder, DemoFormat, read_demo_folder
-from .geometry import LEFT, RIGHT
 from ..curves import catmull_rom, smooth_noise
+from .geometry import LEFT, RIGHT
 
-__all__ = ["arm_demo_format", "beside_can", "detour_paths", "follow_path", "ik_demonstrations", "read_arm_demos",
-           "straight_paths"]
+__all__ = [
+    "arm_demo_format",
+    "beside_can",
+    "detour_paths",
+    "follow_path",
+    "ik_demonstrations",
+    "read_arm_demos",
+    "straight_paths",
+]
 
 
 def arm_demo_format(task) -> DemoFormat:
@@ -21,9 +28,14 @@ def arm_demo_format(task) -> DemoFormat:
     ``envK.out`` the 4 numbers ``can_x can_y goal_x goal_y`` (metres), each on the table."""
     kin = task.kinematics
     (x0, x1), (y0, y1) = task.table
-    return DemoFormat(tuple(kin.joint_names), tuple(task.env_names),
-                      tuple(zip(kin.lower.tolist(), kin.upper.tolist())), ((x0, x1), (y0, y1)) * 2,
-                      "the joint limits", "the table")
+    return DemoFormat(
+        tuple(kin.joint_names),
+        tuple(task.env_names),
+        tuple(zip(kin.lower.tolist(), kin.upper.tolist())),
+        ((x0, x1), (y0, y1)) * 2,
+        "the joint limits",
+        "the table",
+    )
 
 
 def read_arm_demos(task, folder, cleaning=None) -> tuple[DemoFolder, Tensor]:
@@ -41,8 +53,9 @@ def read_arm_demos(task, folder, cleaning=None) -> tuple[DemoFolder, Tensor]:
     return demos, labels  # (n,)
 
 
-def follow_path(task, path: Tensor, *, iters: int = 8, first_iters: int = 60, compiled: bool = False
-                ) -> tuple[Tensor, Tensor]:
+def follow_path(
+    task, path: Tensor, *, iters: int = 8, first_iters: int = 60, compiled: bool = False
+) -> tuple[Tensor, Tensor]:
     """:meth:`~protorch.tasks.ArmReachTask.ik_path` of ``task``: joint trajectories following the
     end-effector paths ``(n, T, 3)``; ``(q (n, T, 7), position error (n, T))``. ``compiled``: the
     compiled chain's Jacobian (:meth:`~protorch.robots.ArmKinematics.jacobian_pose`)."""
@@ -52,13 +65,21 @@ def follow_path(task, path: Tensor, *, iters: int = 8, first_iters: int = 60, co
     path = path.to(dtype=dtype, device=device)
     n, t_len = path.shape[:2]
     rest = task.start_config(dtype, device)
-    rot = kin.ee_pose(rest)[:3, :3].expand(n, 3, 3)  # the hand keeps its start orientation (pointing down)
+    rot = kin.ee_pose(rest)[:3, :3].expand(
+        n, 3, 3
+    )  # the hand keeps its start orientation (pointing down)
     q = rest.expand(n, -1).clone()  # (n, J)
     out = torch.empty(n, t_len, kin.num_joints, dtype=dtype, device=device)
     err = torch.empty(n, t_len, dtype=dtype, device=device)
     for t in range(t_len):
-        q, err[:, t] = kin.inverse(path[:, t], q, rotation=rot, rest=rest, iters=first_iters if t == 0 else iters,
-                                   compiled=compiled)
+        q, err[:, t] = kin.inverse(
+            path[:, t],
+            q,
+            rotation=rot,
+            rest=rest,
+            iters=first_iters if t == 0 else iters,
+            compiled=compiled,
+        )
         out[:, t] = q
     return out, err
 
@@ -84,7 +105,9 @@ def beside_can(task, env: Tensor, side: Tensor, distance: Tensor) -> Tensor:
     return env[:, :2] + sign * distance * normal
 
 
-def detour_paths(task, env: Tensor, side: Tensor | int, distance: float, num_steps: int = 100) -> Tensor:
+def detour_paths(
+    task, env: Tensor, side: Tensor | int, distance: float, num_steps: int = 100
+) -> Tensor:
     """The demonstrator's path without its noise: from the start through the point ``distance``
     beside the can on ``side`` (:func:`beside_can`, at the target's height) to the target of each
     environment ``env (n, 4)``, a Catmull-Rom curve with a minimum-jerk time profile:
@@ -134,11 +157,15 @@ def ik_demonstrations(
     n = e.shape[0]
     s = task.start_position()  # (3,)
     goal = task.goal_point(e)  # (n, 3)
-    dist = pass_distance[0] + (pass_distance[1] - pass_distance[0]) * torch.rand(n, 1, generator=g_, dtype=f64)
+    dist = pass_distance[0] + (pass_distance[1] - pass_distance[0]) * torch.rand(
+        n, 1, generator=g_, dtype=f64
+    )
     beside = beside_can(task, e, side, dist)  # (n, 2) beside the can, perpendicular to the line
     lift = 0.03 * torch.rand(n, 1, generator=g_, dtype=f64)  # (n, 1)
     h = task.ee_height
-    end = goal + torch.cat([goal_noise * torch.randn(n, 2, generator=g_, dtype=f64), torch.zeros(n, 1, dtype=f64)], -1)
+    end = goal + torch.cat(
+        [goal_noise * torch.randn(n, 2, generator=g_, dtype=f64), torch.zeros(n, 1, dtype=f64)], -1
+    )
     via = torch.stack([s.expand(n, 3), torch.cat([beside, h + lift], -1), end], 1)  # (n, 3, 3)
     length = torch.randint(t_min, t_max + 1, (n, 1), generator=g_)  # (n, 1)
     skew = 0.8 + 0.45 * torch.rand(n, 1, generator=g_, dtype=f64)  # (n, 1)
@@ -146,7 +173,9 @@ def ik_demonstrations(
     v = u**skew
     prog = v**3 * (10 - 15 * v + 6 * v**2)  # (n, T_max) minimum-jerk progress along the path
     path = catmull_rom(via, prog)  # (n, T_max, 3)
-    wobble = smooth_noise(u, tremor, g_, dim=3) * torch.sin(torch.pi * prog)[..., None]  # (n, T_max, 3)
+    wobble = (
+        smooth_noise(u, tremor, g_, dim=3) * torch.sin(torch.pi * prog)[..., None]
+    )  # (n, T_max, 3)
     path = path + wobble
     q, _ = task.ik_path(path)  # (n, T_max, 7)
     q = q.to(torch.float64).cpu()

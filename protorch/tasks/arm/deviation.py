@@ -20,7 +20,8 @@ DEVIATIONS = ("segment", "time")
 
 
 def segment_deviation(p: Tensor, s: Tensor, g: Tensor) -> Tensor:
-    """Distance of points ``p (..., T, 3)`` to the segments ``s -> g`` (``(..., 3)``): ``(..., T)``."""
+    """Distance of points ``p (..., T, 3)`` to the segments ``s -> g`` (``(..., 3)``): ``(...,
+    T)``."""
     d = (g - s)[..., None, :]  # (..., 1, 3)
     u = ((p - s[..., None, :]) * d).sum(-1) / d.square().sum(-1).clamp_min(1e-12)  # (..., T)
     return (p - s[..., None, :] - u.clamp(0, 1)[..., None] * d).norm(dim=-1)

@@ -8,11 +8,21 @@ import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["LEFT", "RIGHT", "SIDES", "broadcast_shape", "down_rotation", "point_segment_distance",
-           "segment_axis_distance", "segment_axis_closest",
-           "point_cylinder_distance", "segment_cylinder_distance", "segment_cylinder_within"]
+__all__ = [
+    "LEFT",
+    "RIGHT",
+    "SIDES",
+    "broadcast_shape",
+    "down_rotation",
+    "point_segment_distance",
+    "segment_axis_distance",
+    "segment_axis_closest",
+    "point_cylinder_distance",
+    "segment_cylinder_distance",
+    "segment_cylinder_within",
+]
 
-_GOLDEN = (5 ** 0.5 - 1) / 2  # 0.618...
+_GOLDEN = (5**0.5 - 1) / 2  # 0.618...
 
 LEFT, RIGHT = 0, 1
 SIDES = {LEFT: "left", RIGHT: "right"}
@@ -27,16 +37,24 @@ def broadcast_shape(*shapes) -> torch.Size:
 
 def down_rotation(dtype=torch.float64, device=None) -> Tensor:
     """The hand's orientation at the start: tool ``z`` down, tool ``x`` along ``+x``: ``(3, 3)``."""
-    return torch.tensor([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]], dtype=dtype, device=device)
+    return torch.tensor(
+        [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]], dtype=dtype, device=device
+    )
 
 
-def _axis_candidates(a: Tensor, b: Tensor, axis_xy: Tensor, z0: float, z1: float) -> tuple[Tensor, Tensor]:
+def _axis_candidates(
+    a: Tensor, b: Tensor, axis_xy: Tensor, z0: float, z1: float
+) -> tuple[Tensor, Tensor]:
     """:func:`segment_axis_distance`'s seven candidate parameters ``u (..., 7)`` and the squared
     distances there ``(..., 7)``."""
     shape = broadcast_shape(a.shape[:-1], b.shape[:-1], axis_xy.shape[:-1])
     a, b = a.expand(*shape, 3), b.expand(*shape, 3)
-    # component by component: the same numbers as sums over a last axis of 2, which torch reduces slowly
-    px, py = a[..., 0] - axis_xy[..., 0], a[..., 1] - axis_xy[..., 1]  # (...) a's horizontal offset from the axis
+    # component by component: the same numbers as sums over a last axis of 2, which torch reduces
+    # slowly
+    px, py = (
+        a[..., 0] - axis_xy[..., 0],
+        a[..., 1] - axis_xy[..., 1],
+    )  # (...) a's horizontal offset from the axis
     qx, qy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]  # (...)
     za, dz = a[..., 2], b[..., 2] - a[..., 2]  # (...)
     pq, qq = px * qx + py * qy, qx * qx + qy * qy  # (...)
@@ -46,12 +64,19 @@ def _axis_candidates(a: Tensor, b: Tensor, axis_xy: Tensor, z0: float, z1: float
         return torch.where(den > tiny, num / den.clamp_min(tiny), torch.zeros_like(num))
 
     cands = [
-        torch.zeros_like(za), torch.ones_like(za), ratio(-pq, qq),
-        ratio(-(pq + dz * (za - z1)), qq + dz * dz), ratio(-(pq + dz * (za - z0)), qq + dz * dz),
-        ratio(z0 - za, dz), ratio(z1 - za, dz),
+        torch.zeros_like(za),
+        torch.ones_like(za),
+        ratio(-pq, qq),
+        ratio(-(pq + dz * (za - z1)), qq + dz * dz),
+        ratio(-(pq + dz * (za - z0)), qq + dz * dz),
+        ratio(z0 - za, dz),
+        ratio(z1 - za, dz),
     ]
     u = torch.stack(cands, -1).clamp(0.0, 1.0)  # (..., 7)
-    hx, hy = px[..., None] + u * qx[..., None], py[..., None] + u * qy[..., None]  # (..., 7) horizontal offsets
+    hx, hy = (
+        px[..., None] + u * qx[..., None],
+        py[..., None] + u * qy[..., None],
+    )  # (..., 7) horizontal offsets
     z = za[..., None] + u * dz[..., None]  # (..., 7)
     v = torch.clamp(torch.maximum(z - z1, z0 - z), min=0.0)  # (..., 7)
     return u, (hx * hx + hy * hy) + v * v
@@ -70,7 +95,9 @@ def segment_axis_distance(a: Tensor, b: Tensor, axis_xy: Tensor, z0: float, z1: 
     return _axis_candidates(a, b, axis_xy, z0, z1)[1].amin(-1).sqrt()  # (...)
 
 
-def segment_axis_closest(a: Tensor, b: Tensor, axis_xy: Tensor, z0: float, z1: float) -> tuple[Tensor, Tensor]:
+def segment_axis_closest(
+    a: Tensor, b: Tensor, axis_xy: Tensor, z0: float, z1: float
+) -> tuple[Tensor, Tensor]:
     """:func:`segment_axis_distance` (the same numbers) and the segment's parameter ``u`` of a
     closest point: both ``(...)``."""
     u, d2 = _axis_candidates(a, b, axis_xy, z0, z1)  # (..., 7) each
@@ -79,13 +106,16 @@ def segment_axis_closest(a: Tensor, b: Tensor, axis_xy: Tensor, z0: float, z1: f
 
 
 def point_segment_distance(p: Tensor, s: Tensor, g: Tensor) -> Tensor:
-    """Distance of points ``p (..., T, 3)`` to the segments ``s -> g`` (``(..., 3)``): ``(..., T)``."""
+    """Distance of points ``p (..., T, 3)`` to the segments ``s -> g`` (``(..., 3)``): ``(...,
+    T)``."""
     d = (g - s)[..., None, :]  # (..., 1, 3)
     u = ((p - s[..., None, :]) * d).sum(-1) / d.square().sum(-1).clamp_min(1e-12)  # (..., T)
     return (p - s[..., None, :] - u.clamp(0, 1)[..., None] * d).norm(dim=-1)
 
 
-def point_cylinder_distance(p: Tensor, axis_xy: Tensor, radius: float, z0: float, z1: float) -> Tensor:
+def point_cylinder_distance(
+    p: Tensor, axis_xy: Tensor, radius: float, z0: float, z1: float
+) -> Tensor:
     """Signed distance of points ``p (..., 3)`` to the solid vertical cylinder of ``radius`` over
     ``axis_xy (..., 2)`` from ``z0`` to ``z1`` (negative inside): ``(...)``."""
     rho = (p[..., :2] - axis_xy).norm(dim=-1) - radius  # (...)
@@ -94,8 +124,9 @@ def point_cylinder_distance(p: Tensor, axis_xy: Tensor, radius: float, z0: float
     return torch.where((rho > 0) | (v > 0), outside, torch.maximum(rho, v))
 
 
-def segment_cylinder_distance(a: Tensor, b: Tensor, axis_xy: Tensor, radius: float, z0: float, z1: float,
-                              iters: int = 40) -> Tensor:
+def segment_cylinder_distance(
+    a: Tensor, b: Tensor, axis_xy: Tensor, radius: float, z0: float, z1: float, iters: int = 40
+) -> Tensor:
     """Smallest signed distance between the segments ``a -> b`` (``(..., 3)``) and the solid
     vertical cylinder of ``radius`` over ``axis_xy (..., 2)`` from ``z0`` to ``z1``: ``(...)``.
 
@@ -122,7 +153,11 @@ def _along(a: Tensor, b: Tensor, axis_xy: Tensor, radius: float, z0: float, z1: 
     def f(u: Tensor) -> Tensor:
         return point_cylinder_distance(a + u[..., None] * d, axis_xy, radius, z0, z1)
 
-    return f, torch.zeros(shape, dtype=a.dtype, device=a.device), torch.ones(shape, dtype=a.dtype, device=a.device)
+    return (
+        f,
+        torch.zeros(shape, dtype=a.dtype, device=a.device),
+        torch.ones(shape, dtype=a.dtype, device=a.device),
+    )
 
 
 def _golden_step(f, lo, x1, f1, x2, f2, hi):
@@ -137,8 +172,18 @@ def _golden_step(f, lo, x1, f1, x2, f2, hi):
     return lo, x1, f1, x2, f2, hi, left
 
 
-def segment_cylinder_within(a: Tensor, b: Tensor, axis_xy: Tensor, radius: float, z0: float, z1: float,
-                            r: Tensor, margin: float | Tensor, iters: int = 40, every: int = 3) -> Tensor:
+def segment_cylinder_within(
+    a: Tensor,
+    b: Tensor,
+    axis_xy: Tensor,
+    radius: float,
+    z0: float,
+    z1: float,
+    r: Tensor,
+    margin: float | Tensor,
+    iters: int = 40,
+    every: int = 3,
+) -> Tensor:
     """Whether ``segment_cylinder_distance(a, b, ...) - r <= margin``: ``(...)`` bool (``margin``
     one number or one per entry), the same
     verdict from the same golden-section steps, each entry stopped once it is decided: within as
@@ -154,12 +199,16 @@ def segment_cylinder_within(a: Tensor, b: Tensor, axis_xy: Tensor, radius: float
     f_lo, f_hi = f(lo), f(hi)  # the ends, which the full search evaluates last
     x1, x2 = hi - _GOLDEN, lo + _GOLDEN
     f1, f2 = f(x1), f(x2)
-    best = torch.minimum(torch.minimum(f1, f2), torch.minimum(f_lo, f_hi))  # the smallest value evaluated
+    best = torch.minimum(
+        torch.minimum(f1, f2), torch.minimum(f_lo, f_hi)
+    )  # the smallest value evaluated
     within = best - r <= margin
     open_ = ~within
     for i in range(int(iters)):
         if i and i % every == 0:
-            open_ = open_ & ~(_convex_bound(lo, f_lo, x1, f1, x2, f2, hi, f_hi) - r > margin + 1e-12)
+            open_ = open_ & ~(
+                _convex_bound(lo, f_lo, x1, f1, x2, f2, hi, f_hi) - r > margin + 1e-12
+            )
             if not bool(open_.any()):
                 return within
         f1o, f2o = f1, f2
@@ -177,7 +226,9 @@ def _convex_bound(lo, f_lo, x1, f1, x2, f2, hi, f_hi) -> Tensor:
     ``[x1, x2]`` the larger of the lines through ``lo, x1`` and through ``x2, hi`` (extended),
     smallest at ``x1``, ``x2`` or where they cross."""
     s = (f2 - f1) / (x2 - x1)
-    outer = torch.minimum(torch.minimum(f1 - s * (x1 - lo), f1), torch.minimum(f2 + s * (hi - x2), f2))
+    outer = torch.minimum(
+        torch.minimum(f1 - s * (x1 - lo), f1), torch.minimum(f2 + s * (hi - x2), f2)
+    )
     s1, s2 = (f1 - f_lo) / (x1 - lo), (f_hi - f2) / (hi - x2)
 
     def g(x):
@@ -185,5 +236,7 @@ def _convex_bound(lo, f_lo, x1, f1, x2, f2, hi, f_hi) -> Tensor:
 
     cross = ((f2 - s2 * x2) - (f1 - s1 * x1)) / (s1 - s2)
     cross = torch.where(torch.isfinite(cross), cross, x1)
-    inner = torch.minimum(torch.minimum(g(x1), g(x2)), g(torch.minimum(torch.maximum(cross, x1), x2)))
+    inner = torch.minimum(
+        torch.minimum(g(x1), g(x2)), g(torch.minimum(torch.maximum(cross, x1), x2))
+    )
     return torch.minimum(outer, inner)

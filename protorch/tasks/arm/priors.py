@@ -34,7 +34,9 @@ def check_detours(value, collision: str) -> tuple[float, ...]:
     if value == "auto":
         return (0.18, 0.24) if collision == "volume" else ()
     if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
-        raise ValueError(f"task.prior_detours must be auto or a list of distances in metres, got {value!r}")
+        raise ValueError(
+            f"task.prior_detours must be auto or a list of distances in metres, got {value!r}"
+        )
     out = []
     for d in value:
         if isinstance(d, bool) or not isinstance(d, (int, float)) or not float(d) > 0 or d != d:
@@ -43,7 +45,9 @@ def check_detours(value, collision: str) -> tuple[float, ...]:
     return tuple(sorted(out))
 
 
-def _weights(task: ArmReachTask, promp: ProMP, paths: Tensor, compiled: bool = False) -> tuple[Tensor, Tensor]:
+def _weights(
+    task: ArmReachTask, promp: ProMP, paths: Tensor, compiled: bool = False
+) -> tuple[Tensor, Tensor]:
     """Joint trajectories following end-effector ``paths (n, T, 3)`` (by IK; ``compiled``: with the
     compiled chain's Jacobian) and their ProMP weights: ``(q (n, T, 7) in the ProMP's dtype and
     device, w (n, N) float64 on the CPU)``."""
@@ -52,35 +56,56 @@ def _weights(task: ArmReachTask, promp: ProMP, paths: Tensor, compiled: bool = F
     return q, promp.weights(q).cpu().to(torch.float64)
 
 
-def grid_priors(task: ArmReachTask, promp: ProMP, n: int, over: str = "rectangles", clear: bool = False,
-                detours: tuple[float, ...] = ()):
-    """``n`` grid environments over ``over`` (:func:`~protorch.tasks.arm.workspace.prior_grid_nodes`)
+def grid_priors(
+    task: ArmReachTask,
+    promp: ProMP,
+    n: int,
+    over: str = "rectangles",
+    clear: bool = False,
+    detours: tuple[float, ...] = (),
+):
+    """``n`` grid environments over ``over``
+    (:func:`~protorch.tasks.arm.workspace.prior_grid_nodes`)
     with their straight priors (with ``clear`` only those that succeed) and their detour priors
     (module docstring): ``(envs (P, 4), weight means (P, N), labels (P,), report)``; the report
     holds the grid's counts, ``clear`` (straight priors kept, with ``clear``) and ``detours`` (per
     distance, the detour priors kept)."""
     if n == 0:
-        return torch.zeros(0, 4, dtype=torch.float64), torch.zeros(0, promp.num_weights, dtype=torch.float64), \
-            torch.zeros(0, dtype=torch.long), {"over": over, "kept": 0}
+        return (
+            torch.zeros(0, 4, dtype=torch.float64),
+            torch.zeros(0, promp.num_weights, dtype=torch.float64),
+            torch.zeros(0, dtype=torch.long),
+            {"over": over, "kept": 0},
+        )
     grid, report = prior_grid_nodes(task, n, over, promp.num_steps)  # (n, 4)
     goals, inverse = torch.unique(grid[:, 2:], dim=0, return_inverse=True)  # (G, 2), (n,)
     any_can = grid[:1, :2].expand(goals.shape[0], 2)  # the straight path does not depend on the can
-    q, w = _weights(task, promp, task.straight_paths(torch.cat([any_can, goals], 1), promp.num_steps))  # (G, ...)
-    labels = task.side(q[inverse.to(q.device)], grid.to(q)).cpu()  # (n,) which side the straight path passes
+    q, w = _weights(
+        task, promp, task.straight_paths(torch.cat([any_can, goals], 1), promp.num_steps)
+    )  # (G, ...)
+    labels = task.side(
+        q[inverse.to(q.device)], grid.to(q)
+    ).cpu()  # (n,) which side the straight path passes
     w = w[inverse]  # (n, N)
     keep = torch.ones(grid.shape[0], dtype=torch.bool)
-    if clear:  # a prior that hits the can under the task's own check teaches the map a colliding mean
+    if (
+        clear
+    ):  # a prior that hits the can under the task's own check teaches the map a colliding mean
         keep = task.success(promp.trajectory(w.to(promp.basis)), grid.to(promp.basis)).cpu()  # (n,)
         report = report | {"clear": int(keep.sum())}
     envs, means, labs = [grid[keep]], [w[keep]], [labels[keep]]
     kept = {str(d): 0 for d in detours}  # the detour priors kept at each distance
     for side in (LEFT, RIGHT):
-        todo = torch.nonzero(~(keep & (labels == side))).reshape(-1)  # the nodes without a prior on this side yet
+        todo = torch.nonzero(~(keep & (labels == side))).reshape(
+            -1
+        )  # the nodes without a prior on this side yet
         for d in detours:
             if todo.numel() == 0:
                 break
             paths = detour_paths(task, grid[todo], side, d, promp.num_steps)  # (m, T, 3)
-            _, wd = _weights(task, promp, paths, compiled=True)  # (m, N) (the straight priors keep the chain's IK)
+            _, wd = _weights(
+                task, promp, paths, compiled=True
+            )  # (m, N) (the straight priors keep the chain's IK)
             env = grid[todo].to(promp.basis)
             td = promp.trajectory(wd.to(promp.basis))  # (m, T, 7)
             ok = (task.success(td, env) & (task.side(td, env) == side)).cpu()  # (m,)

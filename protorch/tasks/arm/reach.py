@@ -24,7 +24,8 @@ straight segment from ``s`` to the target ``g``)::
     can    max(-min_t ||p_xy(t) - can||, -0.2) + 0.2 + d      (shifted by 0.2 to be >= 0)
     goal   ||p(T) - g|| + d
 
-(``can_objective`` ``"skeleton"`` / ``"volume"``: the skeleton's / capsules' distance instead, :mod:`.arm_collision`.)
+(``can_objective`` ``"skeleton"`` / ``"volume"``: the skeleton's / capsules' distance instead,
+:mod:`.arm_collision`.)
 
 Success (:meth:`ArmReachTask.success`, every step of the trajectory): the end effector starts within
 2 cm of ``s`` and ends within 2 cm of ``g``; the arm stays more than ``margin`` (2 cm for the
@@ -53,13 +54,31 @@ from torch import Tensor
 from ...checks import check_tensor
 from ...robots import Robot, load_robot
 from ...robots.layout import auto_workspace
-from .collision import (CAN_OBJECTIVES, above_table, capsule_plan, check_collision, check_volumes, end_capsules,
-                        end_volume_near, frames_gap, joints_clearance)
+from ..base import Task
+from .collision import (
+    CAN_OBJECTIVES,
+    above_table,
+    capsule_plan,
+    check_collision,
+    check_volumes,
+    end_capsules,
+    end_volume_near,
+    frames_gap,
+    joints_clearance,
+)
 from .demos import follow_path, ik_demonstrations, straight_paths
 from .deviation import DEVIATIONS, deviation
 from .geometry import LEFT, RIGHT, SIDES, broadcast_shape, down_rotation, segment_axis_distance
-from .workspace import check_workspace, prior_grid_nodes, sample_envs as sample_region, valid_envs as valid_in_region
-from ..base import Task
+from .workspace import (
+    check_workspace,
+    prior_grid_nodes,
+)
+from .workspace import (
+    sample_envs as sample_region,
+)
+from .workspace import (
+    valid_envs as valid_in_region,
+)
 
 __all__ = ["ArmReachTask", "LEFT", "RIGHT", "SIDES", "segment_axis_distance", "down_rotation"]
 
@@ -111,9 +130,12 @@ class ArmReachTask(Task):
     reach: tuple | str = "auto"
     robot: Robot | str | dict | None = None
     start_q: tuple | None = None
-    deviation: str = "segment"  # "time": to tau_direct(t) at the same instant (protorch.tasks.arm.deviation)
+    deviation: str = (
+        "segment"  # "time": to tau_direct(t) at the same instant (protorch.tasks.arm.deviation)
+    )
     collision: str = "skeleton"  # "volume": the link capsules (protorch.tasks.arm.collision)
-    can_objective: str = "auto"  # ee | volume (the hand's, forearm's capsules) | skeleton | auto: as `collision` plans
+    # ee | volume (the hand's, forearm's capsules) | skeleton | auto: as `collision` plans
+    can_objective: str = "auto"
     name: str = "arm_reach"
     objective_names: tuple[str, ...] = field(default=("start", "can", "goal"), init=False)
     env_names: tuple[str, ...] = field(default=("can_x", "can_y", "goal_x", "goal_y"), init=False)
@@ -131,32 +153,50 @@ class ArmReachTask(Task):
             self.margin = 0.01 if self.collision == "volume" else 0.02
         if not (math.isfinite(float(self.margin)) and float(self.margin) >= 0):
             raise ValueError(f"margin must be >= 0, got {self.margin!r}")
-        if self.cost_steps is not None and (isinstance(self.cost_steps, bool) or int(self.cost_steps) < 2):
+        if self.cost_steps is not None and (
+            isinstance(self.cost_steps, bool) or int(self.cost_steps) < 2
+        ):
             raise ValueError(f"cost_steps must be None or an int >= 2, got {self.cost_steps!r}")
         check_workspace(self)
         check_collision(self.collision)
         if self.can_objective not in (*CAN_OBJECTIVES, "auto"):
-            raise ValueError(f"can_objective must be one of {', '.join(CAN_OBJECTIVES)}, auto, got {self.can_objective!r}")
+            raise ValueError(
+                f"can_objective must be one of {', '.join(CAN_OBJECTIVES)}, auto, got "
+                f"{self.can_objective!r}"
+            )
         if self.can_objective == "auto":
             self.can_objective = "volume" if self.collision == "volume" else "ee"
         self.kinematics = self.robot.kinematics()
         if "volume" in (self.collision, self.can_objective):
             check_volumes(self.robot, self.kinematics.frame_names)
-        self.end_capsules = end_capsules(self.kinematics, self.robot) if self.can_objective == "volume" else None
-        volume = self.collision == "volume"  # the success check's capsules, placed by the compiled kinematics
-        self.capsule_plan = capsule_plan(self.kinematics, self.robot.capsule_list()) if volume else None
-        self.capsule_radii = torch.tensor([c.radius for c in self.robot.capsule_list()], dtype=torch.float64)
+        self.end_capsules = (
+            end_capsules(self.kinematics, self.robot) if self.can_objective == "volume" else None
+        )
+        volume = (
+            self.collision == "volume"
+        )  # the success check's capsules, placed by the compiled kinematics
+        self.capsule_plan = (
+            capsule_plan(self.kinematics, self.robot.capsule_list()) if volume else None
+        )
+        self.capsule_radii = torch.tensor(
+            [c.radius for c in self.robot.capsule_list()], dtype=torch.float64
+        )
         if self.start_q is None:
             self.start_q = self.robot.home
         q0 = torch.tensor(self.start_q, dtype=torch.float64)
         if q0.shape != (self.kinematics.num_joints,):
-            raise ValueError(f"start_q must have {self.kinematics.num_joints} joint angles, got {len(self.start_q)}")
+            raise ValueError(
+                f"start_q must have {self.kinematics.num_joints} joint angles, got "
+                f"{len(self.start_q)}"
+            )
         if not bool(self.kinematics.within_limits(q0)):
             raise ValueError(f"start_q {self.start_q} is outside the joint limits")
         self.start_q = tuple(float(v) for v in self.start_q)
         self.start = tuple(self.kinematics.ee_position(q0).tolist())  # s, (3,)
         if self.start[2] <= 0:
-            raise ValueError(f"start_q puts the end effector below the table (z = {self.start[2]:.3f})")
+            raise ValueError(
+                f"start_q puts the end effector below the table (z = {self.start[2]:.3f})"
+            )
 
     def _auto_workspace(self) -> None:
         """Resolve every ``"auto"`` workspace field (class docstring); the measured layout, where
@@ -166,7 +206,9 @@ class ArmReachTask(Task):
         if not any(isinstance(getattr(self, k), str) and getattr(self, k) == "auto" for k in keys):
             return
         auto = {k for k in keys if isinstance(getattr(self, k), str) and getattr(self, k) == "auto"}
-        if auto == {"reach"}:  # the rest given: no measurement, the Panda's reach (read by region=table only)
+        if auto == {
+            "reach"
+        }:  # the rest given: no measurement, the Panda's reach (read by region=table only)
             values = {"reach": (0.30, 0.80)}
         else:
             values, self.layout = auto_workspace(self.robot)
@@ -175,8 +217,12 @@ class ArmReachTask(Task):
                 setattr(self, k, values[k])
         if self.layout is not None:
             logging.getLogger(__name__).info(
-                "workspace auto for %s (its hand-down reach %s m at %.3f m): %s", self.robot.name, self.layout["reach"],
-                self.layout["height"], ", ".join(f"{k}={getattr(self, k)}" for k in sorted(auto)))
+                "workspace auto for %s (its hand-down reach %s m at %.3f m): %s",
+                self.robot.name,
+                self.layout["reach"],
+                self.layout["height"],
+                ", ".join(f"{k}={getattr(self, k)}" for k in sorted(auto)),
+            )
 
     # ---------------------------------------------------------------- sizes
     @property
@@ -215,7 +261,10 @@ class ArmReachTask(Task):
         the table (naming the environment and the coordinate)."""
         env = check_tensor(env, name, ndim_min=1)
         if env.shape[-1] != 4:
-            raise ValueError(f"{name} must be (..., 4) = (can_x, can_y, goal_x, goal_y), got shape {tuple(env.shape)}")
+            raise ValueError(
+                f"{name} must be (..., 4) = (can_x, can_y, goal_x, goal_y), got shape "
+                f"{tuple(env.shape)}"
+            )
         if not env.is_floating_point():
             env = env.to(torch.float64)
         (x0, x1), (y0, y1) = self.table
@@ -226,17 +275,27 @@ class ArmReachTask(Task):
             idx = [int(i) for i in off.nonzero()[0]]
             k = idx[-1]
             raise ValueError(
-                f"{name}{list(idx[:-1])} has {self.env_names[k]} = {float(env[tuple(idx)]):.4g}, off the table "
+                f"{name}{list(idx[:-1])} has {self.env_names[k]} = {float(env[tuple(idx)]):.4g}, "
+                "off the table "
                 f"x in [{x0}, {x1}], y in [{y0}, {y1}]"
             )
         return env
 
-    def sample_envs(self, n: int, generator: torch.Generator | None = None, *, dtype: torch.dtype = torch.float64,
-                    device=None, region: str | None = None) -> Tensor:
+    def sample_envs(
+        self,
+        n: int,
+        generator: torch.Generator | None = None,
+        *,
+        dtype: torch.dtype = torch.float64,
+        device=None,
+        region: str | None = None,
+    ) -> Tensor:
         """``n`` environments ``(n, 4)``: uniform over ``region`` (default the task's: can and
         target in their rectangles), redrawn until :meth:`valid_envs`. Drawn in float64 on the
         CPU (``generator`` a CPU generator), then moved."""
-        return sample_region(self, n, generator, self.region if region is None else region, dtype, device)
+        return sample_region(
+            self, n, generator, self.region if region is None else region, dtype, device
+        )
 
     def valid_envs(self, env: Tensor, region: str | None = None) -> Tensor:
         """Whether environments are valid in ``region`` (default the task's): can, target and
@@ -261,7 +320,8 @@ class ArmReachTask(Task):
             raise ValueError(f"traj must have at least 2 dimensions, got shape {tuple(traj.shape)}")
         if traj.shape[-1] != self.num_dof:
             raise ValueError(
-                f"traj must be (..., T, {self.num_dof}) joint trajectories of the {self.num_dof}-joint arm, "
+                f"traj must be (..., T, {self.num_dof}) joint trajectories of the "
+                f"{self.num_dof}-joint arm, "
                 f"got shape {tuple(traj.shape)}"
             )
         env = self.check_envs(env)
@@ -273,8 +333,10 @@ class ArmReachTask(Task):
         try:
             batch = broadcast_shape(traj.shape[:-2], env.shape[:-1])
         except ValueError:
-            raise ValueError(f"leading dimensions of traj {tuple(traj.shape)} (..., T, J) and env "
-                             f"{tuple(env.shape)} (..., 4) do not broadcast") from None
+            raise ValueError(
+                f"leading dimensions of traj {tuple(traj.shape)} (..., T, J) and env "
+                f"{tuple(env.shape)} (..., 4) do not broadcast"
+            ) from None
         return traj.to(dtype).expand(*batch, *traj.shape[-2:]), env.to(dtype).expand(*batch, 4)
 
     def cost_indices(self, num_steps: int) -> Tensor:
@@ -320,18 +382,25 @@ class ArmReachTask(Task):
 
     # ------------------------------------------------------------- objectives
     def costs(self, traj: Tensor, env: Tensor) -> Tensor:
-        """``traj (..., T, J)``, ``env (..., 4)`` -> ``(..., 3)`` costs, each >= 0 (module docstring)."""
-        traj, env = self._prepare(traj, env, finite=False)  # the hot path: NaN is caught on the costs
+        """``traj (..., T, J)``, ``env (..., 4)`` -> ``(..., 3)`` costs, each >= 0 (module
+        docstring)."""
+        traj, env = self._prepare(
+            traj, env, finite=False
+        )  # the hot path: NaN is caught on the costs
         idx = self.cost_indices(traj.shape[-2]).to(traj.device)
         if idx.numel() < traj.shape[-2]:
             traj = traj.index_select(-2, idx)
         if self.can_objective == "skeleton":
-            links = self.kinematics.skeleton(traj)  # (..., T', F, 3), the last frame the end effector
+            links = self.kinematics.skeleton(
+                traj
+            )  # (..., T', F, 3), the last frame the end effector
             c = self.path_costs(links[..., -1, :], env, near=self.skeleton_distance(links, env))
         elif self.end_capsules is None:
             c = self.path_costs(self.ee_path(traj), env)  # (..., 3)
         else:
-            near, path = end_volume_near(self.kinematics, traj, env, self.end_capsules, self.can_height)
+            near, path = end_volume_near(
+                self.kinematics, traj, env, self.end_capsules, self.can_height
+            )
             c = self.path_costs(path, env, near=near.amin(-1))
         if not bool(torch.isfinite(c).all()):
             raise ValueError("traj contains NaN or inf values (its costs are not finite)")
@@ -340,7 +409,8 @@ class ArmReachTask(Task):
     def objective_cost(self, traj: Tensor, env: Tensor, index: int) -> Tensor:
         """Objective ``index`` of :meth:`costs` alone, ``(...)`` (the loop asks when PRO's update
         reads one objective): with ``can_objective="volume"`` only the can objective pays for the
-        arm's capsules (``"skeleton"``: its skeleton), the start and goal objectives the end effector."""
+        arm's capsules (``"skeleton"``: its skeleton), the start and goal objectives the end
+        effector."""
         if index not in (0, 1, 2):
             raise ValueError(f"index must be 0, 1 or 2, got {index!r}")
         if index == 1 or self.can_objective == "ee":
@@ -349,10 +419,13 @@ class ArmReachTask(Task):
         idx = self.cost_indices(traj.shape[-2]).to(traj.device)
         return self.path_costs(self.ee_path(traj.index_select(-2, idx)), env)[..., index]
 
-    def path_costs(self, path: Tensor, env: Tensor, start: Tensor | None = None, near: Tensor | None = None) -> Tensor:
+    def path_costs(
+        self, path: Tensor, env: Tensor, start: Tensor | None = None, near: Tensor | None = None
+    ) -> Tensor:
         """The objectives of end-effector paths ``(..., T, 3)``: ``(..., 3)``. ``start (..., 3)``
         replaces ``s`` (the online test scores the rest of a motion from where the arm is);
-        ``near (...)`` the path's nearest distance to the can's axis (``can_objective`` volume, skeleton)."""
+        ``near (...)`` the path's nearest distance to the can's axis (``can_objective`` volume,
+        skeleton)."""
         s = self.start_position(path.dtype, path.device) if start is None else start  # (..., 3)
         s = s.expand(*path.shape[:-2], 3)
         g = self.goal_point(env)  # (..., 3)
@@ -366,7 +439,8 @@ class ArmReachTask(Task):
 
     def can_gap(self, traj: Tensor, env: Tensor) -> Tensor:
         """Smallest distance between the arm's surface (under :attr:`collision`) and the can's over
-        all steps: ``(...)`` (success needs ``> margin``; :func:`~protorch.tasks.arm.collision.frames_gap`)."""
+        all steps: ``(...)`` (success needs ``> margin``;
+        :func:`~protorch.tasks.arm.collision.frames_gap`)."""
         traj, env = self._prepare(traj, env)
         if self.capsule_plan is not None:
             return joints_clearance(self, traj, env)[0]
@@ -385,16 +459,25 @@ class ArmReachTask(Task):
             gap, table = joints_clearance(self, traj, env)
         else:
             frames = self.kinematics.frames(traj)  # (..., T, F, 4, 4)
-            ee, gap, table = frames[..., -1, :3, 3], frames_gap(self, frames, env), above_table(self, frames)
-        ok_start = (ee[..., 0, :] - self.start_position(ee.dtype, ee.device)).norm(dim=-1) <= self.start_tol
+            ee, gap, table = (
+                frames[..., -1, :3, 3],
+                frames_gap(self, frames, env),
+                above_table(self, frames),
+            )
+        ok_start = (ee[..., 0, :] - self.start_position(ee.dtype, ee.device)).norm(
+            dim=-1
+        ) <= self.start_tol
         ok_goal = (ee[..., -1, :] - self.goal_point(env)).norm(dim=-1) <= self.goal_tol
         limits = self.kinematics.within_limits(traj).all(-1)
         return ok_start & ok_goal & (gap > self.margin) & limits & table
 
     # ---------------------------------------------------------------- demonstrations
-    def ik_path(self, path: Tensor, *, iters: int = 8, first_iters: int = 60) -> tuple[Tensor, Tensor]:
+    def ik_path(
+        self, path: Tensor, *, iters: int = 8, first_iters: int = 60
+    ) -> tuple[Tensor, Tensor]:
         """Joint trajectories following end-effector paths ``(n, T, 3)`` with the hand pointing
-        down (the start configuration's orientation), from the start configuration: damped least squares at every step, warm-started
+        down (the start configuration's orientation), from the start configuration: damped least
+        squares at every step, warm-started
         from the step before, with a null-space pull to the start posture. Returns
         ``(q (n, T, J), position error (n, T))``."""
         return follow_path(self, path, iters=iters, first_iters=first_iters)
@@ -419,9 +502,19 @@ class ArmReachTask(Task):
         """Imperfect, hand-guided-like demonstrations by inverse kinematics: ``per_env`` per
         environment, all passing the can on the side ``sides[i]`` (default: alternating
         :data:`LEFT`, :data:`RIGHT`); the paths and their parameters are those of
-        :func:`~protorch.tasks.arm.demos.ik_demonstrations`. Returns ``(demos, demo_envs, labels)``: ``M * per_env`` joint trajectories ``(T_i, J)``,
+        :func:`~protorch.tasks.arm.demos.ik_demonstrations`. Returns ``(demos, demo_envs, labels)``:
+        ``M * per_env`` joint trajectories ``(T_i, J)``,
         their environments ``(M * per_env, 4)`` and the homotopy class of each (measured on
         the joint trajectory with :meth:`side`, not assumed).
         """
-        return ik_demonstrations(self, envs, per_env, generator, sides=sides, lengths=lengths,
-                                 pass_distance=pass_distance, goal_noise=goal_noise, tremor=tremor)
+        return ik_demonstrations(
+            self,
+            envs,
+            per_env,
+            generator,
+            sides=sides,
+            lengths=lengths,
+            pass_distance=pass_distance,
+            goal_noise=goal_noise,
+            tremor=tremor,
+        )

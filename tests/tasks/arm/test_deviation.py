@@ -16,7 +16,9 @@ def test_a_path_on_the_line_at_the_wrong_pace_costs_only_in_time():
     p = S + u[:, None] * (G - S)  # (11, 3)
     assert float(segment_deviation(p, S, G).abs().max()) < 1e-12
     t = torch.linspace(0, 1, 11, dtype=F64)
-    assert torch.allclose(time_aligned_deviation(p, S, G), (t - t**2).abs())  # |u(t) - t| along the line
+    assert torch.allclose(
+        time_aligned_deviation(p, S, G), (t - t**2).abs()
+    )  # |u(t) - t| along the line
     # at constant speed both readings are 0; off the line by h both give h where the foot is on it
     lin = S + t[:, None] * (G - S)
     assert float(time_aligned_deviation(lin, S, G).max()) < 1e-12

@@ -25,19 +25,26 @@ def task():
 def straight(task):
     """Straight end-effector paths (IK, 60 steps) for three environments: the can far off the
     line, the can on the line, the can just beside it."""
-    env = torch.tensor([[0.62, -0.12, 0.70, 0.20],   # can 0.22 m off the start-target line
-                        [0.55, 0.00, 0.72, 0.00],    # can on the line
-                        [0.55, 0.04, 0.72, 0.00]], dtype=F64)   # 4 cm beside it: inside radius + margin
+    env = torch.tensor(
+        [
+            [0.62, -0.12, 0.70, 0.20],  # can 0.22 m off the start-target line
+            [0.55, 0.00, 0.72, 0.00],  # can on the line
+            [0.55, 0.04, 0.72, 0.00],
+        ],
+        dtype=F64,
+    )  # 4 cm beside it: inside radius + margin
     q, err = task.ik_path(task.straight_paths(env, 60))
     assert float(err.max()) < 1e-4
     return env, q
 
 
 def test_segment_axis_distance_is_exact(gen):
-    a = torch.rand(400, 3, generator=gen, dtype=F64) * torch.tensor([1, 1, 0.6], dtype=F64) - torch.tensor(
-        [0.5, 0.5, 0.15], dtype=F64)
-    b = torch.rand(400, 3, generator=gen, dtype=F64) * torch.tensor([1, 1, 0.6], dtype=F64) - torch.tensor(
-        [0.5, 0.5, 0.15], dtype=F64)
+    a = torch.rand(400, 3, generator=gen, dtype=F64) * torch.tensor(
+        [1, 1, 0.6], dtype=F64
+    ) - torch.tensor([0.5, 0.5, 0.15], dtype=F64)
+    b = torch.rand(400, 3, generator=gen, dtype=F64) * torch.tensor(
+        [1, 1, 0.6], dtype=F64
+    ) - torch.tensor([0.5, 0.5, 0.15], dtype=F64)
     b[:50] = a[:50]  # degenerate segments
     b[50:100, :2] = a[50:100, :2]  # vertical ones
     axis = torch.zeros(2, dtype=F64)
@@ -59,7 +66,9 @@ def test_costs_of_straight_paths(task, straight):
     assert float(c[0, 1]) < 2e-3  # the can 0.22 m away: no can cost
     # through the can: the full 0.2, less the spacing of the cost_steps samples around the can
     assert float(c[1, 1]) == pytest.approx(task.clearance, abs=0.02)
-    assert float(ArmReachTask(cost_steps=None).costs(q[1], env[1])[1]) == pytest.approx(task.clearance, abs=5e-3)
+    assert float(ArmReachTask(cost_steps=None).costs(q[1], env[1])[1]) == pytest.approx(
+        task.clearance, abs=5e-3
+    )
     assert 0.14 < float(c[2, 1]) < 0.2  # 0.04 m beside the line
     ok = task.success(q, env)
     assert ok.tolist() == [True, False, False]
@@ -68,16 +77,23 @@ def test_costs_of_straight_paths(task, straight):
 
 def test_detour_passes_and_is_labelled_by_side(task, gen):
     env = torch.tensor([[0.56, 0.0, 0.72, 0.05]] * 2, dtype=F64)
-    demos, denv, lab = task.demonstrations(env, 1, gen, sides=torch.tensor([LEFT, RIGHT]), lengths=(60, 60),
-                                           goal_noise=0.0)
+    demos, denv, lab = task.demonstrations(
+        env, 1, gen, sides=torch.tensor([LEFT, RIGHT]), lengths=(60, 60), goal_noise=0.0
+    )
     q = torch.stack(demos)  # (2, 60, 7)
     assert lab.tolist() == [LEFT, RIGHT] and task.side(q, denv).tolist() == [LEFT, RIGHT]
     ee = task.ee_path(q)
-    assert float(ee[0, 30, 1]) > 0.1 and float(ee[1, 30, 1]) < -0.1  # left is +y for a motion along +x
+    assert (
+        float(ee[0, 30, 1]) > 0.1 and float(ee[1, 30, 1]) < -0.1
+    )  # left is +y for a motion along +x
     assert task.success(q, denv).all()
-    c = task.costs(q, denv)  # each objective is its own term plus d, the mean distance to the straight path
+    c = task.costs(
+        q, denv
+    )  # each objective is its own term plus d, the mean distance to the straight path
     # started exactly at s, so objective 0 is d alone
-    assert float((c[:, 1] - c[:, 0]).max()) < 0.1 and float(c[:, 0].min()) > 0.05  # > 0.1 from the can, a detour
+    assert (
+        float((c[:, 1] - c[:, 0]).max()) < 0.1 and float(c[:, 0].min()) > 0.05
+    )  # > 0.1 from the can, a detour
 
 
 def test_success_needs_goal_limits_and_clearance(task, straight):
@@ -108,9 +124,15 @@ def test_sampler_rectangles_separation_and_grid(task, gen):
     assert e.shape == (500, 4) and bool(task.valid_envs(e).all())
     for k, (lo, hi) in enumerate((cx, cy, gx, gy)):
         assert bool(((e[:, k] >= lo) & (e[:, k] <= hi)).all())
-    assert task.sample_envs(7, torch.Generator().manual_seed(3)).equal(task.sample_envs(7, torch.Generator().manual_seed(3)))
+    assert task.sample_envs(7, torch.Generator().manual_seed(3)).equal(
+        task.sample_envs(7, torch.Generator().manual_seed(3))
+    )
     grid = task.prior_grid(2004)
-    assert grid.shape == (2004, 4) and grid.unique(dim=0).shape[0] == 2004 and bool(task.valid_envs(grid).all())
+    assert (
+        grid.shape == (2004, 4)
+        and grid.unique(dim=0).shape[0] == 2004
+        and bool(task.valid_envs(grid).all())
+    )
     k = round(len(grid[:, 0].unique()))  # a regular grid: few distinct values per axis
     assert all(len(grid[:, j].unique()) == k for j in range(4)) and k**4 >= 2004
 
@@ -120,7 +142,14 @@ def test_ik_demonstrator(task, gen):
     env = task.sample_envs(3, gen)
     demos, denv, lab = task.demonstrations(env, 2, gen, lengths=(40, 50))
     assert len(demos) == 6 and denv.shape == (6, 4) and torch.equal(denv[::2], env)
-    assert lab.tolist() == [LEFT, LEFT, RIGHT, RIGHT, LEFT, LEFT]  # alternating by environment, measured
+    assert lab.tolist() == [
+        LEFT,
+        LEFT,
+        RIGHT,
+        RIGHT,
+        LEFT,
+        LEFT,
+    ]  # alternating by environment, measured
     start = task.start_config()
     for d, e in zip(demos, denv):
         assert 40 <= d.shape[0] <= 50 and d.shape[1] == 7
@@ -129,7 +158,9 @@ def test_ik_demonstrator(task, gen):
         ee = task.ee_path(d)
         assert float((ee[-1] - task.goal_point(e)).norm()) < 0.05  # imperfect, but near the target
         assert float(task.can_distance(d, e)) > task.can_radius + task.margin  # clear of the can
-        assert float((ee[:, 2] - task.ee_height).abs().max()) < 0.06  # over the table, at reach height
+        assert (
+            float((ee[:, 2] - task.ee_height).abs().max()) < 0.06
+        )  # over the table, at reach height
     traj = torch.stack([resample(d, 100) for d in demos])
     assert float(task.success(traj, denv).double().mean()) >= 0.5
 

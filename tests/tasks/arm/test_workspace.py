@@ -36,7 +36,9 @@ def test_table_grid_has_the_count_the_ranges_and_only_valid_nodes(task, table_gr
     assert grid.shape == (2004, 4) and grid.unique(dim=0).shape[0] == 2004
     assert rep["over"] == "table" and rep["kept"] == 2004 and rep["nodes"] == rep["per_axis"] ** 4
     # every node of the full grid is accounted for: removed by one rule, or valid
-    removed = rep["too_close"] + rep["goal_out_of_reach"] + rep["can_on_start_posture"] + rep["ik_failed"]
+    removed = (
+        rep["too_close"] + rep["goal_out_of_reach"] + rep["can_on_start_posture"] + rep["ik_failed"]
+    )
     assert removed + rep["valid"] == rep["nodes"] and rep["valid"] >= 2004
     # a regular grid over the table: the can spans it all, the targets all of its width
     (x0, x1), (y0, y1) = task.table
@@ -73,12 +75,21 @@ def test_every_table_prior_is_followed_to_its_target(task, table_grid):
 def test_reach_bounds_match_what_the_ik_reaches(task):
     # targets on the table just inside (r = 0.31, 0.79) and outside (r = 0.20 to 0.25, 0.86 to 0.87)
     # the reach annulus [0.30, 0.80]
-    ring = [r * torch.stack([a.cos(), a.sin()], -1) for r, a in ((0.31, torch.linspace(-0.8, 0.8, 5, dtype=F64)),
-                                                               (0.79, torch.linspace(-0.6, 0.6, 5, dtype=F64)))]
+    ring = [
+        r * torch.stack([a.cos(), a.sin()], -1)
+        for r, a in (
+            (0.31, torch.linspace(-0.8, 0.8, 5, dtype=F64)),
+            (0.79, torch.linspace(-0.6, 0.6, 5, dtype=F64)),
+        )
+    ]
     inside = torch.cat(ring)
-    outside = torch.tensor([[0.2, 0.0], [0.22, 0.1], [0.86, 0.0], [0.8, 0.35], [0.7, 0.5]], dtype=F64)
+    outside = torch.tensor(
+        [[0.2, 0.0], [0.22, 0.1], [0.86, 0.0], [0.8, 0.35], [0.7, 0.5]], dtype=F64
+    )
     wrap = lambda goals: torch.cat([torch.zeros_like(goals), goals], 1)
-    assert bool(goal_in_reach(task, wrap(inside)).all()) and not bool(goal_in_reach(task, wrap(outside)).any())
+    assert bool(goal_in_reach(task, wrap(inside)).all()) and not bool(
+        goal_in_reach(task, wrap(outside)).any()
+    )
     assert bool(straight_prior_ok(task, inside).all())
     assert not bool(straight_prior_ok(task, outside).any())
     env = torch.cat([torch.tensor([[0.55, 0.4]], dtype=F64).expand(5, 2), outside], 1)
@@ -87,7 +98,9 @@ def test_reach_bounds_match_what_the_ik_reaches(task):
 
 def test_the_can_must_stand_clear_of_the_start_posture(task):
     # under the hand (2-3 cm from the start's end effector) versus well away from the arm
-    env = torch.tensor([[0.40, 0.02, 0.70, 0.30], [0.42, -0.03, 0.70, 0.30], [0.60, 0.30, 0.70, 0.0]], dtype=F64)
+    env = torch.tensor(
+        [[0.40, 0.02, 0.70, 0.30], [0.42, -0.03, 0.70, 0.30], [0.60, 0.30, 0.70, 0.0]], dtype=F64
+    )
     assert can_clear_of_start(task, env).tolist() == [False, False, True]
     assert not bool(task.valid_envs(env[:2], "table").any())
 
@@ -96,17 +109,27 @@ def test_table_sampler_draws_valid_environments_wider_than_the_rectangles(task):
     e = task.sample_envs(400, torch.Generator().manual_seed(1), region="table")
     assert e.shape == (400, 4) and bool(task.valid_envs(e, "table").all())
     task.check_envs(e)
-    assert float(e[:, 0].min()) < 0.4 and float(e[:, 1].abs().max()) > 0.4 and float(e[:, 2].min()) < 0.4
+    assert (
+        float(e[:, 0].min()) < 0.4
+        and float(e[:, 1].abs().max()) > 0.4
+        and float(e[:, 2].min()) < 0.4
+    )
     again = task.sample_envs(400, torch.Generator().manual_seed(1), region="table")
     assert torch.equal(e, again)
     # the default region is the rectangles, and a task built for the table draws there by default
     rect = task.sample_envs(50, torch.Generator().manual_seed(2))
-    assert torch.equal(rect, task.sample_envs(50, torch.Generator().manual_seed(2), region="rectangles"))
+    assert torch.equal(
+        rect, task.sample_envs(50, torch.Generator().manual_seed(2), region="rectangles")
+    )
     wide = ArmReachTask(region="table")
-    assert torch.equal(wide.sample_envs(50, torch.Generator().manual_seed(2)), task.sample_envs(
-        50, torch.Generator().manual_seed(2), region="table"))
+    assert torch.equal(
+        wide.sample_envs(50, torch.Generator().manual_seed(2)),
+        task.sample_envs(50, torch.Generator().manual_seed(2), region="table"),
+    )
     # every environment of the rectangles is valid under the table's rules too
-    assert bool(task.valid_envs(task.sample_envs(2000, torch.Generator().manual_seed(3)), "table").all())
+    assert bool(
+        task.valid_envs(task.sample_envs(2000, torch.Generator().manual_seed(3)), "table").all()
+    )
 
 
 def test_bad_regions_and_reach_are_refused(task):
@@ -116,5 +139,7 @@ def test_bad_regions_and_reach_are_refused(task):
         ArmReachTask(reach=(0.8, 0.3))
     with pytest.raises(ValueError, match="reach must be"):
         ArmReachTask(reach=0.5)
-    with pytest.raises(ValueError, match="^prior_grid must be one of rectangles, table, got 'room'$"):
+    with pytest.raises(
+        ValueError, match="^prior_grid must be one of rectangles, table, got 'room'$"
+    ):
         prior_grid_nodes(task, 10, "room")

@@ -150,6 +150,21 @@ def app_config(overrides: list[str]) -> dict:
         return OmegaConf.to_container(compose("config", overrides=overrides), resolve=True)
 
 
+def _pybullet_data(word: str) -> str:
+    """``robot.urdf=PYBULLET_DATA/xarm/...``: the file in pybullet's data folder where pybullet is
+    installed (the ``arms`` extra), else the example arm in ``examples/`` (a URDF of the same
+    kind), so that every other override of the command is still checked."""
+    if "PYBULLET_DATA/" not in word:
+        return word
+    key, _, rest = word.partition("PYBULLET_DATA/")
+    spec = importlib.util.find_spec("pybullet_data")
+    if spec is not None and spec.submodule_search_locations:
+        path = Path(list(spec.submodule_search_locations)[0]) / rest
+        if path.is_file():
+            return key + str(path)
+    return key + str(ROOT / "examples" / "my_arm.urdf")
+
+
 def check_command(command: str) -> tuple[str | None, str | None]:
     """``(error or None, experiment name or None)`` for one table command (module docstring)."""
     words = shlex.split(command)
@@ -171,7 +186,7 @@ def check_command(command: str) -> tuple[str | None, str | None]:
         main = origin.with_name("__main__.py") if origin.name == "__init__.py" else origin
         return _check_flags(main, [w for w in words[3:] if w.startswith("--")]), None
     overrides = [
-        _first_of_sweep(w)
+        _first_of_sweep(_pybullet_data(w))
         for w in words[3:]
         if w not in ("-m", "--multirun") and not w.startswith(("hydra.", "hydra/", "+hydra."))
     ]

@@ -184,7 +184,13 @@ def test_a_six_joint_arm_moves_within_its_own_limits(tmp_path):
             "end_link": "tool0",
             "home": user_arm_home(),
             "max_acceleration": 4.0,
-        }
+        },
+        # the Panda's workspace, which this arm reaches (auto would measure the arm's own)
+        can_box=((0.50, 0.62), (-0.12, 0.12)),
+        goal_box=((0.66, 0.74), (-0.24, 0.24)),
+        table=((0.2, 0.9), (-0.5, 0.5)),
+        can_radius=0.0375,
+        can_height=0.23,
     )
     a = torch.tensor([0.56, 0.05, 0.72, 0.0], dtype=F64)
     promp, ds = both_sides(six, a[None], seed=1)

@@ -137,7 +137,18 @@ def test_an_arm_run_is_rebuilt_with_its_robot_and_the_teach_page_takes_one(tmp_p
         "end_link": "tool0",
         "home": user_arm_home(),
     }
-    task = build_task("arm_reach", {"goal_tol": 0.03, "goal_box": [[0.6, 0.7], [-0.2, 0.2]]}, robot)
+    # a run's config holds its whole workspace (auto would measure this arm's own)
+    workspace = {
+        "can_box": [[0.50, 0.62], [-0.12, 0.12]],
+        "table": [[0.2, 0.9], [-0.5, 0.5]],
+        "can_radius": 0.0375,
+        "can_height": 0.23,
+    }
+    task = build_task(
+        "arm_reach",
+        {"goal_tol": 0.03, "goal_box": [[0.6, 0.7], [-0.2, 0.2]], **workspace},
+        robot,
+    )
     assert task.num_dof == 6 and task.robot.name == "my_arm" and task.goal_tol == 0.03
     assert task.goal_box == ((0.6, 0.7), (-0.2, 0.2))
     assert build_task("arm_reach", {}).robot.name == "Panda"  # a run from before the robot setting

@@ -60,7 +60,14 @@ from ..primitives.quaternions import axis_angle_to_quaternion, quaternion_raw_mu
 from .base import Task
 from .beam_operator import SimulatedOperator
 
-__all__ = ["BeamWindowTask", "SimulatedOperator", "BEAM_AXIS", "quaternion_about"]
+__all__ = [
+    "BeamWindowTask",
+    "SimulatedOperator",
+    "BEAM_AXIS",
+    "quaternion_about",
+    "as_vector",
+    "as_positive",
+]
 
 BEAM_AXIS = (1.0, 0.0, 0.0)  # the beam lies along its body x axis
 _VIA_NAMES = ("start", "window_front", "window_back", "end")
@@ -73,14 +80,16 @@ def quaternion_about(axis, angle: float, *, dtype=torch.float64, device=None) ->
     return axis_angle_to_quaternion(a * float(angle))
 
 
-def _vec(values, name: str, size: int) -> tuple[float, ...]:
+def as_vector(values, name: str, size: int) -> tuple[float, ...]:
+    """``values`` as ``size`` finite floats; a ``ValueError`` naming ``name`` otherwise."""
     t = check_tensor(torch.as_tensor(values, dtype=torch.float64), name)
     if t.shape != (size,):
         raise ValueError(f"{name} must have {size} numbers, got shape {tuple(t.shape)}")
     return tuple(float(v) for v in t)
 
 
-def _positive(value, name: str) -> float:
+def as_positive(value, name: str) -> float:
+    """``value`` as a finite float > 0; a ``ValueError`` naming ``name`` otherwise."""
     v = float(value)
     if not (math.isfinite(v) and v > 0):
         raise ValueError(f"{name} must be finite and > 0, got {value}")
@@ -159,9 +168,9 @@ class BeamWindowTask(Task):
     objective_names: tuple[str, ...] = field(default=_VIA_NAMES, init=False)
 
     def __post_init__(self) -> None:
-        self.wall_position = _vec(self.wall_position, "wall_position", 3)
-        self.start_position = _vec(self.start_position, "start_position", 3)
-        self.end_position = _vec(self.end_position, "end_position", 3)
+        self.wall_position = as_vector(self.wall_position, "wall_position", 3)
+        self.start_position = as_vector(self.start_position, "start_position", 3)
+        self.end_position = as_vector(self.end_position, "end_position", 3)
         for key in ("wall_quaternion", "start_quaternion", "end_quaternion"):
             q = check_unit_quaternion(
                 torch.as_tensor(getattr(self, key), dtype=torch.float64), key, tol=1e-3
@@ -180,7 +189,7 @@ class BeamWindowTask(Task):
             "position_tol",
             "angle_tol",
         ):
-            setattr(self, key, _positive(getattr(self, key), key))
+            setattr(self, key, as_positive(getattr(self, key), key))
         for key in ("beam_radius", "length_weight", "jerk_weight"):
             v = float(getattr(self, key))
             if not (math.isfinite(v) and v >= 0):

@@ -40,7 +40,7 @@ from ..primitives.pose import (
     resample_poses,
 )
 from ..primitives.quaternions import quaternion_raw_multiply
-from .beam_window import quaternion_about
+from .beam_window import as_positive, as_vector, quaternion_about
 
 __all__ = ["TeleopWindowTask", "ENV_NAMES", "yaw_quaternion"]
 
@@ -54,20 +54,6 @@ ENV_NAMES = (
 
 def _norm(x: Tensor) -> Tensor:
     return torch.linalg.vector_norm(x, dim=-1)
-
-
-def _vec(values, name: str, size: int) -> tuple[float, ...]:
-    t = check_tensor(torch.as_tensor(values, dtype=torch.float64), name)
-    if t.shape != (size,):
-        raise ValueError(f"{name} must have {size} numbers, got shape {tuple(t.shape)}")
-    return tuple(float(v) for v in t)
-
-
-def _positive(value, name: str) -> float:
-    v = float(value)
-    if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"{name} must be finite and > 0, got {value}")
-    return v
 
 
 def _jerk(x: Tensor, steps: int) -> Tensor:
@@ -135,8 +121,8 @@ class TeleopWindowTask:
 
     def __post_init__(self) -> None:
         self.env_low, self.env_high = (
-            _vec(self.env_low, "env_low", 4),
-            _vec(self.env_high, "env_high", 4),
+            as_vector(self.env_low, "env_low", 4),
+            as_vector(self.env_high, "env_high", 4),
         )
         if any(lo > hi for lo, hi in zip(self.env_low, self.env_high)):
             raise ValueError(f"env_low {self.env_low} must be <= env_high {self.env_high}")
@@ -145,9 +131,9 @@ class TeleopWindowTask:
                 "the wall's yaw must stay within +-80 deg (the beam approaches along x)"
             )
         for key in ("start_position", "end_position"):
-            setattr(self, key, _vec(getattr(self, key), key, 3))
+            setattr(self, key, as_vector(getattr(self, key), key, 3))
         for key in ("start_quaternion", "end_quaternion"):
-            q = torch.tensor(_vec(getattr(self, key), key, 4), dtype=torch.float64)
+            q = torch.tensor(as_vector(getattr(self, key), key, 4), dtype=torch.float64)
             setattr(self, key, tuple(float(v) for v in q / q.norm()))
         for key in (
             "window_width",
@@ -158,7 +144,7 @@ class TeleopWindowTask:
             "position_tol",
             "angle_tol",
         ):
-            setattr(self, key, _positive(getattr(self, key), key))
+            setattr(self, key, as_positive(getattr(self, key), key))
         if (
             self.beam_length <= self.window_width
             or self.window_height <= self.beam_length + 2 * self.beam_radius

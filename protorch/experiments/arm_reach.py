@@ -296,7 +296,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
         }
 
     def describe(self) -> dict:
-        lk, opt, data0 = self.loop_kwargs, self.optimizer_cfg, self.initial_data()
+        lk, opt, data0 = self.loop, self.optimizer_cfg, self.initial_data()
         return {
             "robot": self.robot.summary(),
             "demos": {
@@ -321,10 +321,10 @@ class ArmReachExperiment(SelfImprovementExperiment):
                 "grid": self.prior_report,
             },
             "settings": {
-                "num_envs": lk["num_envs"],
-                "batch_size": lk["batch_size"],
-                "add_only": lk["add_only"],
-                "choice": lk["choice"],
+                "num_envs": lk.num_envs,
+                "batch_size": lk.batch_size,
+                "add_only": lk.add_only,
+                "choice": lk.choice,
                 "alpha": self.alpha,
                 "nearest_k": self.nearest_k,
                 "beta": None if opt.get("beta") is None else float(opt["beta"]),

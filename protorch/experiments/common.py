@@ -10,7 +10,7 @@ import torch
 
 from ..checks import check_int
 from ..data.files import atomic_write_bytes
-from ..loop import ADD_ONLY, CHOICES
+from ..loop.settings import LOOP_GROUP, LoopSettings
 from ..optim import CMAES, OPTIMIZERS, PRO, RWPO, RWR, optimizer_class
 
 DTYPES = {"float32": torch.float32, "float64": torch.float64}
@@ -205,30 +205,15 @@ def gp_settings(
     return backend, a, vf, options
 
 
-def loop_settings(loop_cfg: dict, *, num_envs: int) -> dict:
-    """The :func:`~protorch.loop.self_improve` options of an experiment's ``loop`` group,
-    validated, with the defaults (``num_envs`` the experiment's)."""
-
-    out = dict(
-        num_envs=check_int(loop_cfg.get("num_envs", num_envs), "loop.num_envs", 0),
-        batch_size=check_int(loop_cfg.get("batch_size", 100), "loop.batch_size", 1),
-        checkpoint_every=check_int(loop_cfg.get("checkpoint_every", 1), "loop.checkpoint_every", 1),
-        add_only=loop_cfg.get("add_only", "success"),
-        choice=loop_cfg.get("choice", "random"),
-        eval_dtype=resolve_dtype(loop_cfg.get("eval_dtype", "float32")),
-        min_var=float(loop_cfg.get("min_var", 0.0)),
-        refill=loop_cfg.get("refill", "auto"),
-        refill_group=check_int(loop_cfg.get("refill_group", 1), "loop.refill_group", 1),
-    )
-    if out["refill"] not in ("auto", True, False):
-        raise ValueError(f"loop.refill must be auto, true or false, got {out['refill']!r}")
-    if out["add_only"] not in ADD_ONLY:
-        raise ValueError(f"loop.add_only must be one of {list(ADD_ONLY)}, got {out['add_only']!r}")
-    if out["choice"] not in CHOICES:
-        raise ValueError(f"loop.choice must be one of {list(CHOICES)}, got {out['choice']!r}")
-    if not out["min_var"] >= 0:
-        raise ValueError(f"loop.min_var must be >= 0, got {out['min_var']}")
-    return out
+def loop_settings(loop_cfg: dict, *, num_envs: int) -> LoopSettings:
+    """The :class:`~protorch.loop.LoopSettings` of an experiment's ``loop`` group (its keys of
+    :data:`~protorch.loop.settings.LOOP_GROUP`; the defaults are the dataclass's, ``num_envs``
+    the experiment's), validated: a bad value raises one line naming ``loop.<key>``."""
+    given = {k: loop_cfg[k] for k in LOOP_GROUP if k in loop_cfg}
+    try:
+        return LoopSettings(**{"num_envs": num_envs, **given})
+    except ValueError as exc:
+        raise ValueError(f"loop.{exc}") from None
 
 
 def evaluation_settings(

@@ -154,7 +154,7 @@ class PointParticleExperiment(SelfImprovementExperiment):
         return {"optimizer": cls, "optimizer_kwargs": kwargs, "dataset": self.initial_data()}
 
     def describe(self) -> dict:
-        lk = self.loop_kwargs
+        lk = self.loop
         return {
             "demos": {
                 "source": str(self.source),
@@ -163,10 +163,10 @@ class PointParticleExperiment(SelfImprovementExperiment):
                 "marked": self.demo_marked,
             },
             "settings": {
-                "num_envs": lk["num_envs"],
-                "batch_size": lk["batch_size"],
-                "add_only": lk["add_only"],
-                "choice": lk["choice"],
+                "num_envs": lk.num_envs,
+                "batch_size": lk.batch_size,
+                "add_only": lk.add_only,
+                "choice": lk.choice,
                 "alpha": self.alpha,
                 "beta": None
                 if self.optimizer_cfg.get("beta") is None

@@ -24,6 +24,7 @@ import torch
 from ..checks import check_int
 from ..data.demos import load_human_demos
 from ..loop import LoopResult
+from ..loop.settings import LOOP_GROUP
 from ..tasks import check_task_protocol, make_task
 from ..viz.paper import save_figure
 from .self_improvement import DEMO_SEED_OFFSET, TEST_SEED, Outcome, SelfImprovementExperiment
@@ -109,7 +110,7 @@ class GenericExperiment(SelfImprovementExperiment):
         self.demos, self.demo_envs = demos, envs
 
     def describe(self) -> dict:
-        lk, cls = self.loop_settings, self.optimizer[0]
+        lk, cls = {k: getattr(self.loop, k) for k in LOOP_GROUP}, self.optimizer[0]
         return {
             "task": f"{type(self.task).__module__}.{type(self.task).__qualname__}",
             "demos": {
@@ -120,7 +121,6 @@ class GenericExperiment(SelfImprovementExperiment):
             "settings": {
                 "optimizer": self.optimizer_cfg.get("name", cls.__name__.lower()),
                 **lk,
-                "eval_dtype": str(lk["eval_dtype"]).replace("torch.", ""),
                 "alpha": self.alpha,
                 "var_floor": self.var_floor,
                 "backend": self.backend,

@@ -24,6 +24,7 @@ baseline without a loop of its own), ``record`` and ``figures``.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,7 +36,16 @@ from ..checks import check_int, check_keys
 from ..data.checkpoint import checkpoint_path, load
 from ..gp import make_env_map
 from ..gp.model import EnvToProMP
-from ..loop import LoopResult, can_refill, demonstration_dataset, self_improve
+from ..loop import (
+    LoopResult,
+    LoopSettings,
+    OptimizerSpec,
+    Run,
+    can_refill,
+    demonstration_dataset,
+    self_improve,
+)
+from ..loop.settings import LOOP_GROUP
 from ..primitives.promp import ProMP, resample
 from ..tasks import check_task_outputs
 from ..threads import beside_workers, core_budget
@@ -64,19 +74,10 @@ TEST_SEED = 2_000_003  # the held-out test environments: fixed, never a training
 DYNAMIC_SEED = 3_000_017  # the moving-environment episodes (start environments and moves)
 DEMO_SEED_OFFSET = 10_007  # generated demonstrations: seed + offset (the loop's pool uses seed)
 GP_KEYS = frozenset({"backend", "alpha", "var_floor", "nearest_k", "neighbours"})
-LOOP_KEYS = frozenset(
-    {
-        "num_envs",
-        "batch_size",
-        "add_only",
-        "choice",
-        "checkpoint_every",
-        "eval_dtype",
-        "min_var",
-        "refill",
-        "refill_group",
-    }
-)
+LOOP_KEYS = frozenset(LOOP_GROUP)
+# run_loop's overrides that go to the Run (the rest are LoopSettings fields or self_improve's own)
+_RUN_KEYS = {"run_dir": "dir", "resume": "resume", "progress": "progress", "on_step": "on_step"}
+_SETTINGS_KEYS = frozenset(f.name for f in dataclasses.fields(LoopSettings))
 
 
 @dataclass
@@ -168,10 +169,8 @@ class SelfImprovementExperiment:
         self.backend, self.alpha, self.var_floor, self.map_options = gp_settings(
             gp_cfg, **self.gp_defaults
         )
-        self.loop_kwargs = loop_settings(
-            loop_cfg, num_envs=self.num_envs
-        )  # self_improve's keyword arguments
-        self.loop_settings = dict(self.loop_kwargs)  # the loop group's values, as checked
+        # the loop group's values, as checked (build adds the seed and the map's var_floor)
+        self.loop = loop_settings(loop_cfg, num_envs=self.num_envs)
         self.test_n, self.test_seed, self.dyn_seed = evaluation_settings(
             test_cfg,
             dyn_cfg,
@@ -191,7 +190,7 @@ class SelfImprovementExperiment:
         )  # refuses a bad backend or option now
         self.promp_cfg = {"num_basis": 10, "num_steps": 100, **dict(promp or {})}
         self.optimizer = optimizer_spec(optimizer)  # (class, kwargs)
-        if self.loop_kwargs["refill"] is True and not can_refill(*self.optimizer):
+        if self.loop.refill is True and not can_refill(*self.optimizer):
             raise ValueError(
                 f"loop.refill=true needs an optimiser that restarts single problems (pro with "
                 "relevance_every=1, rwr, cem), not "
@@ -220,8 +219,9 @@ class SelfImprovementExperiment:
         return torch.Generator().manual_seed(self.seed + DEMO_SEED_OFFSET)
 
     def loop_options(self) -> dict:
-        """Extra :func:`~protorch.loop.self_improve` keyword arguments of the task (none by
-        default)."""
+        """The task's own :class:`~protorch.loop.LoopSettings` fields (e.g. ``sample_steps``) and
+        :func:`~protorch.loop.self_improve` keyword arguments (e.g. ``solved``); none by
+        default."""
         return {}
 
     def initial_data(self):
@@ -236,9 +236,9 @@ class SelfImprovementExperiment:
         )
 
     def loop_arguments(self, variant: str | None) -> dict:
-        """``optimizer``, ``optimizer_kwargs`` and ``dataset`` (plus e.g. ``labeler``) of the
-        method's
-        loop (``variant=None``) or of the loop baseline ``variant``."""
+        """``optimizer``, ``optimizer_kwargs`` and ``dataset`` (plus e.g. ``labeler`` and
+        ``each_label``) of the method's loop (``variant=None``) or of the loop baseline
+        ``variant``."""
         cls, kwargs = self.optimizer
         return {"optimizer": cls, "optimizer_kwargs": kwargs, "dataset": self.initial_data()}
 
@@ -303,8 +303,7 @@ class SelfImprovementExperiment:
         self.dyn_env0 = (
             self.sample(self.episodes, self.dyn_seed) if self.dynamic_keys else None
         )  # (episodes, E)
-        self.loop_kwargs.update(seed=self.seed, var_floor=self.var_floor, **self.loop_options())
-        self.loop_kwargs["eval_envs"] = self.test_envs
+        self.loop = self.loop.replace(seed=self.seed, var_floor=self.var_floor)
         return self
 
     def check_task(self) -> None:
@@ -320,7 +319,7 @@ class SelfImprovementExperiment:
             self.task,
             traj,
             torch.as_tensor(self.demo_envs).to(traj),
-            dtype=self.loop_kwargs["eval_dtype"],
+            dtype=self.loop.torch_eval_dtype,
         )
 
     def num_dof(self) -> int:
@@ -338,21 +337,33 @@ class SelfImprovementExperiment:
 
     def run_loop(self, variant: str | None = None, **overrides) -> LoopResult:
         """:func:`~protorch.loop.self_improve` of the method (``variant=None``) or of the loop
-        baseline ``variant``; ``overrides`` replace loop settings (``batch_size``, ``run_dir``,
-        ...)."""
-        args = self.loop_arguments(variant)
-        args["optimizer_kwargs"] = problem_arguments(
-            args["optimizer"], args["optimizer_kwargs"], self.task, self.promp
+        baseline ``variant``; ``overrides`` replace :class:`~protorch.loop.LoopSettings` fields
+        (``batch_size``, ``threads``, ...) or set the :class:`~protorch.loop.Run` (``run_dir``,
+        ``resume``, ``progress``, ``on_step``)."""
+        args = {**self.loop_options(), **self.loop_arguments(variant), **overrides}
+        cls, data = args.pop("optimizer"), args.pop("dataset")
+        spec = OptimizerSpec(
+            cls, problem_arguments(cls, args.pop("optimizer_kwargs"), self.task, self.promp)
         )
-        data = args.pop("dataset")
-        desc = f"{args['optimizer'].__name__} loop" + ("" if variant is None else f" ({variant})")
-        kw = {"desc": desc, **self.loop_kwargs, **args, **overrides}
-        if kw["refill"] == "auto":  # on where the loop's optimiser can restart single problems
-            kw["refill"] = can_refill(kw["optimizer"], kw["optimizer_kwargs"])
+        desc = f"{cls.__name__} loop" + ("" if variant is None else f" ({variant})")
+        run = Run(desc=desc, **{_RUN_KEYS[k]: args.pop(k) for k in list(args) if k in _RUN_KEYS})
+        settings = self.loop.replace(**{k: args.pop(k) for k in list(args) if k in _SETTINGS_KEYS})
+        if settings.refill == "auto":  # on where the loop's optimiser can restart single problems
+            settings = settings.replace(refill=can_refill(spec))
         if variant is None:
-            self.refill_used = bool(kw["refill"])  # for the metrics (the settings keep "auto")
+            self.refill_used = bool(settings.refill)  # for the metrics (self.loop keeps "auto")
         task = self.task if self.loop_task is None else self.loop_task
-        return self_improve(task, self.promp, data, env_map=self.env_map, **kw)
+        return self_improve(
+            task,
+            self.promp,
+            data,
+            spec,
+            self.env_map,
+            settings,
+            run,
+            eval_envs=self.test_envs,
+            **args,
+        )
 
     def evaluate(self, model) -> tuple[dict, dict | None, object]:
         """``(test metrics, moving-test metrics, the episodes)`` of a map (an EnvToProMP)."""

@@ -25,16 +25,22 @@ labels apart, and a new environment starts from the label whose predicted mean h
 summed task costs (:meth:`~protorch.gp.EnvMap.predict_best`); the held-out check uses the same
 label-aware inference. Without a labeller every entry has label 0.
 
+The call is ``self_improve(task, promp, data, optimizer, env_map, settings, run=...)``: the
+optimiser an :class:`OptimizerSpec` (class and keyword arguments), the settings one
+:class:`LoopSettings` (the app's ``loop`` group is generated from it), the run a :class:`Run`
+(folder, resume, progress) or just the folder.
+
 Checkpoints (every ``checkpoint_every`` steps and at the end, atomic): the data set in
 ``<run_dir>/checkpoint/dataset.safetensors`` via :func:`protorch.data.checkpoint.save_model` (so
 :func:`protorch.load` rebuilds the map), with the loop's state (step, environments tried, metrics
 rows, elapsed seconds) in the same file's metadata, so data set and state can never disagree;
 ``<run_dir>/loop_metrics.csv`` is rewritten atomically from those rows at the same moment.
-``resume=True`` reloads that file, rebuilds the map by replaying the same fit and adds (so it is
-bit-identical to the killed run's) and continues with the next step: a resumed run ends with the
-same data set as an uninterrupted one. ``run_dir`` is checked to be writable before any work.
+``Run(dir, resume=True)`` reloads that file, rebuilds the map by replaying the same fit and
+adds (so it is bit-identical to the killed run's) and continues with the next step: a resumed run
+ends with the same data set as an uninterrupted one. ``run_dir`` is checked to be writable before any work.
 
-The package: :mod:`.settings` (:class:`LoopSettings`, validated), :mod:`.state` (:class:`RunState`:
+The package: :mod:`.settings` (:class:`LoopSettings`, :class:`OptimizerSpec`, :class:`Run`,
+validated), :mod:`.state` (:class:`RunState`:
 signature, checkpoint, resume), :mod:`.phases` (choose, infer, optimise, accept) and
 :mod:`.initial` (the demonstrations' data set); :func:`self_improve` reads as the algorithm above.
 """
@@ -54,7 +60,7 @@ from ..threads import ThreadGovernor, core_budget
 from .initial import dataset_pool, demonstration_dataset, group_by_env
 from .phases import Evaluator, accept, add, choose, infer, optimise, step_row
 from .refill import refill_loop
-from .settings import ADD_ONLY, CHOICES, LoopSettings
+from .settings import ADD_ONLY, CHOICES, LoopSettings, OptimizerSpec, Run
 from .state import (
     LOOP_STATE_VERSION,
     METRIC_FIELDS,
@@ -72,6 +78,8 @@ __all__ = [
     "METRIC_FIELDS",
     "LoopResult",
     "LoopSettings",
+    "OptimizerSpec",
+    "Run",
     "RunState",
     "demonstration_dataset",
     "group_by_env",
@@ -107,33 +115,16 @@ class LoopResult:
 def self_improve(
     task,
     promp,
-    dataset: TrajectoryDataset,
-    *,
-    optimizer: type,
-    optimizer_kwargs: dict,
+    data: TrajectoryDataset,
+    optimizer,
     env_map: Callable[[], object],
-    num_envs: int,
-    batch_size: int = 1,
-    add_only: str = "success",
-    choice: str = "random",
+    settings: LoopSettings | None = None,
+    run: Run | str | Path | None = None,
+    *,
     solved: Callable[[Tensor, Tensor], Tensor] | None = None,
     labeler: Callable[[Tensor, Tensor], Tensor] | None = None,
-    each_label: bool = False,
-    sample_steps: int | None = None,
-    seed: int = 0,
     eval_envs: Tensor | None = None,
-    min_var: float = 0.0,
-    var_floor: float = 0.0,
-    eval_dtype: torch.dtype | None = None,
-    run_dir: str | Path | None = None,
-    checkpoint_every: int = 1,
-    resume: bool = False,
-    progress: bool = False,
-    desc: str = "self-improvement",
-    on_step: Callable[[dict], None] | None = None,
-    threads: int | str | None = "auto",
-    refill: bool = False,
-    refill_group: int = 1,
+    **removed,
 ) -> LoopResult:
     """Run the self-improvement loop; see the module docstring.
 
@@ -143,157 +134,102 @@ def self_improve(
             only the objective they read.
         promp: the :class:`~protorch.ProMP` of the data set's weights (its basis and device are
             used).
-        dataset: the initial data (demonstrations, priors), left unchanged: the loop grows a copy
-            (``LoopResult.dataset``). On ``resume`` the checkpoint's data set replaces it.
-        optimizer, optimizer_kwargs: the optimiser class (``PRO``, ``RWR``, ...) and its keyword
-            arguments (``beta``, ``num_samples``, ``max_iter``, ``tol``, ...; not ``seed``).
+        data: the initial data set (demonstrations, priors), left unchanged: the loop grows a
+            copy (``LoopResult.dataset``). On resume the checkpoint's data set replaces it.
+        optimizer: the optimiser and its keyword arguments: an :class:`OptimizerSpec`
+            (``OptimizerSpec(PRO, {"beta": 20, "max_iter": 50})``), ``functools.partial(PRO,
+            beta=20)`` or the class alone (its defaults).
         env_map: a factory returning an empty :class:`~protorch.gp.EnvMap` (its ``backend``,
             ``alpha`` and ``options()`` are saved with the checkpoint).
-        num_envs: environments to try; ``batch_size``: ``B`` tried (inferred and optimised) at
-            once; the last step may be smaller.
-        add_only: which solutions join the data set: ``"converged"`` (the optimiser's flag, the
-            authors' rule; a ``solved`` stop counts as converged), ``"success"`` (the optimised
-            mean trajectory passes ``task.success``) or ``"all"``.
-        choice: ``"random"``, ``"nearest"`` or ``"dataset"`` (module docstring).
-        solved: ``(traj (b, T, D), env (b, E)) -> (b,)`` bool, checked on every active problem's
-            mean before the first and after every iteration; a solved problem stops there
-            (converged). ``None``: run each problem until the optimiser's own rule stops it.
+        settings: a :class:`LoopSettings` (default ``LoopSettings()``): ``num_envs``,
+            ``batch_size`` (``B`` environments inferred and optimised at once; the last step
+            may be smaller), ``add_only`` (``"converged"``: the optimiser's flag, the authors'
+            rule, a ``solved`` stop counting as converged; ``"success"``: the optimised mean
+            passes ``task.success``; ``"all"``), ``choice`` (module docstring), ``each_label``
+            (with a labeller: optimise every known label's prediction for each environment, ``K
+            b`` problems in one batched optimiser, and add every accepted solution, one per
+            environment and final label, the cheaper where two ended in the same class; the
+            metrics rows then count problems in ``added``, ``converged`` and the iterations, and
+            environments in ``initial_success`` / ``success``), ``sample_steps`` (evaluate the
+            samples at this many evenly spaced phases instead of the ProMP's ``T``; the final
+            solutions are always checked on all ``T`` steps), ``seed`` (the pool and every
+            step's optimiser seed), ``min_var`` (floor on the inferred variance the optimiser
+            starts from), ``var_floor`` (floor on a new entry's variance, i.e. its GP noise:
+            PRO can shrink variances to ~1e-7, which a flat kernel then fits with wild
+            functions), ``checkpoint_every``, ``refill`` (keep ``batch_size`` environments in
+            flight in one long-lived optimiser, a slot getting the next environment as soon as
+            its problems stop, :mod:`.refill`; needs an optimiser that restarts single problems,
+            ``can_restart``: PRO with ``relevance_every=1``, RWR, CEM; ``"auto"``: where it
+            can), ``refill_group`` (finished environments added and refilled once this many are
+            done), ``eval_dtype`` (the optimiser's search distribution, trajectories and costs;
+            ``None``: the ProMP's; the data set and map keep their own) and ``threads``
+            (torch's intra-op threads for the call, restored after it: an int, ``None`` or
+            ``"auto"``, the cores other programs leave free, re-chosen before every step,
+            :class:`~protorch.threads.ThreadGovernor`, docs/contention.md).
+        run: a :class:`Run` (``dir``, ``resume``, ``progress``, ``desc``, ``on_step``), a run
+            folder or ``None`` (no files). A resumed run must be the same run: the same initial
+            data set and every setting that changes what the loop computes; otherwise an error
+            names what differs. Without ``resume`` an existing checkpoint is an error.
+        solved: ``(traj (b, T, D), env (b, E)) -> (b,)`` bool, checked on every active
+            problem's mean before the first and after every iteration; a solved problem stops
+            there (converged). ``None``: each problem runs until the optimiser's own rule stops.
         labeler: ``(traj (b, T, D), env (b, E)) -> (b,)`` integer label of a solution (module
             docstring). With it, inference (the optimiser's start and ``eval_success``) predicts
             every label's mean and takes the one with the lowest summed ``task.costs``.
-        each_label: with a labeller, optimise every known label's prediction for each chosen
-            environment (``K b`` problems in one batched optimiser) and add every accepted
-            solution (one per environment and final label: two problems that ended in the same
-            class keep the cheaper), so each class is learned everywhere, not only where it is
-            the better one.
-            The metrics rows then count problems in ``added``, ``converged`` and the iterations,
-            and environments in ``initial_success`` / ``success`` (the lowest-cost class's mean,
-            as the label-aware inference would choose it).
-        sample_steps: evaluate the optimiser's sampled trajectories at this many evenly spaced
-            phases instead of the ProMP's ``T`` (a task whose costs use fewer steps than ``T``
-            pays for those only); the final solutions are always checked on all ``T`` steps.
-        seed: fixes the pool of environments and every step's optimiser seed.
         eval_envs: ``(Q, E)`` held-out environments; after every step the map's mean
             trajectories on them are checked with ``task.success`` (``eval_success``).
-        min_var: floor on the inferred variance the optimiser starts from.
-        var_floor: floor on the variance stored with a new entry, i.e. on its GP noise. PRO can
-            shrink variances to ~1e-7; the GP then treats solutions as exact and, with a flat
-            kernel, fits their small inconsistencies with wild functions (see the README).
-        eval_dtype: dtype of the optimiser's search distribution, the trajectories and the costs
-            (float32 is faster on a CPU); default the ProMP's. The data set and the map
-            keep their own dtype.
-        run_dir: where the checkpoint and ``loop_metrics.csv`` go (``None``: no files); created if
-            missing and checked to be writable before any work (``PermissionError`` otherwise).
-        checkpoint_every: write the checkpoint every k steps (and after the last).
-        resume: continue from ``run_dir``'s checkpoint if there is one. It must be the same run:
-            the same initial data set and every setting that changes what the loop computes
-            (``num_envs``, ``batch_size``, ``seed``, ``choice``, ``add_only``, the optimiser and
-            its kwargs, the map's backend, alpha and options, ``min_var``, ``var_floor``,
-            ``sample_steps``, ``eval_dtype``, labels); otherwise an error names what differs.
-            Without ``resume`` an existing checkpoint there is an error (never overwritten).
-        progress: show a tqdm bar with the live success rate.
-        on_step: called with each new metrics row (after the step's checkpoint, if any).
-        threads: torch's intra-op CPU threads for the call, restored after it: an int, ``None``
-            (torch's setting) or ``"auto"`` (default: the cores other programs leave free,
-            re-chosen before every step; :class:`~protorch.threads.ThreadGovernor`), which keeps
-            the loop fast both on an idle machine and where another program holds a core
-            (docs/contention.md).
-        refill: keep ``batch_size`` environments in flight in one long-lived optimiser and give a
-            slot the next environment as soon as its problems stop, adding each accepted solution
-            to the map as it comes (:mod:`.refill`: the paper's sequential loop with ``B``
-            workers). Needs an optimiser that restarts single problems (``can_restart``: PRO with
-            ``relevance_every=1``, RWR, CEM). A metrics row and checkpoint are written each time
-            ``batch_size`` more environments finished; a resumed run keeps every finished one.
-        refill_group: with ``refill``, finished environments are added and their slots refilled
-            once this many are done (1: each as it comes; more: fewer adds to the map).
     """
-    with ThreadGovernor(threads) as governor:
+    if removed:
+        raise TypeError(
+            f"self_improve() no longer takes {', '.join(sorted(removed))}=: call "
+            "self_improve(task, promp, data, OptimizerSpec(PRO, {...}), env_map, "
+            "LoopSettings(num_envs=..., ...), run=Run(dir=..., resume=...))"
+        )
+    settings = LoopSettings() if settings is None else settings
+    if not isinstance(settings, LoopSettings):
+        raise TypeError(f"settings must be a LoopSettings, got {type(settings).__name__}")
+    spec, run = OptimizerSpec.of(optimizer), Run.of(run)
+    _check_inputs(data, spec, labeler, settings)
+    if settings.refill == "auto":  # on where the optimiser can restart single problems
+        settings = settings.replace(refill=can_refill(spec))
+    with ThreadGovernor(settings.threads) as governor:
         return _improve(
             task,
             promp,
-            dataset,
-            optimizer=optimizer,
-            optimizer_kwargs=optimizer_kwargs,
-            env_map=env_map,
-            num_envs=num_envs,
-            batch_size=batch_size,
-            add_only=add_only,
-            choice=choice,
+            data,
+            spec,
+            env_map,
+            settings,
+            run,
             solved=solved,
             labeler=labeler,
-            each_label=each_label,
-            sample_steps=sample_steps,
-            seed=seed,
             eval_envs=eval_envs,
-            min_var=min_var,
-            var_floor=var_floor,
-            eval_dtype=eval_dtype,
-            run_dir=run_dir,
-            checkpoint_every=checkpoint_every,
-            resume=resume,
-            progress=progress,
-            desc=desc,
-            on_step=on_step,
             governor=governor,
-            refill=refill,
-            refill_group=refill_group,
         )
 
 
 def _improve(
     task,
     promp,
-    dataset,
+    dataset: TrajectoryDataset,
+    spec: OptimizerSpec,
+    env_map: Callable[[], object],
+    settings: LoopSettings,
+    run: Run,
     *,
-    optimizer,
-    optimizer_kwargs,
-    env_map,
-    num_envs,
-    batch_size,
-    add_only,
-    choice,
     solved,
     labeler,
-    each_label,
-    sample_steps,
-    seed,
     eval_envs,
-    min_var,
-    var_floor,
-    eval_dtype,
-    run_dir,
-    checkpoint_every,
-    resume,
-    progress,
-    desc,
-    on_step,
     governor,
-    refill,
-    refill_group,
 ) -> LoopResult:
-    """The body of :func:`self_improve` (the same arguments), run inside its thread setting."""
-    settings = LoopSettings(
-        num_envs=num_envs,
-        batch_size=batch_size,
-        add_only=add_only,
-        choice=choice,
-        each_label=each_label,
-        sample_steps=sample_steps,
-        seed=seed,
-        min_var=min_var,
-        var_floor=var_floor,
-        checkpoint_every=checkpoint_every,
-        refill=refill,
-        refill_group=refill_group,
-    )
-    _check_inputs(
-        dataset, optimizer, optimizer_kwargs, labeler, each_label, run_dir, resume, refill
-    )
-    run_dir = None if run_dir is None else writable_folder(run_dir)
+    """The body of :func:`self_improve` (its arguments, checked), run inside its thread
+    setting."""
+    optimizer, optimizer_kwargs, on_step = spec.cls, spec.kwargs, run.on_step
+    run_dir = None if run.dir is None else writable_folder(run.dir)
     ev = Evaluator.build(
         task,
         promp,
-        eval_dtype=eval_dtype,
+        eval_dtype=settings.torch_eval_dtype,
         sample_steps=settings.sample_steps,
         labeler=labeler,
         dtype=dataset.dtype,
@@ -317,11 +253,13 @@ def _improve(
         pool = dataset_pool(dataset, settings.num_envs, dataset.dtype)  # (n, E)
     else:
         pool = task.sample_envs(
-            settings.num_envs, torch.Generator().manual_seed(int(seed)), dtype=dataset.dtype
+            settings.num_envs,
+            torch.Generator().manual_seed(int(settings.seed)),
+            dtype=dataset.dtype,
         )  # (n, E)
     if eval_envs is not None:
         eval_envs = ev.here(torch.as_tensor(eval_envs))  # (Q, E)
-    data = state.start(dataset, promp, resume=resume)  # a copy of dataset, or the checkpoint's
+    data = state.start(dataset, promp, resume=run.resume)  # a copy of dataset, or the checkpoint's
     state.fit(gp, data)
     if not state.rows:
         state.rows.append(
@@ -333,7 +271,7 @@ def _improve(
                 "seconds": 0.0,
             }
         )
-    bar = _progress_bar(progress, settings.num_envs, len(state.tried), desc)
+    bar = _progress_bar(run.progress, settings.num_envs, len(state.tried), run.desc)
 
     def finish_step(row: dict) -> None:
         """Complete a refill loop's metrics row, checkpoint and report it."""
@@ -417,42 +355,30 @@ def _improve(
     )
 
 
-def _check_inputs(
-    dataset,
-    optimizer,
-    optimizer_kwargs: dict,
-    labeler,
-    each_label: bool,
-    run_dir,
-    resume: bool,
-    refill: bool,
-) -> None:
+def _check_inputs(dataset, spec: OptimizerSpec, labeler, settings: LoopSettings) -> None:
     """Refuse, before any work, what :class:`LoopSettings` cannot see."""
-    if each_label and labeler is None:
+    if settings.each_label and labeler is None:
         raise ValueError("each_label=True needs a labeler")
-    if "seed" in optimizer_kwargs:
-        raise ValueError(
-            "optimizer_kwargs must not hold 'seed': the loop seeds every step from (seed, step)"
-        )
     if len(dataset) == 0:
         raise ValueError("the initial data set is empty: add demonstrations or priors first")
-    if resume and run_dir is None:
-        raise ValueError("resume=True needs a run_dir")
-    if refill and not can_refill(optimizer, optimizer_kwargs):
+    if settings.refill is True and not can_refill(spec):
         raise ValueError(
             "refill=True needs an optimiser that restarts single problems (PRO with "
             "relevance_every=1, "
-            f"RWR, CEM); {optimizer.__name__} with these settings cannot: set refill=False"
+            f"RWR, CEM); {spec.cls.__name__} with these settings cannot: set refill=False"
         )
 
 
-def can_refill(optimizer: type, optimizer_kwargs: dict) -> bool:
-    """Whether ``optimizer(**optimizer_kwargs)`` can restart single problems (``can_restart``),
-    asked of one built on a small problem."""
-    if getattr(optimizer, "can_restart", False) is False:
+def can_refill(optimizer, optimizer_kwargs: dict | None = None) -> bool:
+    """Whether the optimiser (an :class:`OptimizerSpec`, a class with ``optimizer_kwargs``, or a
+    partial) can restart single problems (``can_restart``), asked of one built on a small
+    problem."""
+    spec = OptimizerSpec.of(optimizer)
+    kw = {**spec.kwargs, **(optimizer_kwargs or {})}
+    kw.pop("seed", None)
+    if getattr(spec.cls, "can_restart", False) is False:
         return False
-    kw = {k: v for k, v in optimizer_kwargs.items() if k != "seed"}
-    return bool(optimizer(torch.zeros(1, 2), torch.ones(1, 2), seed=0, **kw).can_restart)
+    return bool(spec.cls(torch.zeros(1, 2), torch.ones(1, 2), seed=0, **kw).can_restart)
 
 
 def _progress_bar(enabled: bool, total: int, initial: int, desc: str):

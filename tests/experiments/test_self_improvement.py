@@ -97,7 +97,7 @@ def test_the_benchmarks_read_the_composed_config():
     assert (
         len(setup.demos) == 90
         and setup.test_envs.shape[0] == 3
-        and setup.loop_kwargs["num_envs"] == 1
+        and setup.loop.num_envs == 1
     )
     with pytest.raises(TypeError, match="takes \\*\\*kwargs"):
         configs.arguments_of(lambda **kw: None, s)

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from protorch import PRO, make_env_map
-from protorch.loop import self_improve
+from protorch.loop import LoopSettings, OptimizerSpec, self_improve
 
 from .test_loop import setup
 
@@ -18,15 +18,20 @@ def run(ds, num_envs, **kw):
         task,
         promp,
         ds,
-        optimizer=PRO,
-        env_map=lambda: make_env_map("torch", 1.0),
-        optimizer_kwargs={"beta": 20.0, "num_samples": 20, "max_iter": 5, "relevance_samples": 20},
-        num_envs=num_envs,
-        batch_size=2,
-        add_only="all",
-        seed=0,
-        choice="dataset",
-        **kw,
+        OptimizerSpec(
+            PRO, {"beta": 20.0, "num_samples": 20, "max_iter": 5, "relevance_samples": 20}
+        ),
+        lambda: make_env_map("torch", 1.0),
+        LoopSettings(
+            num_envs=num_envs,
+            batch_size=2,
+            add_only="all",
+            seed=0,
+            choice="dataset",
+            refill=False,
+            eval_dtype=None,
+            **kw,
+        ),
     )
 
 

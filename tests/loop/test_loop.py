@@ -4,6 +4,7 @@ batch sizes, atomic checkpoints and resuming after a crash or a SIGKILL."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import os
 import signal
 import subprocess
@@ -19,7 +20,15 @@ import protorch
 from protorch import PRO, RWR, ProMP, make_env_map
 from protorch.data.checkpoint import checkpoint_path
 from protorch.data.dataset import ORIGINS, TrajectoryDataset
-from protorch.loop import METRICS_FILE, demonstration_dataset, group_by_env, self_improve
+from protorch.loop import (
+    METRICS_FILE,
+    LoopSettings,
+    OptimizerSpec,
+    Run,
+    demonstration_dataset,
+    group_by_env,
+    self_improve,
+)
 
 F64 = torch.float64
 ROOT = Path(__file__).resolve().parents[2]
@@ -79,18 +88,26 @@ KW = dict(
 )
 
 
+RUN_KEYS = {"run_dir": "dir", "resume": "resume", "progress": "progress", "on_step": "on_step"}
+LOOP_DEFAULTS = dict(num_envs=10, batch_size=4, refill=False, eval_dtype=None)
+
+
 def loop(task, promp, ds, **kw):
-    kw.setdefault("optimizer", PRO)
-    kw.setdefault(
-        "optimizer_kwargs",
+    """``self_improve`` with these tests' defaults: ``kw`` names settings, run and optimiser
+    fields flat (``run_dir``, ``optimizer_kwargs``, ``num_envs``, ...) and is split into the
+    :class:`LoopSettings`, :class:`Run` and :class:`OptimizerSpec` the call takes."""
+    cls = kw.pop("optimizer", PRO)
+    default_kw = (
         KW
-        if kw["optimizer"] is PRO
-        else {k: KW[k] for k in ("beta", "num_samples", "max_iter", "tol", "window")},
+        if cls is PRO
+        else {k: KW[k] for k in ("beta", "num_samples", "max_iter", "tol", "window")}
     )
-    kw.setdefault("env_map", lambda: make_env_map("torch", 1.0))
-    kw.setdefault("num_envs", 10)
-    kw.setdefault("batch_size", 4)
-    return self_improve(task, promp, ds, **kw)
+    optimizer = OptimizerSpec(cls, kw.pop("optimizer_kwargs", default_kw))
+    env_map = kw.pop("env_map", lambda: make_env_map("torch", 1.0))
+    run = Run(**{RUN_KEYS[k]: kw.pop(k) for k in list(kw) if k in RUN_KEYS})
+    names = {f.name for f in dataclasses.fields(LoopSettings)}
+    settings = LoopSettings(**{**LOOP_DEFAULTS, **{k: kw.pop(k) for k in list(kw) if k in names}})
+    return self_improve(task, promp, ds, optimizer, env_map, settings, run, **kw)
 
 
 class Crash(Exception):
@@ -312,7 +329,7 @@ def test_bad_options_are_refused_before_any_work(tmp_path):
         ({"batch_size": 0}, "batch_size"),
         ({"add_only": "best"}, "add_only"),
         ({"choice": "far"}, "choice"),
-        ({"resume": True}, "run_dir"),
+        ({"resume": True}, "needs a dir"),
         ({"var_floor": -1.0}, "var_floor"),
         ({"optimizer_kwargs": {**KW, "seed": 1}}, "seed"),
     ]:

@@ -6,7 +6,7 @@ core (:func:`pearson_relevance`, :func:`pro_update`) and the optimisers :class:`
 tell contract (:data:`OPTIMIZERS` by name); :class:`ProtorchError`, the base of protorch's errors;
 the environment -> ProMP map
 (:func:`make_env_map`, :class:`TrajectoryDataset`, :func:`load`); the self-improvement loop
-(:func:`self_improve`).
+(:func:`self_improve` with :class:`LoopSettings`, :class:`OptimizerSpec` and :class:`Run`).
 """
 
 from .data.checkpoint import save_model
@@ -15,7 +15,7 @@ from .data.files import CheckpointError
 from .errors import ProtorchError
 from .gp import load_env_map, make_env_map
 from .gp.model import EnvToProMP
-from .loop import LoopResult, demonstration_dataset, self_improve
+from .loop import LoopResult, LoopSettings, OptimizerSpec, Run, demonstration_dataset, self_improve
 from .optim import (
     CEM,
     CMAES,
@@ -73,6 +73,9 @@ __all__ = [
     "load",
     "save_model",
     "self_improve",
+    "LoopSettings",
+    "OptimizerSpec",
+    "Run",
     "LoopResult",
     "demonstration_dataset",
     "__version__",

@@ -19,7 +19,7 @@ BLOCK = re.compile(r"^```python\n(.*?)^```", re.S | re.M)
 SMALLER = {
     ("README.md", 0): [
         ("num_envs=1000, batch_size=100", "num_envs=10, batch_size=10"),
-        ("num_samples=100, max_iter=200),", "num_samples=20, max_iter=5),"),
+        ("num_samples=100, max_iter=200))", "num_samples=20, max_iter=5))"),
     ],
     ("docs/library.md", 0): [
         ("num_envs=1000, batch_size=100", "num_envs=10, batch_size=10"),

@@ -11,7 +11,7 @@ Two workloads, each in a fresh Python process so no thread pool or cache carries
   episodes, the demos-only and RWR baselines, no figures.
 * ``loop``: the README's library loop snippet (``self_improve`` with PRO on the point particle,
   30 x 3 synthetic demonstrations, beta 20, alpha 1e-3) at ``--envs`` environments, B = 50,
-  PRO <= 50 iterations, with ``self_improve(..., threads=N)``.
+  PRO <= 50 iterations, with ``self_improve(..., LoopSettings(threads=N))``.
 
 ``busy`` starts ``python3 -c 'while True: pass'`` before the workload and stops it after. It
 prints each wall time, busy / idle per thread setting (the goal: <= 2) and each setting's time
@@ -33,18 +33,21 @@ ROOT = Path(__file__).resolve().parents[2]
 LOOP = """
 import torch
 from protorch import PRO, ProMP, make_env_map, self_improve, demonstration_dataset
+from protorch.loop import LoopSettings, OptimizerSpec, Run
 from protorch.tasks import PointParticleTask
 
 task = PointParticleTask(objectives="clearance")
 promp = ProMP(num_dof=2, num_basis=10, num_steps=100)
 demos, demo_envs = task.demonstrations(30, per_env=3)
 data = demonstration_dataset(promp, demos, demo_envs, task_name=task.name, var_floor=1e-4)
-self_improve(task, promp, data, optimizer=PRO,
-             optimizer_kwargs=dict(beta=20.0, num_samples=100, max_iter=50, relevance_samples=100,
-                                   noise_floor=None),
-             env_map=lambda: make_env_map("torch", alpha=1e-3), num_envs={envs}, batch_size=50,
-             add_only="success", choice="random", var_floor=1e-4, eval_dtype=torch.float32,
-             run_dir={run_dir!r}, checkpoint_every=1, resume=False, progress=False, threads={threads})
+self_improve(task, promp, data,
+             OptimizerSpec(PRO, dict(beta=20.0, num_samples=100, max_iter=50,
+                                     relevance_samples=100, noise_floor=None)),
+             lambda: make_env_map("torch", alpha=1e-3),
+             LoopSettings(num_envs={envs}, batch_size=50, add_only="success", choice="random",
+                          var_floor=1e-4, eval_dtype="float32", checkpoint_every=1,
+                          refill=False, threads={threads}),
+             Run(dir={run_dir!r}, resume=False, progress=False))
 """
 
 

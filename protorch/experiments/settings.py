@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import types
 import typing
 from dataclasses import dataclass
 from typing import Any
 
 from ..errors import ProtorchError
+from ..loop.settings import LOOP_GROUP, LoopSettings
 
 __all__ = [
     "SettingsError",
@@ -92,14 +94,18 @@ def _check_scalar(tp, value, meta: dict) -> str | None:
 
 def _check(tp, value, meta: dict, key: str):
     origin, args = typing.get_origin(tp), typing.get_args(tp)
-    if origin is typing.Union:
+    if origin is typing.Union or origin is types.UnionType:
         if value is None and type(None) in args:
             return value
-        (inner,) = [a for a in args if a is not type(None)]
-        try:
-            return _check(inner, value, meta, key)
-        except SettingsError as exc:
-            raise SettingsError(f"{str(exc)} or null") from None
+        inner = [a for a in args if a is not type(None)]
+        errors = []
+        for tp_i in inner:
+            try:
+                return _check(tp_i, value, meta, key)
+            except SettingsError as exc:
+                errors.append(str(exc).partition(" must be ")[2])
+        what = " or ".join(errors + (["null"] if type(None) in args else []))
+        raise SettingsError(f"{key}={value!r} must be {what}")
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):
             raise SettingsError(
@@ -245,31 +251,23 @@ class ProMPSettings:
     num_steps: int = setting(100, "time steps of a trajectory", ge=2)
 
 
-@dataclass
-class Loop:
-    num_envs: int = setting(1000, "environments the self-improvement loop tries", ge=1)
-    batch_size: int = setting(100, "B environments inferred and optimised at once", ge=1)
-    add_only: str = setting(
-        "success", "which solutions join the data set", choices=("converged", "success", "all")
+def _section(source: type, names: tuple[str, ...], name: str) -> type:
+    """A schema dataclass holding ``names`` of the dataclass ``source``: their types, defaults,
+    meanings and ranges as ``source`` defines them (one definition, read by the app too)."""
+    hints = typing.get_type_hints(source)
+    fields = {f.name: f for f in dataclasses.fields(source)}
+    return dataclasses.make_dataclass(
+        name,
+        [
+            (n, hints[n], dataclasses.field(default=fields[n].default, metadata=fields[n].metadata))
+            for n in names
+        ],
+        namespace={"__module__": __name__, "__doc__": f"The {source.__name__} fields {names}."},
     )
-    choice: str = setting(
-        "random",
-        "order of the environments: pool order or nearest known first",
-        choices=("random", "nearest", "dataset"),
-    )
-    checkpoint_every: int = setting(1, "loop steps between atomic checkpoints", ge=1)
-    eval_dtype: str = setting(
-        "float32", "dtype of the optimiser's samples and costs", choices=("float32", "float64")
-    )
-    min_var: float = setting(0.0, "floor on the inferred variance the optimiser starts from", ge=0)
-    refill: typing.Any = setting(
-        "auto",
-        "give a finished problem's slot the next environment at once (B workers); "
-        "auto: where the optimiser can restart single problems (pro, rwr, cem)",
-    )
-    refill_group: int = setting(
-        1, "with refill: finished environments added and refilled once this many are done", ge=1
-    )
+
+
+# the loop group: LoopSettings' fields that an experiment's loop group sets (LOOP_GROUP)
+Loop = _section(LoopSettings, LOOP_GROUP, "Loop")
 
 
 @dataclass
@@ -280,7 +278,7 @@ class Test:
 
 # ----------------------------------------------------------------------------- experiments
 @dataclass
-class ParticleLoop(Loop):
+class ParticleLoop(Loop):  # type: ignore[misc, valid-type]
     stop_when_solved: bool = setting(False, "stop a problem once its mean passes with margins")
 
 
@@ -331,7 +329,7 @@ class PointParticleSettings:
 
 
 @dataclass
-class ArmLoop(Loop):
+class ArmLoop(Loop):  # type: ignore[misc, valid-type]
     labels: bool = setting(True, "label solutions by homotopy class; false: the paper's single map")
     each_label: bool = setting(True, "optimise every class's prediction for each environment")
 
@@ -415,7 +413,7 @@ class ArmReachSettings:
 @dataclass
 class SelfImproveSettings:
     promp: ProMPSettings = setting(ProMPSettings(), "the ProMP's basis")
-    loop: Loop = setting(Loop(), "the self-improvement loop")
+    loop: Loop = setting(Loop(), "the self-improvement loop")  # type: ignore[valid-type]
     test: Test = setting(Test(), "the held-out test")
     baselines: list[str] = setting(
         ["demos_only"], "baselines run alongside", choices=("demos_only",)

@@ -34,7 +34,7 @@ import torch
 from ..checks import check_int, check_keys
 from ..control.teleop_guide import GUIDE_DEFAULTS, MixtureGuide, variance_map
 from ..gp import make_env_map
-from ..loop import demonstration_dataset, self_improve
+from ..loop import LoopSettings, OptimizerSpec, demonstration_dataset, self_improve
 from ..optim import OPTIMIZERS
 from ..primitives.promp import ProMP
 from ..tasks.teleop_operators import careful_demonstrations, load_operator, probe_operator
@@ -151,23 +151,19 @@ def build_map(
     ds = demonstration_dataset(
         promp, demos, envs, labels=labels, var_floor=var_floor, task_name=task.name
     )
-    res = self_improve(
-        task,
-        promp,
-        ds,
-        optimizer=OPTIMIZERS[optimizer],
-        optimizer_kwargs=optimizer_kwargs,
-        env_map=factory,
+    settings = LoopSettings(
         num_envs=int(lc["num_envs"]),
         batch_size=int(lc["batch_size"]),
         add_only="success",
-        labeler=task.label,
         each_label=True,
         seed=seed,
         var_floor=var_floor,
-        eval_dtype=getattr(torch, lc["eval_dtype"]),
+        eval_dtype=lc["eval_dtype"],
+        refill=False,
         threads=1,
     )
+    spec = OptimizerSpec(OPTIMIZERS[optimizer], optimizer_kwargs)
+    res = self_improve(task, promp, ds, spec, factory, settings, labeler=task.label)
     return res.env_map, variance_map(factory, res.env_map), res
 
 

@@ -95,6 +95,7 @@ class LoopSettings:
         "auto",
         "give a finished problem's slot the next environment at once (B workers); "
         "auto: where the optimiser can restart single problems (pro, rwr, cem)",
+        choices=("auto",),
     )
     refill_group: int = _setting(
         1, "with refill: finished environments added and refilled once this many are done", ge=1

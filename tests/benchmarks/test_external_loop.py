@@ -93,7 +93,7 @@ def test_the_protocol_check_passes(loop):
 
 def test_a_tiny_loop_counts_every_episode_it_ran(loop):
     from protorch.gp import make_env_map
-    from protorch.loop import self_improve
+    from protorch.loop import LoopSettings, OptimizerSpec, self_improve
     from protorch.optim import CMAES
 
     fake = FakeEpisodes(thr=5.0)
@@ -103,16 +103,20 @@ def test_a_tiny_loop_counts_every_episode_it_ran(loop):
         task,
         promp,
         loop.prior_dataset(task, promp, 1.0),
-        optimizer=CMAES,
-        optimizer_kwargs={"num_samples": 6, "max_iter": 3, "tol": 0.0},
-        env_map=lambda: make_env_map("torch", 5.0),
-        num_envs=2,
-        add_only="all",
-        choice="nearest",
+        OptimizerSpec(CMAES, {"num_samples": 6, "max_iter": 3, "tol": 0.0}),
+        lambda: make_env_map("torch", 5.0),
+        LoopSettings(
+            num_envs=2,
+            batch_size=1,
+            add_only="all",
+            choice="nearest",
+            min_var=0.04,
+            var_floor=0.01,
+            refill=False,
+            eval_dtype=None,
+            threads=1,
+        ),
         solved=task.success,
-        min_var=0.04,
-        var_floor=0.01,
-        threads=1,
     )
     ran = sum(len(w) for w, _ in fake.calls)
     assert task.episodes == ran == len(task.cache)

@@ -26,7 +26,7 @@ from protorch.optim import OPTIMIZERS
 ROOT = Path(__file__).resolve().parents[2]
 
 BAD = [
-    ("settings.loop.num_envs=abc", "settings.loop.num_envs='abc' must be an int >= 1"),
+    ("settings.loop.num_envs=abc", "settings.loop.num_envs='abc' must be an int >= 0"),
     ("optimizer.beta=abc", "optimizer.beta='abc' must be a number > 0"),
     ("optimizer.beta=[1,2]", "optimizer.beta=[1, 2] must be a number > 0"),
     ("baseline_optimizer.center=foo", "baseline_optimizer.center='foo' must be one of new, old"),

@@ -402,7 +402,7 @@ def main(argv: list[str] | None = None) -> dict:
 
     from protorch.data.dataset import ORIGINS
     from protorch.gp import make_env_map
-    from protorch.loop import self_improve
+    from protorch.loop import LoopSettings, OptimizerSpec, Run, self_improve
     from protorch.optim import CEM, CMAES, EPRO, PRO
 
     torch.set_num_threads(1)
@@ -458,20 +458,23 @@ def main(argv: list[str] | None = None) -> dict:
         task,
         promp,
         prior_dataset(task, promp, args.start_std),
-        optimizer=optimizer,
-        optimizer_kwargs=kwargs,
-        env_map=lambda: make_env_map("torch", args.alpha),
-        num_envs=args.train,
-        batch_size=1,
-        add_only=args.add_only,
-        choice=args.choice,
+        OptimizerSpec(optimizer, kwargs),
+        lambda: make_env_map("torch", args.alpha),
+        LoopSettings(
+            num_envs=args.train,
+            batch_size=1,
+            add_only=args.add_only,
+            choice=args.choice,
+            seed=args.seed,
+            min_var=args.min_var,
+            var_floor=args.var_floor,
+            refill=False,
+            eval_dtype=None,
+            threads=1,
+        ),
+        Run(on_step=on_step),
         solved=task.success,
-        seed=args.seed,
         eval_envs=heldout,
-        min_var=args.min_var,
-        var_floor=args.var_floor,
-        threads=1,
-        on_step=on_step,
     )
     out["rows"].insert(
         0, {**res.metrics[0], "episodes": 0, "heldout_episodes": 0, "wall_seconds": 0.0}

@@ -47,7 +47,7 @@ def cpu():
     s, c = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     return s.ru_utime + s.ru_stime + c.ru_utime + c.ru_stime
 import protorch.experiments.point_particle as pp
-import protorch.experiments.self_improvement as si
+import protorch.experiments.loop_run as si
 from configs import experiment_config
 from protorch.experiments import run_experiment
 spent, inside = {}, []

@@ -41,7 +41,7 @@ import torch
 
 from protorch.data.import_bag import env_columns, import_bags, recording_table
 from protorch.data.recordings import write_recording
-from protorch.experiments.self_improvement import DEMO_SEED_OFFSET
+from protorch.experiments.loop_run import DEMO_SEED_OFFSET
 from protorch.tasks.arm.demos import arm_demo_format
 from protorch.tasks.arm.reach import ArmReachTask
 

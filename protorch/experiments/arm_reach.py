@@ -61,7 +61,7 @@ from ..viz.arm import experiment_figures
 from ..viz.recordings import recordings_figure
 from .arm_physics import check_physics, physics_section
 from .common import demo_source
-from .self_improvement import (
+from .loop_run import (
     DYNAMIC_SEED,
     TEST_SEED,
     Outcome,

@@ -31,19 +31,19 @@ from ..viz.common import legend_below
 from ..viz.online import plot_episode_frames, write_episode_gif
 from ..viz.paper import plot_point_particle, plot_trajectories, save_figure
 from .common import baseline_spec, demo_source, optimizer_label
+from .loop_run import (
+    DEMO_SEED_OFFSET,
+    DYNAMIC_SEED,
+    TEST_SEED,
+    Outcome,
+    SelfImprovementExperiment,
+)
 from .particle_paper import (
     convergence_rule,
     evaluate_paper,
     hole_failures,
     paper_figures,
     paper_settings,
-)
-from .self_improvement import (
-    DEMO_SEED_OFFSET,
-    DYNAMIC_SEED,
-    TEST_SEED,
-    Outcome,
-    SelfImprovementExperiment,
 )
 
 __all__ = ["run", "prepare", "Setup", "PointParticleExperiment", "TEST_SEED", "DYNAMIC_SEED"]

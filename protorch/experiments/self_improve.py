@@ -27,7 +27,7 @@ from ..loop import LoopResult
 from ..loop.settings import LOOP_GROUP
 from ..tasks import check_task_protocol, make_task
 from ..viz.paper import save_figure
-from .self_improvement import DEMO_SEED_OFFSET, TEST_SEED, Outcome, SelfImprovementExperiment
+from .loop_run import DEMO_SEED_OFFSET, TEST_SEED, Outcome, SelfImprovementExperiment
 from .settings import SettingsError
 
 __all__ = ["run", "build_task", "GenericExperiment", "TEST_SEED", "DEMO_SEED_OFFSET"]

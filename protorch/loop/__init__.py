@@ -37,7 +37,8 @@ rows, elapsed seconds) in the same file's metadata, so data set and state can ne
 ``<run_dir>/loop_metrics.csv`` is rewritten atomically from those rows at the same moment.
 ``Run(dir, resume=True)`` reloads that file, rebuilds the map by replaying the same fit and
 adds (so it is bit-identical to the killed run's) and continues with the next step: a resumed run
-ends with the same data set as an uninterrupted one. ``run_dir`` is checked to be writable before any work.
+ends with the same data set as an uninterrupted one. The run's folder is checked to be writable
+before any work.
 
 The package: :mod:`.settings` (:class:`LoopSettings`, :class:`OptimizerSpec`, :class:`Run`,
 validated), :mod:`.state` (:class:`RunState`:

@@ -133,11 +133,11 @@ class LoopSettings:
         s = self.sample_steps
         if s is not None and (isinstance(s, bool) or int(s) != s or int(s) < 2):
             raise ValueError(f"sample_steps must be None or an int >= 2, got {s!r}")
-        dt = self.eval_dtype
-        name = str(dt).removeprefix("torch.") if isinstance(dt, torch.dtype) else dt
-        if name is not None and name not in EVAL_DTYPES:
+        dt = self.eval_dtype  # a name, None or a torch.dtype
+        dname = str(dt).removeprefix("torch.") if isinstance(dt, torch.dtype) else dt
+        if dname is not None and dname not in EVAL_DTYPES:
             raise ValueError(f"eval_dtype must be one of {list(EVAL_DTYPES)} or None, got {dt!r}")
-        object.__setattr__(self, "eval_dtype", name)
+        object.__setattr__(self, "eval_dtype", dname)
         t = self.threads
         if not (t is None or t == "auto" or (isinstance(t, int) and not isinstance(t, bool))):
             raise ValueError(f"threads must be an int, 'auto' or None, got {t!r}")

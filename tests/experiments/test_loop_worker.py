@@ -10,12 +10,12 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-import protorch.experiments.self_improvement as skeleton
+import protorch.experiments.loop_run as skeleton
 from protorch.data.checkpoint import checkpoint_path
 from protorch.experiments.loop_worker import LoopWorker, decode_settings, encode_settings
 from protorch.threads import torch_threads
 
-from .test_self_improvement import TINY, Twice
+from .test_loop_run import TINY, Twice
 
 ROOT = Path(__file__).resolve().parents[2]
 

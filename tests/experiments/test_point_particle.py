@@ -22,7 +22,7 @@ from protorch.app.main import config_dir
 from protorch.data.checkpoint import checkpoint_path
 from protorch.data.dataset import TrajectoryDataset
 from protorch.experiments import check_config, point_particle, run_experiment
-from protorch.experiments.self_improvement import Outcome
+from protorch.experiments.loop_run import Outcome
 
 ROOT = Path(__file__).resolve().parents[2]
 HUMAN = ROOT.parent / "shared" / "data" / "point_particle_human_demos"

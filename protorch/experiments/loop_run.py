@@ -1,7 +1,12 @@
-"""The self-improvement experiment, written once for every task that runs it.
+"""An experiment around the self-improvement loop, written once for every task that runs it.
 
-:class:`SelfImprovementExperiment` is the skeleton of ``point_particle``, ``arm_reach`` and
-``self_improve``:
+The loop itself is the library's (:mod:`protorch.loop`: :func:`~protorch.loop.self_improve`,
+:class:`~protorch.loop.LoopSettings`); this module is the app's run of it: the settings groups
+checked and turned into a ``LoopSettings`` (:func:`~protorch.experiments.common.loop_settings`),
+the demonstrations, the tests, the baselines (a loop baseline in a worker process,
+:mod:`~protorch.experiments.loop_worker`) and the metrics. :class:`SelfImprovementExperiment` is
+the skeleton of ``point_particle``, ``arm_reach`` and ``self_improve`` (the app for a user's
+task, :mod:`~protorch.experiments.self_improve`):
 
 1. settings checked (every group, before any work; :meth:`~SelfImprovementExperiment.configure`
    adds the task's own checks and builds the task object);

@@ -1,4 +1,4 @@
-"""The experiment skeleton (protorch.experiments.self_improvement) with a subclass of its own, and
+"""The experiment skeleton (protorch.experiments.loop_run) with a subclass of its own, and
 the benchmarks' settings helper (benchmarks/configs.py)."""
 
 from __future__ import annotations
@@ -94,10 +94,6 @@ def test_the_benchmarks_read_the_composed_config():
         setup.optimizers["pro"][1]["num_samples"] == 100
         and setup.optimizers["rwr"][0].__name__ == "RWR"
     )
-    assert (
-        len(setup.demos) == 90
-        and setup.test_envs.shape[0] == 3
-        and setup.loop.num_envs == 1
-    )
+    assert len(setup.demos) == 90 and setup.test_envs.shape[0] == 3 and setup.loop.num_envs == 1
     with pytest.raises(TypeError, match="takes \\*\\*kwargs"):
         configs.arguments_of(lambda **kw: None, s)

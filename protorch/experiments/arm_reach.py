@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import copy
 from pathlib import Path
-from typing import Sequence
 
 import torch
 
@@ -56,7 +55,6 @@ from ..tasks.arm.demos import read_arm_demos
 from ..tasks.arm.priors import check_detours, grid_priors
 from ..tasks.arm.reach import LEFT, RIGHT, SIDES, ArmReachTask
 from ..tasks.arm.workspace import REGIONS, check_reach, check_region
-from ..threads import torch_threads
 from ..viz.arm import experiment_figures
 from ..viz.recordings import recordings_figure
 from .arm_physics import check_physics, physics_section
@@ -66,6 +64,7 @@ from .loop_run import (
     TEST_SEED,
     Outcome,
     SelfImprovementExperiment,
+    experiment_functions,
 )
 
 __all__ = [
@@ -417,61 +416,7 @@ class ArmReachExperiment(SelfImprovementExperiment):
 Setup = ArmReachExperiment  # what prepare() returns
 
 
-def prepare(
-    *,
-    seed: int = 0,
-    device: str | torch.device = "cpu",
-    dtype: torch.dtype = torch.float64,
-    optimizer: dict,
-    task: dict | None = None,
-    gp: dict | None = None,
-    promp: dict | None = None,
-    loop: dict | None = None,
-    test: dict | None = None,
-    dynamic: dict | None = None,
-    physics: dict | None = None,
-    robot: dict | str | None = None,
-) -> ArmReachExperiment:
-    """Validate every setting (clear errors, before any work), make the demonstrations and the
-    priors and draw the test environments; see :func:`run` for the settings."""
-    return ArmReachExperiment(
-        seed=seed,
-        device=device,
-        dtype=dtype,
-        optimizer=optimizer,
-        task=task,
-        gp=gp,
-        promp=promp,
-        loop=loop,
-        test=test,
-        dynamic=dynamic,
-        physics=physics,
-        robot=robot,
-    ).build()
-
-
-def run(
-    out_dir: Path,
-    *,
-    seed: int = 0,
-    device: str | torch.device = "cpu",
-    dtype: torch.dtype = torch.float64,
-    optimizer: dict,
-    plot: bool = True,
-    task: dict | None = None,
-    gp: dict | None = None,
-    promp: dict | None = None,
-    loop: dict | None = None,
-    test: dict | None = None,
-    dynamic: dict | None = None,
-    physics: dict | None = None,
-    robot: dict | str | None = None,
-    baselines: Sequence[str] = _BASELINES,
-    resume: bool = False,
-    progress: bool = True,
-    threads: int | None = None,
-) -> dict:
-    """Run the experiment into ``out_dir``; return the metrics (module docstring).
+_RUN_DOC = """Run the experiment into ``out_dir``; return the metrics (module docstring).
 
     ``task``: ``demos`` (``synthetic``, or a folder of ``trajK.out`` joint-angle rows and
     ``envK.out``
@@ -498,26 +443,9 @@ def run(
     top-level ``threads``, :mod:`protorch.threads`). Every setting is validated before any work
     starts.
     """
-    if threads is not None and (
-        isinstance(threads, bool) or int(threads) != threads or int(threads) < 1
-    ):
-        raise ValueError(f"threads must be None or an int >= 1, got {threads!r}")
-    with torch_threads(threads):
-        exp = ArmReachExperiment(
-            seed=seed,
-            device=device,
-            dtype=dtype,
-            optimizer=optimizer,
-            task=task,
-            gp=gp,
-            promp=promp,
-            loop=loop,
-            test=test,
-            dynamic=dynamic,
-            physics=physics,
-            robot=robot,
-        )
-        return exp.run(out_dir, baselines=baselines, resume=resume, progress=progress, plot=plot)
+prepare, run = experiment_functions(
+    ArmReachExperiment, baselines=_BASELINES, progress=True, run_doc=_RUN_DOC, threads=True
+)
 
 
 def check_robot(robot, task_cfg: dict, physics_runs: bool):

@@ -30,7 +30,9 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import inspect
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -53,7 +55,7 @@ from ..loop import (
 from ..loop.settings import LOOP_GROUP
 from ..primitives.promp import ProMP, resample
 from ..tasks import check_task_outputs
-from ..threads import beside_workers, core_budget
+from ..threads import beside_workers, core_budget, torch_threads
 from .common import (
     check_optimizer,
     evaluation_settings,
@@ -65,6 +67,7 @@ from .common import (
 from .loop_worker import LoopWorker, encode_settings
 
 __all__ = [
+    "experiment_functions",
     "SelfImprovementExperiment",
     "Outcome",
     "TEST_SEED",
@@ -506,3 +509,79 @@ class SelfImprovementExperiment:
         self.seconds["total"] = round(time.perf_counter() - t0, 3)
         metrics["seconds"] = self.seconds_metrics()
         return metrics
+
+
+# ----------------------------------------------------------------------------- module functions
+def _settings_parameters(cls: type) -> list[inspect.Parameter]:
+    """The keyword parameters of ``cls(...)``: each ``__init__`` along the MRO adds its own
+    until one without ``**settings``."""
+    params: dict[str, inspect.Parameter] = {}
+    for klass in cls.__mro__:
+        if "__init__" not in vars(klass):
+            continue
+        sig = inspect.signature(vars(klass)["__init__"])
+        for name, p in sig.parameters.items():
+            if name != "self" and p.kind is p.KEYWORD_ONLY:
+                params.setdefault(name, p)
+        if not any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values()):
+            break
+    return list(params.values())
+
+
+def experiment_functions(
+    cls: type[SelfImprovementExperiment],
+    *,
+    baselines: Sequence[str],
+    progress: bool,
+    run_doc: str,
+    threads: bool = False,
+) -> tuple[Callable[..., SelfImprovementExperiment], Callable[..., dict]]:
+    """An experiment module's ``(prepare, run)`` for ``cls``, written once: ``prepare(**settings)``
+    validates every setting (clear errors, before any work) and builds the experiment
+    (demonstrations, priors, test environments); ``run(out_dir, **settings, baselines=,
+    resume=, progress=, plot=)`` runs it into ``out_dir`` and returns the metrics (``run_doc``:
+    its docstring). Both carry the explicit signature of ``cls``'s settings, which the app and
+    the benchmarks read. ``threads=True``: ``run`` also takes ``threads`` (torch's intra-op
+    threads for the run, restored afterwards; ``None`` keeps the setting around the call)."""
+    settings_params = _settings_parameters(cls)
+
+    def prepare(**settings) -> SelfImprovementExperiment:
+        return cls(**settings).build()
+
+    def run(
+        out_dir: Path,
+        *,
+        baselines: Sequence[str] = tuple(baselines),
+        resume: bool = False,
+        progress: bool = progress,
+        plot: bool = True,
+        threads: int | None = None,
+        **settings,
+    ) -> dict:
+        if threads is not None and (
+            isinstance(threads, bool) or int(threads) != threads or int(threads) < 1
+        ):
+            raise ValueError(f"threads must be None or an int >= 1, got {threads!r}")
+        with torch_threads(threads):
+            exp = cls(**settings)
+            return exp.run(
+                out_dir, baselines=baselines, resume=resume, progress=progress, plot=plot
+            )
+
+    own = inspect.signature(run).parameters
+    run_params = [own["out_dir"], *settings_params] + [
+        own[k] for k in ("baselines", "resume", "progress", "plot")
+    ]
+    if threads:
+        run_params.append(own["threads"])
+    prepare.__signature__ = inspect.Signature(settings_params, return_annotation=cls)  # type: ignore[attr-defined]
+    run.__signature__ = inspect.Signature(run_params, return_annotation=dict)  # type: ignore[attr-defined]
+    prepare.__doc__ = (
+        "Validate every setting (clear errors, before any work), make the demonstrations (and "
+        "priors) and draw the test environments; see :func:`run` for the settings."
+    )
+    run.__doc__ = run_doc
+    for fn in (prepare, run):
+        fn.__module__ = cls.__module__
+        fn.__qualname__ = fn.__name__
+    return prepare, run

@@ -18,7 +18,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
 
 import torch
 
@@ -37,6 +36,7 @@ from .loop_run import (
     TEST_SEED,
     Outcome,
     SelfImprovementExperiment,
+    experiment_functions,
 )
 from .particle_paper import (
     convergence_rule,
@@ -253,60 +253,7 @@ class PointParticleExperiment(SelfImprovementExperiment):
 Setup = PointParticleExperiment  # what prepare() returns
 
 
-def prepare(
-    *,
-    seed: int = 0,
-    device: str | torch.device = "cpu",
-    dtype: torch.dtype = torch.float64,
-    optimizer: dict,
-    task: dict | None = None,
-    gp: dict | None = None,
-    promp: dict | None = None,
-    loop: dict | None = None,
-    test: dict | None = None,
-    dynamic: dict | None = None,
-    baseline_optimizer: dict | None = None,
-    dynamic_paper: dict | None = None,
-) -> PointParticleExperiment:
-    """Validate every setting (clear errors, before any work), load or synthesise the
-    demonstrations and draw the test environments; see :func:`run` for the settings."""
-    return PointParticleExperiment(
-        seed=seed,
-        device=device,
-        dtype=dtype,
-        optimizer=optimizer,
-        task=task,
-        gp=gp,
-        promp=promp,
-        loop=loop,
-        test=test,
-        dynamic=dynamic,
-        baseline_optimizer=baseline_optimizer,
-        dynamic_paper=dynamic_paper,
-    ).build()
-
-
-def run(
-    out_dir: Path,
-    *,
-    seed: int = 0,
-    device: str | torch.device = "cpu",
-    dtype: torch.dtype = torch.float64,
-    optimizer: dict,
-    plot: bool = True,
-    task: dict | None = None,
-    gp: dict | None = None,
-    promp: dict | None = None,
-    loop: dict | None = None,
-    test: dict | None = None,
-    dynamic: dict | None = None,
-    baselines: Sequence[str] = _BASELINES,
-    resume: bool = False,
-    progress: bool = True,
-    baseline_optimizer: dict | None = None,
-    dynamic_paper: dict | None = None,
-) -> dict:
-    """Run the experiment into ``out_dir``; return the metrics (see the module docstring).
+_RUN_DOC = """Run the experiment into ``out_dir``; return the metrics (see the module docstring).
 
     ``task``: ``objectives`` ("clearance" / "hole"), ``fixed_start``, ``infinite_wall``,
     ``demos`` ("synthetic" or a folder of ``trajK.out`` / ``envK.out``), ``demo_envs`` and
@@ -324,21 +271,9 @@ def run(
     ``resume``: continue the loops from the checkpoints in ``out_dir``.
     Every setting is validated before any work starts.
     """
-    exp = PointParticleExperiment(
-        seed=seed,
-        device=device,
-        dtype=dtype,
-        optimizer=optimizer,
-        task=task,
-        gp=gp,
-        promp=promp,
-        loop=loop,
-        test=test,
-        dynamic=dynamic,
-        baseline_optimizer=baseline_optimizer,
-        dynamic_paper=dynamic_paper,
-    )
-    return exp.run(out_dir, baselines=baselines, resume=resume, progress=progress, plot=plot)
+prepare, run = experiment_functions(
+    PointParticleExperiment, baselines=_BASELINES, progress=True, run_doc=_RUN_DOC
+)
 
 
 # ----------------------------------------------------------------------------- figures

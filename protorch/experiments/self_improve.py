@@ -17,7 +17,6 @@ The whole pipeline on a class that follows :class:`~protorch.tasks.SelfImproveme
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
 
 import torch
 
@@ -27,7 +26,13 @@ from ..loop import LoopResult
 from ..loop.settings import LOOP_GROUP
 from ..tasks import check_task_protocol, make_task
 from ..viz.paper import save_figure
-from .loop_run import DEMO_SEED_OFFSET, TEST_SEED, Outcome, SelfImprovementExperiment
+from .loop_run import (
+    DEMO_SEED_OFFSET,
+    TEST_SEED,
+    Outcome,
+    SelfImprovementExperiment,
+    experiment_functions,
+)
 from .settings import SettingsError
 
 __all__ = ["run", "build_task", "GenericExperiment", "TEST_SEED", "DEMO_SEED_OFFSET"]
@@ -149,24 +154,7 @@ class GenericExperiment(SelfImprovementExperiment):
         _figure(out_dir, outcome.result, metrics)
 
 
-def run(
-    out_dir: Path,
-    *,
-    seed: int = 0,
-    device: str | torch.device = "cpu",
-    dtype: torch.dtype = torch.float64,
-    optimizer: dict,
-    plot: bool = True,
-    task: dict | None = None,
-    gp: dict | None = None,
-    promp: dict | None = None,
-    loop: dict | None = None,
-    test: dict | None = None,
-    baselines: Sequence[str] = _BASELINES,
-    resume: bool = False,
-    progress: bool = False,
-) -> dict:
-    """Run the pipeline (module docstring) into ``out_dir``; return the metrics.
+_RUN_DOC = """Run the pipeline (module docstring) into ``out_dir``; return the metrics.
 
     ``optimizer``: an optimizer group (``{"name": "pro", "beta": ..., ...}``). ``task``: the task
     group (:func:`build_task`). ``gp``: ``backend``, ``alpha``, ``var_floor``, ``nearest_k``.
@@ -175,18 +163,9 @@ def run(
     ``min_var``. ``test``: ``num_envs``, ``seed``. ``baselines``: ``[]`` or ``["demos_only"]``.
     Every setting is checked and the task built before any work.
     """
-    exp = GenericExperiment(
-        seed=seed,
-        device=device,
-        dtype=dtype,
-        optimizer=optimizer,
-        task=task,
-        gp=gp,
-        promp=promp,
-        loop=loop,
-        test=test,
-    )
-    return exp.run(out_dir, baselines=baselines, resume=resume, progress=progress, plot=plot)
+prepare, run = experiment_functions(
+    GenericExperiment, baselines=_BASELINES, progress=False, run_doc=_RUN_DOC
+)
 
 
 def _figure(out_dir: Path, res: LoopResult, metrics: dict) -> None:

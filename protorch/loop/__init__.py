@@ -182,7 +182,7 @@ def self_improve(
     """
     if removed:
         raise TypeError(
-            f"self_improve() no longer takes {', '.join(sorted(removed))}=: call "
+            f"self_improve() no longer takes {', '.join(f'{k}=' for k in sorted(removed))}: call "
             "self_improve(task, promp, data, OptimizerSpec(PRO, {...}), env_map, "
             "LoopSettings(num_envs=..., ...), run=Run(dir=..., resume=...))"
         )

@@ -128,7 +128,7 @@ class LoopSettings:
         for name in ("min_var", "var_floor"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not float(v) >= 0:
-                raise ValueError(f"{name} must be a number >= 0, got {v!r}")
+                raise ValueError(f"{name} must be >= 0, got {v!r}")
             object.__setattr__(self, name, float(v))
         s = self.sample_steps
         if s is not None and (isinstance(s, bool) or int(s) != s or int(s) < 2):

@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 import warnings
 from contextlib import ExitStack
+from typing import cast
 
 import gpytorch
 import torch
@@ -112,7 +113,7 @@ class GPyTorchEnvMap(EnvMap):
     def _group_add(self, g, E, MU, VAR) -> None:
         # The base class already stored the new rows: take the whole group again.
         x, y, noise, mu0, _ = self._train_data(g)
-        model = self.models[str(g)]
+        model = cast(_BatchExactGP, self.models[str(g)])
         model.set_train_data(inputs=x, targets=y, strict=False)
         with exact_settings():
             model.likelihood.noise = noise

@@ -70,4 +70,4 @@ class CEM(BaseOptimizer):
         a = self.smoothing
         new_mean = (1 - a) * self.mean + a * elite_mean
         new_var = (1 - a) * self.var + a * elite_var + self.extra_var
-        self._apply(new_mean, new_var)
+        self._commit(new_mean, new_var)

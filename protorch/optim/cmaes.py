@@ -117,7 +117,7 @@ class CMAES(BaseOptimizer):
                 self.stop_reasons[b] = dict(es.stop())
             new_mean[b] = es.mean
             new_var[b] = np.asarray(es.stds) ** 2
-        self._apply(
+        self._commit(
             torch.as_tensor(new_mean, device=self.mean.device).to(self.mean.dtype),
             torch.as_tensor(new_var, device=self.mean.device).to(self.mean.dtype),
         )

@@ -392,7 +392,7 @@ class EPRO(BaseOptimizer):
         self.read.copy_(torch.where(active, read, self.read))
         self.relevance, self.variance_relevance = relevance, variance_relevance
         self.history["relevance"].append(relevance.clone())
-        self._apply(new_mean, new_var)
+        self._commit(new_mean, new_var)
 
 
 class Batch(NamedTuple):

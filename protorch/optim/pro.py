@@ -98,9 +98,12 @@ class PRO(BaseOptimizer):
             start = time.perf_counter()  # includes the caller's evaluation, as the paper's timing
             self.relevance = yield from self._relevance()  # (B, O, N)
             self.relevance_seconds.append(time.perf_counter() - start)
-        self.history["relevance"].append(self.relevance.clone())
-        for o in range(self.num_objectives):
-            f = self.relevance[:, o]  # (B, N)
+        relevance = self.relevance
+        if relevance is None:
+            raise RuntimeError("PRO's first iteration must compute the relevance")
+        self.history["relevance"].append(relevance.clone())
+        for o in range(self._objectives):
+            f = relevance[:, o]  # (B, N)
             w = self._sample(self.var * f, self.num_samples)  # (B, S, N)
             self.asked_objective = o  # this update reads objective o only
             costs = yield w  # (B, S, O)

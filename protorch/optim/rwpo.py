@@ -99,7 +99,7 @@ class RWPO(PRO):
         )
 
     def _relevance(self) -> Generator[Tensor, Tensor, Tensor]:
-        b, n, o_count = self.batch_size, self.num_weights, self.num_objectives
+        b, n, o_count = self.batch_size, self.num_weights, self._objectives
         m, l, dofs = self.theta_samples, self.trajectory_samples, n // self.num_basis
         dt, dev = self.mean.dtype, self.mean.device
         theta_mean = torch.zeros(b, o_count, 3, dtype=dt, device=dev)  # (B, O, 3)

@@ -6,13 +6,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor
 
 from ..primitives.pose import align_quaternions, quaternion_slerp
 from ..primitives.quaternions import axis_angle_to_quaternion, quaternion_raw_multiply
-from .base import Task
+
+if TYPE_CHECKING:  # beam_window imports this module
+    from .beam_window import BeamWindowTask
 from .curves import catmull_rom, smooth_noise
 
 __all__ = ["SimulatedOperator"]
@@ -103,7 +106,7 @@ class SimulatedOperator:
 
     def intentions(
         self,
-        task: Task,
+        task: BeamWindowTask,
         num: int,
         generator: torch.Generator | None = None,
         *,
@@ -193,7 +196,7 @@ class SimulatedOperator:
 
     def trials(
         self,
-        task: Task,
+        task: BeamWindowTask,
         num: int,
         generator: torch.Generator | None = None,
         *,

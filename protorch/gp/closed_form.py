@@ -255,6 +255,16 @@ class TorchEnvMap(EnvMap):
             float32 halves the approximate variance's latency; its rounding (~1e-7 absolute on a
             variance) is far below the Nystroem error itself. ``"float64"`` makes the
             approximation exact (to round-off) whenever the pivots span the kernel columns.
+
+    Example: fit ``M = 6`` environments ``(M, d)`` with their weight means and variances
+    ``(M, N)``, predict at two
+
+    >>> g = torch.Generator().manual_seed(0)
+    >>> E, MU = torch.rand(6, 2, generator=g), torch.rand(6, 4, generator=g)
+    >>> env_map = TorchEnvMap(alpha=1.0).fit(E, MU, torch.full((6, 4), 0.1))
+    >>> mu, var = env_map.predict(E[:2])  # (Q, N) each
+    >>> mu.shape, bool((var > 0).all())
+    (torch.Size([2, 4]), True)
     """
 
     backend = "torch"

@@ -70,7 +70,18 @@ class _BatchExactGP(gpytorch.models.ExactGP):
 
 
 class GPyTorchEnvMap(EnvMap):
-    """GPyTorch backend (module docstring). Extra option ``love_rank``: Lanczos rank of LOVE."""
+    """GPyTorch backend (module docstring). Extra option ``love_rank``: Lanczos rank of LOVE.
+
+    Example: fit ``M = 6`` environments ``(M, d)`` with their weight means and variances
+    ``(M, N)``, predict at two
+
+    >>> g = torch.Generator().manual_seed(0)
+    >>> E, MU = torch.rand(6, 2, generator=g), torch.rand(6, 4, generator=g)
+    >>> env_map = GPyTorchEnvMap(alpha=1.0).fit(E, MU, torch.full((6, 4), 0.1))
+    >>> mu, var = env_map.predict(E[:2])  # (Q, N) each
+    >>> mu.shape, bool((var > 0).all())
+    (torch.Size([2, 4]), True)
+    """
 
     backend = "gpytorch"
 

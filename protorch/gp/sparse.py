@@ -80,6 +80,16 @@ class SparseEnvMap(EnvMap):
         neighbours: environments per solve when ``nearest_k`` is ``None``.
         index: ``"kdtree"`` (scipy's ``cKDTree``, CPU) or ``"brute"`` (torch, any device):
             the same neighbours either way.
+
+    Example: fit ``M = 6`` environments ``(M, d)`` with their weight means and variances
+    ``(M, N)``, predict at two
+
+    >>> g = torch.Generator().manual_seed(0)
+    >>> E, MU = torch.rand(6, 2, generator=g), torch.rand(6, 4, generator=g)
+    >>> env_map = SparseEnvMap(alpha=1.0).fit(E, MU, torch.full((6, 4), 0.1))
+    >>> mu, var = env_map.predict(E[:2])  # (Q, N) each
+    >>> mu.shape, bool((var > 0).all())
+    (torch.Size([2, 4]), True)
     """
 
     backend = "sparse"

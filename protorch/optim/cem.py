@@ -29,6 +29,15 @@ class CEM(BaseOptimizer):
         extra_var: ``>= 0`` added to every variance after the refit (default 0).
         objective_weights: ``(O,)``, default all ones: how objectives combine into one cost.
         Other arguments: :class:`BaseOptimizer` (``num_samples``, ``max_iter``, ``tol``, ...).
+
+    Example: the ask / tell loop on ``||w - 1||^2`` (unbatched: ``(S, N)`` asked, ``(S,)`` told)
+
+    >>> opt = CEM(torch.zeros(3), torch.ones(3), num_samples=20, seed=0)
+    >>> while not opt.stop():
+    ...     w = opt.ask()  # (S, N)
+    ...     opt.tell((w - 1).pow(2).sum(-1))  # (S,): one objective
+    >>> bool((opt.result().mean - 1).abs().max() < 0.5)
+    True
     """
 
     def __init__(

@@ -37,6 +37,15 @@ class PRO(BaseOptimizer):
             variance in the Fig. 3 toy; ``None`` is the paper's formula as written, under which
             sampling noise in rho slowly drains the variance of irrelevant weights.
         Other arguments: :class:`BaseOptimizer`.
+
+    Example: the first ask of a batch of ``B = 2`` problems, ``N = 3`` weights; costs
+    ``(B, S, O)``
+
+    >>> opt = PRO(torch.zeros(2, 3), torch.ones(2, 3), beta=10.0, relevance_samples=50)
+    >>> w = opt.ask()  # (B, S, N): the relevance samples first
+    >>> w.shape
+    torch.Size([2, 50, 3])
+    >>> opt.tell((w - 1).pow(2).sum(-1, keepdim=True))  # (B, S, 1)
     """
 
     def __init__(

@@ -46,6 +46,16 @@ class RWPO(PRO):
             (the authors' 50, 200, 50 and 10).
         relevance_every: 0 (default) learns the relevance once, as in the 2018 paper.
         Other arguments: :class:`PRO` / :class:`BaseOptimizer`.
+
+    Example: the first ask of a batch of ``B = 2`` problems, ``N = 3`` weights; costs
+    ``(B, S, O)``
+
+    >>> opt = RWPO(torch.zeros(2, 3), torch.ones(2, 3), beta=10.0, num_objectives=1,
+    ...      theta_samples=4, trajectory_samples=2)
+    >>> w = opt.ask()  # (B, S, N): ``O * theta_samples * trajectory_samples`` first
+    >>> w.shape
+    torch.Size([2, 8, 3])
+    >>> opt.tell((w - 1).pow(2).sum(-1, keepdim=True))  # (B, S, 1)
     """
 
     features: Tensor  # the relevance basis (a registered buffer, typed for the type checker)

@@ -19,9 +19,9 @@ measurement.
 from __future__ import annotations
 
 import argparse
-import time
 
 import torch
+from _timing import best_s
 from configs import arguments_of, experiment_settings
 
 from protorch.experiments.arm_reach import prepare
@@ -37,21 +37,11 @@ QUICK = [
 ]
 
 
-def _sync(device: str) -> None:
-    if device == "cuda":
-        torch.cuda.synchronize()
-
-
 def _rate(fn, q, device: str, repeats: int = 3) -> float:
+    """Configurations per second of ``fn(q)``, the best of ``repeats`` calls after a small one."""
     fn(q[:100])  # warm-up
-    _sync(device)
-    best = float("inf")
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn(q)
-        _sync(device)
-        best = min(best, time.perf_counter() - t)
-    return q.shape[0] / best
+    sync = torch.cuda.synchronize if device == "cuda" else None
+    return q.shape[0] / best_s(lambda: fn(q), repeats, warmup=0, sync=sync)
 
 
 def fk_table(devices: list[str], sizes: tuple[int, ...] = (10**4, 10**5)) -> None:

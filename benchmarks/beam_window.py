@@ -11,22 +11,14 @@ Set ``OMP_NUM_THREADS`` to compare thread counts (on a shared machine 1 thread i
 from __future__ import annotations
 
 import argparse
-import time
 
 import torch
+from _timing import median_s
 
 from protorch.control.guidance import HapticGuidance
 from protorch.experiments.beam_window import optimize_pose_promp
 from protorch.primitives.pose import PoseProMP
 from protorch.tasks.beam_window import BeamWindowTask, SimulatedOperator
-
-
-def timed(f, repeats: int) -> float:
-    f()
-    t0 = time.perf_counter()
-    for _ in range(repeats):
-        f()
-    return (time.perf_counter() - t0) / repeats
 
 
 def main() -> None:
@@ -58,8 +50,8 @@ def main() -> None:
         ),
     ):
         m32 = model.copy().to(torch.float32)
-        t64 = timed(lambda: cost(model, torch.float64), args.repeats) * 1e3
-        t32 = timed(lambda: cost(m32, torch.float32), args.repeats) * 1e3
+        t64 = median_s(lambda: cost(model, torch.float64), args.repeats) * 1e3
+        t32 = median_s(lambda: cost(m32, torch.float32), args.repeats) * 1e3
         diff = float((cost(model, torch.float64) - cost(m32, torch.float32).double()).abs().max())
         print(f"{name:14s}{t64:14.2f}{t32:14.2f}{t64 / t32:8.1f}{diff:18.2e}")
     if args.no_experiment:
@@ -74,10 +66,10 @@ def main() -> None:
     )
     stages = optimize_pose_promp(task, model, optimizer=opt, seed=0)
     samples = model.trajectory(*model.sample(1000, generator=torch.Generator().manual_seed(1)))
-    t_col = timed(lambda: task.collides(samples), 1)
+    t_col = median_s(lambda: task.collides(samples), 1)
     intended, lengths = person.intentions(task, 100, torch.Generator().manual_seed(303))
     guide = HapticGuidance(model)
-    t_assist = timed(lambda: guide.assist(intended, lengths=lengths), 1)
+    t_assist = median_s(lambda: guide.assist(intended, lengths=lengths), 1)
     print(
         f"position PRO {stages['position']['seconds']:.2f}, orientation PRO "
         f"{stages['orientation']['seconds']:.2f}, "

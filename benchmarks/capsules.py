@@ -14,10 +14,10 @@ from __future__ import annotations
 
 import argparse
 import math
-import time
 from pathlib import Path
 
 import numpy as np
+from _timing import Stopwatch
 
 from protorch.robots.capsules import collision_geometry, coverage, fit_capsules
 
@@ -53,9 +53,9 @@ def main() -> None:
         "--print", action="store_true", help="print the capsules in robot.capsules' yaml form"
     )
     a = p.parse_args()
-    t0 = time.perf_counter()
-    fit = fit_capsules(a.urdf, mesh_dir=a.mesh_dir)
-    fit_s = time.perf_counter() - t0
+    with Stopwatch() as sw:
+        fit = fit_capsules(a.urdf, mesh_dir=a.mesh_dir)
+    fit_s = sw.wall
     cov = coverage(a.urdf, fit, mesh_dir=a.mesh_dir, count=a.count)
     geoms: dict[str, list] = {}
     for g in collision_geometry(a.urdf, mesh_dir=a.mesh_dir):

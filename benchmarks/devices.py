@@ -24,10 +24,10 @@ import argparse
 import json
 import math
 import tempfile
-import time
 from pathlib import Path
 
 import torch
+from _timing import Stopwatch
 from configs import experiment_config
 
 from protorch.experiments import run_experiment
@@ -66,9 +66,9 @@ def one_run(name: str, device: str, dtype: str, threads: int) -> tuple[dict, flo
         ],
     )
     with tempfile.TemporaryDirectory() as tmp:
-        t0 = time.perf_counter()
-        m = run_experiment(cfg, Path(tmp) / "run")
-        seconds = time.perf_counter() - t0
+        with Stopwatch() as sw:
+            m = run_experiment(cfg, Path(tmp) / "run")
+        seconds = sw.wall
     flat = {
         k: v
         for k, v in flatten_metrics(m).items()

@@ -12,21 +12,11 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import time
 
 import torch
+from _timing import Stopwatch, median_s
 
 from protorch.gp import make_env_map
-
-
-def _timeit(fn, reps: int) -> float:
-    fn()  # warm-up (builds caches)
-    ts = []
-    for _ in range(reps):
-        t = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t)
-    return statistics.median(ts)
 
 
 def _data(m: int, n: int, seed: int = 0):
@@ -43,15 +33,15 @@ def bench(backend: str, m: int, n: int, alpha: float = 1.0) -> dict:
     make_env_map(backend, alpha, **opts).fit(E[:8], MU[:8], VAR[:8]).predict(
         q
     )  # first-call overheads
-    t = time.perf_counter()
-    gp = make_env_map(backend, alpha, **opts).fit(E, MU, VAR)
-    gp.predict_mean(q)  # gpytorch solves lazily: a refit is ready once it has answered
-    refit = time.perf_counter() - t
+    with Stopwatch() as sw:
+        gp = make_env_map(backend, alpha, **opts).fit(E, MU, VAR)
+        gp.predict_mean(q)  # gpytorch solves lazily: a refit is ready once it has answered
+    refit = sw.wall
     reps = 30 if m <= 1000 else 15
-    mean_t = _timeit(lambda: gp.predict_mean(q), reps)
+    mean_t = median_s(lambda: gp.predict_mean(q), reps)
     var_reps = 5 if m * n <= 30_000 else 2
-    exact_t = _timeit(lambda: gp.predict(q), var_reps)
-    approx_t = _timeit(lambda: gp.predict(q, approx_var=True), reps)
+    exact_t = median_s(lambda: gp.predict(q), var_reps)
+    approx_t = median_s(lambda: gp.predict(q, approx_var=True), reps)
     qs = torch.rand(64, 4, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
     err = float((gp.predict(qs, approx_var=True)[1] - gp.predict(qs)[1]).abs().max())
     # add one: fit on M - 3, add the last three one at a time (medians: a single add is noisy)
@@ -59,11 +49,12 @@ def bench(backend: str, m: int, n: int, alpha: float = 1.0) -> dict:
     gp1.predict_mean(q)
     adds, add_qs = [], []
     for i in range(m - 3, m):
-        t = time.perf_counter()
-        gp1.add(E[i : i + 1], MU[i : i + 1], VAR[i : i + 1])
-        adds.append(time.perf_counter() - t)
-        gp1.predict_mean(q)
-        add_qs.append(time.perf_counter() - t)
+        with Stopwatch() as add:
+            gp1.add(E[i : i + 1], MU[i : i + 1], VAR[i : i + 1])
+        with Stopwatch() as answer:
+            gp1.predict_mean(q)
+        adds.append(add.wall)
+        add_qs.append(add.wall + answer.wall)
     return dict(
         refit=refit,
         mean=mean_t,

@@ -34,9 +34,9 @@ import resource
 import statistics
 import subprocess
 import sys
-import time
 
 import torch
+from _timing import Stopwatch, per_item, percentile
 
 from protorch.gp import make_env_map
 from protorch.gp.neighbours import INDEX_KINDS, NeighbourIndex
@@ -74,27 +74,13 @@ def _rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: KB
 
 
-def _times(fn, items, budget_s: float) -> tuple[list[float], list[float]]:
-    """Wall and CPU seconds of ``fn(item)`` per item, stopping after ``budget_s`` (at least 3).
-    On a loaded machine the CPU time of a one-thread process is what the call costs an idle core."""
-    wall, cpu, start = [], [], time.perf_counter()
-    for i, item in enumerate(items):
-        t, c = time.perf_counter(), time.process_time()
-        fn(item)
-        wall.append(time.perf_counter() - t)
-        cpu.append(time.process_time() - c)
-        if i >= 2 and time.perf_counter() - start > budget_s:
-            break
-    return wall, cpu
-
-
 def _ms(xs: list[float]) -> float:
     return 1e3 * statistics.median(xs)
 
 
 def _p99(xs: list[float]) -> float:
     """The 99th percentile in ms (nearest rank)."""
-    return 1e3 * sorted(xs)[min(len(xs) - 1, int(0.99 * len(xs)))]
+    return 1e3 * percentile(xs, 99)
 
 
 def worker(variant: str, m: int, adds: int, queries: int) -> dict:
@@ -110,14 +96,14 @@ def worker(variant: str, m: int, adds: int, queries: int) -> dict:
             "capacity", m + adds
         )  # room for the adds: no regrowth of the (N, cap, cap) factors
     rss0 = _rss_mb()
-    t, c = time.perf_counter(), time.process_time()
-    gp = make_env_map(backend, ALPHA, **opts).fit(E[:m], MU[:m], VAR[:m])
-    gp.predict_mean(Q[:1])  # gpytorch solves lazily: a map is built once it has answered
-    build = ([time.perf_counter() - t], [time.process_time() - c])
-    mean_t = _times(lambda i: gp.predict_mean(Q[i : i + 1]), range(queries), 5.0)
-    var_t = _times(lambda i: gp.predict(Q[i : i + 1]), range(queries), 20.0)
-    batch_t = _times(lambda _: gp.predict(Q), [0], 0.0)  # the loop's way: all queries in one call
-    add_t = _times(
+    with Stopwatch() as sw:
+        gp = make_env_map(backend, ALPHA, **opts).fit(E[:m], MU[:m], VAR[:m])
+        gp.predict_mean(Q[:1])  # gpytorch solves lazily: a map is built once it has answered
+    build = ([sw.wall], [sw.cpu])
+    mean_t = per_item(lambda i: gp.predict_mean(Q[i : i + 1]), range(queries), 5.0)
+    var_t = per_item(lambda i: gp.predict(Q[i : i + 1]), range(queries), 20.0)
+    batch_t = per_item(lambda _: gp.predict(Q), [0], 0.0)  # the loop's way: all queries in one call
+    add_t = per_item(
         lambda i: gp.add(E[i : i + 1], MU[i : i + 1], VAR[i : i + 1]), range(m, m + adds), 30.0
     )
     gp.predict(Q[:1])  # the query after the adds (gpytorch's deferred solve) counts in the peak
@@ -151,14 +137,13 @@ def growth(variant: str, sizes: list[int]) -> list[dict]:
     backend, opts = parse_variant(variant)
     E, MU, VAR = smooth_data(sizes[-1] + 1, WEIGHTS)
     gp = make_env_map(backend, ALPHA, **opts).fit(E[: sizes[0]], MU[: sizes[0]], VAR[: sizes[0]])
-    wall, cpu = [], []  # per add, seconds
-    for i in range(sizes[0], sizes[-1]):
-        t, c = time.perf_counter(), time.process_time()
-        gp.add(E[i : i + 1], MU[i : i + 1], VAR[i : i + 1])
-        wall.append(time.perf_counter() - t)
-        cpu.append(time.process_time() - c)
+    wall, cpu = per_item(  # per add, seconds
+        lambda i: gp.add(E[i : i + 1], MU[i : i + 1], VAR[i : i + 1]),
+        range(sizes[0], sizes[-1]),
+        float("inf"),
+    )
     Q = smooth_data(50, WEIGHTS, seed=1)[0]  # (50, d) unseen environments
-    query = _times(
+    query = per_item(
         lambda i: gp.predict(Q[i : i + 1]), range(50), 20.0
     )  # on the grown map: its many trees
     rows = []
@@ -269,8 +254,8 @@ def search(sizes: list[int], k: int = 32) -> None:
             for kind in INDEX_KINDS:
                 index = NeighbourIndex(d, kind=kind)
                 index.add(E[:m])
-                one = _times(lambda i: index.query(E[m + i : m + i + 1], k), range(200), 5.0)[1]
-                many = _times(lambda _: index.query(E[m:], k), range(5), 5.0)[1]
+                one = per_item(lambda i: index.query(E[m + i : m + i + 1], k), range(200), 5.0)[1]
+                many = per_item(lambda _: index.query(E[m:], k), range(5), 5.0)[1]
                 print(f"| {m:,} | {d} | {kind} | {_ms(one):.3g} | {_ms(many):.3g} |", flush=True)
 
 

@@ -24,6 +24,7 @@ import statistics
 import time
 
 import torch
+from _timing import call_times
 
 from protorch import PRO, RWPO, ProMP
 from protorch.loop.phases import Evaluator
@@ -148,12 +149,9 @@ def copy_bandwidth(device: str) -> float:
     x = torch.ones(2**26, device=device)
     y = torch.empty_like(x)
     y.copy_(x)
-    t = time.perf_counter()
-    for _ in range(5):
-        y.copy_(x)
-    if device == "cuda":
-        torch.cuda.synchronize()
-    return 5 * 2 * x.numel() * 4 / (time.perf_counter() - t) / 1e9
+    sync = torch.cuda.synchronize if device == "cuda" else None
+    seconds = sum(call_times(lambda: y.copy_(x), 5, warmup=0, sync=sync))
+    return 5 * 2 * x.numel() * 4 / seconds / 1e9
 
 
 def main() -> None:

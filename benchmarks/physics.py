@@ -19,11 +19,11 @@ from __future__ import annotations
 import argparse
 import json
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 import torch
+from _timing import Stopwatch
 from configs import arguments_of
 from omegaconf import OmegaConf
 
@@ -48,15 +48,14 @@ def open_loop(scene, n: int, steps: int, threads: int) -> tuple[float, float]:
     q0 = scene.task.start_config().numpy()
     data = mujoco.MjData(scene.model)
     data.qpos[:] = q0
-    t = time.perf_counter()
-    for _ in range(steps):
-        mujoco.mj_step(scene.model, data)
-    single = steps / (time.perf_counter() - t)
+    with Stopwatch() as one:
+        for _ in range(steps):
+            mujoco.mj_step(scene.model, data)
     batch = mujoco.batch.Batch(scene.model, n, nthread=threads, persistent=True)
     batch.bind("qpos")[:] = q0
-    t = time.perf_counter()
-    batch.step(nstep=steps)
-    return single, n * steps / (time.perf_counter() - t)
+    with Stopwatch() as many:
+        batch.step(nstep=steps)
+    return steps / one.wall, n * steps / many.wall
 
 
 def reaches(task: ArmReachTask, n: int) -> tuple[ProMP, torch.Tensor, torch.Tensor]:
@@ -73,21 +72,21 @@ def reaches(task: ArmReachTask, n: int) -> tuple[ProMP, torch.Tensor, torch.Tens
 def runner_rate(scene, ctrl, promp, w, envs, threads: int) -> tuple[float, float, dict]:
     timing = check_timing(0.02, 3.0, 1.0)
     walk = envs[:, None].expand(-1, timing.total + 1, -1)
-    t = time.perf_counter()
-    res = run_physics_episodes(
-        scene,
-        ctrl,
-        FixedMeans(w),
-        promp,
-        timing,
-        walk,
-        kp=400.0,
-        kd=40.0,
-        ref_kp=10.0,
-        max_acceleration=PANDA_MAX_ACCELERATION,
-        threads=threads,
-    )
-    sec = time.perf_counter() - t
+    with Stopwatch() as sw:
+        res = run_physics_episodes(
+            scene,
+            ctrl,
+            FixedMeans(w),
+            promp,
+            timing,
+            walk,
+            kp=400.0,
+            kd=40.0,
+            ref_kp=10.0,
+            max_acceleration=PANDA_MAX_ACCELERATION,
+            threads=threads,
+        )
+    sec = sw.wall
     steps = envs.shape[0] * timing.total * round(timing.dt / scene.timestep)
     return steps / sec, sec, res.summary()
 
@@ -102,9 +101,9 @@ def run_section(run_dir: Path, threads: int) -> float:
     torch.set_num_threads(threads)
     exp.moving_test(model)  # the kinematic episodes the physics test replays (not timed)
     with tempfile.TemporaryDirectory() as tmp:
-        t = time.perf_counter()
-        out = physics_section(exp, model, Path(tmp), plot=False)
-        sec = time.perf_counter() - t
+        with Stopwatch() as sw:
+            out = physics_section(exp, model, Path(tmp), plot=False)
+        sec = sw.wall
     print(
         f"  {threads} thread(s): physics section {sec:.1f} s (test "
         f"{out['test']['success_rate']:.3f}, moving "

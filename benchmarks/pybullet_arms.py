@@ -12,8 +12,9 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import time
 from pathlib import Path
+
+from _timing import Stopwatch
 
 ARMS = (
     ("xArm 6", "xarm/xarm6_robot.urdf", None),
@@ -47,10 +48,10 @@ def main(argv=None) -> None:
     torch.set_num_threads(1)
     frames, titles = [], []
     for label, rel, end in ARMS:
-        t = time.perf_counter()
-        robot = load_robot({"urdf": f"{pybullet_data.getDataPath()}/{rel}", "end_link": end})
-        task = ArmReachTask(robot=robot, collision="volume")
-        seconds = time.perf_counter() - t
+        with Stopwatch() as sw:
+            robot = load_robot({"urdf": f"{pybullet_data.getDataPath()}/{rel}", "end_link": end})
+            task = ArmReachTask(robot=robot, collision="volume")
+        seconds = sw.wall
         found = {k: v for k, v in robot.found.items() if k not in ("layout", "converted")}
         found["converted"] = len(robot.found.get("converted", []))
         print(

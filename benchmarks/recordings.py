@@ -33,11 +33,11 @@ from __future__ import annotations
 
 import argparse
 import filecmp
-import time
 from pathlib import Path
 
 import numpy as np
 import torch
+from _timing import Stopwatch
 
 from protorch.data.import_bag import env_columns, import_bags, recording_table
 from protorch.data.recordings import write_recording
@@ -309,15 +309,15 @@ def main() -> None:
         help="also DIR/csv_still: the recordings and a motionless one",
     )
     args = ap.parse_args()
-    start = time.perf_counter()
-    info = make_recordings(
-        args.out,
-        args.seed,
-        encoder=args.encoder,
-        mocap=args.mocap,
-        bags=args.bags,
-        mixed=args.mixed,
-    )
+    with Stopwatch() as made:
+        info = make_recordings(
+            args.out,
+            args.seed,
+            encoder=args.encoder,
+            mocap=args.mocap,
+            bags=args.bags,
+            mixed=args.mixed,
+        )
     if args.mixed:  # the same IK demonstrations, not recorded: the authors' format
         from protorch.data.demos import write_demo
 
@@ -332,21 +332,21 @@ def main() -> None:
             "(motionless)"
         )
     print(
-        f"wrote {len(info)} recordings to {args.out / 'csv'} in {time.perf_counter() - start:.1f} "
+        f"wrote {len(info)} recordings to {args.out / 'csv'} in {made.wall:.1f} "
         "s "
         f"(rows {min(i['rows'] for i in info)}-{max(i['rows'] for i in info)}; measured sides: "
         f"{sum(i['label'] == 0 for i in info)} left, {sum(i['label'] != 0 for i in info)} right)"
     )
     if args.bags:
         bags = sorted((args.out / "bags").iterdir())
-        start = time.perf_counter()
-        written = import_bags(
-            bags, "/joint_states", POSES, args.out / "imported", arm_demo_format(ArmReachTask())
-        )
+        with Stopwatch() as imported:
+            written = import_bags(
+                bags, "/joint_states", POSES, args.out / "imported", arm_demo_format(ArmReachTask())
+            )
         same = [filecmp.cmp(p, args.out / "csv" / p.name, shallow=False) for p in written]
         kinds = {k: sum(i["bag"] == k for i in info) for k in ("mcap", "sqlite3", "ros1")}
         print(
-            f"imported {len(written)} bags ({kinds}) in {time.perf_counter() - start:.1f} s; "
+            f"imported {len(written)} bags ({kinds}) in {imported.wall:.1f} s; "
             "identical to the CSV "
             f"files: {sum(same)} of {len(same)}"
         )

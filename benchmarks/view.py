@@ -21,10 +21,10 @@ import argparse
 import os
 import statistics
 import tempfile
-import time
 from pathlib import Path
 
 import torch
+from _timing import Stopwatch
 
 from protorch import ProMP, save_model
 from protorch.data.dataset import TrajectoryDataset
@@ -94,9 +94,9 @@ def measure(viewers: dict, threads: list[int], repeats: int, seed: int = 0) -> d
                 i = int(torch.randint(len(env), (1,), generator=gen))
                 p = v.run.params[i]
                 env[i] = env[i] + (p.hi - p.lo) * 0.01 * float(torch.randn(1, generator=gen))
-                c0 = time.process_time()
-                v.set_env(env)
-                cpu = 1e3 * (time.process_time() - c0)
+                with Stopwatch() as sw:
+                    v.set_env(env)
+                cpu = 1e3 * sw.cpu
                 if r >= 3:  # warm-up
                     for k, x in {**v.timings, "cpu_ms": cpu}.items():
                         out[(name, t)][k].append(x)

@@ -5,6 +5,12 @@ import numpy as np
 import pytest
 import torch
 
+# Torch at one thread for the whole session: the tests' operations are small, where a thread pool
+# costs more than it gives, and on a machine shared with other work the pool's threads wait for a
+# free core at every operation (a batched inverse of 7x7 matrices then takes ~50 ms instead of
+# ~1 ms). Tests of the thread settings set their own numbers; subprocesses choose their own.
+torch.set_num_threads(1)
+
 
 @pytest.fixture
 def gen() -> torch.Generator:

@@ -139,7 +139,7 @@ from protorch.tasks import ArmReachTask
 task, promp = ArmReachTask(collision="volume"), ProMP(7, num_basis=10, num_steps=100, dtype=torch.float64)
 env = torch.tensor([[0.55, 0.30, 0.70, -0.10]], dtype=torch.float64)
 q, _ = task.ik_path(task.straight_paths(env, 100))
-E = int(sys.argv[1])
+E = 120
 w = promp.weights(q) + 1e-3 * torch.randn(E, 70, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
 timing = check_timing(0.02, 0.2, 0.0)
 out = {}
@@ -155,25 +155,12 @@ print(json.dumps(out))
 
 
 @pytest.mark.slow
-def test_the_physics_episodes_are_the_same_at_one_and_two_threads():
+def test_the_physics_episodes_are_the_same_at_one_and_two_threads(same_bits_runs):
     """120 MuJoCo episodes (enough for MKL to split the markers' product differently on two threads
     under the app's code path) at threads=1 and threads=2 in one process: every array bit for
     bit."""
-    import json
-    import subprocess
-    import sys
-    from pathlib import Path
-
     pytest.importorskip("mujoco", minversion="4.0", reason="the physics extra is not installed")
-    root = Path(__file__).resolve().parents[1]
-    proc = subprocess.run(
-        [sys.executable, "-c", _PHYSICS_RUN, "120"],
-        cwd=root,
-        capture_output=True,
-        text=True,
-        check=True,
-    )
-    runs = json.loads(proc.stdout.strip().splitlines()[-1])
+    runs = same_bits_runs["physics"]
     assert runs["1"] == runs["2"]
 
 
@@ -217,26 +204,13 @@ print(json.dumps(out))
 
 
 @pytest.mark.slow
-def test_the_promp_trajectories_and_weights_are_the_same_at_one_and_two_threads():
+def test_the_promp_trajectories_and_weights_are_the_same_at_one_and_two_threads(same_bits_runs):
     """The ProMP's basis product (trajectories at the loop's sizes) and its ridge regression (the
     weights of 60 demonstrations and of 2,004 priors) under the app's MKL code path, at threads=1
     and threads=2 in one process, bit for bit: MKL on two threads gave other last bits for each
     (the ``(4, 100, 70)`` cost chunk of the reduced arm run among them), which the loop carried
     into its data set."""
-    import json
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[1]
-    proc = subprocess.run(
-        [sys.executable, "-c", _TRAJECTORY_RUN],
-        cwd=root,
-        capture_output=True,
-        text=True,
-        check=True,
-    )
-    runs = json.loads(proc.stdout.strip().splitlines()[-1])
+    runs = same_bits_runs["trajectory"]
     assert runs["1"] == runs["2"]
 
 
@@ -264,7 +238,7 @@ print(json.dumps(out))
 
 
 @pytest.mark.slow
-def test_the_arm_costs_are_the_same_at_one_and_two_threads():
+def test_the_arm_costs_are_the_same_at_one_and_two_threads(same_bits_runs):
     """The arm's objectives (float32, volume can objective), success and class on a cost chunk of
     the reduced arm run's size (18 problems x 100 samples x 25 steps) under the app's MKL code
     path, at threads=1 and threads=2 in one process, bit for bit: the can objective places the end
@@ -272,14 +246,44 @@ def test_the_arm_costs_are_the_same_at_one_and_two_threads():
     split between two threads with other last bits. In the reduced arm run that changed one can
     objective value of its 133rd cost evaluation (48,600 values) at threads=2, and with it one
     learned entry of its data set."""
+    runs = same_bits_runs["arm_costs"]
+    assert runs["1"] == runs["2"]
+
+
+_ONE_PROCESS = """
+import json, sys
+from protorch.app.main import pin_mkl_code_path
+pin_mkl_code_path()  # the app's MKL code path, before MKL's first call
+out = {}
+for name, code in json.loads(sys.argv[1]).items():
+    try:
+        ns = {"__name__": "__" + name + "__"}
+        exec(code, ns)  # each script prints its own line; its result is ns["out"]
+        out[name] = ns["out"]
+    except ImportError as exc:  # the physics extra not installed: that test skips
+        out[name] = repr(exc)
+print(json.dumps(out))
+"""
+
+
+@pytest.fixture(scope="module")
+def same_bits_runs():
+    """The three same-bits scripts above in one fresh process (each sets its own thread counts;
+    one interpreter start instead of three): ``{script: {"1": digests, "2": digests}}``."""
     import json
     import subprocess
     import sys
     from pathlib import Path
 
-    root = Path(__file__).resolve().parents[1]
+    scripts = {"physics": _PHYSICS_RUN, "trajectory": _TRAJECTORY_RUN, "arm_costs": _ARM_COSTS_RUN}
     proc = subprocess.run(
-        [sys.executable, "-c", _ARM_COSTS_RUN], cwd=root, capture_output=True, text=True, check=True
+        [sys.executable, "-c", _ONE_PROCESS, json.dumps(scripts)],
+        cwd=Path(__file__).resolve().parents[1],
+        capture_output=True,
+        text=True,
+        check=True,
     )
     runs = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert runs["1"] == runs["2"]
+    return {
+        k: {str(t): d for t, d in v.items()} if isinstance(v, dict) else v for k, v in runs.items()
+    }

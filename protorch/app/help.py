@@ -63,7 +63,7 @@ def first_sentence(path: Path) -> str:
     """The first sentence of a YAML file's header comment (after ``@package``), whole however many
     lines it spans (abbreviations such as "Sec." and "Fig." do not end it; a trailing colon
     does)."""
-    text = []
+    text: list[str] = []
     for line in path.read_text().splitlines():
         m = _COMMENT.match(line)
         if m is None or (text and (not m["text"].strip() or m["text"].startswith(" "))):
@@ -125,7 +125,7 @@ def key_meanings(path: Path) -> list[tuple[str, str, str]]:
         if meaning or m["value"].strip():
             rows.append([dotted, m["value"].strip(), meaning])
             last_indent = indent if meaning else None
-    return [tuple(r) for r in rows]
+    return [(r[0], r[1], r[2]) for r in rows]
 
 
 def _table(rows, width: int, indent: str = "  ", max_key: int = 36) -> list[str]:

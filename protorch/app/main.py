@@ -22,6 +22,7 @@ import sys
 import time
 import traceback
 from pathlib import Path
+from typing import Any, cast
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
@@ -100,7 +101,7 @@ def hydra_app(cfg: DictConfig) -> float | None:
     logging.getLogger("matplotlib").setLevel(logging.WARNING)
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     fresh = _only_hydra_files(out_dir)
-    plain = OmegaConf.to_container(cfg, resolve=True)
+    plain = cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=True))  # cfg is a mapping
     try:
         check_config(plain)  # every setting, before any file is written
         check_run_folder(out_dir, plain["name"])  # before config.yaml replaces another experiment's

@@ -34,9 +34,10 @@ def plot_sweep(report: SweepReport, metrics: Sequence[str], *, max_lines: int = 
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 2.8 * rows), squeeze=False)
     for j, p in enumerate(report.swept):
         xs_raw = [r.param(p) for r in runs]
-        numeric_x = all(numeric(x) is not None for x in xs_raw)
+        nums = [numeric(x) for x in xs_raw]
+        numeric_x = all(v is not None for v in nums)
         if numeric_x:
-            xv = [numeric(x) for x in xs_raw]
+            xv = [v for v in nums if v is not None]
             log = min(xv) > 0 and max(xv) / min(xv) >= 10
         else:
             cats = sorted({json.dumps(x, default=str) for x in xs_raw})

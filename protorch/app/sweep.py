@@ -11,6 +11,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 from omegaconf import OmegaConf
 
@@ -246,10 +247,10 @@ def collect(sweep_dir: str | Path) -> SweepReport:
         ]
     swept = [k for k in keys if not _same([r.param(k) for r in runs])]
     fixed = {k: runs[0].param(k) for k in keys if k not in swept}
-    optuna = None
+    optuna: dict | None = None
     results = root / "optimization_results.yaml"
     if results.is_file():
-        optuna = OmegaConf.to_container(OmegaConf.load(results))
+        optuna = cast(dict, OmegaConf.to_container(OmegaConf.load(results)))  # a YAML mapping
     return SweepReport(root=root, runs=runs, swept=swept, fixed=fixed, optuna=optuna)
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 from itertools import pairwise
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -71,7 +71,7 @@ class Cleaning:
         unknown = sorted(set(cfg) - known)
         if unknown:
             raise ValueError(f"{name}: unknown setting(s) {unknown}; known: {sorted(known)}")
-        out = {}
+        out: dict[str, Any] = {}
         trim = cfg.get("trim", cls.trim)
         if trim is False or trim is None:
             trim = 0.0
@@ -214,7 +214,7 @@ def group_envs(envs: np.ndarray, tol: float | None) -> tuple[np.ndarray, float, 
     order of their first member."""
     from scipy.cluster.hierarchy import fcluster, linkage
 
-    report = {"tolerance": None, "derived": tol is None}
+    report: dict[str, Any] = {"tolerance": None, "derived": tol is None}
     if tol is None:
         tol, how = group_tolerance(envs)
         report["how"] = how
@@ -227,7 +227,7 @@ def group_envs(envs: np.ndarray, tol: float | None) -> tuple[np.ndarray, float, 
         t=max(tol, EQUAL * (1 + float(np.abs(envs).max()))),
         criterion="distance",
     )
-    order = {}
+    order: dict[int, int] = {}
     group = np.array([order.setdefault(int(g), len(order)) for g in raw], dtype=np.int64)
     return group, tol, report
 

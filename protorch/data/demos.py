@@ -74,7 +74,7 @@ def _parse_floats(
 ) -> list[list[float]]:
     """Rows of ``per_row`` comma-separated finite floats within ``bounds``; blank lines are
     skipped. ``names(row_index)`` / ``bounds(row_index)`` name and bound a row's values."""
-    rows = []
+    rows: list[list[float]] = []
     for lineno, line in enumerate(text.splitlines(), 1):
         line = line.strip()
         if not line:
@@ -283,7 +283,9 @@ def check_demo_groups(
         if not excluded
         else " (excluded: " + "; ".join(f"{e['file']}: {e['reason']}" for e in excluded) + ")"
     )
-    report, seen = {"rule": LONE_RULE if lone == "pool" else "refused", "lone": []}, set()
+    lone_sides: list[dict] = []
+    report = {"rule": LONE_RULE if lone == "pool" else "refused", "lone": lone_sides}
+    seen: set[int] = set()
     for i in range(len(files)):
         if int(counts[group[i]]) >= minimum or int(group[i]) in seen:
             continue
@@ -292,7 +294,7 @@ def check_demo_groups(
         names = ", ".join(files[j][0].name for j in members)
         side = "" if labels is None else f" passing {name(i)}"
         if lone == "pool" and int(lab[i]) in pooled_from:
-            report["lone"].append(
+            lone_sides.append(
                 {
                     "files": [files[j][0].name for j in members],
                     "label": int(lab[i]),

@@ -40,6 +40,7 @@ import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -362,22 +363,22 @@ def read_recordings(
         ]
         for key in dict.fromkeys(keys):
             members = [i for i, k in enumerate(keys) if k == key]
-            out, reps = align([demos[i] for i in members])
-            for i, a, r in zip(members, out, reps):
+            warped, reps = align([demos[i] for i in members])
+            for i, a, rep in zip(members, warped, reps):
                 aligned[i] = a
-                reports[i].update(r)
-    for i, r in enumerate(reports):
-        r["group"] = int(group[i])
-        r["group_env"] = group_env[i].tolist()
-        r["env_offset"] = float(np.linalg.norm(envs[i] - group_env[i]))
+                reports[i].update(rep)
+    for i, rep in enumerate(reports):
+        rep["group"] = int(group[i])
+        rep["group_env"] = group_env[i].tolist()
+        rep["env_offset"] = float(np.linalg.norm(envs[i] - group_env[i]))
         if labels is not None:
-            r["label"] = int(labels[i])
+            rep["label"] = int(labels[i])
     groups = int(group.max()) + 1 if group.size else 0
     spread = [
         float(np.linalg.norm(envs[group == g] - envs[group == g].mean(0), axis=1).max())
         for g in range(groups)
     ]
-    report = {
+    report: dict[str, Any] = {
         "format": "recordings",
         "cleaning": {f.name: getattr(cleaning, f.name) for f in fields(cleaning)},
         "grouping": {
@@ -395,14 +396,14 @@ def read_recordings(
     }
     if cleaning.align:
         report["warp_max"] = float(max(r["warp_max"] for r in reports))
-    out = DemoFolder(
+    demo_folder = DemoFolder(
         [torch.as_tensor(a, dtype=dtype) for a in aligned],  # (S, D) each
         torch.as_tensor(group_env, dtype=dtype).reshape(-1, len(fmt.env_names)),  # (n, E)
         [(p, p) for p in files],
         list(range(len(files))),
     )
-    out.report = report
-    out.stages = [
+    demo_folder.report = report
+    demo_folder.stages = [
         {
             "time": r.time,
             "raw": r.values,
@@ -413,4 +414,4 @@ def read_recordings(
         }
         for r, c, a in zip(recs, cleaned, aligned)
     ]
-    return out, labels
+    return demo_folder, labels

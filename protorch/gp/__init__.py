@@ -41,7 +41,11 @@ def make_env_map(backend: str = "torch", alpha: float = 1.0, **options) -> EnvMa
 
     ``options``: ``nearest_k``, ``dtype``, ``device`` for every backend, plus the backend's own
     (see :class:`TorchEnvMap`, :class:`GPyTorchEnvMap`, :class:`SparseEnvMap`). Unknown names
-    raise ``TypeError``.
+    raise ``TypeError``; an unknown backend ``ValueError``.
+
+    >>> env_map = make_env_map("torch", alpha=1.0, nearest_k=30)
+    >>> env_map.fit(torch.rand(5, 2), torch.rand(5, 4), torch.full((5, 4), 0.1)).num_weights
+    4
     """
     if backend not in BACKENDS:
         raise ValueError(f"unknown GP backend {backend!r}; choose one of {sorted(BACKENDS)}")

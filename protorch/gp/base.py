@@ -92,6 +92,7 @@ class EnvMap(nn.Module, ABC):
     """
 
     backend: str = "base"
+    _known: Tensor  # (K,) the labels stored so far, sorted (a registered buffer)
 
     def __init__(
         self,
@@ -111,12 +112,13 @@ class EnvMap(nn.Module, ABC):
             raise ValueError(f"dtype must be a floating dtype, got {dtype}")
         self.alpha = float(alpha)
         self.nearest_k = nearest_k
-        kw = dict(dtype=dtype, device=device)
         self._m = 0  # number of stored points
         self._first_new = 0  # the first row of the last fit or add
         self._d = self._n = 0  # env dim d, weights N
         # the data in blocks that are never copied, so one add never pays for the rows before it
-        self._data = GrowingRows((0,), **kw)  # (M, d + 2N) rows [E | MU | VAR]
+        self._data = GrowingRows(
+            (0,), dtype=dtype, device=device
+        )  # (M, d + 2N) rows [E | MU | VAR]
         self._labels = GrowingRows((), dtype=torch.long, device=device)  # (M,)
         self.register_buffer(
             "_known", torch.zeros(0, dtype=torch.long, device=device)
@@ -364,7 +366,7 @@ class EnvMap(nn.Module, ABC):
         E, lab = self._validate_query(E, labels)
         q, n = E.shape[0], self.num_weights
         mu = torch.empty(q, n, dtype=self.dtype, device=self.device)  # (Q, N)
-        var = (
+        var: Tensor | None = (
             torch.empty(q, n, dtype=self.dtype, device=self.device) if need_var else None
         )  # (Q, N)
         for g in torch.unique(lab).tolist():
@@ -374,12 +376,14 @@ class EnvMap(nn.Module, ABC):
             else:
                 m_g, v_g = self._nearest_predict(g, E[sel], need_var=need_var)
             mu[sel] = m_g
-            if need_var:
+            if var is not None:
                 var[sel] = v_g
         return mu, var
 
     def _nearest_predict(self, g: int, Eq: Tensor, *, need_var: bool):
         rows = (self.labels == g).nonzero()[:, 0]  # (Mg,) storage rows of label g
+        if self.nearest_k is None:
+            raise RuntimeError("_nearest_predict needs nearest_k set")
         k = min(self.nearest_k, rows.shape[0])
         d2 = sq_dist(Eq, self.E[rows])  # (Q, Mg)
         idx = torch.sort(d2, dim=1, stable=True).indices[:, :k]  # (Q, k), ties by insertion order

@@ -24,6 +24,8 @@ The triangular solves run on strided views of the capacity buffer, block by bloc
 
 from __future__ import annotations
 
+from typing import Any, cast
+
 import torch
 from torch import Tensor, nn
 
@@ -128,7 +130,7 @@ class _CholGroup(nn.Module):
             return
         m, cap = self.m, max(need, int(self.growth * self.capacity) + 1)
         n, d = self.L.shape[0], self.E.shape[1]
-        kw = dict(dtype=self.L.dtype, device=self.L.device)
+        kw: dict[str, Any] = dict(dtype=self.L.dtype, device=self.L.device)
         L = torch.zeros(n, cap, cap, **kw)  # (N, cap, cap)
         L[:, :m, :m] = self.L[:, :m, :m]
         E = torch.zeros(cap, d, **kw)  # (cap, d)
@@ -145,7 +147,7 @@ class _CholGroup(nn.Module):
         self._ensure_capacity(m + b)
         L = self.L
         k22 = rbf(E, E, self.alpha)  # (B, B)
-        k12 = rbf(self.E[:m], E, self.alpha) if m else None  # (m, B)
+        k12 = rbf(self.E[:m], E, self.alpha) if m else E.new_zeros(0, b)  # (m, B)
         eye = torch.eye(b, dtype=E.dtype, device=E.device)
         new_jit = torch.zeros(n, dtype=E.dtype, device=E.device)  # (N,)
         for i in range(n):  # one weight at a time keeps the memory at O(M^2)
@@ -200,16 +202,19 @@ class _CholGroup(nn.Module):
         return (1.0 - quad).clamp_min(0) + self.vbar  # (Q, N)
 
     def var_approx(self, Eq: Tensor) -> Tensor:
-        if self.nys_H is None:
-            self._build_nystrom()
-        kS = rbf(self.nys_S, Eq, self.alpha)  # (r, Q)
-        f = torch.linalg.solve_triangular(self.nys_R, kS, upper=False).to(
-            self.nys_H.dtype
-        )  # (r, Q)
-        n, r = self.nys_H.shape[:2]
-        hf = (self.nys_H.reshape(n * r, r) @ f).reshape(n, r, -1)  # (N, r, Q): one big matmul
+        S, R, H = self._nystrom()  # (r, d), (r, r), (N, r, r)
+        kS = rbf(S, Eq, self.alpha)  # (r, Q)
+        f = torch.linalg.solve_triangular(R, kS, upper=False).to(H.dtype)  # (r, Q)
+        n, r = H.shape[:2]
+        hf = (H.reshape(n * r, r) @ f).reshape(n, r, -1)  # (N, r, Q): one big matmul
         quad = (hf * f).sum(1).T.to(Eq.dtype)  # (Q, N)
         return (1.0 - quad).clamp_min(0) + self.vbar  # (Q, N)
+
+    def _nystrom(self) -> tuple[Tensor, Tensor, Tensor]:
+        """The Nystroem cache ``(S (r, d), R (r, r), H (N, r, r))``, built when stale."""
+        if self.nys_S is None or self.nys_R is None or self.nys_H is None:
+            self._build_nystrom()
+        return cast(Tensor, self.nys_S), cast(Tensor, self.nys_R), cast(Tensor, self.nys_H)
 
     def _build_nystrom(self) -> None:
         """Pivoted Cholesky of K (``F F^T ~ K``), then ``H_n = (L_n^-1 F)^T (L_n^-1 F)``."""
@@ -250,6 +255,16 @@ class TorchEnvMap(EnvMap):
             float32 halves the approximate variance's latency; its rounding (~1e-7 absolute on a
             variance) is far below the Nystroem error itself. ``"float64"`` makes the
             approximation exact (to round-off) whenever the pivots span the kernel columns.
+
+    Example: fit ``M = 6`` environments ``(M, d)`` with their weight means and variances
+    ``(M, N)``, predict at two
+
+    >>> g = torch.Generator().manual_seed(0)
+    >>> E, MU = torch.rand(6, 2, generator=g), torch.rand(6, 4, generator=g)
+    >>> env_map = TorchEnvMap(alpha=1.0).fit(E, MU, torch.full((6, 4), 0.1))
+    >>> mu, var = env_map.predict(E[:2])  # (Q, N) each
+    >>> mu.shape, bool((var > 0).all())
+    (torch.Size([2, 4]), True)
     """
 
     backend = "torch"
@@ -296,7 +311,7 @@ class TorchEnvMap(EnvMap):
     @property
     def jitter(self) -> dict[int, Tensor]:
         """Per label, the largest diagonal jitter ``(N,)`` the factorisation needed (0 = exact)."""
-        return {int(k): g.jitter for k, g in self.groups.items()}
+        return {int(k): cast(_CholGroup, g).jitter for k, g in self.groups.items()}
 
     def _reset_groups(self) -> None:
         self.groups = nn.ModuleDict()
@@ -323,7 +338,7 @@ class TorchEnvMap(EnvMap):
         self._warn_if_amplified(g)
 
     def _group_add(self, g, E, MU, VAR) -> None:
-        if self.groups[str(g)].extend(E, MU, VAR):
+        if self._group(g).extend(E, MU, VAR):
             # jitter on the new rows only would favour the old ones (a duplicate added with
             # variance 0 would be ignored): refit, so add and fit give the same map
             sel = self.labels == g
@@ -331,12 +346,16 @@ class TorchEnvMap(EnvMap):
         else:
             self._warn_if_amplified(g)
 
+    def _group(self, g: int) -> _CholGroup:
+        """Label ``g``'s group."""
+        return cast(_CholGroup, self.groups[str(g)])
+
     def _warn_if_amplified(self, g: int) -> None:
-        grp = self.groups[str(g)]
+        grp = self._group(g)
         warn_if_amplified(grp.coef[: grp.m], self.MU[self.labels == g], grp.mu0, f"label {g}")
 
     def _group_predict(self, g, Eq, *, need_var, approx_var):
-        grp = self.groups[str(g)]
+        grp = self._group(g)
         mu = grp.mean(Eq)  # (Q, N)
         if not need_var:
             return mu, None

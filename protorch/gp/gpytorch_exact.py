@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 import warnings
 from contextlib import ExitStack
+from typing import cast
 
 import gpytorch
 import torch
@@ -69,7 +70,18 @@ class _BatchExactGP(gpytorch.models.ExactGP):
 
 
 class GPyTorchEnvMap(EnvMap):
-    """GPyTorch backend (module docstring). Extra option ``love_rank``: Lanczos rank of LOVE."""
+    """GPyTorch backend (module docstring). Extra option ``love_rank``: Lanczos rank of LOVE.
+
+    Example: fit ``M = 6`` environments ``(M, d)`` with their weight means and variances
+    ``(M, N)``, predict at two
+
+    >>> g = torch.Generator().manual_seed(0)
+    >>> E, MU = torch.rand(6, 2, generator=g), torch.rand(6, 4, generator=g)
+    >>> env_map = GPyTorchEnvMap(alpha=1.0).fit(E, MU, torch.full((6, 4), 0.1))
+    >>> mu, var = env_map.predict(E[:2])  # (Q, N) each
+    >>> mu.shape, bool((var > 0).all())
+    (torch.Size([2, 4]), True)
+    """
 
     backend = "gpytorch"
 
@@ -112,7 +124,7 @@ class GPyTorchEnvMap(EnvMap):
     def _group_add(self, g, E, MU, VAR) -> None:
         # The base class already stored the new rows: take the whole group again.
         x, y, noise, mu0, _ = self._train_data(g)
-        model = self.models[str(g)]
+        model = cast(_BatchExactGP, self.models[str(g)])
         model.set_train_data(inputs=x, targets=y, strict=False)
         with exact_settings():
             model.likelihood.noise = noise

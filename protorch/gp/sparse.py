@@ -27,6 +27,8 @@ Two modes, by ``nearest_k``:
 
 from __future__ import annotations
 
+from typing import cast
+
 import torch
 from torch import Tensor, nn
 
@@ -42,6 +44,9 @@ _WORK = 1 << 22  # elements of the (queries, N, k, k) systems solved at once: 32
 
 class _LabelIndex(nn.Module):
     """One label's rows of the map's storage, their nearest-neighbour index and running sums."""
+
+    mu_sum: Tensor  # (N,) registered buffers
+    var_sum: Tensor  # (N,)
 
     def __init__(self, d: int, n: int, *, kind: str, dtype, device) -> None:
         super().__init__()
@@ -75,6 +80,16 @@ class SparseEnvMap(EnvMap):
         neighbours: environments per solve when ``nearest_k`` is ``None``.
         index: ``"kdtree"`` (scipy's ``cKDTree``, CPU) or ``"brute"`` (torch, any device):
             the same neighbours either way.
+
+    Example: fit ``M = 6`` environments ``(M, d)`` with their weight means and variances
+    ``(M, N)``, predict at two
+
+    >>> g = torch.Generator().manual_seed(0)
+    >>> E, MU = torch.rand(6, 2, generator=g), torch.rand(6, 4, generator=g)
+    >>> env_map = SparseEnvMap(alpha=1.0).fit(E, MU, torch.full((6, 4), 0.1))
+    >>> mu, var = env_map.predict(E[:2])  # (Q, N) each
+    >>> mu.shape, bool((var > 0).all())
+    (torch.Size([2, 4]), True)
     """
 
     backend = "sparse"
@@ -117,7 +132,7 @@ class SparseEnvMap(EnvMap):
         self.groups[str(g)] = grp
 
     def _group_add(self, g, E, MU, VAR) -> None:
-        self.groups[str(g)].extend(
+        cast(_LabelIndex, self.groups[str(g)]).extend(
             self._new_rows(g), E, MU, VAR
         )  # (B_g,) rows the base class stored
 

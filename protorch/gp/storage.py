@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from bisect import bisect_right
 from itertools import accumulate
-from typing import Iterator
+from typing import Iterator, cast
 
 import torch
 from torch import Tensor, nn
@@ -59,7 +59,7 @@ class GrowingRows(nn.Module):
 
     @property
     def blocks(self) -> list[Tensor]:
-        return [self._buffers[f"b{i}"] for i in range(len(self.starts))]
+        return [self._block(i) for i in range(len(self.starts))]
 
     @property
     def capacity(self) -> int:
@@ -74,7 +74,7 @@ class GrowingRows(nn.Module):
         """Append rows ``n .. n + B - 1``: ``X (B, *shape)``, or ``(B, w_i)`` parts whose columns
         together make rows of width ``w`` (written in place, never concatenated first)."""
         if len(parts) == 1 and tuple(parts[0].shape[1:]) == self.shape:
-            cols = [(0, None, parts[0])]  # whole rows
+            cols: list[tuple[int, int | None, Tensor]] = [(0, None, parts[0])]  # whole rows
         elif (
             len(self.shape) == 1
             and all(p.ndim == 2 for p in parts)
@@ -93,7 +93,7 @@ class GrowingRows(nn.Module):
             if self.n == self.capacity:
                 self._new_block(b - done)
             last = len(self.starts) - 1
-            blk, s = self._buffers[f"b{last}"], self.starts[last]
+            blk, s = self._block(last), self.starts[last]
             take = min(b - done, s + blk.shape[0] - self.n)
             rows = blk[self.n - s : self.n - s + take]  # (take, *shape) view
             for a, z, p in cols:
@@ -136,13 +136,17 @@ class GrowingRows(nn.Module):
             if int(hi) < self.capacity_of(
                 first
             ):  # all in one block (the common case): one indexing
-                return self._buffers[f"b{first}"][idx - self.starts[first]]
+                return self._block(first)[idx - self.starts[first]]
             return self._take_blocks(idx)
         return self.b0[idx]
 
+    def _block(self, i: int) -> Tensor:
+        """Block ``i``'s buffer ``(capacity_i, *shape)``."""
+        return cast(Tensor, self._buffers[f"b{i}"])
+
     def capacity_of(self, i: int) -> int:
         """One past the last row block ``i`` can hold."""
-        return self.starts[i] + self._buffers[f"b{i}"].shape[0]
+        return self.starts[i] + self._block(i).shape[0]
 
     def _take_blocks(self, idx: Tensor) -> Tensor:
         flat = idx.reshape(-1)  # (I,)

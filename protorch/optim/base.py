@@ -56,9 +56,13 @@ class BaseOptimizer(nn.Module):
     beta: Tensor  # (B,)
     converged: Tensor  # (B,) bool
     can_draw_ahead = True  # every random number comes through _randn (see draw_ahead)
-    # restart() gives a problem's row a new problem between iterations (the loop's refill); an
-    # optimiser whose state reads the global iteration or pools iterations sets this to False
-    can_restart = True
+
+    @property
+    def can_restart(self) -> bool:
+        """Whether :meth:`restart` may give a problem's row a new problem between iterations (the
+        loop's refill); an optimiser whose state reads the global iteration or pools iterations
+        sets this to False."""
+        return True
 
     def __init__(
         self,
@@ -210,21 +214,28 @@ class BaseOptimizer(nn.Module):
         return kept.repeat_interleave(block)[: self.batch_size].nonzero().flatten()
 
     def _apply_rows(self, rows: Tensor | None, new_mean: Tensor, new_var: Tensor) -> None:
-        """Commit an update computed for ``rows`` (``None``: all, :meth:`_apply`) to its moving
+        """Commit an update computed for ``rows`` (``None``: all, :meth:`_commit`) to its moving
         ones."""
         if rows is None:
-            self._apply(new_mean, new_var)
+            self._commit(new_mean, new_var)
             return
         moving = ~self.converged[rows]  # (r,)
         self.mean[rows[moving]] = new_mean[moving]
         self.var[rows[moving]] = new_var[moving].clamp_min(0)
+
+    @property
+    def _objectives(self) -> int:
+        """``O``: given, or set by the first ``tell``."""
+        if self.num_objectives is None:
+            raise RuntimeError("the number of objectives is not known before the first tell()")
+        return self.num_objectives
 
     def _record_cost(self, objective: int | slice, costs: Tensor) -> None:
         """Note the mean, min and max cost this iteration's update saw for ``objective``:
         ``costs (B, S[, O])``."""
         if self._iter_cost is None:
             self._iter_cost = torch.full(
-                (3, self.batch_size, self.num_objectives),
+                (3, self.batch_size, self._objectives),
                 float("nan"),
                 dtype=costs.dtype,
                 device=costs.device,
@@ -255,7 +266,7 @@ class BaseOptimizer(nn.Module):
         c = self.objective_weights  # its shape was checked against the costs by tell()
         return costs.sum(-1) if c is None else costs @ c
 
-    def _apply(self, new_mean: Tensor, new_var: Tensor) -> None:
+    def _commit(self, new_mean: Tensor, new_var: Tensor) -> None:
         """Commit an update to the problems that have not converged."""
         active = ~self.converged[:, None]  # (B, 1)
         self.mean.copy_(torch.where(active, new_mean, self.mean))
@@ -281,9 +292,9 @@ class BaseOptimizer(nn.Module):
 
     def tell(self, costs: Tensor) -> None:
         """Costs of the last asked weights: ``(B, S, O)`` (unbatched: ``(S, O)`` or ``(S,)``)."""
-        if self._asked is None:
+        if self._asked is None or self._gen is None:
             raise RuntimeError("tell() called without a pending ask()")
-        costs = self._checked_costs(costs)
+        costs = self._checked_costs(costs, self._asked)
         self._asked = None
         self.rollouts += self.active.cpu().long() * costs.shape[1]
         try:
@@ -295,13 +306,13 @@ class BaseOptimizer(nn.Module):
             self._restore(self._start)
             raise
 
-    def _checked_costs(self, costs) -> Tensor:
-        """``costs`` as ``(B, S, O)`` in the distribution's dtype (:func:`~.contract.check_costs`);
-        nothing changes before every check passed."""
+    def _checked_costs(self, costs, asked: Tensor) -> Tensor:
+        """``costs`` of the ``asked (B, S, N)`` weights as ``(B, S, O)`` in the distribution's
+        dtype (:func:`~.contract.check_costs`); nothing changes before every check passed."""
         cast = check_costs(
             costs,
             batched=self.batched,
-            expect=tuple(self._asked.shape[:2]),
+            expect=(asked.shape[0], asked.shape[1]),
             dtype=self.mean.dtype,
             num_objectives=self.num_objectives,
             objective_weights=getattr(self, "objective_weights", None),

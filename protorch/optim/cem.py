@@ -29,6 +29,15 @@ class CEM(BaseOptimizer):
         extra_var: ``>= 0`` added to every variance after the refit (default 0).
         objective_weights: ``(O,)``, default all ones: how objectives combine into one cost.
         Other arguments: :class:`BaseOptimizer` (``num_samples``, ``max_iter``, ``tol``, ...).
+
+    Example: the ask / tell loop on ``||w - 1||^2`` (unbatched: ``(S, N)`` asked, ``(S,)`` told)
+
+    >>> opt = CEM(torch.zeros(3), torch.ones(3), num_samples=20, seed=0)
+    >>> while not opt.stop():
+    ...     w = opt.ask()  # (S, N)
+    ...     opt.tell((w - 1).pow(2).sum(-1))  # (S,): one objective
+    >>> bool((opt.result().mean - 1).abs().max() < 0.5)
+    True
     """
 
     def __init__(
@@ -70,4 +79,4 @@ class CEM(BaseOptimizer):
         a = self.smoothing
         new_mean = (1 - a) * self.mean + a * elite_mean
         new_var = (1 - a) * self.var + a * elite_var + self.extra_var
-        self._apply(new_mean, new_var)
+        self._commit(new_mean, new_var)

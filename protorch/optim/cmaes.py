@@ -41,6 +41,15 @@ class CMAES(BaseOptimizer):
         Other arguments: :class:`BaseOptimizer`. ``var`` must be > 0.
 
     Needs pycma: ``pip install "protorch[peers]"`` (or ``pip install cma``).
+
+    Example: the ask / tell loop on ``||w - 1||^2`` (unbatched: ``(S, N)`` asked, ``(S,)`` told)
+
+    >>> opt = CMAES(torch.zeros(3), torch.ones(3), num_samples=10, seed=0)
+    >>> while not opt.stop():
+    ...     w = opt.ask()  # (S, N)
+    ...     opt.tell((w - 1).pow(2).sum(-1))  # (S,): one objective
+    >>> bool((opt.result().mean - 1).abs().max() < 0.05)
+    True
     """
 
     can_restart = False  # its state is not per problem (global iteration, pooled or external state)
@@ -117,7 +126,7 @@ class CMAES(BaseOptimizer):
                 self.stop_reasons[b] = dict(es.stop())
             new_mean[b] = es.mean
             new_var[b] = np.asarray(es.stds) ** 2
-        self._apply(
+        self._commit(
             torch.as_tensor(new_mean, device=self.mean.device).to(self.mean.dtype),
             torch.as_tensor(new_var, device=self.mean.device).to(self.mean.dtype),
         )

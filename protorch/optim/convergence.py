@@ -37,7 +37,9 @@ RULES = ("mean", "authors")
 class ConvergenceRule(Protocol):
     """``rule(history) -> (B,) bool`` from the optimiser's per-iteration cost history."""
 
-    window: int
+    @property
+    def window(self) -> int:
+        """Iterations the rule looks back over."""
 
     def __call__(self, history: Mapping[str, list[Tensor]]) -> Tensor: ...
 

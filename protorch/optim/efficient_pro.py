@@ -213,6 +213,15 @@ class EPRO(BaseOptimizer):
     Attributes: ``read (B, N)`` the weights shown to be read, ``evidence (B, 3, N)`` the running
     statistic of each test (read once ``>= 0``), ``relevance`` / ``variance_relevance``
     ``(B, O, N)`` the last ``f`` and ``g``.
+
+    Example: the ask / tell loop on ``||w - 1||^2`` (unbatched: ``(S, N)`` asked, ``(S,)`` told)
+
+    >>> opt = EPRO(torch.zeros(3), torch.ones(3), num_samples=10, seed=0)
+    >>> while not opt.stop():
+    ...     w = opt.ask()  # (S, N)
+    ...     opt.tell((w - 1).pow(2).sum(-1))  # (S,): one objective
+    >>> bool((opt.result().mean - 1).abs().max() < 0.1)
+    True
     """
 
     # the registered buffers (typed for the type checker)
@@ -392,7 +401,7 @@ class EPRO(BaseOptimizer):
         self.read.copy_(torch.where(active, read, self.read))
         self.relevance, self.variance_relevance = relevance, variance_relevance
         self.history["relevance"].append(relevance.clone())
-        self._apply(new_mean, new_var)
+        self._commit(new_mean, new_var)
 
 
 class Batch(NamedTuple):

@@ -110,7 +110,7 @@ def _linear(
     """The linear and the scale alternative's log e-values ``(..., N)`` each."""
     s, o = x.shape[-2], x.shape[-1]
     ridge = 1.0 / prior**2
-    if past_x is None:
+    if past_x is None or past_eps is None:
         a_inv = (
             torch.eye(o, dtype=x.dtype, device=x.device).expand(*x.shape[:-2], o, o) / ridge
         )  # (..., O, O)
@@ -190,8 +190,13 @@ def batch_log_evidence(
     Each alternative is a density of ``eps_n`` fixed before ``eps`` is seen, so under the null
     (``eps_n`` i.i.d. N(0, 1) given the costs and the other samples) each e-value has expectation 1.
     """
+    past = (past_eps, past_ranks, past_scores)
+    if any(p is None for p in past) and any(p is not None for p in past):
+        raise ValueError(
+            "past_eps, past_ranks and past_scores must be given together or not at all"
+        )
     linear, scale = _linear(ranks, eps, past_ranks, past_eps, prior)
-    if past_eps is None:
+    if past_eps is None or past_scores is None:
         surrogate = torch.zeros_like(linear)
     else:
         coef, noise = fit_surrogate(past_eps, past_scores, ridge)

@@ -37,6 +37,15 @@ class PRO(BaseOptimizer):
             variance in the Fig. 3 toy; ``None`` is the paper's formula as written, under which
             sampling noise in rho slowly drains the variance of irrelevant weights.
         Other arguments: :class:`BaseOptimizer`.
+
+    Example: the first ask of a batch of ``B = 2`` problems, ``N = 3`` weights; costs
+    ``(B, S, O)``
+
+    >>> opt = PRO(torch.zeros(2, 3), torch.ones(2, 3), beta=10.0, relevance_samples=50)
+    >>> w = opt.ask()  # (B, S, N): the relevance samples first
+    >>> w.shape
+    torch.Size([2, 50, 3])
+    >>> opt.tell((w - 1).pow(2).sum(-1, keepdim=True))  # (B, S, 1)
     """
 
     def __init__(
@@ -98,9 +107,12 @@ class PRO(BaseOptimizer):
             start = time.perf_counter()  # includes the caller's evaluation, as the paper's timing
             self.relevance = yield from self._relevance()  # (B, O, N)
             self.relevance_seconds.append(time.perf_counter() - start)
-        self.history["relevance"].append(self.relevance.clone())
-        for o in range(self.num_objectives):
-            f = self.relevance[:, o]  # (B, N)
+        relevance = self.relevance
+        if relevance is None:
+            raise RuntimeError("PRO's first iteration must compute the relevance")
+        self.history["relevance"].append(relevance.clone())
+        for o in range(self._objectives):
+            f = relevance[:, o]  # (B, N)
             w = self._sample(self.var * f, self.num_samples)  # (B, S, N)
             self.asked_objective = o  # this update reads objective o only
             costs = yield w  # (B, S, O)

@@ -46,6 +46,16 @@ class RWPO(PRO):
             (the authors' 50, 200, 50 and 10).
         relevance_every: 0 (default) learns the relevance once, as in the 2018 paper.
         Other arguments: :class:`PRO` / :class:`BaseOptimizer`.
+
+    Example: the first ask of a batch of ``B = 2`` problems, ``N = 3`` weights; costs
+    ``(B, S, O)``
+
+    >>> opt = RWPO(torch.zeros(2, 3), torch.ones(2, 3), beta=10.0, num_objectives=1,
+    ...      theta_samples=4, trajectory_samples=2)
+    >>> w = opt.ask()  # (B, S, N): ``O * theta_samples * trajectory_samples`` first
+    >>> w.shape
+    torch.Size([2, 8, 3])
+    >>> opt.tell((w - 1).pow(2).sum(-1, keepdim=True))  # (B, S, 1)
     """
 
     features: Tensor  # the relevance basis (a registered buffer, typed for the type checker)
@@ -99,7 +109,7 @@ class RWPO(PRO):
         )
 
     def _relevance(self) -> Generator[Tensor, Tensor, Tensor]:
-        b, n, o_count = self.batch_size, self.num_weights, self.num_objectives
+        b, n, o_count = self.batch_size, self.num_weights, self._objectives
         m, l, dofs = self.theta_samples, self.trajectory_samples, n // self.num_basis
         dt, dev = self.mean.dtype, self.mean.device
         theta_mean = torch.zeros(b, o_count, 3, dtype=dt, device=dev)  # (B, O, 3)

@@ -20,6 +20,15 @@ class RWR(BaseOptimizer):
     ``var' = sum R (w - mean')^2 / sum R``, around the *new* mean, the textbook RWR update
     (``center="old"`` gives PRO's Eq. 5 with every relevance 1 instead).
     ``objective_weights`` (``(O,)``, default all ones) combines the objectives into one cost.
+
+    Example: the first ask of a batch of ``B = 2`` problems, ``N = 3`` weights; costs
+    ``(B, S, O)``
+
+    >>> opt = RWR(torch.zeros(2, 3), torch.ones(2, 3), beta=10.0, num_samples=20)
+    >>> w = opt.ask()  # (B, S, N): ``num_samples`` from ``N(mean, diag(var))``
+    >>> w.shape
+    torch.Size([2, 20, 3])
+    >>> opt.tell((w - 1).pow(2).sum(-1, keepdim=True))  # (B, S, 1)
     """
 
     def __init__(

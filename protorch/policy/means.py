@@ -422,18 +422,9 @@ class ClassMeans:
 
 def basis3(promp, z) -> Tensor:
     """The normalised Gaussian basis and its first two phase derivatives at the phases ``z``
-    (a float, a 0-d or a ``(P,)`` tensor): ``(..., 3, K)``
-    (:func:`~protorch.control.episodes.basis_derivative_at` for the first; with ``a_k = -(z -
-    c_k) / w^2`` and ``s = sum_j g_j a_j``: ``g'' = g' (a - s) - g sum_j g'_j a_j``)."""
-    c, w2 = promp.centers.to(torch.float64), promp.width**2
-    z = torch.as_tensor(z, dtype=torch.float64, device=c.device)
-    d = z[..., None] - c  # (..., K)
-    b = torch.exp(-0.5 * (d / promp.width) ** 2)  # (..., K) as gaussian_basis
-    g = b / b.sum(-1, keepdim=True)
-    a = -d / w2
-    g1 = g * (a - (g * a).sum(-1, keepdim=True))
-    g2 = g1 * (a - (g * a).sum(-1, keepdim=True)) - g * (g1 * a).sum(-1, keepdim=True)
-    return torch.stack([g, g1, g2], -2)  # (..., 3, K)
+    (a float, a 0-d or a ``(P,)`` tensor) of a float64 ``promp``: ``(..., 3, K)``,
+    :meth:`~protorch.primitives.promp.ProMP.basis_at` ``(z, order=2)`` shaped as ``z``."""
+    return promp.basis_at(z, order=2).reshape(*torch.as_tensor(z).shape, 3, -1)  # (..., 3, K)
 
 
 def decay_matrix(blend: float, s: float, rows: int = 3, device=None) -> Tensor:

@@ -225,9 +225,12 @@ class PoseProMP(nn.Module):
         device: torch.device | str | None = None,
     ) -> None:
         super().__init__()
-        kw = dict(width=width, ridge=ridge, dtype=dtype, device=device)
-        self.position = ProMP(3, num_basis, num_steps, **kw)
-        self.orientation = ProMP(4, num_basis, num_steps, **kw)
+        self.position = ProMP(
+            3, num_basis, num_steps, width=width, ridge=ridge, dtype=dtype, device=device
+        )
+        self.orientation = ProMP(
+            4, num_basis, num_steps, width=width, ridge=ridge, dtype=dtype, device=device
+        )
 
     @property
     def num_steps(self) -> int:

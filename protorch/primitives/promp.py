@@ -74,6 +74,16 @@ class ProMP(nn.Module):
             between centres, ``1 / (K - 1)``.
         ridge: ``lambda`` of the ridge fit ``w = (Phi^T Phi + lambda I)^-1 Phi^T y``.
         dtype, device: of the buffers (float64 by default).
+
+    Example: fit three demonstrations of 40 steps, generate the mean trajectory on ``T = 50``
+
+    >>> t = torch.linspace(0, 1, 40, dtype=torch.float64)
+    >>> demos = [torch.stack([t, t**2 + 0.01 * k], -1) for k in range(3)]  # (40, D = 2) each
+    >>> promp = ProMP(num_dof=2, num_basis=5, num_steps=50).fit(demos)
+    >>> promp.mean.shape, promp.trajectory(promp.mean).shape  # (N = D K,), (T, D)
+    (torch.Size([10]), torch.Size([50, 2]))
+    >>> promp.basis_at(0.5, order=2).shape  # the basis and two phase derivatives at z = 0.5
+    torch.Size([1, 3, 5])
     """
 
     # the registered buffers (typed for the type checker; nn.Module.__getattr__ returns them)

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import torch
@@ -164,8 +165,9 @@ def _markers(promp, w: Tensor, phases: Tensor) -> tuple[Tensor, Tensor]:
     wk = w.to(ref).unflatten(-1, (promp.num_dof, promp.num_basis))  # (E, D, K)
     phases = phases.to(ref)
     phi, dphi = promp.basis_at(phases), basis_derivative_at(promp, phases)  # (n, K)
-    out = torch.einsum("edk,nk->end", wk, phi), torch.einsum("edk,nk->end", wk, dphi)
-    return tuple(x.to(torch.float64).cpu() for x in out)
+    m = torch.einsum("edk,nk->end", wk, phi)  # (E, n, D)
+    dm = torch.einsum("edk,nk->end", wk, dphi)  # (E, n, D)
+    return m.to(torch.float64).cpu(), dm.to(torch.float64).cpu()
 
 
 class _Plant:
@@ -341,7 +343,7 @@ def run_physics_episodes(
     h = scene.timestep
     n_sub = substeps(timing.dt, h)
     ctrl = ComputedTorque(ctrl_model, e_num, kp=kp, kd=kd, threads=threads)
-    kw = dict(dtype=torch.float64)
+    kw: dict[str, Any] = dict(dtype=torch.float64)
     kin = task.kinematics
     vmax, lo, hi = kin.max_velocity.to(**kw).cpu(), kin.lower.cpu().numpy(), kin.upper.cpu().numpy()
     amax = torch.as_tensor(max_acceleration, **kw).expand(task.num_dof)
@@ -385,7 +387,7 @@ def run_physics_episodes(
                 a_r = velocity_command_acceleration(
                     q_r, v_r, m[:, s], m_vel[:, s], kp=ref_kp, vmax=vmax, amax=amax, dt=h
                 )  # (E, J)
-                if feasible is None:
+                if bound is None:
                     tau = ctrl.torques(plant.qpos, plant.qvel, q_r, v_r, a_r)  # (E, J)
                 else:
                     tau, a_r = ctrl.feasible_torques(

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -73,7 +74,7 @@ class ArmScene:
     mocap indices of the can and the target, the sensor addresses of the arm-can and arm-table
     contact counts, the torque limits ``(J,)`` and the task it was built for."""
 
-    model: object
+    model: Any  # mujoco.MjModel
     qpos_index: np.ndarray  # (J,)
     can_mocap: int
     target_mocap: int

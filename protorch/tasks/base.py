@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import torch
 from torch import Tensor
@@ -34,11 +34,11 @@ class Task(ABC):
         return len(self.objective_names)
 
     @abstractmethod
-    def costs(self, x: Tensor) -> Tensor:
-        """Objective values of a batch of inputs; the last output axis holds the ``O``
-        objectives."""
+    def costs(self, *args: Any, **kwargs: Any) -> Tensor:
+        """Objective values of a batch of inputs (a subclass names them: ``x``, or ``traj`` and
+        ``env``); the last output axis holds the ``O`` objectives."""
 
-    def success(self, x: Tensor) -> Tensor:  # pragma: no cover - optional
+    def success(self, *args: Any, **kwargs: Any) -> Tensor:  # pragma: no cover - optional
         raise NotImplementedError(f"{type(self).__name__} defines no success criterion")
 
 

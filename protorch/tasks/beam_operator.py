@@ -6,16 +6,31 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import torch
 from torch import Tensor
 
 from ..primitives.pose import align_quaternions, quaternion_slerp
 from ..primitives.quaternions import axis_angle_to_quaternion, quaternion_raw_multiply
-from .base import Task
 from .curves import catmull_rom, smooth_noise
 
 __all__ = ["SimulatedOperator"]
+
+
+class WindowGeometry(Protocol):
+    """What the operator reads of :class:`~protorch.tasks.BeamWindowTask` (which imports this
+    module): the window's pose and the poses through it."""
+
+    wall_position: tuple
+
+    def via_poses(self) -> tuple[Tensor, Tensor, Tensor, Tensor]: ...
+
+    def wall_rotation(self) -> Tensor: ...
+
+    def approach_direction(self) -> Tensor: ...
+
+    def passing_quaternion(self) -> Tensor: ...
 
 
 @dataclass
@@ -103,7 +118,7 @@ class SimulatedOperator:
 
     def intentions(
         self,
-        task: Task,
+        task: WindowGeometry,
         num: int,
         generator: torch.Generator | None = None,
         *,
@@ -193,7 +208,7 @@ class SimulatedOperator:
 
     def trials(
         self,
-        task: Task,
+        task: WindowGeometry,
         num: int,
         generator: torch.Generator | None = None,
         *,

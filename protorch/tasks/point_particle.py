@@ -172,14 +172,14 @@ class PointParticleTask(Task):
             )
         self.objective_names = _OBJECTIVES[self.objectives]
         if self.fixed_start is not None:
-            self.fixed_start = tuple(float(v) for v in self.fixed_start)
-            sx, sy = self.fixed_start if len(self.fixed_start) == 2 else (None, None)
+            start = tuple(float(v) for v in self.fixed_start)
             lo, hi = WORKSPACE
-            if sx is None or not (lo <= sx <= 8.0 - _MARGIN and lo <= sy <= hi):
+            if len(start) != 2 or not (lo <= start[0] <= 8.0 - _MARGIN and lo <= start[1] <= hi):
                 raise ValueError(
                     "fixed_start must be (x, y) with 0 <= x <= 6.5 (a wall at x <= 8 must fit 1.5 "
-                    f"to its right) and 0 <= y <= 10, got {self.fixed_start}"
+                    f"to its right) and 0 <= y <= 10, got {start}"
                 )
+            self.fixed_start = (start[0], start[1])
 
     # ---------------------------------------------------------------- environments
     @property

@@ -31,7 +31,7 @@ import importlib.util
 import math
 import sys
 from pathlib import Path
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import torch
 from torch import Tensor
@@ -129,11 +129,13 @@ class _Planner:
     tilt_std, other_std = 30.0, 5.0  # deg, about the normal and the other two axes
     jitter_std, jitter_angle_std = 0.004, 1.5  # m, deg
     cls_p = 0.5  # probability of rolling the beam up the first way (class 0)
+    _err: dict[str, Any]  # this trial's errors, drawn by reset()
 
     def __init__(self, seed: int) -> None:
         self.seed = int(seed)
         self._gen = torch.Generator().manual_seed(self.seed)
-        self._task = None
+        self._task: TeleopWindowTask | None = None
+        self._plan: tuple[Tensor, Tensor] | None = None  # (wall seen, (G, 7) poses)
 
     def bind(self, task) -> None:
         """The task whose geometry the plan uses (the experiment binds it; default geometry
@@ -260,6 +262,8 @@ def load_operator(spec: str) -> type:
             raise ValueError(f"teleop.operator={spec!r}: no file {path}")
         mod_name = f"_protorch_operator_{abs(hash(str(path.resolve())))}"
         loader_spec = importlib.util.spec_from_file_location(mod_name, path)
+        if loader_spec is None or loader_spec.loader is None:
+            raise ValueError(f"teleop.operator={spec!r}: cannot load {path} as a module")
         module = importlib.util.module_from_spec(loader_spec)
         sys.modules[mod_name] = module
         try:

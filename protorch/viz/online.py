@@ -300,7 +300,7 @@ def write_episode_gif(
     canvas = fig.canvas
     canvas.draw()
     background = canvas.copy_from_bbox(fig.bbox)
-    frames = []
+    frames: list[Image.Image] = []
     for t in idx:
         canvas.restore_region(background)
         arts.show(t, f"{head}, t = {t * dt:.2f} s")

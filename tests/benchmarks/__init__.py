@@ -10,6 +10,8 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 ROOT = Path(__file__).resolve().parents[2]
+if str(ROOT / "benchmarks") not in sys.path:  # the scripts' own imports (_timing, configs)
+    sys.path.append(str(ROOT / "benchmarks"))
 
 
 @contextmanager

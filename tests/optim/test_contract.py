@@ -434,3 +434,13 @@ def test_integer_costs_are_accepted(make):
         w = opt.ask()
         opt.tell((two_objectives(w) * 10).round().long())
     assert opt.iteration == 1
+
+
+def test_to_moves_the_distribution(make):
+    """``opt.to(dtype)`` is ``nn.Module.to``: the distribution's buffers change dtype and the
+    optimiser still asks and tells (no update method shadows ``nn.Module._apply``)."""
+    opt = make(torch.zeros(3, dtype=F64))
+    assert opt.to(torch.float32) is opt and opt.mean.dtype == torch.float32
+    assert opt.var.dtype == torch.float32
+    one_iteration(opt, two_objectives)
+    assert opt.iteration == 1

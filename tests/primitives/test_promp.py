@@ -512,5 +512,14 @@ def test_basis_at_gives_the_basis_and_its_phase_derivatives():
     torch.testing.assert_close(b[:, 2], fd2, rtol=1e-3, atol=1e-3)
     assert torch.equal(p.basis_at(z, order=1), b[:, :2])
     assert torch.equal(basis_derivative_at(p, z), b[:, 1]) and torch.equal(basis3(p, z), b)
+    assert basis3(p, 0.35).shape == (3, 8) and torch.equal(basis3(p, z[7]), b[7])
+    c, w = p.centers, p.width  # the closed form basis3 held before it called basis_at
+    d = z[:, None] - c  # (P, K)
+    g = torch.exp(-0.5 * (d / w) ** 2)
+    g = g / g.sum(-1, keepdim=True)
+    a = -d / w**2
+    g1 = g * (a - (g * a).sum(-1, keepdim=True))
+    g2 = g1 * (a - (g * a).sum(-1, keepdim=True)) - g * (g1 * a).sum(-1, keepdim=True)
+    torch.testing.assert_close(basis3(p, z), torch.stack([g, g1, g2], -2), rtol=0, atol=1e-15)
     with pytest.raises(ValueError, match="order must be 0, 1 or 2"):
         p.basis_at(z, order=3)

@@ -64,9 +64,9 @@ from .choice import ClassChoice
 from .export import write_program
 from .limits import JerkLimiter, robot_limits
 from .means import ClassMeans, EndEffector, basis3, decay_matrix
+from .process_planner import ProcessPlanner
 from .programs import write_programs
 from .reference import MotionState, Reference
-from .process_planner import ProcessPlanner
 from .two_rate import Planner, Tracker, TwoRatePolicy
 
 __all__ = ["DEFAULT_BLEND", "ClassMeans", "Policy", "Reference"]
@@ -210,8 +210,8 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         self.planner = planner
         if limits and planner == "inline":
             raise ValueError(
-                "limits=True needs planner='thread' or 'process' (the inline reference is the moving test's, "
-                "unlimited)"
+                "limits=True needs planner='thread' or 'process' (the inline reference is the "
+                "moving test's, unlimited)"
             )
         self._limiter = None
         if limits:

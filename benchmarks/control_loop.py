@@ -331,11 +331,12 @@ runpy.run_path(sys.argv[0], run_name="__main__")
 """
 
 
-def time_exported(policy, calls: int, aoti: bool) -> None:
+def time_exported(policy, calls: int, aoti: bool | str) -> None:
     """``--exported``: both halves written by ``policy.export(folder)`` and driven by
     ``examples/exported_loop.py`` in a process where protorch cannot be imported (the planner
-    every decision interval, the tracker every tick, back to back), on the moving walk: the
-    tracker program's wall time per call."""
+    every decision interval, the tracker every tick, back to back), on the moving walk (at most
+    2,000 ticks: the planner program run by ``torch.export``'s module is slow): the tracker
+    program's wall time per call."""
     import subprocess
     import sys
     import tempfile
@@ -345,7 +346,7 @@ def time_exported(policy, calls: int, aoti: bool) -> None:
         t0 = time.perf_counter()
         folder = policy.export(Path(tmp) / "programs", aoti=aoti)
         export_s = time.perf_counter() - t0
-        envs = environments(policy, calls, "moving")
+        envs = environments(policy, min(calls, 2000), "moving")  # the planner program is slow
         q0 = torch.as_tensor(policy.task.start_config(), dtype=torch.float64)
         torch.save({"env": envs, "q0": q0, "qd0": torch.zeros_like(q0)}, f"{tmp}/inputs.pt")
         Path(tmp, "blocked.py").write_text(BLOCKED_DRIVER)
@@ -356,7 +357,7 @@ def time_exported(policy, calls: int, aoti: bool) -> None:
             raise RuntimeError(proc.stderr[-2000:])
         ts = torch.load(f"{tmp}/out.pt", weights_only=True)["tracker_s"].tolist()
     print(
-        f"exported halves ({'AOTInductor' if aoti else 'torch.export'}; export "
+        f"exported halves (AOTInductor: {aoti}; export "
         f"{export_s:.0f} s), driven without protorch: {proc.stdout.strip()}"
     )
     print_times("tracker", ts, ts)
@@ -490,7 +491,8 @@ def main() -> None:
         "--exported",
         default="",
         help="also both halves exported (export(folder)) and driven without protorch: export "
-        "(torch.export) or aoti (AOTInductor packages, compiled here)",
+        "(torch.export), aoti (AOTInductor packages, compiled here) or aoti-tracker (the tracker "
+        "only compiled)",
     )
     ap.add_argument(
         "--competitors",
@@ -615,7 +617,7 @@ def run_all(args) -> None:
         time_exported(
             protorch.load(args.run, backend=args.backends.split(",")[0], planner="thread"),
             args.calls,
-            aoti=args.exported == "aoti",
+            aoti={"export": False, "aoti": True, "aoti-tracker": "tracker"}[args.exported],
         )
     if args.soak:
         soak(protorch.load(args.run, backend=args.backends.split(",")[0]), args.soak)

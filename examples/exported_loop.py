@@ -33,11 +33,13 @@ def load_programs(folder: Path) -> tuple:
     """``(planner, tracker, meta)``: the programs of ``folder`` as callables (AOTInductor
     packages where ``programs.json`` says ``aoti``) and its ``programs.json``."""
     meta = json.loads((folder / "programs.json").read_text())
-    if meta["aoti"]:
-        load = lambda p: torch._inductor.aoti_load_package(str(p))  # noqa: E731
-    else:
-        load = lambda p: torch.export.load(p).module()  # noqa: E731
-    return load(folder / "planner.pt2"), load(folder / "tracker.pt2"), meta
+
+    def load(name: str):
+        if meta["aoti"][name]:
+            return torch._inductor.aoti_load_package(str(folder / f"{name}.pt2"))
+        return torch.export.load(folder / f"{name}.pt2").module()
+
+    return load("planner"), load("tracker"), meta
 
 
 def run_loop(planner, tracker, meta: dict, envs: torch.Tensor, q0, qd0, plan_every: int) -> dict:

@@ -425,11 +425,12 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         return self._follow
 
     # ----------------------------------------------------------------- out of Python
-    def export(self, path, *, aoti: bool = False) -> Path:
+    def export(self, path, *, aoti: bool | str = False) -> Path:
         """A folder (``path`` not ending in ``.pt2``): both halves of ``planner="thread"`` as
         programs, ``planner.pt2`` and ``tracker.pt2``, with the state each keeps between calls
         passed in and out (:mod:`~protorch.policy.programs`; ``aoti=True``: AOTInductor
-        packages). A ``.pt2`` file: the one-call program below.
+        packages, ``aoti="tracker"``: the tracker only). A ``.pt2`` file: the one-call program
+        below.
 
         Write the per-call computation as a ``torch.export`` program (``.pt2``) that runs
         without protorch: ``torch.export.load(path).module()(env, t)`` (``env`` a float64
@@ -452,7 +453,7 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         path = Path(path)
         if path.suffix != ".pt2":
             return write_programs(self, path, aoti=aoti)
-        return write_program(self, path, aoti=aoti)
+        return write_program(self, path, aoti=bool(aoti))
 
     # ----------------------------------------------------------------- whole trajectories
     def mean_trajectory(self, env: Tensor, labels=None) -> Tensor:

@@ -163,7 +163,10 @@ class TrackerProgram(torch.nn.Module):
         self.register_buffer("centers", P.centers.to(torch.float64).clone())
         self.width, self.duration, self.blend = float(P.width), policy.duration, policy.blend
         self.register_buffer(
-            "scale", torch.tensor([1.0, 1.0 / self.duration, 1.0 / self.duration**2])[:, None]
+            "scale",
+            torch.tensor([1.0, 1.0 / self.duration, 1.0 / self.duration**2], dtype=torch.float64)[
+                :, None
+            ],
         )  # (3, 1)
         self.P = P
 
@@ -222,10 +225,14 @@ def _save(module: torch.nn.Module, args: tuple, path: Path, aoti: bool) -> Path:
     return atomic_write_bytes(path, buf.getvalue())
 
 
-def write_programs(policy, folder: Path, aoti: bool = False) -> Path:
+def write_programs(policy, folder: Path, aoti: bool | str = False) -> Path:
     """:meth:`~protorch.policy.policy.Policy.export` to a folder: ``planner.pt2``,
-    ``tracker.pt2`` and ``programs.json`` (the rates, the shapes, the labels and the robot's
-    limits that a C++ loop's Ruckig applies)."""
+    ``tracker.pt2`` and ``programs.json`` (the rates, the shapes, the labels, which program is an
+    AOTInductor package and the robot's limits that a C++ loop's Ruckig applies). ``aoti``:
+    ``True`` both compiled by AOTInductor, ``"tracker"`` the tracker only (an arm's planner takes
+    minutes to compile), ``False`` neither."""
+    if aoti not in (True, False, "tracker"):
+        raise ValueError(f"aoti must be True, False or 'tracker', got {aoti!r}")
     folder.mkdir(parents=True, exist_ok=True)
     f64 = dict(dtype=torch.float64)
     env = policy.env_map.E[0].to(**f64)
@@ -237,14 +244,14 @@ def write_programs(policy, folder: Path, aoti: bool = False) -> Path:
         planner,
         (env, t, q, q.clone(), torch.tensor(-1, **i64), torch.tensor(0, **i64)),
         folder / "planner.pt2",
-        aoti,
+        aoti is True,
     )
     W = torch.zeros(policy._kb, policy._d, **f64)
     args = (t.clone(), W, q.clone(), q.clone(), *tracker_state(policy))  # no input aliases another
-    _save(TrackerProgram(policy), args, folder / "tracker.pt2", aoti)
+    _save(TrackerProgram(policy), args, folder / "tracker.pt2", bool(aoti))
     lim = policy._limiter
     meta = {
-        "aoti": aoti,
+        "aoti": {"planner": aoti is True, "tracker": bool(aoti)},
         "env_dim": policy.env_dim,
         "dof": policy._d,
         "num_basis": policy._kb,

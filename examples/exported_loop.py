@@ -79,7 +79,9 @@ def main(argv=None) -> None:
     ap.add_argument("--ticks", type=int, default=3000)
     ap.add_argument("--plan-every", type=int, default=0, help="ticks (0: the decision interval)")
     ap.add_argument("--out", type=Path)
+    ap.add_argument("--threads", type=int, default=1, help="torch's intra-op threads")
     args = ap.parse_args(argv)
+    torch.set_num_threads(args.threads)  # a pool's workers only compete with the loop for cores
     planner, tracker, meta = load_programs(args.folder)
     if args.inputs is not None:
         data = torch.load(args.inputs, weights_only=True)

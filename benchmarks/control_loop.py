@@ -355,16 +355,13 @@ def time_exported(policy, calls: int, aoti: bool | str) -> None:
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
             raise RuntimeError(proc.stderr[-2000:])
-        ts = torch.load(f"{tmp}/out.pt", weights_only=True)["tracker_s"].tolist()
+        out = torch.load(f"{tmp}/out.pt", weights_only=True)
+        ts, cpu = out["tracker_s"].tolist(), out["tracker_cpu_s"].tolist()
     print(
         f"exported halves (AOTInductor: {aoti}; export "
         f"{export_s:.0f} s), driven without protorch: {proc.stdout.strip()}"
     )
-    ms = [x * 1e3 for x in ts]
-    print(
-        f"  tracker  wall {len(ms)} calls: median {_percentile(ms, 0.5):.3f} ms, p99 "
-        f"{_percentile(ms, 0.99):.3f} ms, max {max(ms):.3f} ms, first {ms[0]:.3f} ms"
-    )
+    print_times("tracker", ts, cpu)
     print(f"  load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
 
 

@@ -97,9 +97,9 @@ class ProcessPlanner:
         self._in = ctx.Array("d", _HEAD_IN + d + 2 * nd)
         self._out = ctx.Array("d", _HEAD_PLAN + kb * nd)
         self._ctl = ctx.Array("d", 1)
-        self._inbox = np.frombuffer(self._in.get_obj())
-        self._shared = np.frombuffer(self._out.get_obj())
-        self._stop = np.frombuffer(self._ctl.get_obj())
+        self._inbox = np.frombuffer(self._in.get_obj())  # type: ignore[call-overload]
+        self._shared = np.frombuffer(self._out.get_obj())  # type: ignore[call-overload]
+        self._stop = np.frombuffer(self._ctl.get_obj())  # type: ignore[call-overload]
         self._seen = 0.0  # the plan array's count last read
         self._plan: Plan | None = None
         self.motion = 0

@@ -63,11 +63,17 @@ class PlannerProgram(ExportProgram):
                 "max_acceleration)"
             )
 
+    def _grid(self) -> Tensor:
+        """The objectives' phases ``(P,)`` (a buffer of :class:`ExportProgram`)."""
+        grid = self.grid
+        assert isinstance(grid, Tensor)
+        return grid
+
     def _scores(self, means: Tensor, env: Tensor, z: Tensor, q: Tensor) -> Tensor:
         """Each class's score ``(K,)``: :meth:`~protorch.policy.choice.ClassChoice._scores` from
         the measured ``q``, for every count of the objectives' phases still ahead, the right one
         taken."""
-        p, grid = self.p, self.grid
+        p, grid = self.p, self._grid()
         ee = p.task.ee_path(q[None])[None]  # (1, 1, 3)
         n = grid.shape[0]
         table = torch.stack(
@@ -109,7 +115,7 @@ class PlannerProgram(ExportProgram):
         gaps = static_gaps(
             p.task, torch.cat([roll, later], 1), env.expand(k, roll.shape[1] + later.shape[1], -1)
         )  # (K, S + P)
-        keep = torch.cat([torch.ones(roll.shape[1], dtype=torch.bool), self.grid > after])
+        keep = torch.cat([torch.ones(roll.shape[1], dtype=torch.bool), self._grid() > after])
         return torch.where(keep, gaps, torch.inf).amin(-1)  # (K,)
 
     def _decide(self, means, env, z, q, qd, current) -> Tensor:
@@ -234,19 +240,18 @@ def write_programs(policy, folder: Path, aoti: bool | str = False) -> Path:
     if aoti not in (True, False, "tracker"):
         raise ValueError(f"aoti must be True, False or 'tracker', got {aoti!r}")
     folder.mkdir(parents=True, exist_ok=True)
-    f64 = dict(dtype=torch.float64)
-    env = policy.env_map.E[0].to(**f64)
-    t = torch.tensor(0.5 * policy.duration, **f64)
-    q = torch.zeros(policy._d, **f64)
-    i64 = dict(dtype=torch.long)
+    f64, i64 = torch.float64, torch.long
+    env = policy.env_map.E[0].to(f64)
+    t = torch.tensor(0.5 * policy.duration, dtype=f64)
+    q = torch.zeros(policy._d, dtype=f64)
     planner = PlannerProgram(policy)
     _save(
         planner,
-        (env, t, q, q.clone(), torch.tensor(-1, **i64), torch.tensor(0, **i64)),
+        (env, t, q, q.clone(), torch.tensor(-1, dtype=i64), torch.tensor(0, dtype=i64)),
         folder / "planner.pt2",
         aoti is True,
     )
-    W = torch.zeros(policy._kb, policy._d, **f64)
+    W = torch.zeros(policy._kb, policy._d, dtype=f64)
     args = (t.clone(), W, q.clone(), q.clone(), *tracker_state(policy))  # no input aliases another
     _save(TrackerProgram(policy), args, folder / "tracker.pt2", bool(aoti))
     lim = policy._limiter

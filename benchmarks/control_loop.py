@@ -41,6 +41,12 @@ class choice with and without its plan check (the run's
 tracks every 20,000 calls, which stay flat when every cache the policy keeps is bounded, and each
 walk's p99.
 
+``--planner thread,process,inline``: ``thread`` and ``process`` (the planner in a child process)
+paced at 1 kHz, the plan's age printed; ``--competitors N`` runs N CPU-bound processes while the
+calls are timed; ``--switch-interval S`` sets ``sys.setswitchinterval``. ``--exported
+export|aoti|aoti-tracker``: also both halves written by ``policy.export(folder)`` and driven by
+``examples/exported_loop.py`` in a process without protorch (the tracker's wall and CPU time).
+
 ``--aoti``: also the program ``policy.export(path, aoti=True)`` writes (AOTInductor, compiled on
 this machine; the compile time is printed), loaded with ``torch._inductor.aoti_load_package`` and
 called on the same environments and times: every call chooses the class afresh (no hysteresis, no

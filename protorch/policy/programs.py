@@ -156,8 +156,10 @@ class PlannerProgram(ExportProgram):
             z = torch.clamp(t / p.duration, max=1.0)
             decide = (current < 0) | (slot_t > slot)
             c = torch.where(decide, self._decide(means, env, z, q, qd, current), current)
-        W = means[c].view(p._d, p._kb).T  # (Kb, D)
-        return W, self.labels[c], c, torch.where(decide, slot_t, slot), t
+        W = means[c].view(p._d, p._kb).T.contiguous()  # (Kb, D), row-major (AOTInductor takes
+        # its inputs' strides as traced: a transposed W would be read wrong by the tracker)
+        # no output is an input (AOTInductor's outputs must be tensors of their own)
+        return W, self.labels[c], c, torch.where(decide, slot_t, slot), t.clone()
 
 
 class TrackerProgram(torch.nn.Module):
@@ -194,13 +196,22 @@ class TrackerProgram(torch.nn.Module):
         phi = torch.cat([phi[:1], phi[1:] * moving])  # held at the end
         state = phi @ W  # (3, D)
         if not math.isfinite(self.blend):
-            return state[0], state[1], state[2], W, t, off, torch.ones_like(started)
+            return (
+                state[0],
+                state[1],
+                state[2],
+                W.clone(),
+                t.clone(),
+                off.clone(),
+                torch.ones_like(started),
+            )
         jump = torch.where(
             started > 0, phi[:2] @ (W_last - W), torch.stack([q, qd]) - state[:2]
         )  # (2, D)
         off = self._decay(t - t_last)[:2] @ off + jump  # (2, D)
         state = state + self._decay(torch.zeros_like(t)) @ off
-        return state[0], state[1], state[2], W, t, off, torch.ones_like(started)
+        # no output is an input (AOTInductor's outputs must be tensors of their own)
+        return state[0], state[1], state[2], W.clone(), t.clone(), off, torch.ones_like(started)
 
 
 def tracker_state(policy) -> tuple[Tensor, Tensor, Tensor, Tensor]:

@@ -41,6 +41,12 @@ class choice with and without its plan check (the run's
 tracks every 20,000 calls, which stay flat when every cache the policy keeps is bounded, and each
 walk's p99.
 
+``--planner thread,process,inline``: ``thread`` and ``process`` (the planner in a child process)
+paced at 1 kHz, the plan's age printed; ``--competitors N`` runs N CPU-bound processes while the
+calls are timed; ``--switch-interval S`` sets ``sys.setswitchinterval``. ``--exported
+export|aoti|aoti-tracker``: also both halves written by ``policy.export(folder)`` and driven by
+``examples/exported_loop.py`` in a process without protorch (the tracker's wall and CPU time).
+
 ``--aoti``: also the program ``policy.export(path, aoti=True)`` writes (AOTInductor, compiled on
 this machine; the compile time is printed), loaded with ``torch._inductor.aoti_load_package`` and
 called on the same environments and times: every call chooses the class afresh (no hysteresis, no
@@ -54,6 +60,8 @@ import argparse
 import gc
 import math
 import os
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -317,6 +325,52 @@ def time_aoti(policy, kinds: list[str], calls: int) -> None:
         print(f"  {kind:8s} load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
 
 
+BLOCKED_DRIVER = """
+import runpy, sys
+class Block:  # protorch must not be needed
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] == "protorch":
+            raise ImportError("protorch is blocked in this process")
+sys.meta_path.insert(0, Block())
+sys.argv = sys.argv[1:]
+runpy.run_path(sys.argv[0], run_name="__main__")
+"""
+
+
+def time_exported(policy, calls: int, aoti: bool | str) -> None:
+    """``--exported``: both halves written by ``policy.export(folder)`` and driven by
+    ``examples/exported_loop.py`` in a process where protorch cannot be imported (the planner
+    every decision interval, the tracker every tick, back to back), on the moving walk (at most
+    2,000 ticks: the planner program run by ``torch.export``'s module is slow): the tracker
+    program's wall time per call."""
+    import subprocess
+    import sys
+    import tempfile
+
+    root = Path(__file__).resolve().parents[1]
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        folder = policy.export(Path(tmp) / "programs", aoti=aoti)
+        export_s = time.perf_counter() - t0
+        envs = environments(policy, min(calls, 2000), "moving")  # the planner program is slow
+        q0 = torch.as_tensor(policy.task.start_config(), dtype=torch.float64)
+        torch.save({"env": envs, "q0": q0, "qd0": torch.zeros_like(q0)}, f"{tmp}/inputs.pt")
+        Path(tmp, "blocked.py").write_text(BLOCKED_DRIVER)
+        cmd = [sys.executable, f"{tmp}/blocked.py", str(root / "examples" / "exported_loop.py")]
+        cmd += [str(folder), "--inputs", f"{tmp}/inputs.pt", "--out", f"{tmp}/out.pt"]
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(proc.stderr[-2000:])
+        out = torch.load(f"{tmp}/out.pt", weights_only=True)
+        ts, cpu = out["tracker_s"].tolist(), out["tracker_cpu_s"].tolist()
+    print(
+        f"exported halves (AOTInductor: {aoti}; export "
+        f"{export_s:.0f} s), driven without protorch: {proc.stdout.strip()}"
+    )
+    print_times("tracker", ts, cpu)
+    print(f"  load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+
+
 def reversed_switches(labels: torch.Tensor, within: int = 3) -> tuple[int, int]:
     """Class switches undone within ``within`` decisions (a flicker) in ``labels (E, S)`` (the class
     at every control step of every episode): their count and the episodes they are in."""
@@ -419,7 +473,8 @@ def main() -> None:
     ap.add_argument(
         "--planner",
         default="thread,inline",
-        help="thread (paced at 1 kHz, the planner beside the loop), inline (back to back), or both",
+        help="thread (paced at 1 kHz, the planner beside the loop), process (paced, the planner in "
+        "a child process), inline (back to back), comma separated",
     )
     ap.add_argument(
         "--switch-interval",
@@ -438,6 +493,19 @@ def main() -> None:
         "--aoti",
         action="store_true",
         help="also the AOTInductor-compiled exported program (the first backend's map)",
+    )
+    ap.add_argument(
+        "--exported",
+        default="",
+        help="also both halves exported (export(folder)) and driven without protorch: export "
+        "(torch.export), aoti (AOTInductor packages, compiled here) or aoti-tracker (the tracker "
+        "only compiled)",
+    )
+    ap.add_argument(
+        "--competitors",
+        type=int,
+        default=0,
+        help="CPU-bound processes (a Python busy loop each) running while the calls are timed",
     )
     ap.add_argument(
         "--pieces",
@@ -462,11 +530,26 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(1)
     if args.switch_interval is not None:
-        import sys
-
         sys.setswitchinterval(args.switch_interval)
     COLLECTIONS.start()
-    print(f"torch {torch.__version__}, 1 thread, run {args.run}")
+    busy = [
+        subprocess.Popen([sys.executable, "-c", "while True: pass"])
+        for _ in range(args.competitors)
+    ]
+    try:
+        run_all(args)
+    finally:
+        for p in busy:
+            p.kill()
+            p.wait()
+
+
+def run_all(args) -> None:
+    """:func:`main`'s measurements."""
+    print(
+        f"torch {torch.__version__}, 1 thread, run {args.run}, switch interval "
+        f"{sys.getswitchinterval() * 1e3:g} ms, {args.competitors} CPU-bound competitors"
+    )
     checks = (
         [None]
         if args.check == "run"
@@ -490,7 +573,7 @@ def main() -> None:
             f"{policy.env_map.num_points} environments, classes {policy.labels.tolist()}, load + "
             f"warm-up {load_s:.2f} s"
         )
-        if planner == "thread":
+        if planner in ("thread", "process"):
             for kind in args.kinds.split(","):
                 envs = environments(policy, args.calls, kind)
                 COLLECTIONS.seen.clear()
@@ -536,6 +619,12 @@ def main() -> None:
             protorch.load(args.run, backend=args.backends.split(",")[0]),
             args.kinds.split(","),
             args.calls,
+        )
+    if args.exported:
+        time_exported(
+            protorch.load(args.run, backend=args.backends.split(",")[0], planner="thread"),
+            args.calls,
+            aoti={"export": False, "aoti": True, "aoti-tracker": "tracker"}[args.exported],
         )
     if args.soak:
         soak(protorch.load(args.run, backend=args.backends.split(",")[0]), args.soak)

@@ -3,6 +3,8 @@
 * :mod:`~protorch.policy.policy`: :class:`Policy` and :class:`Reference` (the class choice, the
   reference, continuity, ``planner="inline"`` or ``"thread"``);
 * :mod:`~protorch.policy.two_rate`: the planner thread and the tracker;
+* :mod:`~protorch.policy.process_planner`: the planner in a child process (``planner="process"``);
+* :mod:`~protorch.policy.programs`: both halves as programs (``export(folder)``);
 * :mod:`~protorch.policy.limits`: the robot's velocity, acceleration and jerk limits (Ruckig);
 * :mod:`~protorch.policy.means`: every class's mean at an environment, the basis;
 * :mod:`~protorch.policy.export`: the per-call computation for ``torch.export``;

@@ -64,6 +64,8 @@ from .choice import ClassChoice
 from .export import write_program
 from .limits import JerkLimiter, robot_limits
 from .means import ClassMeans, EndEffector, basis3, decay_matrix
+from .process_planner import ProcessPlanner
+from .programs import write_programs
 from .reference import MotionState, Reference
 from .two_rate import Planner, Tracker, TwoRatePolicy
 
@@ -99,7 +101,9 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
             ``"thread"`` (a planner thread beside the caller makes them every ``plan_period``
             seconds,
             ``decision_dt / 4`` by default, and :meth:`reference` tracks its newest plan:
-            :mod:`protorch.policy.two_rate`).
+            :mod:`protorch.policy.two_rate`) or ``"process"`` (the same planner in a forked child
+            process, inputs and plans in shared memory: no GIL shared with the caller;
+            :mod:`protorch.policy.process_planner`).
         limits: keep the reference within the robot's velocity, acceleration and jerk limits at
         every
             call (``planner="thread"`` only: :class:`~protorch.policy.limits.JerkLimiter`'s Ruckig
@@ -135,8 +139,8 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         plan_period: float | None = None,
     ) -> None:
         super().__init__(promp, env_map, task_name)
-        if planner not in ("inline", "thread"):
-            raise ValueError(f"planner must be 'inline' or 'thread', got {planner!r}")
+        if planner not in ("inline", "thread", "process"):
+            raise ValueError(f"planner must be 'inline', 'thread' or 'process', got {planner!r}")
         for name, v in (("duration", duration), ("decision_dt", decision_dt), ("blend", blend)):
             if not (
                 isinstance(v, (int, float)) and (math.isfinite(v) or name == "blend") and v > 0
@@ -204,10 +208,10 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         self._at_jump = self._decay(0.0) if math.isfinite(self.blend) else None  # (3, 2)
         robot = getattr(task, "robot", None)
         self.planner = planner
-        if limits and planner != "thread":
+        if limits and planner == "inline":
             raise ValueError(
-                "limits=True needs planner='thread' (the inline reference is the moving test's, "
-                "unlimited)"
+                "limits=True needs planner='thread' or 'process' (the inline reference is the "
+                "moving test's, unlimited)"
             )
         self._limiter = None
         if limits:
@@ -220,13 +224,15 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
             )
             self._limiter = JerkLimiter(*lim)
         self._planner = self._tracker = None
-        if planner == "thread" and task is None and self.labels.numel() > 1:
-            raise ValueError("planner='thread' on a map with several classes needs the run's task")
+        if planner != "inline" and task is None and self.labels.numel() > 1:
+            raise ValueError(
+                f"planner={planner!r} on a map with several classes needs the run's task"
+            )
         self._motion = 0
         self.reset()
         if warm_up and (task is not None or self.labels.numel() == 1):
             self._warm_up()  # the inline path, which the planner runs
-        if planner == "thread":
+        if planner != "inline":
             self._tracker = Tracker(
                 self._phi_ms.cpu().numpy(),
                 self._P.centers.to(torch.float64).cpu().numpy(),
@@ -236,7 +242,10 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
                 self._limiter,
             )
             period = self.decision_dt / 4 if plan_period is None else float(plan_period)
-            self._planner = Planner(self._plan, period)
+            if planner == "process":
+                self._planner = ProcessPlanner(self, period)
+            else:
+                self._planner = Planner(self._plan, period)
             self.reset()
 
     # ----------------------------------------------------------------- state
@@ -251,6 +260,10 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         self._motion = self._planner.new_motion(self._reset_choice)
         if env is not None:
             env, _, q, qd = self._check_np(env, 0.0, q, qd)
+            if self.planner == "process":  # the child makes it (its class choice is its own)
+                self._planner.inbox = (self._motion, env, 0.0, q, qd)
+                self._planner.wait_plan(self._motion)
+                return
             with self._planner.lock:
                 self._planner.plan = self._plan(self._motion, env, 0.0, q, qd)
 
@@ -412,8 +425,14 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         return self._follow
 
     # ----------------------------------------------------------------- out of Python
-    def export(self, path, *, aoti: bool = False) -> Path:
-        """Write the per-call computation as a ``torch.export`` program (``.pt2``) that runs
+    def export(self, path, *, aoti: bool | str = False) -> Path:
+        """A folder (``path`` not ending in ``.pt2``): both halves of ``planner="thread"`` as
+        programs, ``planner.pt2`` and ``tracker.pt2``, with the state each keeps between calls
+        passed in and out (:mod:`~protorch.policy.programs`; ``aoti=True``: AOTInductor
+        packages, ``aoti="tracker"``: the tracker only). A ``.pt2`` file: the one-call program
+        below.
+
+        Write the per-call computation as a ``torch.export`` program (``.pt2``) that runs
         without protorch: ``torch.export.load(path).module()(env, t)`` (``env`` a float64
         ``(env_dim,)`` tensor, ``t`` a float64 0-d tensor) returns ``(q, qd, qdd (D,), label (0-d
         int64))``, what :meth:`reference` returns right after :meth:`reset` with ``q=None``: the
@@ -431,7 +450,10 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
             raise ValueError(
                 "this map has several classes: exporting the class choice needs the run's task"
             )
-        return write_program(self, Path(path), aoti=aoti)
+        path = Path(path)
+        if path.suffix != ".pt2":
+            return write_programs(self, path, aoti=aoti)
+        return write_program(self, path, aoti=bool(aoti))
 
     # ----------------------------------------------------------------- whole trajectories
     def mean_trajectory(self, env: Tensor, labels=None) -> Tensor:

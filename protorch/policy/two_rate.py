@@ -30,6 +30,7 @@ from typing import NamedTuple
 
 import numpy as np
 import torch
+from torch import Tensor
 
 from .reference import Reference, as_array
 
@@ -243,6 +244,24 @@ class Planner:
         self._stop.set()
 
 
+def _as_array(x, n: int, name: str):
+    """:func:`~protorch.policy.reference.as_array` for a ``(n,)`` vector on the tracker's path:
+    the same arrays and the same errors, about three times cheaper for a CPU float64 tensor or
+    array (its values checked as Python floats, the array built from them)."""
+    if x is None:
+        return None
+    if (type(x) is Tensor and x.dtype == torch.float64 and x.device.type == "cpu") or (
+        type(x) is np.ndarray and x.dtype == np.float64
+    ):
+        if x.shape != (n,):
+            raise ValueError(f"{name} must be {(n,)} values, got shape {tuple(x.shape)}")
+        vals = x.tolist()
+        if not all(map(math.isfinite, vals)):
+            raise ValueError(f"{name} holds NaN or inf: {vals}")
+        return np.array(vals)
+    return as_array(x, (n,), name)
+
+
 class TwoRatePolicy:
     """``planner="thread"``'s side of :class:`~protorch.policy.policy.Policy` (a mixin): the
     input check without torch, the planner's step and the tracker's call."""
@@ -250,13 +269,13 @@ class TwoRatePolicy:
     def _check_np(self, env, t, q, qd) -> tuple:
         """:meth:`_check` without torch operations: ``env (d,)``, ``t``, ``q, qd (D,)`` or ``None``
         as float64 NumPy arrays of their own."""
-        env = as_array(env, (self._env_dim,), "env")
+        env = _as_array(env, self._env_dim, "env")
         t = float(t)
         if not math.isfinite(t) or t < 0:
             raise ValueError(
                 f"t must be a finite time >= 0 (seconds since the motion started), got {t!r}"
             )
-        return env, t, as_array(q, (self._d,), "q"), as_array(qd, (self._d,), "qd")
+        return env, t, _as_array(q, self._d, "q"), _as_array(qd, self._d, "qd")
 
     def _plan(self, motion: int, env, t: float, q, qd) -> Plan:
         """The planner's step: the inline class choice at the inputs the tracker handed over."""

@@ -118,7 +118,7 @@ def test_bad_input_is_refused_before_any_work_in_thread_mode():
     with pytest.raises(ValueError, match="q must be"):
         pol.reference(torch.zeros(2, dtype=F64), 0.0, torch.zeros(3))
     with pytest.raises(ValueError, match="planner must be"):
-        toy_policy(planner="process")
+        toy_policy(planner="fork")
     assert pol._planner.inbox is None  # nothing handed over
     pol.close()
 

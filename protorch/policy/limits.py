@@ -34,7 +34,8 @@ def robot_limits(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(max_velocity, max_acceleration, max_jerk)``, each ``(dof,)`` float64: the arguments
     where given (a number or one per joint), else the robot's ``max_velocity``,
-    ``max_acceleration``, ``max_jerk`` (a robot without ``max_jerk``: :data:`DEFAULT_JERK`).
+    ``max_acceleration``, ``max_jerk`` (``robot.max_jerk``, the Panda's Franka's published 7,500;
+    a robot without one: :data:`DEFAULT_JERK`).
     Raises ``ValueError`` for a limit that is missing, of the wrong size or not > 0."""
     out = []
     for name, given in (
@@ -43,6 +44,8 @@ def robot_limits(
         ("max_jerk", max_jerk),
     ):
         v = given if given is not None else getattr(robot, name, None)
+        if name == "max_jerk" and v is not None and np.size(v) == 0:
+            v = None  # a robot description made without one
         if v is None and name == "max_jerk":
             v = DEFAULT_JERK
         if v is None:

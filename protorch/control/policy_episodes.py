@@ -198,11 +198,12 @@ def run_policy_episodes(
         groups = [list(range(envs.shape[0]))]
     parts = []
     for idx in groups:
-        pols = [
-            policy_copy(policy, planner="thread" if mode == "thread" else "inline") for _ in idx
-        ]
+        opts = {"planner": "thread", "limits": limits} if mode == "thread" else {}
+        pols = [policy_copy(policy, **opts) for _ in idx]
         try:
-            parts.append(_run(pols, envs[idx], timing, mode, lag, kp, amax, physics, kw))
+            parts.append(
+                _run(pols, envs[idx], timing, mode, lag, kp, amax, physics, kw, follow, limits)
+            )
         finally:
             for p in pols:
                 p.close()

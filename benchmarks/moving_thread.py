@@ -52,6 +52,7 @@ def _envs(run: Path, total: int) -> tuple[torch.Tensor, dict]:
     return torch.from_numpy(envs), {
         "kin": z["kinematic_success"][mv],
         "mujoco": z["success"][mv],
+        "switched": (np.diff(z["labels"][mv], axis=1) != 0).any(1),  # in the run's MuJoCo test
     }
 
 
@@ -80,7 +81,8 @@ def main() -> None:
         "--thread-episodes",
         type=int,
         default=0,
-        help="thread mode: N episodes, those where inline switched classes first (0: all)",
+        help="thread mode: N episodes, those where inline switched classes first (without "
+        "inline: the run's MuJoCo test) (0: all)",
     )
     ap.add_argument("--lag", type=int, default=1, help="lagged: control steps behind")
     ap.add_argument(
@@ -111,7 +113,7 @@ def main() -> None:
             ]:
                 pick = list(range(n))
                 if mode == "thread" and args.thread_episodes > 0:  # those that switch first
-                    sw = switched.get(plant, np.zeros(n, bool))
+                    sw = switched.get(plant, own["switched"][:n])
                     pick = sorted(sorted(pick, key=lambda i: not sw[i])[: args.thread_episodes])
                 m = len(pick)
                 t0 = time.perf_counter()

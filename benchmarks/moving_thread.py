@@ -91,7 +91,12 @@ def main() -> None:
         choices=["mean", "reference"],
         help="the arm follows the plan's mean (the moving test) or the policy's reference (kin)",
     )
-    ap.add_argument("--limits", default="off", help="off, on or off,on (with --follow reference)")
+    ap.add_argument(
+        "--limits",
+        default="off",
+        help="off, on, joint (joint by joint, unsynchronised) or a list, e.g. off,on,joint "
+        "(with --follow reference)",
+    )
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -127,7 +132,7 @@ def main() -> None:
                     max_acceleration=amax,
                     physics=phys,
                     follow=args.follow,
-                    limits=lim == "on",
+                    limits={"off": False, "on": True, "joint": "joint"}[lim],
                 )
                 if mode == "inline":
                     switched[plant] = r["switches"] > 0

@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..policy.limits import JerkLimiter, robot_limits
+from ..policy.limits import JerkLimiter, JointwiseLimiter, robot_limits
 from ..policy.policy import Policy
 from ..policy.two_rate import Tracker
 from ..sim.episodes import run_physics_episodes
@@ -85,7 +85,7 @@ class PolicyMeans:
         lag: int = 1,
         *,
         follow: str = "mean",
-        limits: bool = False,
+        limits: bool | str = False,
     ) -> None:
         if follow not in ("mean", "reference"):
             raise ValueError(f"follow must be 'mean' or 'reference', got {follow!r}")
@@ -166,7 +166,7 @@ def run_policy_episodes(
     max_acceleration=None,
     physics: dict | None = None,
     follow: str = "mean",
-    limits: bool = False,
+    limits: bool | str = False,
 ) -> dict:
     """The moving test's episodes in ``envs (E, T+1, 4)`` with :class:`PolicyMeans` naming the
     means (module docstring): all at once with a copy of ``policy`` per episode
@@ -201,7 +201,7 @@ def run_policy_episodes(
         groups = [list(range(envs.shape[0]))]
     parts = []
     for idx in groups:
-        opts = {"planner": "thread", "limits": limits} if mode == "thread" else {}
+        opts = {"planner": "thread", "limits": bool(limits)} if mode == "thread" else {}
         pols = [policy_copy(policy, **opts) for _ in idx]
         try:
             parts.append(
@@ -247,11 +247,13 @@ def _run(pols, envs: Tensor, timing: Timing, mode, lag, kp, amax, physics, kw, f
     }
 
 
-def _tracker(policy, limits: bool):
+def _tracker(policy, limits):
     """The tracker ``planner="thread"`` gives ``policy``
     (:class:`~protorch.policy.two_rate.Tracker`, with the robot's limits:
-    :class:`~protorch.policy.limits.JerkLimiter`), without its thread."""
-    lim = JerkLimiter(*robot_limits(policy.task.robot, policy._d)) if limits else None
+    :class:`~protorch.policy.limits.JerkLimiter`; ``limits="joint"``: joint by joint,
+    :class:`~protorch.policy.limits.JointwiseLimiter`), without its thread."""
+    kind = JointwiseLimiter if limits == "joint" else JerkLimiter
+    lim = kind(*robot_limits(policy.task.robot, policy._d)) if limits else None
     P = policy._P
     return Tracker(
         policy._phi_ms.cpu().numpy(),

@@ -210,7 +210,7 @@ class JointwiseLimiter:
     """:class:`JerkLimiter` joint by joint: one 1-joint limiter per joint, each with its own
     hand-over and its own meeting time (a fast joint is not slowed to the slowest joint's
     hand-over, as Ruckig's time synchronisation of all joints does). The same limits hold per
-    joint; the joints are no longer synchronised during a hand-over. ``step`` as
+    joint; the joints are not synchronised during a hand-over. ``step`` as
     :class:`JerkLimiter`'s; :attr:`following`, :attr:`failed` summed over the joints."""
 
     def __init__(self, max_velocity, max_acceleration, max_jerk) -> None:

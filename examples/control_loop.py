@@ -1,7 +1,10 @@
 """A 1 kHz control loop with a trained arm run (docs/control_loop.md).
 
     python examples/control_loop.py RUN_DIR [--plot docs/img/control_loop.png] [--planner
-    thread|inline]
+    thread|inline] [--limits]
+
+The same loop runs an iiwa14 run (``robot=iiwa14``): the start and the slide are laid out in the
+run's own workspace (:func:`start_and_slide`).
 
 The policy is loaded with ``planner="thread"``: its class decisions run on a thread beside the
 loop, which is paced at real time (each step waits for its millisecond) so that the planner sees
@@ -41,6 +44,30 @@ def person(env0: np.ndarray, can_to: np.ndarray, start: float, seconds: float):
         return env
 
     return env_at
+
+
+def start_and_slide(task, env: str | None, can_to: str | None) -> tuple[np.ndarray, np.ndarray]:
+    """The start environment ``(4,)`` and where the can slides to ``(2,)``: given as ``"a,b,c,d"``
+    and ``"x,y"``, or laid out in the run's own workspace (the middle of its can and target
+    rectangles along x; the can starts at y = 0.03, left of the straight path, and slides to
+    y = -0.09 across it; the target at y = -0.05), so that the slide crosses the path of the
+    Panda's run and of an iiwa14 run alike."""
+    (cx0, cx1), _ = task.can_box
+    (gx0, gx1), _ = task.goal_box
+    cx, gx = 0.5 * (cx0 + cx1), 0.5 * (gx0 + gx1)
+    env0 = (
+        np.array([cx, 0.03, gx, -0.05])
+        if env is None
+        else np.array([float(v) for v in env.split(",")])
+    )
+    to = (
+        np.array([env0[0], -0.09])
+        if can_to is None
+        else np.array([float(v) for v in can_to.split(",")])
+    )
+    if env0.shape != (4,) or to.shape != (2,):
+        raise SystemExit(f"--env needs 4 numbers and --can-to 2, got {env!r}, {can_to!r}")
+    return env0, to
 
 
 def control_loop(
@@ -176,20 +203,30 @@ def main() -> None:
     )
     ap.add_argument("run")
     ap.add_argument(
-        "--env", default="0.56,0.03,0.70,-0.05", help="can_x,can_y,goal_x,goal_y at the start"
+        "--env",
+        default=None,
+        help="can_x,can_y,goal_x,goal_y at the start (default: the middle of the run's can and "
+        "target rectangles along x, the can at y=0.03 and the target at y=-0.05: on the Panda's "
+        "run 0.56,0.03,0.70,-0.05)",
     )
-    ap.add_argument("--can-to", default="0.56,-0.09", help="where the person slides the can")
+    ap.add_argument(
+        "--can-to", default=None, help="where the person slides the can (default: can_x,-0.09)"
+    )
     ap.add_argument(
         "--move-at", type=float, default=0.8, help="s: when the person starts moving the can"
     )
     ap.add_argument("--move-for", type=float, default=0.4, help="s: how long the slide takes")
     ap.add_argument("--plot", default=None)
     ap.add_argument("--planner", default="thread", choices=["thread", "inline"])
+    ap.add_argument(
+        "--limits",
+        action="store_true",
+        help="hold the reference to the robot's velocity, acceleration and jerk limits (thread)",
+    )
     args = ap.parse_args()
     torch.set_num_threads(1)
-    policy = protorch.load(args.run, planner=args.planner)
-    env0 = np.array([float(v) for v in args.env.split(",")])
-    can_to = np.array([float(v) for v in args.can_to.split(",")])
+    policy = protorch.load(args.run, planner=args.planner, limits=args.limits)
+    env0, can_to = start_and_slide(policy.task, args.env, args.can_to)
     log = control_loop(
         policy,
         person(env0, can_to, args.move_at, args.move_for),

@@ -63,7 +63,14 @@ from .episodes import (
     track,
 )
 
-__all__ = ["ArmEpisodeResult", "arm_follow", "count_switches", "rest_scores", "run_arm_episodes"]
+__all__ = [
+    "ArmEpisodeResult",
+    "arm_follow",
+    "arm_outcome",
+    "count_switches",
+    "rest_scores",
+    "run_arm_episodes",
+]
 
 
 def count_switches(labels: Tensor) -> Tensor:
@@ -269,27 +276,13 @@ def run_arm_episodes(
         arm, promp, timing, envs.shape[0], task.start_config(**kw), record=record, markers=False
     )
     q = run.positions  # (E, T+1, J)
-    with torch.no_grad():
-        kin = task.kinematics
-        frames = kin.frames(q)  # (E, T+1, F, 4, 4)
-        min_dist = task.skeleton_distance(frames[:, :, None, :, :3, 3], envs).amin(-1)  # (E,)
-        gap = task.frames_gap(frames[:, :, None], envs).amin(-1)  # (E,)
-        collided = gap <= task.margin
-        limits = kin.within_limits(q).all(-1)
-        goal = (frames[:, -1, -1, :3, 3] - task.goal_point(envs[:, -1])).norm(dim=-1)
-        success = ~collided & limits & above_table(task, frames) & (goal <= task.goal_tol)
     return ArmEpisodeResult(
         q=q,
         qd=run.velocities,
         envs=envs,
         labels=choice.labels,
         weights=run.weights,
-        success=success,
-        collided=collided,
-        within_limits=limits,
-        final_goal_distance=goal,
-        min_can_distance=min_dist,
-        min_can_gap=gap,
+        **arm_outcome(task, q, envs),
         moves=choice.moved,
         map_queries=choice.queries,
         dt=timing.dt,
@@ -299,6 +292,29 @@ def run_arm_episodes(
         promp=promp,
         task=task,
     )
+
+
+def arm_outcome(task, q: Tensor, envs: Tensor) -> dict[str, Tensor]:
+    """The moving test's verdict on joint paths ``q (E, T+1, J)`` in the environments ``envs (E,
+    T+1, 4)`` (module docstring): ``success``, ``collided``, ``within_limits``,
+    ``final_goal_distance``, ``min_can_distance``, ``min_can_gap``, each ``(E,)``."""
+    with torch.no_grad():
+        kin = task.kinematics
+        frames = kin.frames(q)  # (E, T+1, F, 4, 4)
+        min_dist = task.skeleton_distance(frames[:, :, None, :, :3, 3], envs).amin(-1)  # (E,)
+        gap = task.frames_gap(frames[:, :, None], envs).amin(-1)  # (E,)
+        collided = gap <= task.margin
+        limits = kin.within_limits(q).all(-1)
+        goal = (frames[:, -1, -1, :3, 3] - task.goal_point(envs[:, -1])).norm(dim=-1)
+        success = ~collided & limits & above_table(task, frames) & (goal <= task.goal_tol)
+    return {
+        "success": success,
+        "collided": collided,
+        "within_limits": limits,
+        "final_goal_distance": goal,
+        "min_can_distance": min_dist,
+        "min_can_gap": gap,
+    }
 
 
 def arm_follow(

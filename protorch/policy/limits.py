@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["JerkLimiter", "robot_limits"]
+__all__ = ["JerkLimiter", "JointwiseLimiter", "robot_limits"]
 
 DEFAULT_JERK = (
     7500.0  # rad/s^3 per joint where a robot states none (Franka's, of the same order as KUKA's)
@@ -34,7 +34,8 @@ def robot_limits(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(max_velocity, max_acceleration, max_jerk)``, each ``(dof,)`` float64: the arguments
     where given (a number or one per joint), else the robot's ``max_velocity``,
-    ``max_acceleration``, ``max_jerk`` (a robot without ``max_jerk``: :data:`DEFAULT_JERK`).
+    ``max_acceleration``, ``max_jerk`` (``robot.max_jerk``, the Panda's Franka's published 7,500;
+    a robot without one: :data:`DEFAULT_JERK`).
     Raises ``ValueError`` for a limit that is missing, of the wrong size or not > 0."""
     out = []
     for name, given in (
@@ -43,6 +44,8 @@ def robot_limits(
         ("max_jerk", max_jerk),
     ):
         v = given if given is not None else getattr(robot, name, None)
+        if name == "max_jerk" and v is not None and np.size(v) == 0:
+            v = None  # a robot description made without one
         if v is None and name == "max_jerk":
             v = DEFAULT_JERK
         if v is None:
@@ -201,3 +204,51 @@ class JerkLimiter:
             return self._otg.calculate(self._inp, self._traj)
         except RuckigError:  # a target state that leaves the limits whatever is done
             return None
+
+
+class JointwiseLimiter:
+    """:class:`JerkLimiter` joint by joint: one 1-joint limiter per joint, each with its own
+    hand-over and its own meeting time (a fast joint is not slowed to the slowest joint's
+    hand-over, as Ruckig's time synchronisation of all joints does). The same limits hold per
+    joint; the joints are not synchronised during a hand-over. ``step`` as
+    :class:`JerkLimiter`'s; :attr:`following`, :attr:`failed` summed over the joints."""
+
+    def __init__(self, max_velocity, max_acceleration, max_jerk) -> None:
+        v, a, j = (
+            np.asarray(x, dtype=np.float64) for x in (max_velocity, max_acceleration, max_jerk)
+        )
+        if not (v.shape == a.shape == j.shape and v.ndim == 1):
+            raise ValueError(
+                f"the limits must have one value per joint: {v.shape}, {a.shape}, {j.shape}"
+            )
+        self.vmax, self.amax, self.jmax = v, a, j  # (D,)
+        self.joints = [JerkLimiter(v[i : i + 1], a[i : i + 1], j[i : i + 1]) for i in range(len(v))]
+
+    @property
+    def following(self) -> int:
+        return sum(x.following for x in self.joints)
+
+    @property
+    def failed(self) -> int:
+        return sum(x.failed for x in self.joints)
+
+    def reset(self) -> None:
+        for x in self.joints:
+            x.reset()
+
+    def step(self, want: np.ndarray, dt: float, future, changed: bool = False) -> np.ndarray:
+        """:meth:`JerkLimiter.step` per joint: ``want (3, D)`` -> ``(3, D)``."""
+        out = np.empty_like(want)
+        memo: dict = {}
+
+        def at(s: float) -> np.ndarray:  # the wanted state s ahead, computed once per s
+            hit = memo.get(s)
+            if hit is None:
+                hit = memo[s] = future(s)  # (3, D)
+            return hit
+
+        for i, lim in enumerate(self.joints):
+            out[:, i : i + 1] = lim.step(
+                want[:, i : i + 1], dt, lambda s, i=i: at(s)[:, i : i + 1], changed
+            )
+        return out

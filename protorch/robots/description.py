@@ -90,6 +90,7 @@ class Robot:
     forearm_link: str | None
     inertials: Mapping[str, Inertial]
     point_masses: tuple[PointMass, ...] = ()
+    max_jerk: tuple[float, ...] = ()  # rad/s^3 per joint: a policy's reference's limit
     settings: dict = field(default_factory=dict, compare=False, repr=False)
     text: str | None = field(
         default=None, compare=False, repr=False

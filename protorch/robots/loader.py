@@ -14,6 +14,9 @@ The settings (``conf/robot/*.yaml``; docs/your_own_robot.md; every key optional 
 ``home``            the start configuration, one angle (rad) per joint of the chain
 ``max_velocity``    rad/s, a number or one per joint; null: the URDF's ``<limit velocity>``
 ``max_acceleration`` rad/s^2, a number or one per joint (default 10)
+``max_jerk``        rad/s^3, a number or one per joint: what a policy's reference may ask in a
+                    control loop (:mod:`protorch.policy.limits`); null: 7,500 (Franka's published
+                    limit, the Panda's)
 ``max_torque``      N m, a number or one per joint; null: the URDF's ``<limit effort>``
 ``damping``         joint damping, N m s / rad, a number or one per joint (default 1.0)
 ``armature``        rotor armature, kg m^2, a number or one per joint (default 0.1)
@@ -85,6 +88,7 @@ __all__ = [
 MIN_JOINTS = 6  # a hand-down pose at every point of the workspace needs six joints
 DEFAULT_VELOCITY = 2.0  # rad/s: a joint's speed where the URDF gives none (or an implausible one)
 DEFAULT_EFFORT = 50.0  # N m: a joint's torque where the URDF gives none
+DEFAULT_JERK = 7500.0  # rad/s^3: Franka's published jerk limit, where a robot states none
 MAX_PLAUSIBLE_VELOCITY = 2 * math.pi  # rad/s: a revolution a second, beyond any arm's rating
 DEFAULTS = {
     "base": None,
@@ -94,6 +98,7 @@ DEFAULTS = {
     "home": None,
     "max_velocity": None,
     "max_acceleration": 10.0,
+    "max_jerk": None,
     "max_torque": None,
     "damping": 1.0,
     "armature": 0.1,
@@ -115,6 +120,8 @@ SETTINGS = {
     "home": "the start configuration, one angle (rad) per joint",
     "max_velocity": "rad/s, a number or one per joint; null: the URDF's <limit velocity>",
     "max_acceleration": "rad/s^2, a number or one per joint (the moving test's limits)",
+    "max_jerk": "rad/s^3, a number or one per joint: the limit of a policy's reference in a "
+    "control loop; null: 7500 (Franka's published limit)",
     "max_torque": "N m, a number or one per joint; null: the URDF's <limit effort> (MuJoCo's "
     "motors)",
     "damping": "joint damping (N m s / rad), a number or one per joint",
@@ -604,6 +611,9 @@ def _load(cfg: dict, path: Path, where: str) -> Robot:
         upper=tuple(upper),
         max_velocity=velocity,
         max_acceleration=_vec(cfg["max_acceleration"], n, "max_acceleration", names),
+        max_jerk=_vec(
+            DEFAULT_JERK if cfg["max_jerk"] is None else cfg["max_jerk"], n, "max_jerk", names
+        ),
         max_torque=torque,
         damping=_vec(cfg["damping"], n, "damping", names, positive=False),
         armature=_vec(cfg["armature"], n, "armature", names, positive=False),

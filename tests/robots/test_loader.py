@@ -204,3 +204,22 @@ def _write(folder, text: str) -> str:
     path = folder / f"u{abs(hash(text))}.urdf"
     path.write_text(text)
     return str(path)
+
+
+def test_max_jerk_is_a_robot_setting_the_pandas_franka_published():
+    """``robot.max_jerk``: the Panda's is Franka's published limit (with its velocity and
+    acceleration limits, ``protorch.robots.published``), a robot without one gets 7,500 rad/s^3,
+    a setting overrides it, and a bad value is one line naming the key."""
+    from protorch.policy.limits import robot_limits
+    from protorch.robots.loader import RobotError, load_robot
+    from protorch.robots.published import FRANKA_JOINT_LIMITS
+
+    panda = load_robot("panda")
+    for key, want in FRANKA_JOINT_LIMITS.items():
+        assert getattr(panda, key) == pytest.approx(want), key
+    lim = robot_limits(panda, 7)
+    assert lim[2].tolist() == list(FRANKA_JOINT_LIMITS["max_jerk"])
+    assert load_robot("iiwa14").max_jerk == (7500.0,) * 7
+    assert load_robot({"base": "panda", "max_jerk": 5000}).max_jerk == (5000.0,) * 7
+    with pytest.raises(RobotError, match="robot.max_jerk"):
+        load_robot({"base": "panda", "max_jerk": [1.0, 2.0]})

@@ -13,7 +13,11 @@ The Panda's numbers (``robot=panda``, unchanged) anchor the rule. Its hand, poin
    from the second moving joint to the end link) sets the working height ``0.10 s_v``; the can's
    height is the Panda's 0.23 m times the ratio of the wrists' heights at home (the frame the
    second-to-last joint moves; the Panda's 0.3104 m), so that the wrist passes over the can as
-   the Panda's does;
+   the Panda's does; where the arm has capsules (:func:`auto_workspace`), the ratio of the lowest
+   points of the wrist's capsules instead (:func:`wrist_low`; the Panda's 0.2274 m). The wrist's
+   capsules reach about 0.08 to 0.10 m below its frame on the Panda, pybullet's xArm 6 and KUKA
+   alike, not in proportion to the arm: a can sized by the frames (the xArm's 0.124 m, the KUKA's
+   0.121 m) stood above the bottoms of their wrists' capsules (0.084 m, 0.065 m);
 2. the hand-down inverse kinematics (end link's ``z`` down; two hand yaws, 0 and 90 degrees, the one
    reaching the longer interval kept) from the joint limits' middle, continued from neighbour to
    neighbour on a 1 cm lattice along ``+x`` at that height, measures the interval

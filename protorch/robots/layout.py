@@ -13,7 +13,11 @@ The Panda's numbers (``robot=panda``, unchanged) anchor the rule. Its hand, poin
    from the second moving joint to the end link) sets the working height ``0.10 s_v``; the can's
    height is the Panda's 0.23 m times the ratio of the wrists' heights at home (the frame the
    second-to-last joint moves; the Panda's 0.3104 m), so that the wrist passes over the can as
-   the Panda's does;
+   the Panda's does; where the arm has capsules (:func:`auto_workspace`), the ratio of the lowest
+   points of the wrist's capsules instead (:func:`wrist_low`; the Panda's 0.2274 m). The wrist's
+   capsules reach about 0.08 to 0.10 m below its frame on the Panda, pybullet's xArm 6 and KUKA
+   alike, not in proportion to the arm: a can sized by the frames (the xArm's 0.124 m, the KUKA's
+   0.121 m) stood above the bottoms of their wrists' capsules (0.084 m, 0.065 m);
 2. the hand-down inverse kinematics (end link's ``z`` down; two hand yaws, 0 and 90 degrees, the one
    reaching the longer interval kept) from the joint limits' middle, continued from neighbour to
    neighbour on a 1 cm lattice along ``+x`` at that height, measures the interval
@@ -33,16 +37,19 @@ import math
 import torch
 
 from ..threads import torch_threads
+from .description import capsule_segments
 from .kinematics import ArmKinematics
 
 __all__ = [
     "PANDA_LAYOUT",
     "PANDA_LENGTH",
     "PANDA_REACH",
+    "PANDA_WRIST_LOW",
     "arm_length",
     "auto_workspace",
     "hand_down_layout",
     "measure_layout",
+    "wrist_low",
 ]
 
 PANDA_REACH = (
@@ -52,6 +59,8 @@ PANDA_REACH = (
 PANDA_LENGTH = 1.0897  # m, the Panda's L (module docstring), measured on protorch/robots/panda.urdf
 # m, the Panda's wrist (the frame its second-to-last joint moves) above the table at home
 PANDA_WRIST = 0.3104
+# m, the lowest point of the Panda's wrist capsules (link 6's, protorch/robots/panda.yaml) at home
+PANDA_WRIST_LOW = 0.2274
 _HEIGHT, _CAN_HEIGHT, _CAN_RADIUS = 0.10, 0.23, 0.0375
 _HOME_X, _CAN_X, _GOAL_X, _TABLE_X = 0.40, (0.50, 0.62), (0.66, 0.74), (0.2, 0.9)
 _CAN_Y, _GOAL_Y, _TABLE_Y = 0.12, 0.24, 0.5
@@ -138,7 +147,27 @@ def auto_workspace(robot) -> tuple[dict, dict | None]:
     if robot.settings.get("base") is not None:
         return dict(PANDA_LAYOUT), None
     layout = robot.found.get("layout") or hand_down_layout(robot.kinematics(), robot.name)
+    low = wrist_low(robot)
+    if low is not None:  # the wrist's bodies, not its frame, pass over the can as the Panda's
+        layout["wrist_low"] = round(low, 4)
+        layout["can_height"] = round(_CAN_HEIGHT * low / PANDA_WRIST_LOW, 4)
     return layout, layout
+
+
+def wrist_low(robot) -> float | None:
+    """The lowest point (m above the table) at ``robot.home`` of the capsules of the wrist: the
+    links from the frame the second-to-last moving joint moves up to the last moving joint's (the
+    Panda's link 6, :data:`PANDA_WRIST_LOW`); ``None`` where the wrist has no capsules."""
+    kin = robot.kinematics()
+    names = kin.frame_names
+    moving = [names.index(n) for n in names[1:] if n in _moving_frames(kin)]
+    wrist = set(names[moving[-2] : moving[-1]])
+    caps = [c for c in robot.capsule_list() if c.link in wrist]
+    if not caps:
+        return None
+    frames = kin.frames(torch.tensor(robot.home, dtype=kin.lower.dtype, device=kin.lower.device))
+    a, b, r = capsule_segments(frames, names, caps)  # (C, 3), (C, 3), (C,)
+    return float((torch.minimum(a[:, 2], b[:, 2]) - r.to(a)).min())
 
 
 def hand_down_layout(kin, name: str = "the arm") -> dict:

@@ -204,7 +204,7 @@ def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
     try:
         with torch_threads(cfg.get("threads")):
             write_status(out_dir, name, "running")
-            metrics = REGISTRY[name].run(out_dir, **kwargs)
+            metrics = EXPERIMENTS[name](out_dir, **kwargs)
     except REFUSED:  # refused before any work: the folder is left as it was found
         if status_before is None:
             (out_dir / STATUS_FILE).unlink(missing_ok=True)

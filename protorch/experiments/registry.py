@@ -213,5 +213,5 @@ def experiment(name) -> type[Experiment]:
 def for_task(task_name) -> type[Experiment] | None:
     """The experiment whose runs are a policy of the task named ``task_name`` (a checkpoint's
     ``task_name``), or ``None``."""
-    found = [e for e in REGISTRY.values() if e.task is not None and e.task.name == task_name]
+    found = [e for e in REGISTRY.values() if getattr(e.task, "name", None) == task_name]
     return found[0] if found and found[0].policy is not None else None

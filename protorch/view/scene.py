@@ -49,7 +49,9 @@ __all__ = [
 ]
 
 # the viewer's scene kind of each task whose runs it shows (the experiments' ``scene`` hook)
-KINDS = {e.task.name: e.scene for e in REGISTRY.values() if e.task is not None and e.scene}
+KINDS = {
+    getattr(e.task, "name"): e.scene for e in REGISTRY.values() if e.task is not None and e.scene
+}
 MAKE_RUN = (
     "python -m protorch experiment=point_particle hydra.run.dir=runs/pp  (or experiment=arm_reach)"
 )

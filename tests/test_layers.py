@@ -14,10 +14,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 CORE = ("primitives", "optim", "gp", "robots", "tasks", "data", "loop", "policy", "control", "sim")
 ABOVE = ("protorch.experiments", "protorch.app", "protorch.view", "hydra", "omegaconf")
-# the one import of the experiments from the core: protorch.load's fallback for a run folder
-# written before policy.json (imported inside the function that needs it)
-ALLOWED = {("protorch/policy/load.py", "protorch.experiments.policy_run"),
-           ("protorch/policy/load.py", "protorch.experiments.registry")}  # fmt: skip
+# none: protorch.load's fallback for a run folder written before policy.json imports the
+# experiments by name (importlib), inside the function that needs it
+ALLOWED: set[tuple[str, str]] = set()
 
 IMPORTS = textwrap.dedent("""
     import importlib, sys

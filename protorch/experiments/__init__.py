@@ -8,6 +8,7 @@ writes ``metrics.json`` into ``out_dir``.
 
 from __future__ import annotations
 
+import copy
 import inspect
 import os
 import re
@@ -24,6 +25,7 @@ from ..optim import OPTIMIZERS, BaseOptimizer
 from ..tasks import TaskContractError, task_class
 from ..threads import torch_threads
 from .common import metric_value, per_method_form, resolve_device, resolve_dtype, write_json
+from .policy_record import write_policy_record
 from .registry import REGISTRY, Experiment, experiment
 from .run_folder import STATUS_FILE, check_run_folder, write_config, write_status
 from .settings import GP, OPTIMIZER_SCHEMAS, SettingsError, validate
@@ -185,6 +187,7 @@ def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
     ``metrics["objective"] = {"metric": key, "value": float}`` and the Hydra app returns it.
     """
     kwargs = check_config(cfg)
+    record_kwargs = copy.deepcopy(kwargs)  # the settings as checked, for policy.json
     name, objective = cfg["name"], cfg.get("objective")
     out_dir = Path(out_dir)
     check_run_folder(out_dir, name)  # another experiment's results are refused before any work
@@ -239,7 +242,5 @@ def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
         )
         write_json(out_dir / "metrics.json", metrics)
         write_status(out_dir, name, "ok", summary=metrics["summary"])
-    from .policy_run import write_policy_record  # (it imports this package)
-
-    write_policy_record(out_dir, cfg)  # what protorch.load builds the policy from
+    write_policy_record(out_dir, name, record_kwargs)  # what protorch.load builds the policy from
     return metrics

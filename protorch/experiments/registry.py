@@ -6,7 +6,7 @@ experiment names.
 
 An experiment class names its ``run`` function, the task class it runs (``None``: any task,
 ``task._target_``), its settings schemas (:mod:`protorch.experiments.settings`), its summary rows
-(:class:`~protorch.experiments.summary.Headline`), how it takes the optimizer group, and, for a
+(:class:`~protorch.experiments.headlines.Headline`), how it takes the optimizer group, and, for a
 self-improvement experiment whose run is a policy, its experiment object (``policy``), the moving
 test whose settings the policy keeps (``moving_test``) and the viewer's scene kind (``scene``).
 
@@ -38,9 +38,9 @@ from . import (
     fig4_window,
     point_particle,
     self_improve,
-    summary,
     teleop_window,
 )
+from . import headlines as rows
 from .arm_physics import check_physics, skip_reason
 from .settings import (
     ArmReachSettings,
@@ -68,7 +68,7 @@ class Experiment:
     group_optimizer: ClassVar[bool] = False  # the optimizer group as it is, else per method
     settings_schema: ClassVar[type | None] = None  # settings.* (experiments/settings.py)
     task_schema: ClassVar[type | None] = None  # task.*
-    headlines: ClassVar[list] = []  # the summary's rows (experiments/summary.py)
+    headlines: ClassVar[list] = []  # the summary's rows (experiments/headlines.py)
     policy: ClassVar[type | None] = None  # the experiment object of a run that is a policy
     moving_test: ClassVar[Callable | None] = None  # whose defaults the policy's settings take
     velocity_command: ClassVar[bool] = False  # the policy rolls out the arm's velocity command
@@ -107,27 +107,27 @@ class Experiment:
 
 class Fig3Toy(Experiment):
     name, run, task = "fig3_toy", staticmethod(fig3_toy.run), LineToy
-    headlines = summary.FIG3_TOY
+    headlines = rows.FIG3_TOY
 
 
 class Fig4Window(Experiment):
     name, run, task = "fig4_window", staticmethod(fig4_window.run), WindowTask
-    headlines = summary.FIG4_WINDOW
+    headlines = rows.FIG4_WINDOW
 
 
 class BeamWindow(Experiment):
     name, run, task = "beam_window", staticmethod(beam_window.run), BeamWindowTask
-    headlines = summary.BEAM_WINDOW
+    headlines = rows.BEAM_WINDOW
 
 
 class TeleopWindow(Experiment):
     name, run, task = "teleop_window", staticmethod(teleop_window.run), TeleopWindowTask
-    group_optimizer, headlines = True, summary.TELEOP_WINDOW
+    group_optimizer, headlines = True, rows.TELEOP_WINDOW
 
 
 class PointParticle(Experiment):
     name, run, task = "point_particle", staticmethod(point_particle.run), PointParticleTask
-    group_optimizer, headlines = True, summary.POINT_PARTICLE
+    group_optimizer, headlines = True, rows.POINT_PARTICLE
     settings_schema, task_schema = PointParticleSettings, PointParticleTaskSettings
     policy, moving_test, scene = point_particle.PointParticleExperiment, run_episodes, "particle"
 
@@ -139,7 +139,7 @@ class PointParticle(Experiment):
 
 class ArmReach(Experiment):
     name, run, task = "arm_reach", staticmethod(arm_reach.run), ArmReachTask
-    group_optimizer, headlines = True, summary.ARM_REACH
+    group_optimizer, headlines = True, rows.ARM_REACH
     settings_schema, task_schema = ArmReachSettings, ArmReachTaskSettings
     policy, moving_test, scene = arm_reach.ArmReachExperiment, run_arm_episodes, "arm"
     velocity_command = True
@@ -187,7 +187,7 @@ class ArmReach(Experiment):
 
 class SelfImprove(Experiment):
     name, run = "self_improve", staticmethod(self_improve.run)
-    group_optimizer, headlines = True, summary.SELF_IMPROVE
+    group_optimizer, headlines = True, rows.SELF_IMPROVE
     settings_schema, policy = SelfImproveSettings, self_improve.GenericExperiment
 
     @classmethod

@@ -1,7 +1,7 @@
 """Each experiment's headline numbers, in one place, and the summary table built from them.
 
 :data:`HEADLINES` maps an experiment to its rows (each experiment's class in
-:mod:`protorch.experiments.registry` names its list here, e.g. :data:`POINT_PARTICLE`), rows
+:mod:`protorch.experiments.registry` names its list in :mod:`protorch.experiments.headlines`), rows
 ``(label, key, method, baselines, paper)``: the metrics key of protorch's result, the method's name,
 ``((name, key), ...)`` of the baselines measured in the same run, and ``{method name: value}`` where
 the paper states a number (Fig. 4's relevance times; Sec. IV-A's operator failed 10 of 10 trials;
@@ -18,19 +18,14 @@ from __future__ import annotations
 
 import math
 import os
-from typing import NamedTuple
 
 from .common import SHARED_OPTIMIZER_KEYS, flatten_metrics, optimizer_label
+from .headlines import Headline
+from .registry import REGISTRY
 
 __all__ = [
     "Headline",
-    "FIG3_TOY",
-    "FIG4_WINDOW",
-    "BEAM_WINDOW",
-    "TELEOP_WINDOW",
-    "POINT_PARTICLE",
-    "SELF_IMPROVE",
-    "ARM_REACH",
+    "HEADLINES",
     "build_summary",
     "format_summary",
     "format_value",
@@ -39,197 +34,8 @@ __all__ = [
 ]
 
 
-class Headline(NamedTuple):
-    label: str
-    key: str
-    method: str
-    baselines: tuple = ()
-    paper: dict = {}
-
-
-FIG3_TOY: list[Headline] = [  # experiment=fig3_toy
-    Headline(
-        "irrelevant std, final / initial",
-        "pro.irrelevant_std_ratio",
-        "PRO",
-        (("RWR", "rwr.irrelevant_std_ratio"),),
-    ),
-    Headline("final reward", "pro.final_reward", "PRO", (("RWR", "rwr.final_reward"),)),
-]
-
-FIG4_WINDOW: list[Headline] = [  # experiment=fig4_window
-    Headline(
-        "relevance time",
-        "pro.relevance_seconds",
-        "PRO",
-        (("RWPO", "rwpo.relevance_seconds"),),
-        {"PRO": 0.02, "RWPO": 84.47},
-    ),
-    Headline(
-        "mean passes start, window, end",
-        "pro.success",
-        "PRO",
-        (("RWPO", "rwpo.success"), ("demos", "demos.success_rate")),
-    ),
-    Headline("iterations", "pro.iterations", "PRO", (("RWPO", "rwpo.iterations"),)),
-]
-
-BEAM_WINDOW: list[Headline] = [  # experiment=beam_window
-    Headline(
-        "success rate",
-        "optimized.samples_success_rate",
-        "PRO samples",
-        (("demonstrations", "demos.success_rate"),),
-        {"demonstrations": 0.0},
-    ),
-    Headline(
-        "teleoperation success",
-        "teleop.assisted_success_rate",
-        "guided by PRO",
-        (
-            ("unassisted", "teleop.unassisted_success_rate"),
-            ("guided by demos", "teleop.assisted_by_demos_promp_success_rate"),
-        ),
-    ),
-]
-
-TELEOP_WINDOW: list[Headline] = [  # experiment=teleop_window
-    Headline(
-        label,
-        f"teleop.adaptive.{key}",
-        "adaptive guide",
-        (("fixed guide", f"teleop.fixed.{key}"), ("no guide", f"teleop.none.{key}")),
-    )
-    for label, key in (
-        ("success rate", "success_rate"),
-        ("collision rate", "collision_rate"),
-        ("median trial time (s)", "time"),
-        ("effort (m s)", "effort"),
-        ("freedom (compliance)", "freedom"),
-    )
-] + [
-    Headline(
-        "adaptive guide's freedom, by the map's optimiser",
-        "freedom.pro.freedom",
-        "PRO",
-        (("CEM", "freedom.cem.freedom"), ("CMA-ES", "freedom.cmaes.freedom")),
-    ),
-    Headline(
-        "adaptive guide's success, by the map's optimiser",
-        "freedom.pro.success_rate",
-        "PRO",
-        (("CEM", "freedom.cem.success_rate"), ("CMA-ES", "freedom.cmaes.success_rate")),
-    ),
-]
-
-POINT_PARTICLE: list[Headline] = [  # experiment=point_particle
-    Headline(
-        "held-out success",
-        "test.success_rate",
-        "{optimizer} loop",
-        (
-            ("demos only", "baselines.demos_only.test.success_rate"),
-            ("{baseline} loop", "baselines.rwr.test.success_rate"),
-        ),
-    ),
-    Headline(
-        "moving-environment success",
-        "dynamic.success_rate",
-        "{optimizer} loop",
-        (
-            ("demos only", "baselines.demos_only.dynamic.success_rate"),
-            ("{baseline} loop", "baselines.rwr.dynamic.success_rate"),
-        ),
-    ),
-    Headline(
-        "the authors' moving test (wall, hole, goal moving)",
-        "dynamic_paper.success_rate",
-        "{optimizer} loop",
-    ),
-    Headline(
-        "rollouts (samples evaluated)",
-        "loop.rollouts",
-        "{optimizer} loop",
-        (("{baseline} loop", "baselines.rwr.loop.rollouts"),),
-    ),
-    Headline(
-        "loop time",
-        "loop.seconds",
-        "{optimizer} loop",
-        (("{baseline} loop", "baselines.rwr.loop.seconds"),),
-    ),
-]
-
-SELF_IMPROVE: list[Headline] = [  # experiment=self_improve
-    Headline(
-        "held-out success",
-        "test.success_rate",
-        "{optimizer} loop",
-        (("demos only", "demos_only.test.success_rate"),),
-    ),
-    Headline("rollouts (samples evaluated)", "loop.rollouts", "{optimizer} loop"),
-    Headline("loop time", "loop.seconds", "{optimizer} loop"),
-]
-
-ARM_REACH: list[Headline] = [  # experiment=arm_reach
-    Headline(
-        "held-out success",
-        "test.success_rate",
-        "{optimizer} loop, labels",
-        (
-            ("labels dropped", "baselines.labels_off.test.success_rate"),
-            ("loop without labels", "baselines.labels_off_loop.test.success_rate"),
-        ),
-    ),
-    Headline(
-        "moving-environment success",
-        "dynamic.success_rate",
-        "{optimizer} loop, labels",
-        (
-            ("labels dropped", "baselines.labels_off.dynamic.success_rate"),
-            ("loop without labels", "baselines.labels_off_loop.dynamic.success_rate"),
-        ),
-    ),
-    Headline(
-        "side switches (labels)",
-        "dynamic.switches",
-        "{optimizer} loop, labels",
-        (
-            ("labels dropped", "baselines.labels_off.dynamic.switches"),
-            ("loop without labels", "baselines.labels_off_loop.dynamic.switches"),
-        ),
-    ),
-    Headline(
-        "side switches (geometric)",
-        "dynamic.switches_geometric",
-        "{optimizer} loop, labels",
-        (
-            ("labels dropped", "baselines.labels_off.dynamic.switches_geometric"),
-            ("loop without labels", "baselines.labels_off_loop.dynamic.switches_geometric"),
-        ),
-    ),
-    Headline(
-        "rollouts (samples evaluated)",
-        "loop.rollouts",
-        "{optimizer} loop, labels",
-        (("loop without labels", "baselines.labels_off_loop.loop.rollouts"),),
-    ),
-    Headline(
-        "loop time",
-        "loop.seconds",
-        "{optimizer} loop, labels",
-        (("loop without labels", "baselines.labels_off_loop.loop.seconds"),),
-    ),
-    Headline("held-out success in MuJoCo", "physics.test.success_rate", "{optimizer} loop, labels"),
-    Headline(
-        "moving success in MuJoCo", "physics.dynamic.success_rate", "{optimizer} loop, labels"
-    ),
-    Headline(
-        "moving episodes touching in MuJoCo",
-        "physics.dynamic.contacts",
-        "{optimizer} loop, labels",
-    ),
-]
+# {experiment: its rows}, each experiment's class in the registry naming its list (headlines.py)
+HEADLINES: dict[str, list[Headline]] = {name: e.headlines for name, e in REGISTRY.items()}
 
 
 def process_seconds() -> float | None:
@@ -264,16 +70,6 @@ def baseline_settings(optimizer: dict | None, baseline: dict | None) -> dict | N
     }
 
 
-def __getattr__(name: str):
-    """:data:`HEADLINES`: ``{experiment: its rows}``, from the registry (which imports this
-    module, so it is built on first use)."""
-    if name == "HEADLINES":
-        from .registry import REGISTRY
-
-        return {e.name: e.headlines for e in REGISTRY.values()}
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 def build_summary(
     name: str,
     metrics: dict,
@@ -295,8 +91,6 @@ def build_summary(
         "baseline": optimizer_label(flat.get("settings.baseline_optimizer") or "rwr"),
     }
     headline = {}
-    from .registry import REGISTRY  # (it names this module's rows)
-
     rows = REGISTRY[name].headlines if name in REGISTRY else []
     for row in rows:
         for method, key in ((row.method, row.key), *row.baselines):

@@ -9,6 +9,7 @@ experiment's own settings check and builder
 
 from __future__ import annotations
 
+import importlib
 import json
 import logging
 import re
@@ -174,9 +175,9 @@ def _from_config(config: Path, where: str):
         cfg = read_config(config)
     except ValueError as exc:
         raise ValueError(f"{where}: {exc}") from None
-    from ..experiments.policy_run import rebuild_experiment
-    from ..experiments.registry import REGISTRY
-
-    exp = rebuild_experiment(cfg, where)
-    settings = REGISTRY[cfg["name"]].policy_settings(getattr(exp, "dyn_cfg", None))
+    # the one import of the experiments from the core, by name so it stays out of `import protorch`
+    rebuild = importlib.import_module("protorch.experiments.policy_run").rebuild_experiment
+    registry = importlib.import_module("protorch.experiments.registry").REGISTRY
+    exp = rebuild(cfg, where)
+    settings = registry[cfg["name"]].policy_settings(getattr(exp, "dyn_cfg", None))
     return cfg["name"], exp.task, {"num_dof": exp.num_dof(), **exp.promp_cfg}, settings

@@ -10,6 +10,8 @@
   out of range or of the wrong type;
 - :class:`protorch.data.files.CheckpointError` (``ValueError``): a checkpoint that is missing,
   truncated or from an incompatible run;
+- :class:`protorch.robots.clean.CleanError` (``ValueError``): a URDF the cleaner cannot use;
+- :class:`protorch.data.cleaning.TooShort` (``ValueError``): a recording too short after trimming;
 - :class:`protorch.robots.loader.RobotError` (``ValueError``): a robot description that cannot be
   used (a URDF that does not parse, a missing end link, a home pose of the wrong length, ...).
 

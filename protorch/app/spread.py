@@ -1,15 +1,16 @@
 """Mean and range over seeds of a sweep's headline numbers: ``python -m protorch.app.report
 <sweep> --spread`` after ``python -m protorch -m experiment=<name> seed=0,1,2,3,4 ...``.
 
-Each run's ``metrics.json["summary"]["headline"]`` names its headline numbers (the rows of
-:data:`protorch.experiments.summary.HEADLINES`: label, method, metrics key, value). Runs that
-differ only in ``seed`` form one group (a sweep over seeds and another parameter gives one group
-per value of that parameter); :func:`seed_spread` gives, per group and headline key, the number
-of seeds, the mean, the smallest and the largest value, and the value of the group's first seed
-(the single-seed run a figure or a page quotes). :func:`spread_markdown` prints it with each
-value at the precision of its kind (:func:`protorch.experiments.summary.format_value`), and
-:func:`outside` says which of another run's numbers fall outside a spread widened by a margin
-(e.g. one test's resolution, 0.005 for 200 held-out environments).
+Each run's ``metrics.json["summary"]["headline"]`` names its headline numbers (the rows of its
+experiment's ``headlines`` in :data:`protorch.experiments.registry.REGISTRY`: label, method, metrics
+key, value). Runs that differ only in ``seed`` form one group (a sweep over seeds and another
+parameter gives one group per value of that parameter); :func:`seed_spread` gives, per group and
+headline key, the number of seeds, the mean, the smallest and the largest value, and the value of
+the group's first seed (the single-seed run a figure or a page quotes). :func:`spread_markdown`
+prints it with each value at the precision of its kind
+(:func:`protorch.experiments.summary.format_value`), and :func:`outside` says which of another run's
+numbers fall outside a spread widened by a margin (e.g. one test's resolution, 0.005 for 200
+held-out environments).
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ..experiments.summary import HEADLINES, format_value
+from ..experiments.registry import REGISTRY
+from ..experiments.summary import format_value
 from .sweep import OK, RunRecord, SweepReport
 
 __all__ = ["SEED", "Spread", "headline_values", "seed_spread", "spread_markdown", "outside"]
@@ -90,7 +92,7 @@ def seed_spread(report: SweepReport) -> dict[tuple, list[Spread]]:
         per_run = [headline_values(r) for r in runs]
         order = [
             k
-            for row in HEADLINES.get(str(runs[0].param("name")), [])
+            for row in getattr(REGISTRY.get(str(runs[0].param("name"))), "headlines", [])
             for k in (row.key, *(b[1] for b in row.baselines))
         ]
         keys = sorted(

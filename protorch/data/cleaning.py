@@ -12,6 +12,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..errors import ProtorchError
+
 __all__ = [
     "ALIGN_WINDOW",
     "Cleaning",
@@ -31,7 +33,7 @@ EQUAL = 1e-9  # relative: environments closer than this are equal (round-off of 
 GAP_RATIO = 3.0  # the derived tolerance needs a gap of this ratio between two merge distances
 
 
-class TooShort(ValueError):
+class TooShort(ProtorchError, ValueError):
     """A recording whose motion after trimming is shorter than ``min_duration`` (the folder
     reader excludes it; :attr:`reason` without the file name)."""
 

@@ -426,9 +426,9 @@ def import_bags(
 def task_format(name: str):
     """The :class:`~protorch.data.demos.DemoFormat` of a task by name (its joints and limits read
     from the task)."""
-    if name == "arm_reach":
+    if name == ArmReachTask.name:  # (the task class's own name)
         return arm_demo_format(ArmReachTask())
-    raise ValueError(f"--task: bags are imported for arm_reach, got {name!r}")
+    raise ValueError(f"--task: bags are imported for {ArmReachTask.name}, got {name!r}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -458,7 +458,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--out", required=True, help="the recordings folder to write (task.demos=FOLDER)"
     )
     ap.add_argument(
-        "--task", default="arm_reach", help="whose joints and environment (default arm_reach)"
+        "--task",
+        default=ArmReachTask.name,
+        help=f"whose joints and environment (default {ArmReachTask.name})",
     )
     ap.add_argument(
         "--stamp",

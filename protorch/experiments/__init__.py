@@ -8,6 +8,7 @@ writes ``metrics.json`` into ``out_dir``.
 
 from __future__ import annotations
 
+import copy
 import inspect
 import os
 import re
@@ -21,45 +22,17 @@ from typing import Callable
 from ..data.files import atomic_write_bytes
 from ..gp import BACKENDS
 from ..optim import OPTIMIZERS, BaseOptimizer
-from ..tasks import TASKS, TaskContractError, task_class
+from ..tasks import TaskContractError, task_class
 from ..threads import torch_threads
-from . import (
-    arm_reach,
-    beam_window,
-    fig3_toy,
-    fig4_window,
-    point_particle,
-    self_improve,
-    teleop_window,
-)
-from .arm_physics import check_physics, skip_reason
-from .arm_reach import check_robot
 from .common import metric_value, per_method_form, resolve_device, resolve_dtype, write_json
+from .policy_record import write_policy_record
+from .registry import REGISTRY, Experiment, experiment
 from .run_folder import STATUS_FILE, check_run_folder, write_config, write_status
-from .settings import GP, OPTIMIZER_SCHEMAS, SETTINGS_SCHEMAS, TASK_SCHEMAS, SettingsError, validate
+from .settings import GP, OPTIMIZER_SCHEMAS, SettingsError, validate
 from .summary import baseline_settings, build_summary
 
-EXPERIMENTS: dict[str, Callable[..., dict]] = {
-    "fig3_toy": fig3_toy.run,
-    "fig4_window": fig4_window.run,
-    "point_particle": point_particle.run,
-    "beam_window": beam_window.run,
-    "arm_reach": arm_reach.run,
-    "self_improve": self_improve.run,
-    "teleop_window": teleop_window.run,
-}
-# the task each fixed experiment runs (its conf/task group); self_improve takes any
-EXPERIMENT_TASKS = {
-    "fig3_toy": "line_toy",
-    "fig4_window": "window",
-    "point_particle": "point_particle",
-    "beam_window": "beam_window",
-    "arm_reach": "arm_reach",
-    "teleop_window": "teleop_window",
-}
-# experiments taking the optimizer group as it is ({"name": ..., keys}); the others take the
-# per-method form {shared keys, "<name>": {...}} (common.per_method_form)
-GROUP_OPTIMIZER = {"point_particle", "arm_reach", "self_improve", "teleop_window"}
+# name -> run(out_dir, **settings) -> metrics, of every registered experiment (registry.REGISTRY)
+EXPERIMENTS: dict[str, Callable[..., dict]] = {name: e.run for name, e in REGISTRY.items()}
 
 _DOTTED = re.compile(r"[A-Za-z_][\w-]*(\.[\w-]+)*")
 
@@ -69,6 +42,7 @@ REFUSED = (SettingsError, TaskContractError)
 
 __all__ = [
     "EXPERIMENTS",
+    "REGISTRY",
     "run_experiment",
     "check_config",
     "metric_value",
@@ -96,10 +70,10 @@ def _check_optimizer_group(group: dict, where: str) -> dict:
     return group
 
 
-def _check_task(name: str, task: dict) -> dict:
+def _check_task(exp: type[Experiment], task: dict) -> dict:
     target = task.pop("_target_", None)
-    if name in EXPERIMENT_TASKS:
-        expected = TASKS[EXPERIMENT_TASKS[name]]
+    if exp.task is not None:
+        expected = exp.task
         if target is not None:
             try:
                 cls = task_class(target)
@@ -107,11 +81,11 @@ def _check_task(name: str, task: dict) -> dict:
                 raise SettingsError(str(exc)) from None
             if cls is not expected:
                 raise SettingsError(
-                    f"task._target_={target!r}: experiment {name!r} runs "
+                    f"task._target_={target!r}: experiment {exp.name!r} runs "
                     f"{expected.__module__}.{expected.__name__}; run your own task with "
                     "experiment=self_improve"
                 )
-        return validate(TASK_SCHEMAS[name], task, "task") if name in TASK_SCHEMAS else task
+        return validate(exp.task_schema, task, "task") if exp.task_schema else task
     if target in (None, "???"):
         raise SettingsError(
             "task._target_ must name the task class, e.g. task._target_=my_module.MyTask"
@@ -123,8 +97,7 @@ def check_config(cfg: dict) -> dict:
     """Every setting of ``cfg`` checked (types, ranges, names) before any work: the keyword
     arguments of the experiment function (``out_dir`` aside). Raises :class:`SettingsError`."""
     name = cfg.get("name")
-    if name not in EXPERIMENTS:
-        raise SettingsError(f"experiment={name!r} must be one of {', '.join(sorted(EXPERIMENTS))}")
+    exp = experiment(name)  # SettingsError naming the experiments
     objective = cfg.get("objective")
     if objective is not None and not (isinstance(objective, str) and _DOTTED.fullmatch(objective)):
         raise SettingsError(
@@ -151,23 +124,16 @@ def check_config(cfg: dict) -> dict:
         )
     except (ValueError, RuntimeError) as exc:
         raise SettingsError(f"device / dtype: {exc}") from None
-    fn = EXPERIMENTS[name]
-    accepted = inspect.signature(fn).parameters
+    accepted = inspect.signature(exp.run).parameters
     opt = _check_optimizer_group(
         {"name": "pro", **dict(cfg.get("optimizer") or {})}, "optimizer"
     )  # PRO unless named
     base = cfg.get("baseline_optimizer")
     base = None if base is None else _check_optimizer_group(dict(base), "baseline_optimizer")
     settings = dict(cfg.get("settings") or {})
-    if name in SETTINGS_SCHEMAS:
-        validate(SETTINGS_SCHEMAS[name], settings, "settings")
-    if name == "arm_reach":  # the physics settings' relations, and MuJoCo where physics.run=always
-        try:
-            check_physics(settings.get("physics"), dict(settings.get("dynamic") or {}))
-        except (ValueError, ImportError) as exc:
-            raise SettingsError(
-                f"settings.{exc}" if str(exc).startswith("physics.") else str(exc)
-            ) from None
+    if exp.settings_schema is not None:
+        validate(exp.settings_schema, settings, "settings")
+    exp.check_settings(cfg, settings)
     gp = dict(cfg.get("gp") or {})
     if gp:
         validate(GP, gp, "gp")
@@ -175,12 +141,7 @@ def check_config(cfg: dict) -> dict:
             raise SettingsError(
                 f"gp.backend={gp['backend']!r} must be one of {', '.join(sorted(BACKENDS))}"
             )
-    if name == "arm_reach" and "urdf" in dict(cfg.get("task") or {}):
-        raise SettingsError(
-            "task.urdf is now robot.urdf: robot=custom robot.urdf=PATH robot.end_link=LINK "
-            "robot.home=[...] (docs/your_own_robot.md)"
-        )
-    task = _check_task(name, dict(cfg.get("task") or {}))
+    task = _check_task(exp, dict(cfg.get("task") or {}))
     # top-level groups (``task.demos=...``, ``gp.alpha=...``) overlay the experiment's own settings
     for key, top in (("task", task), ("gp", gp)):
         if top:
@@ -189,31 +150,14 @@ def check_config(cfg: dict) -> dict:
                     f"experiment {name!r} takes no {key}.* settings, got {', '.join(sorted(top))}"
                 )
             settings[key] = {**dict(settings.get(key) or {}), **top}
-    robot = cfg.get("robot")
-    if (
-        name == "arm_reach"
-    ):  # the robot and the workspace, before any work (protorch.robots.load_robot)
-        try:
-            phys = check_physics(settings.get("physics"), dict(settings.get("dynamic") or {}))
-            task_cfg = {
-                k: v for k, v in dict(settings.get("task") or {}).items() if k != "_target_"
-            }
-            check_robot(robot, task_cfg, skip_reason(phys) is None)
-        except (ValueError, ImportError) as exc:
-            raise SettingsError(" ".join(str(exc).split())) from None
-        if robot is not None:
-            settings["robot"] = dict(robot)
-    elif robot is not None:
-        raise SettingsError(
-            f"robot=...: experiment {name!r} takes no robot (experiment=arm_reach does)"
-        )
+    exp.take_robot(cfg.get("robot"), settings, dict(settings.get("task") or {}))
     if cfg.get("resume", False):
         if "resume" not in accepted:
             raise SettingsError(
                 f"resume=true: experiment {name!r} cannot resume; run it again instead"
             )
         settings["resume"] = True
-    if name in GROUP_OPTIMIZER:
+    if exp.group_optimizer:
         settings["optimizer"] = opt
         if base is not None and "baseline_optimizer" in accepted:
             settings["baseline_optimizer"] = base
@@ -243,6 +187,7 @@ def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
     ``metrics["objective"] = {"metric": key, "value": float}`` and the Hydra app returns it.
     """
     kwargs = check_config(cfg)
+    record_kwargs = copy.deepcopy(kwargs)  # the settings as checked, for policy.json
     name, objective = cfg["name"], cfg.get("objective")
     out_dir = Path(out_dir)
     check_run_folder(out_dir, name)  # another experiment's results are refused before any work
@@ -286,9 +231,7 @@ def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
         )
         raise
     run_info["finished"] = datetime.now(timezone.utc).isoformat(timespec="milliseconds")
-    write_config(
-        out_dir, cfg
-    )  # what protorch.load rebuilds the run's task from (the app wrote it already)
+    write_config(out_dir, cfg)  # the run's settings (the app wrote them already)
     metrics = {"experiment": name, **metrics, "run": run_info}
     try:
         if objective is not None:
@@ -299,4 +242,5 @@ def run_experiment(cfg: dict, out_dir: str | Path) -> dict:
         )
         write_json(out_dir / "metrics.json", metrics)
         write_status(out_dir, name, "ok", summary=metrics["summary"])
+    write_policy_record(out_dir, name, record_kwargs)  # what protorch.load builds the policy from
     return metrics

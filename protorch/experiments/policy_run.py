@@ -1,34 +1,17 @@
 """A run's experiment rebuilt from its resolved ``config.yaml`` through the experiment's own
-settings check and builder: what ``protorch.load`` (:func:`protorch.policy.load.load_policy`)
-needs of it."""
+settings check and builder: what ``protorch.load`` needs of a run folder written without
+``policy.json`` (:mod:`protorch.experiments.policy_record`)."""
 
 from __future__ import annotations
 
-import inspect
-
 from . import SettingsError, check_config
-from .arm_reach import ArmReachExperiment
-from .point_particle import PointParticleExperiment
-from .self_improve import GenericExperiment
+from . import policy_record as records
+from .policy_record import POLICY_EXPERIMENTS
 
-__all__ = ["POLICY_EXPERIMENTS", "rebuild_experiment"]
-
-# the experiments whose runs are a policy: a trained map of a self-improvement experiment
-POLICY_EXPERIMENTS = ("arm_reach", "point_particle", "self_improve")
+__all__ = ["POLICY_EXPERIMENTS", "policy_record", "rebuild_experiment"]
 
 
-def _experiment_class(name: str):
-    return {
-        "arm_reach": ArmReachExperiment,
-        "point_particle": PointParticleExperiment,
-        "self_improve": GenericExperiment,
-    }[name]
-
-
-def rebuild_experiment(cfg: dict, where: str = "run"):
-    """The run's experiment object as the run built it (settings checked by
-    :func:`~protorch.experiments.check_config`, the task made by the experiment's own
-    ``configure``), without its demonstrations or loop: what the policy needs of it."""
+def _checked(cfg: dict, where: str) -> dict:
     name = cfg.get("name") if isinstance(cfg, dict) else None
     if name not in POLICY_EXPERIMENTS:
         raise ValueError(
@@ -36,16 +19,21 @@ def rebuild_experiment(cfg: dict, where: str = "run"):
             f"(one of {', '.join(POLICY_EXPERIMENTS)})"
         )
     try:
-        kwargs = check_config(cfg)
+        return check_config(cfg)
     except SettingsError as exc:
         raise ValueError(
             f"{where}: its config.yaml is refused by this protorch ({exc}); an older format? "
             "re-run it"
         ) from None
-    cls = _experiment_class(name)
-    accepted = set()
-    for c in cls.__mro__:
-        init = c.__dict__.get("__init__")
-        if init is not None:
-            accepted |= set(inspect.signature(init).parameters) - {"self", "settings", "args"}
-    return cls(**{k: v for k, v in kwargs.items() if k in accepted})
+
+
+def rebuild_experiment(cfg: dict, where: str = "run"):
+    """The run's experiment object as the run built it (settings checked by
+    :func:`~protorch.experiments.check_config`, the task made by the experiment's own
+    ``configure``), without its demonstrations or loop: what the policy needs of it."""
+    return records.build_experiment(cfg["name"], _checked(cfg, where))
+
+
+def policy_record(cfg: dict, where: str = "run") -> dict:
+    """The ``policy.json`` record of a run of the resolved config ``cfg``."""
+    return records.policy_record(cfg["name"], _checked(cfg, where))

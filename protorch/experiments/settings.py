@@ -24,8 +24,6 @@ __all__ = [
     "validate",
     "describe",
     "OPTIMIZER_SCHEMAS",
-    "SETTINGS_SCHEMAS",
-    "TASK_SCHEMAS",
     "GP",
     "Loop",
     "Test",
@@ -421,11 +419,7 @@ class SelfImproveSettings:
     progress: bool = setting(False, "show progress bars")
 
 
-SETTINGS_SCHEMAS: dict[str, type] = {
-    "point_particle": PointParticleSettings,
-    "arm_reach": ArmReachSettings,
-    "self_improve": SelfImproveSettings,
-}
+# each experiment's class (protorch.experiments.registry) names its settings.* schema
 
 
 @dataclass
@@ -556,7 +550,4 @@ class ArmReachTaskSettings:
     )
 
 
-TASK_SCHEMAS: dict[str, type] = {
-    "point_particle": PointParticleTaskSettings,
-    "arm_reach": ArmReachTaskSettings,
-}
+# each experiment's class (protorch.experiments.registry) names its task.* schema

@@ -1,25 +1,27 @@
 """Each experiment's headline numbers, in one place, and the summary table built from them.
 
-:data:`HEADLINES` maps an experiment to rows ``(label, key, method, baselines, paper)``: the
-metrics key of protorch's result, the method's name, ``((name, key), ...)`` of the baselines
-measured in the same run, and ``{method name: value}`` where the paper states a number (Fig. 4's
-relevance times; Sec. IV-A's operator failed 10 of 10 trials; the paper states no success rates for
-Sec. IV-B and IV-C, so their tables have no paper column). In a method's or baseline's name,
-``{optimizer}`` stands for the loop's optimiser and ``{baseline}`` for the loop baseline's
-(``metrics["settings"]["optimizer"]`` and ``["baseline_optimizer"]``, registry names; PRO and RWR
-where the metrics name none), so ``optimizer=epro`` reads "EPRO loop".
-:func:`build_summary` turns them into ``metrics["summary"]``; :func:`format_summary` prints it,
-each value with the fixed precision of its kind (:func:`format_value`: rates with 3 decimals,
-times with 1 decimal in s or ms, counts as integers), so any metric a new row names prints alike.
+:data:`HEADLINES` maps an experiment to its rows (each experiment's class in
+:mod:`protorch.experiments.registry` names its list in :mod:`protorch.experiments.headlines`), rows
+``(label, key, method, baselines, paper)``: the metrics key of protorch's result, the method's name,
+``((name, key), ...)`` of the baselines measured in the same run, and ``{method name: value}`` where
+the paper states a number (Fig. 4's relevance times; Sec. IV-A's operator failed 10 of 10 trials;
+the paper states no success rates for Sec. IV-B and IV-C, so their tables have no paper column). In
+a method's or baseline's name, ``{optimizer}`` stands for the loop's optimiser and ``{baseline}``
+for the loop baseline's (``metrics["settings"]["optimizer"]`` and ``["baseline_optimizer"]``,
+registry names; PRO and RWR where the metrics name none), so ``optimizer=epro`` reads "EPRO loop".
+:func:`build_summary` turns them into ``metrics["summary"]``; :func:`format_summary` prints it, each
+value with the fixed precision of its kind (:func:`format_value`: rates with 3 decimals, times with
+1 decimal in s or ms, counts as integers), so any metric a new row names prints alike.
 """
 
 from __future__ import annotations
 
 import math
 import os
-from typing import NamedTuple
 
 from .common import SHARED_OPTIMIZER_KEYS, flatten_metrics, optimizer_label
+from .headlines import Headline
+from .registry import REGISTRY
 
 __all__ = [
     "Headline",
@@ -32,196 +34,8 @@ __all__ = [
 ]
 
 
-class Headline(NamedTuple):
-    label: str
-    key: str
-    method: str
-    baselines: tuple = ()
-    paper: dict = {}
-
-
-HEADLINES: dict[str, list[Headline]] = {
-    "fig3_toy": [
-        Headline(
-            "irrelevant std, final / initial",
-            "pro.irrelevant_std_ratio",
-            "PRO",
-            (("RWR", "rwr.irrelevant_std_ratio"),),
-        ),
-        Headline("final reward", "pro.final_reward", "PRO", (("RWR", "rwr.final_reward"),)),
-    ],
-    "fig4_window": [
-        Headline(
-            "relevance time",
-            "pro.relevance_seconds",
-            "PRO",
-            (("RWPO", "rwpo.relevance_seconds"),),
-            {"PRO": 0.02, "RWPO": 84.47},
-        ),
-        Headline(
-            "mean passes start, window, end",
-            "pro.success",
-            "PRO",
-            (("RWPO", "rwpo.success"), ("demos", "demos.success_rate")),
-        ),
-        Headline("iterations", "pro.iterations", "PRO", (("RWPO", "rwpo.iterations"),)),
-    ],
-    "beam_window": [
-        Headline(
-            "success rate",
-            "optimized.samples_success_rate",
-            "PRO samples",
-            (("demonstrations", "demos.success_rate"),),
-            {"demonstrations": 0.0},
-        ),
-        Headline(
-            "teleoperation success",
-            "teleop.assisted_success_rate",
-            "guided by PRO",
-            (
-                ("unassisted", "teleop.unassisted_success_rate"),
-                ("guided by demos", "teleop.assisted_by_demos_promp_success_rate"),
-            ),
-        ),
-    ],
-    "teleop_window": [
-        Headline(
-            label,
-            f"teleop.adaptive.{key}",
-            "adaptive guide",
-            (("fixed guide", f"teleop.fixed.{key}"), ("no guide", f"teleop.none.{key}")),
-        )
-        for label, key in (
-            ("success rate", "success_rate"),
-            ("collision rate", "collision_rate"),
-            ("median trial time (s)", "time"),
-            ("effort (m s)", "effort"),
-            ("freedom (compliance)", "freedom"),
-        )
-    ]
-    + [
-        Headline(
-            "adaptive guide's freedom, by the map's optimiser",
-            "freedom.pro.freedom",
-            "PRO",
-            (("CEM", "freedom.cem.freedom"), ("CMA-ES", "freedom.cmaes.freedom")),
-        ),
-        Headline(
-            "adaptive guide's success, by the map's optimiser",
-            "freedom.pro.success_rate",
-            "PRO",
-            (("CEM", "freedom.cem.success_rate"), ("CMA-ES", "freedom.cmaes.success_rate")),
-        ),
-    ],
-    "point_particle": [
-        Headline(
-            "held-out success",
-            "test.success_rate",
-            "{optimizer} loop",
-            (
-                ("demos only", "baselines.demos_only.test.success_rate"),
-                ("{baseline} loop", "baselines.rwr.test.success_rate"),
-            ),
-        ),
-        Headline(
-            "moving-environment success",
-            "dynamic.success_rate",
-            "{optimizer} loop",
-            (
-                ("demos only", "baselines.demos_only.dynamic.success_rate"),
-                ("{baseline} loop", "baselines.rwr.dynamic.success_rate"),
-            ),
-        ),
-        Headline(
-            "the authors' moving test (wall, hole, goal moving)",
-            "dynamic_paper.success_rate",
-            "{optimizer} loop",
-        ),
-        Headline(
-            "rollouts (samples evaluated)",
-            "loop.rollouts",
-            "{optimizer} loop",
-            (("{baseline} loop", "baselines.rwr.loop.rollouts"),),
-        ),
-        Headline(
-            "loop time",
-            "loop.seconds",
-            "{optimizer} loop",
-            (("{baseline} loop", "baselines.rwr.loop.seconds"),),
-        ),
-    ],
-    "self_improve": [
-        Headline(
-            "held-out success",
-            "test.success_rate",
-            "{optimizer} loop",
-            (("demos only", "demos_only.test.success_rate"),),
-        ),
-        Headline("rollouts (samples evaluated)", "loop.rollouts", "{optimizer} loop"),
-        Headline("loop time", "loop.seconds", "{optimizer} loop"),
-    ],
-    "arm_reach": [
-        Headline(
-            "held-out success",
-            "test.success_rate",
-            "{optimizer} loop, labels",
-            (
-                ("labels dropped", "baselines.labels_off.test.success_rate"),
-                ("loop without labels", "baselines.labels_off_loop.test.success_rate"),
-            ),
-        ),
-        Headline(
-            "moving-environment success",
-            "dynamic.success_rate",
-            "{optimizer} loop, labels",
-            (
-                ("labels dropped", "baselines.labels_off.dynamic.success_rate"),
-                ("loop without labels", "baselines.labels_off_loop.dynamic.success_rate"),
-            ),
-        ),
-        Headline(
-            "side switches (labels)",
-            "dynamic.switches",
-            "{optimizer} loop, labels",
-            (
-                ("labels dropped", "baselines.labels_off.dynamic.switches"),
-                ("loop without labels", "baselines.labels_off_loop.dynamic.switches"),
-            ),
-        ),
-        Headline(
-            "side switches (geometric)",
-            "dynamic.switches_geometric",
-            "{optimizer} loop, labels",
-            (
-                ("labels dropped", "baselines.labels_off.dynamic.switches_geometric"),
-                ("loop without labels", "baselines.labels_off_loop.dynamic.switches_geometric"),
-            ),
-        ),
-        Headline(
-            "rollouts (samples evaluated)",
-            "loop.rollouts",
-            "{optimizer} loop, labels",
-            (("loop without labels", "baselines.labels_off_loop.loop.rollouts"),),
-        ),
-        Headline(
-            "loop time",
-            "loop.seconds",
-            "{optimizer} loop, labels",
-            (("loop without labels", "baselines.labels_off_loop.loop.seconds"),),
-        ),
-        Headline(
-            "held-out success in MuJoCo", "physics.test.success_rate", "{optimizer} loop, labels"
-        ),
-        Headline(
-            "moving success in MuJoCo", "physics.dynamic.success_rate", "{optimizer} loop, labels"
-        ),
-        Headline(
-            "moving episodes touching in MuJoCo",
-            "physics.dynamic.contacts",
-            "{optimizer} loop, labels",
-        ),
-    ],
-}
+# {experiment: its rows}, each experiment's class in the registry naming its list (headlines.py)
+HEADLINES: dict[str, list[Headline]] = {name: e.headlines for name, e in REGISTRY.items()}
 
 
 def process_seconds() -> float | None:
@@ -277,7 +91,8 @@ def build_summary(
         "baseline": optimizer_label(flat.get("settings.baseline_optimizer") or "rwr"),
     }
     headline = {}
-    for row in HEADLINES.get(name, []):
+    rows = REGISTRY[name].headlines if name in REGISTRY else []
+    for row in rows:
         for method, key in ((row.method, row.key), *row.baselines):
             method = method.format(**names)
             if key in flat:

@@ -1,22 +1,30 @@
-"""``protorch.load(run)``: a run folder as a :class:`~protorch.policy.policy.Policy`, without Hydra
-or OmegaConf: the run's resolved ``config.yaml`` read as plain YAML, the task rebuilt through the
+"""``protorch.load(run)``: a run folder as a :class:`~protorch.policy.policy.Policy`, without Hydra,
+OmegaConf or the experiments: the run's ``policy.json`` (written by the run,
+:func:`protorch.experiments.policy_run.write_policy_record`) names the task's class and its
+constructor's arguments, the ProMP's size and the policy's settings (the motion's duration, the
+class choice's); the map comes from its checkpoint. A run folder without ``policy.json`` (written
+before it, or a run killed before its end) is rebuilt from its resolved ``config.yaml`` through the
 experiment's own settings check and builder
-(:func:`protorch.experiments.policy_run.rebuild_experiment`), the map from its checkpoint,
-the class choice's settings from the moving test's."""
+(:func:`protorch.experiments.policy_run.rebuild_experiment`, imported then)."""
 
 from __future__ import annotations
 
+import importlib
+import json
+import logging
 import re
 from pathlib import Path
 
 import torch
 
 from ..data.checkpoint import checkpoint_path, load
-from ..experiments.policy_run import rebuild_experiment
+from ..tasks import make_task
 from .policy import Policy
-from .settings import policy_settings
 
-__all__ = ["CONFIG_FILE", "load_policy", "read_config"]
+__all__ = ["CONFIG_FILE", "POLICY_FILE", "load_policy", "read_config", "read_policy_record"]
+
+POLICY_FILE = "policy.json"  # a run folder's policy record
+RECORD_FORMAT = 1  # policy.json's format: a record of another format is refused
 
 CONFIG_FILE = (
     "config.yaml"  # a run folder's resolved settings (protorch.experiments.run_folder.CONFIG_FILE)
@@ -65,9 +73,10 @@ def load_policy(
 ):
     """A run folder as a :class:`~protorch.policy.policy.Policy` (``protorch.load``): the map
     from ``checkpoint/``, the task, the ProMP's size, the motion's duration and the class choice's
-    settings from the run's ``config.yaml`` through the experiment's own builder. A folder without
-    ``config.yaml`` (a checkpoint written by :func:`protorch.save_model`, a loop baseline's folder)
-    gives the map alone (``task=None``). ``device``, ``dtype`` (float64 by default), ``backend``:
+    settings from the run's ``policy.json`` (a run without one: from its ``config.yaml`` through the
+    experiment's own builder). A folder without ``policy.json`` and ``config.yaml`` (a
+    checkpoint written by :func:`protorch.save_model`, a loop baseline's folder) gives the map
+    alone (``task=None``). ``device``, ``dtype`` (float64 by default), ``backend``:
     of the map (as :func:`protorch.data.checkpoint.load`; the policy's per-call path is float64
     whatever the map's dtype). ``options`` override :class:`~protorch.policy.policy.Policy`'s
     settings (``planner``, ``duration``, ``switch_margin``, ``decision_dt``, ``blend``, ``check``,
@@ -80,7 +89,7 @@ def load_policy(
     if not p.exists():
         raise FileNotFoundError(f"{where}: no such file or folder")
     config = p / CONFIG_FILE if p.is_dir() else None
-    if config is None or not config.is_file():
+    if config is None or not (config.is_file() or (p / POLICY_FILE).is_file()):
         if not checkpoint_path(p).is_file():
             raise FileNotFoundError(
                 f"{where} holds no checkpoint ({checkpoint_path(p)}) and no {CONFIG_FILE}: "
@@ -88,42 +97,87 @@ def load_policy(
             )
         model = load(p, device=device, dtype=dtype, backend=backend)
         return Policy(model.promp, model.env_map, model.task_name, warm_up=warm_up, **options)
-    try:
-        cfg = read_config(config)
-    except ValueError as exc:
-        raise ValueError(f"{where}: {exc}") from None
-    exp = rebuild_experiment(cfg, where)
+    record = p / POLICY_FILE
+    if record.is_file():
+        try:
+            rec = read_policy_record(record)
+        except ValueError as exc:
+            raise ValueError(f"{where}: {exc}") from None
+        experiment, promp_cfg, settings = rec["experiment"], rec["promp"], rec["policy"]
+        try:
+            task = make_task(rec["task"]["class"], **_tuples(rec["task"]["kwargs"]))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{where}: its {POLICY_FILE} builds no task ({exc})") from None
+    else:
+        experiment, task, promp_cfg, settings = _from_config(config, where)
     if not checkpoint_path(p).is_file():
         raise FileNotFoundError(
             f"{where} holds no checkpoint ({checkpoint_path(p)}): the run did not get to "
             "its loop; resume it"
         )
     try:
-        model = load(
-            p,
-            device=device,
-            dtype=dtype,
-            backend=backend,
-            promp={"num_dof": exp.num_dof(), **exp.promp_cfg},
-        )
+        model = load(p, device=device, dtype=dtype, backend=backend, promp=promp_cfg)
     except ValueError as exc:
         raise ValueError(f"{where}: {exc}") from None
-    task = exp.task
     if model.task_name and getattr(task, "name", model.task_name) != model.task_name:
         raise ValueError(
-            f"{where}: its checkpoint is of task {model.task_name!r} but config.yaml builds "
+            f"{where}: its checkpoint is of task {model.task_name!r} but its settings build "
             f"{getattr(task, 'name', '?')!r}"
         )
     if hasattr(task, "to"):
         task.to(model.promp.basis.device)
-    settings = policy_settings(cfg["name"], getattr(exp, "dyn_cfg", None), **options)
     with torch.no_grad():
         return Policy(
             model.promp,
             model.env_map,
             model.task_name,
             task=task,
-            experiment=cfg["name"],
+            experiment=experiment,
             warm_up=warm_up,
-            **settings,
+            **{**settings, **options},
         )
+
+
+def _tuples(kwargs: dict) -> dict:
+    """JSON's lists as tuples, as the experiments pass a config's sequences to a task."""
+    return {k: (tuple(v) if isinstance(v, list) else v) for k, v in kwargs.items()}
+
+
+def read_policy_record(path: Path) -> dict:
+    """A run's ``policy.json``; ``ValueError`` naming the file if it is not one of this format."""
+    try:
+        rec = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path} is not a readable policy record ({exc})") from None
+    keys = ("experiment", "task", "promp", "policy")
+    if not isinstance(rec, dict) or rec.get("format") != RECORD_FORMAT:
+        raise ValueError(
+            f"{path}: a policy record of format {RECORD_FORMAT} expected, got "
+            f"{rec.get('format') if isinstance(rec, dict) else rec!r}; re-run the experiment"
+        )
+    missing = [k for k in keys if k not in rec]
+    if missing:
+        raise ValueError(f"{path}: a policy record without {', '.join(missing)}")
+    return rec
+
+
+def _from_config(config: Path, where: str):
+    """``(experiment, task, ProMP settings, policy settings)`` of a run without ``policy.json``,
+    from its ``config.yaml`` through the experiment's own builder (this imports the
+    experiments)."""
+    logging.getLogger(__name__).info(
+        "%s has no %s (a run from before it, or one that did not finish): rebuilding its task "
+        "from config.yaml through the experiment's builder (imports protorch.experiments)",
+        where,
+        POLICY_FILE,
+    )
+    try:
+        cfg = read_config(config)
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}") from None
+    # the one import of the experiments from the core, by name so it stays out of `import protorch`
+    rebuild = importlib.import_module("protorch.experiments.policy_run").rebuild_experiment
+    registry = importlib.import_module("protorch.experiments.registry").REGISTRY
+    exp = rebuild(cfg, where)
+    settings = registry[cfg["name"]].policy_settings(getattr(exp, "dyn_cfg", None))
+    return cfg["name"], exp.task, {"num_dof": exp.num_dof(), **exp.promp_cfg}, settings

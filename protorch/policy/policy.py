@@ -59,7 +59,6 @@ from ..control.arm_choice import Follow
 from ..control.episodes import check_timing
 from ..control.plan_memo import ClearanceMemo, point_reach
 from ..gp.model import EnvToProMP
-from ..tasks.arm.reach import ArmReachTask
 from .choice import ClassChoice
 from .export import write_program
 from .limits import JerkLimiter, robot_limits
@@ -175,7 +174,7 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
                 **kw
             )  # (P, K) the basis there, for every decision
             kin = getattr(task, "kinematics", None)
-            fold = isinstance(task, ArmReachTask) and type(task).ee_path is ArmReachTask.ee_path
+            fold = callable(getattr(task, "ee_from_kinematics", None)) and task.ee_from_kinematics()
             self._ee = (
                 EndEffector(kin, device=self._device) if fold else task.ee_path
             )  # (P, J) -> (P, 3)

@@ -41,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ProtorchError
 from .meshes import load_mesh, mujoco_mesh, resolve_mesh
 from .urdf import rpy_matrix
 
@@ -59,7 +60,7 @@ _KEEP = {
 CONTINUOUS_LIMITS = (-math.pi, math.pi)
 
 
-class CleanError(ValueError):
+class CleanError(ProtorchError, ValueError):
     """A URDF protorch cannot use; one line naming the file and the element."""
 
 

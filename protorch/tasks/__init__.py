@@ -22,13 +22,17 @@ from .teleop_window import TeleopWindowTask
 from .toy import LineToy
 from .window import WindowTask
 
-TASKS = {
-    "line_toy": LineToy,
-    "window": WindowTask,
-    "point_particle": PointParticleTask,
-    "beam_window": BeamWindowTask,
-    "arm_reach": ArmReachTask,
-    "teleop_window": TeleopWindowTask,
+# name -> class, by each task class's own ``name``
+TASKS: dict[str, type] = {
+    cls.name: cls
+    for cls in (
+        LineToy,
+        WindowTask,
+        PointParticleTask,
+        BeamWindowTask,
+        ArmReachTask,
+        TeleopWindowTask,
+    )
 }
 
 __all__ = [

@@ -94,7 +94,7 @@ def teach_session(args) -> tuple[TeachSession, object]:
     task = None if run is None and robot is None else build_task(args.teach, cfg.get("task"), robot)
     teach = make_teach_task(args.teach, task)
     steps = args.steps or (100 if run is None else run.model.promp.num_steps)
-    num_envs = args.envs or (30 if args.teach == "point_particle" else 20)
+    num_envs = args.envs or teach.default_envs
     proposals = None
     if run is not None:  # random environments, those where the run's map fails first
         proposals = failing_envs(

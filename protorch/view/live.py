@@ -18,6 +18,7 @@ import math
 import torch
 from torch import Tensor
 
+from ..control.arm import run_arm_episodes
 from ..control.arm_choice import velocity_command_acceleration
 from ..control.particle import promp_state_at
 from ..control.policy import Policy
@@ -125,7 +126,9 @@ class ArmPlayer(_Player):
     def __init__(self, run, **options) -> None:
         dyn = dict((run.config.get("settings") or {}).get("dynamic") or {})
         hold = float(options.pop("hold", dyn.get("hold", 1.0)))
-        settings = policy_settings("arm_reach", dyn, **options)
+        settings = policy_settings(
+            dyn, moving_test=run_arm_episodes, velocity_command=True, **options
+        )
         super().__init__(run, duration=settings["duration"], hold=hold, dt=settings["decision_dt"])
         model, task = run.model, run.task
         self.policy = Policy(

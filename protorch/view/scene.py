@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +25,7 @@ from torch import Tensor
 
 from ..checks import check_tensor
 from ..data.checkpoint import checkpoint_path, load
+from ..experiments.registry import REGISTRY, for_task
 from ..gp.model import EnvToProMP, class_score
 from ..tasks.arm.reach import SIDES, ArmReachTask
 from ..tasks.point_particle import PointParticleTask
@@ -47,16 +48,12 @@ __all__ = [
     "weight_noise",
 ]
 
-KINDS = {"point_particle": "particle", "arm_reach": "arm"}
+# the viewer's scene kind of each task whose runs it shows (the experiments' ``scene`` hook)
+KINDS = {
+    getattr(e.task, "name"): e.scene for e in REGISTRY.values() if e.task is not None and e.scene
+}
 MAKE_RUN = (
     "python -m protorch experiment=point_particle hydra.run.dir=runs/pp  (or experiment=arm_reach)"
-)
-_PARTICLE_KEYS = ("objectives", "fixed_start", "infinite_wall")
-# every setting ArmReachTask takes (its collision model and can objective among them: a volume run
-# rebuilt without them would be checked and scored with the skeleton); the run's other task.* keys
-# (demos, priors, ...) only shaped the training
-_ARM_KEYS = tuple(
-    f.name for f in fields(ArmReachTask) if f.init and f.name not in ("robot", "name")
 )
 
 
@@ -157,21 +154,13 @@ def build_task(task_name: str, task_cfg: dict | None = None, robot=None):
     """The task of a run from its ``task.*`` settings (the keys the task class takes; the rest,
     e.g. ``demo_envs``, only shaped the training) and, for the arm, its ``robot.*`` settings
     (:func:`~protorch.robots.load_robot`; ``None``: the Panda)."""
-    cfg = dict(task_cfg or {})
-    if task_name == "point_particle":
-        kw = {
-            k: (tuple(cfg[k]) if isinstance(cfg[k], list) else cfg[k])
-            for k in _PARTICLE_KEYS
-            if k in cfg
-        }
-        return PointParticleTask(**kw)
-    if task_name == "arm_reach":
-        return ArmReachTask(
-            robot=robot, **{k: cfg[k] for k in _ARM_KEYS if k in cfg}
-        )  # (it normalises its boxes)
-    raise ValueError(
-        f"the viewer shows point_particle and arm_reach runs, this one solved {task_name!r}"
-    )
+    exp = for_task(task_name)
+    if exp is None or exp.task is None or exp.scene is None:
+        raise ValueError(
+            f"the viewer shows {' and '.join(sorted(KINDS))} runs, this one solved {task_name!r}"
+        )
+    # the keys the task class takes, as the experiment passes them (the arm normalises its boxes)
+    return exp.task(**exp.task_kwargs({"task": dict(task_cfg or {}), "robot": robot}))
 
 
 def _particle_params(task: PointParticleTask) -> tuple[list[Param], Tensor]:

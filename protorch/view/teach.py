@@ -36,6 +36,7 @@ from ..data.files import atomic_write_bytes, remove_stale_tmp
 from ..data.recordings import TIME, read_recording, recording_files, write_recording
 from ..gp.model import label_aware_mean
 from ..primitives.promp import resample
+from ..tasks.arm.reach import ArmReachTask
 from .teach_tasks import Quality
 
 __all__ = ["Pending", "TeachSession", "failing_envs"]
@@ -63,7 +64,7 @@ def failing_envs(run, envs: Tensor) -> Tensor:
     model, ref = run.model, run.model.promp.basis
     q = torch.as_tensor(envs).to(ref)
     with torch.no_grad():
-        if model.task_name == "arm_reach":
+        if model.task_name == ArmReachTask.name:
             mean = label_aware_mean(model.env_map, model.promp, run.task, q, dtype=ref.dtype).mean
             ok = run.task.success(model.promp.trajectory(mean), q)  # (n,)
         else:

@@ -24,8 +24,6 @@ from ..tasks.point_particle import PointParticleTask
 
 __all__ = ["ArmTeach", "HandFollower", "ParticleTeach", "Quality", "make_teach_task", "TEACH_TASKS"]
 
-TEACH_TASKS = ("point_particle", "arm_reach")
-
 
 @dataclass
 class Quality:
@@ -72,7 +70,8 @@ class ParticleTeach:
         min_samples: fewer recorded samples is "too short" (the page records about 20 a second).
     """
 
-    name, kind, unit = "point_particle", "particle", ""
+    name, kind, unit = PointParticleTask.name, "particle", ""
+    default_envs = 30  # environments the page proposes
     fmt: DemoFormat = PARTICLE_FORMAT
 
     def __init__(
@@ -168,7 +167,8 @@ class ArmTeach:
             follow: out of reach, joint limits) is flagged.
     """
 
-    name, kind, unit = "arm_reach", "arm", " m"
+    name, kind, unit = ArmReachTask.name, "arm", " m"
+    default_envs = 20  # environments the page proposes
 
     def __init__(
         self,
@@ -245,9 +245,12 @@ class ArmTeach:
 
 
 def make_teach_task(name: str, task=None, **options):
-    """:class:`ParticleTeach` (``"point_particle"``) or :class:`ArmTeach` (``"arm_reach"``)."""
-    if name == "point_particle":
-        return ParticleTeach(task, **options)
-    if name == "arm_reach":
-        return ArmTeach(task, **options)
-    raise ValueError(f"--teach takes one of {', '.join(TEACH_TASKS)}, got {name!r}")
+    """The teach task of the task named ``name``: :class:`ParticleTeach` or :class:`ArmTeach`."""
+    if name not in TEACH:
+        raise ValueError(f"--teach takes one of {', '.join(TEACH_TASKS)}, got {name!r}")
+    return TEACH[name](task, **options)
+
+
+# the teach task of each task name (the task classes' own ``name``)
+TEACH: dict[str, type] = {t.name: t for t in (ParticleTeach, ArmTeach)}
+TEACH_TASKS = tuple(TEACH)

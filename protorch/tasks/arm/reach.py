@@ -350,6 +350,12 @@ class ArmReachTask(Task):
         """End-effector positions of ``traj (..., T, J)``: ``(..., T, 3)`` (compiled FK)."""
         return self.kinematics.ee_position(traj)
 
+    def ee_from_kinematics(self) -> bool:
+        """Whether :meth:`ee_path` is :attr:`kinematics`' end effector (a subclass did not
+        override it): a caller may then compute it with its own compiled copy of the kinematics
+        (:class:`~protorch.policy.policy.Policy` does)."""
+        return type(self).ee_path is ArmReachTask.ee_path
+
     def side(self, traj: Tensor, env: Tensor) -> Tensor:
         """Homotopy class of the end-effector path around the can: :data:`LEFT` (0) or
         :data:`RIGHT` (1), ``(...)`` long; every step is used (module docstring)."""

@@ -2,7 +2,7 @@
 
 1. MuJoCo steps per second of the project's Panda scene (``protorch.sim.scene``): one ``MjData``
    stepped open loop in Python, a ``mujoco.batch.Batch`` of ``--episodes`` simulations stepped
-   open loop, and the physics runner (``protorch.sim.episodes``: the reference, the
+   open loop, and the physics runner (``protorch.control.physics``: the reference, the
    computed-torque controller on its own batch, contacts and records every step) on
    ``--episodes`` straight reaches of the experiment's length (3 s + 1 s hold, 2000 steps of
    2 ms), for each thread count of ``--threads``.
@@ -36,7 +36,7 @@ from protorch.primitives.promp import ProMP
 from protorch.robots import load_robot
 
 PANDA_MAX_ACCELERATION = load_robot("panda").max_acceleration
-from protorch.sim.episodes import FixedMeans, run_physics_episodes
+from protorch.control.physics import FixedMeans, run_physics_episodes
 from protorch.sim.mj import load_mujoco
 from protorch.sim.scene import build_scene, controller_model
 from protorch.tasks import ArmReachTask

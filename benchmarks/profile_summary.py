@@ -61,7 +61,7 @@ PARTS = [
         [("protorch/control/particle.py", "run_episodes")],
     ),
     ("figures", [("protorch/experiments/point_particle.py", "figures")]),
-    ("  animated GIFs", [("protorch/viz/online.py", "write_episode_gif")]),
+    ("  animated GIFs", [("protorch/figures/online.py", "write_episode_gif")]),
 ]
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 MODULES = [
     "protorch", "protorch.primitives", "protorch.optim", "protorch.gp", "protorch.loop",
     "protorch.tasks", "protorch.robots", "protorch.data", "protorch.control", "protorch.policy", "protorch.sim",
-    "protorch.viz", "protorch.errors", "protorch.checks", "protorch.threads",
+    "protorch.figures", "protorch.errors", "protorch.checks", "protorch.threads",
 ]
 
 

@@ -132,7 +132,7 @@ from protorch.control.episodes import check_timing
 from protorch.primitives.promp import ProMP
 from protorch.robots import load_robot
 PANDA_MAX_ACCELERATION = load_robot("panda").max_acceleration
-from protorch.sim.episodes import FixedMeans, run_physics_episodes
+from protorch.control.physics import FixedMeans, run_physics_episodes
 from protorch.sim.scene import build_scene, controller_model
 from protorch.tasks import ArmReachTask
 

@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Sequence
 
 from ..data.files import atomic_write_bytes
-from ..viz.paper import save_figure
+from ..figures.paper import save_figure
 from .report_plot import plot_sweep
 from .spread import spread_markdown
 from .sweep import (

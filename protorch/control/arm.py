@@ -9,7 +9,7 @@ now, then the class's mean end-effector path from the current phase to the end:
 the arm keeps its class unless another one scores lower by more than ``switch_margin``
 (hysteresis: two nearly equal classes, a can right on the straight line, would otherwise chatter).
 The class choice and the velocity command are :mod:`protorch.control.arm_choice`'s, shared with
-the physics test (:mod:`protorch.sim.episodes`). This is the label-aware inference of the
+the physics test (:mod:`protorch.control.physics`). This is the label-aware inference of the
 self-improvement loop
 (:meth:`~protorch.gp.EnvMap.predict_best`) with the current state as the start of the objectives.
 An environment that did not change since the last step gets the map's last answer again
@@ -143,7 +143,7 @@ class ArmEpisodeResult:
         }
 
     def episode(self, i: int) -> dict:
-        """Numpy arrays of episode ``i`` for :mod:`protorch.viz.arm`: ``links (T+1, F, 3)`` the
+        """Numpy arrays of episode ``i`` for :mod:`protorch.figures.arm`: ``links (T+1, F, 3)`` the
         arm's
         skeleton, ``ee (T+1, 3)``, ``means (T+1, P, 3)`` the end-effector path of the tracked
         mean at each instant (needs ``record=True``), ``envs (T+1, 4)``, ``labels (T+1,)``,

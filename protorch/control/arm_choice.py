@@ -1,5 +1,5 @@
 """The arm's online decision, shared by the kinematic test (:mod:`protorch.control.arm`) and the
-physics test (:mod:`protorch.sim.episodes`): at every control step the moves of that instant, the
+physics test (:mod:`protorch.control.physics`): at every control step the moves of that instant, the
 map's answer for every class at the current environments, and the class choice with hysteresis
 from where the arm is now (:class:`ArmClassChoice`); and the joint-velocity command that turns
 the chosen mean into a motion within the joint velocity and acceleration limits

@@ -144,7 +144,7 @@ class EpisodeResult:
         }
 
     def episode(self, i: int) -> dict:
-        """Numpy arrays of episode ``i`` for :mod:`protorch.viz.online`: ``positions (T+1, 2)``,
+        """Numpy arrays of episode ``i`` for :mod:`protorch.figures.online`: ``positions (T+1, 2)``,
         ``envs (T+1, 6)`` (full 6-D), ``means (T+1, P, 2)`` (the mean trajectory predicted at each
         instant; needs ``record=True``), ``markers (T+1, 2)``, ``dt``, ``success``."""
         if not -self.num_episodes <= i < self.num_episodes:

@@ -7,7 +7,7 @@ The episodes are the moving test's own: its environments at every instant (``env
 e.g. those of a run's kinematic moving test, replayed as the physics test replays them), its
 control step ``dt``, its velocity command following the tracked mean's marker
 (:func:`~protorch.control.episodes.track`, kinematics) or its MuJoCo plant and computed-torque
-controller (:func:`~protorch.sim.episodes.run_physics_episodes`). Only the system that names the
+controller (:func:`~protorch.control.physics.run_physics_episodes`). Only the system that names the
 mean to track every control step changes: :class:`PolicyMeans`, one episode at a time.
 
 * ``mode="inline"``: every control step the policy's planner step (the class choice of
@@ -33,10 +33,10 @@ from torch import Tensor
 from ..policy.limits import JerkLimiter, JointwiseLimiter, robot_limits
 from ..policy.policy import Policy
 from ..policy.two_rate import Tracker
-from ..sim.episodes import run_physics_episodes
 from .arm import arm_outcome, count_switches
 from .arm_choice import velocity_command_acceleration
 from .episodes import Timing, track
+from .physics import run_physics_episodes
 
 __all__ = ["MODES", "PolicyMeans", "policy_copy", "run_policy_episodes"]
 
@@ -66,7 +66,7 @@ def policy_copy(policy, **options):
 
 class PolicyMeans:
     """The system of :func:`~protorch.control.episodes.track` and
-    :func:`~protorch.sim.episodes.run_physics_episodes` (module docstring): ``answer(t, z, q (E,
+    :func:`~protorch.control.physics.run_physics_episodes` (module docstring): ``answer(t, z, q (E,
     J), qd (E, J)) -> (E, N)`` the mean weights of the plan each episode tracks at instant ``t``.
     ``policies``: one per episode (each keeps its motion's state; ``mode="thread"``: one episode);
     ``envs (E, T+1, 4)``; :attr:`labels` ``(E, T+1)`` the tracked class, :attr:`age` ``(E, T+1)``
@@ -174,7 +174,7 @@ def run_policy_episodes(
     with ``planner="thread"`` (its thread stopped after the episode). ``kp``,
     ``max_acceleration`` (``None``: the robot's): the velocity command (the run's
     ``settings.dynamic``). ``physics``: ``None`` for the kinematic test, else the keyword
-    arguments of :func:`~protorch.sim.episodes.run_physics_episodes` (``scene``, ``ctrl_model``,
+    arguments of :func:`~protorch.control.physics.run_physics_episodes` (``scene``, ``ctrl_model``,
     ``kp``, ``kd``, ``ref_kp``, ``max_acceleration``, ``feasible``).
 
     Returns ``success (E,)`` bool, ``labels (E, T+1)``, ``age (E, T+1)`` (seconds), ``switches

@@ -27,7 +27,7 @@ excluded, :mod:`protorch.data.quality`) and cleans it, each part a setting of
    (``dtaidistance``) onto their average timing (:func:`align`).
 
 Each part is reported per recording (``DemoFolder.report``) and drawn by
-:func:`protorch.viz.recordings.recordings_figure`. :func:`write_recording` writes one file
+:func:`protorch.figures.recordings.recordings_figure`. :func:`write_recording` writes one file
 atomically (numbers as ``%.17g``, exact for float64).
 """
 

@@ -35,10 +35,10 @@ from ..checks import check_number
 from ..control.arm import arm_follow, count_switches, run_arm_episodes
 from ..control.arm_choice import ArmClassChoice
 from ..control.episodes import check_timing
+from ..control.physics import FixedMeans, run_physics_episodes, substeps
 from ..data.files import atomic_write_bytes
 from ..gp.model import label_aware_mean
 from ..sim.controller import check_gains
-from ..sim.episodes import FixedMeans, run_physics_episodes, substeps
 from ..sim.mj import INSTALL_HINT, MujocoMissing, load_mujoco, mujoco_available
 from ..sim.render import render_in_subprocess
 from ..sim.scene import build_scene, controller_model

@@ -46,6 +46,8 @@ from ..control.switches import geometric_switch_summary
 from ..data.checkpoint import load
 from ..data.demos import accept_demo_folder, read_marks
 from ..data.recordings import Cleaning
+from ..figures.arm import experiment_figures
+from ..figures.recordings import recordings_figure
 from ..gp.model import label_aware_mean
 from ..loop import LoopResult, demonstration_dataset
 from ..primitives.promp import resample
@@ -55,8 +57,6 @@ from ..tasks.arm.demos import read_arm_demos
 from ..tasks.arm.priors import check_detours, grid_priors
 from ..tasks.arm.reach import LEFT, RIGHT, SIDES, ArmReachTask
 from ..tasks.arm.workspace import REGIONS, check_reach, check_region
-from ..viz.arm import experiment_figures
-from ..viz.recordings import recordings_figure
 from .arm_physics import check_physics, physics_section
 from .common import demo_source
 from .loop_run import (

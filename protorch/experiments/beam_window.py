@@ -28,12 +28,12 @@ import torch
 
 from ..checks import check_int, check_keys
 from ..control.guidance import HapticGuidance
+from ..figures.beam import fig5_figure, teleop_figure
+from ..figures.guidance import guidance_figure
 from ..optim import PRO
 from ..primitives.pose import PoseProMP
 from ..tasks.beam_window import BeamWindowTask, SimulatedOperator
 from ..threads import torch_threads
-from ..viz.beam import fig5_figure, teleop_figure
-from ..viz.guidance import guidance_figure
 from .beam_guidance import compare_guidance, compare_settings, pro_stage_rollouts
 from .common import optimizer_kwargs, resolve_dtype
 

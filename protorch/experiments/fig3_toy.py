@@ -11,9 +11,9 @@ from pathlib import Path
 
 import torch
 
+from ..figures.paper import plot_cloud, plot_curves, save_figure
 from ..optim import PRO, RWR
 from ..tasks import LineToy
-from ..viz.paper import plot_cloud, plot_curves, save_figure
 from .common import optimizer_kwargs
 
 __all__ = ["run"]

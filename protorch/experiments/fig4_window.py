@@ -13,10 +13,10 @@ from pathlib import Path
 
 import torch
 
+from ..figures.paper import plot_relevance, plot_trajectories, plot_window, save_figure
 from ..optim import PRO, RWPO
 from ..primitives.promp import ProMP
 from ..tasks import WindowTask
-from ..viz.paper import plot_relevance, plot_trajectories, plot_window, save_figure
 from .common import optimizer_kwargs
 
 __all__ = ["run"]

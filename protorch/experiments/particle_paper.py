@@ -13,9 +13,9 @@ import torch
 
 from ..checks import check_int, check_keys
 from ..control.paper_scenario import run_paper_episodes, sample_paper_envs
+from ..figures.online import plot_episode_frames, write_episode_gif
 from ..optim.convergence import AuthorsRule, make_rule
 from ..tasks.point_particle import HOLE_HALF_HEIGHT, WALL_HALF_WIDTH, signed_distance_to_wall
-from ..viz.online import plot_episode_frames, write_episode_gif
 
 __all__ = [
     "PAPER_SEED",

@@ -25,10 +25,10 @@ from ..checks import check_int
 from ..control.particle import run_episodes
 from ..data.demos import PARTICLE_FORMAT, check_demo_groups, read_demo_folder, read_marks
 from ..data.recordings import Cleaning
+from ..figures.common import legend_below
+from ..figures.online import plot_episode_frames, write_episode_gif
+from ..figures.paper import plot_point_particle, plot_trajectories, save_figure
 from ..tasks import PointParticleTask
-from ..viz.common import legend_below
-from ..viz.online import plot_episode_frames, write_episode_gif
-from ..viz.paper import plot_point_particle, plot_trajectories, save_figure
 from .common import baseline_spec, demo_source, optimizer_label
 from .loop_run import (
     DEMO_SEED_OFFSET,
@@ -360,7 +360,7 @@ def _figures(out_dir, task, model, test_envs, loops, metrics, episode, seed) -> 
     legend_below(fig, axes)  # every marker: wall, hole centre, start, goal, samples, mean
     save_figure(fig, Path(out_dir) / "test_grid.png")
 
-    # one moving episode (Fig. 6): frames and a GIF (protorch.viz.online)
+    # one moving episode (Fig. 6): frames and a GIF (protorch.figures.online)
     if episode is not None:
         ep = episode.episode(0)
         kw = {k: ep[k] for k in ("positions", "envs", "means", "markers")}

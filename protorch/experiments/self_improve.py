@@ -22,10 +22,10 @@ import torch
 
 from ..checks import check_int
 from ..data.demos import load_human_demos
+from ..figures.paper import save_figure
 from ..loop import LoopResult
 from ..loop.settings import LOOP_GROUP
 from ..tasks import check_task_protocol, make_task
-from ..viz.paper import save_figure
 from .loop_run import (
     DEMO_SEED_OFFSET,
     TEST_SEED,

@@ -33,6 +33,7 @@ import torch
 
 from ..checks import check_int, check_keys
 from ..control.teleop_guide import GUIDE_DEFAULTS, MixtureGuide, variance_map
+from ..figures.teleop import teleop_figure
 from ..gp import make_env_map
 from ..loop import LoopSettings, OptimizerSpec, demonstration_dataset, self_improve
 from ..optim import OPTIMIZERS
@@ -41,7 +42,6 @@ from ..tasks.teleop_operators import careful_demonstrations, load_operator, prob
 from ..tasks.teleop_trials import CONDITIONS, SCHEDULE_DEFAULTS, draw_schedules, run_trials
 from ..tasks.teleop_window import TeleopWindowTask
 from ..threads import torch_threads
-from ..viz.teleop import teleop_figure
 from .settings import SettingsError
 
 __all__ = ["run", "build_map", "TELEOP_DEFAULTS", "MAP_FILE", "VAR_MAP_FILE"]

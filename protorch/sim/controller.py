@@ -10,7 +10,7 @@ with ``M`` the joint-space inertia matrix, ``c`` the Coriolis, centrifugal and g
 a correct model the arm's joint errors obey ``e'' + kd e' + kp e = 0``. The torque is the
 inverse dynamics ``mj_inverse`` computes for the acceleration in brackets (checked in
 ``tests/sim/test_controller.py``); it is then clipped to the torque limits, and an episode whose
-command exceeded a limit is counted *saturated* (:mod:`protorch.sim.episodes`). With a
+command exceeded a limit is counted *saturated* (:mod:`protorch.control.physics`). With a
 torque-feasible reference (:meth:`ComputedTorque.feasible_torques`, ``physics.feasible``) the
 reference's acceleration is first scaled down so that the command stays within a fraction of the
 limits: the reference slows where the motors cannot follow it.

@@ -1,5 +1,5 @@
-"""The online test of Fig. 6 (protorch.control.particle) and its figures (protorch.viz.online): the
-bounded random walk, the marker at the current phase, the PD simulation against hand-computed
+"""The online test of Fig. 6 (protorch.control.particle) and its figures
+(protorch.figures.online): the bounded random walk, the marker at the current phase, the PD simulation against hand-computed
 steps, success / collision on straight paths, one map query per control step, input checks."""
 
 from __future__ import annotations
@@ -364,7 +364,7 @@ def _result() -> EpisodeResult:
 def test_frames_png_and_gif(tmp_path):
     from PIL import Image
 
-    from protorch.viz.online import plot_episode_frames, write_episode_gif
+    from protorch.figures.online import plot_episode_frames, write_episode_gif
 
     ep = _result().episode(1)
     assert ep["positions"].shape == (61, 2) and ep["envs"].shape == (61, 6)
@@ -384,7 +384,7 @@ def test_frames_png_and_gif(tmp_path):
 
 
 def test_frame_inputs_are_checked(tmp_path):
-    from protorch.viz.online import plot_episode_frames
+    from protorch.figures.online import plot_episode_frames
 
     ep = _result().episode(0)
     with pytest.raises(ValueError, match="envs"):

@@ -13,7 +13,7 @@ from protorch.experiments.arm_physics import save_episodes
 from protorch.robots import load_robot
 
 PANDA_MAX_ACCELERATION = load_robot("panda").max_acceleration
-from protorch.sim.episodes import FixedMeans, run_physics_episodes
+from protorch.control.physics import FixedMeans, run_physics_episodes
 from protorch.sim.render import render_in_subprocess
 from protorch.sim.scene import build_scene, controller_model
 

@@ -2,7 +2,7 @@
 can, a 3-D view of the arm, frames and a GIF of a moving episode in which the arm switches sides.
 
 Drawing functions take an ``ax`` and return it; the file writers draw on their own Agg canvas (no
-pyplot state) and write atomically, like :mod:`protorch.viz.online`. Inputs are numpy arrays or
+pyplot state) and write atomically, like :mod:`protorch.figures.online`. Inputs are numpy arrays or
 tensors; an episode is the dict of :meth:`protorch.control.arm.ArmEpisodeResult.episode`.
 """
 

@@ -40,11 +40,11 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..control.arm_choice import velocity_command_acceleration
-from ..control.episodes import Timing, basis_derivative_at
+from ..sim.controller import ComputedTorque
+from ..sim.mj import load_mujoco
 from ..threads import torch_threads
-from .controller import ComputedTorque
-from .mj import load_mujoco
+from .arm_choice import velocity_command_acceleration
+from .episodes import Timing, basis_derivative_at
 
 __all__ = ["FixedMeans", "PhysicsEpisodes", "run_physics_episodes", "substeps", "FAILURES"]
 

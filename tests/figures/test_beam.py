@@ -8,8 +8,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from protorch.figures.beam import plot_quaternion_components  # noqa: E402
 from protorch.primitives.pose import quaternion_slerp  # noqa: E402
-from protorch.viz.beam import plot_quaternion_components  # noqa: E402
 
 
 def test_via_markers_follow_the_curves_sign():

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import torch
 
+from protorch.figures.common import legend_below, new_figure
+from protorch.figures.online import draw_online_frame, past_path_split
+from protorch.figures.paper import plot_point_particle, plot_relevance, plot_window
 from protorch.tasks import PointParticleTask, WindowTask
-from protorch.viz.common import legend_below, new_figure
-from protorch.viz.online import draw_online_frame, past_path_split
-from protorch.viz.paper import plot_point_particle, plot_relevance, plot_window
 
 
 def _overlaps(a, b) -> bool:

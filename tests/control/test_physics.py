@@ -1,4 +1,4 @@
-"""Physics episodes (protorch.sim.episodes): a reach the can does not block succeeds with the
+"""Physics episodes (protorch.control.physics): a reach the can does not block succeeds with the
 controller tracking to a fraction of a millimetre, a can in the way is hit and named, a wrong
 controller model costs tracking accuracy, and a broken mean is a named failure, never a crash."""
 
@@ -12,9 +12,10 @@ from protorch.control.episodes import check_timing
 from protorch.robots import load_robot
 
 PANDA_MAX_ACCELERATION = load_robot("panda").max_acceleration
-from protorch.sim.episodes import FixedMeans, run_physics_episodes, substeps
+from protorch.control.physics import FixedMeans, run_physics_episodes, substeps
 from protorch.sim.scene import build_scene, controller_model
 from protorch.tasks.arm.demos import detour_paths
+from tests.sim.conftest import reach, task  # noqa: F401  (MuJoCo's skip and the physics fixtures)
 
 TIMING = check_timing(0.02, 1.5, 0.4)
 GAINS = dict(kp=400.0, kd=40.0, ref_kp=10.0, max_acceleration=PANDA_MAX_ACCELERATION)

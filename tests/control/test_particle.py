@@ -1,6 +1,7 @@
 """The online test of Fig. 6 (protorch.control.particle) and its figures
 (protorch.figures.online): the bounded random walk, the marker at the current phase, the PD
-simulation against hand-computed steps, success / collision on straight paths, one map query per control step, input checks."""
+simulation against hand-computed steps, success / collision on straight paths, one map query per
+control step, input checks."""
 
 from __future__ import annotations
 

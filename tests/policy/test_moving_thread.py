@@ -11,9 +11,8 @@ import torch
 from protorch.control.arm import run_arm_episodes
 from protorch.control.episodes import check_timing
 from protorch.control.policy_episodes import PolicyMeans, policy_copy, run_policy_episodes
-from protorch.gp import make_env_map
-from protorch.policy.policy import Policy
-from protorch.tasks.arm.reach import LEFT, RIGHT, ArmReachTask
+
+from .arm_policy import two_class_arm_policy
 
 F64 = torch.float64
 pytestmark = pytest.mark.slow  # IK demonstrations and an arm map
@@ -22,41 +21,7 @@ pytestmark = pytest.mark.slow  # IK demonstrations and an arm map
 @pytest.fixture(scope="module")
 def policy():
     """A two-class arm map from IK demonstrations on both sides of cans near the straight line."""
-    from protorch import ProMP
-    from protorch.loop import demonstration_dataset
-
-    task = ArmReachTask(cost_steps=6)
-    g = torch.Generator().manual_seed(0)
-    envs = torch.tensor(
-        [
-            [0.53, 0.02, 0.70, 0.0],
-            [0.56, -0.02, 0.74, 0.03],
-            [0.59, 0.0, 0.72, -0.03],
-            [0.55, 0.05, 0.68, 0.05],
-            [0.58, -0.05, 0.71, -0.06],
-        ],
-        dtype=F64,
-    )
-    n = envs.shape[0]
-    dl, el, ll = task.demonstrations(envs, 2, g, sides=torch.full((n,), LEFT), lengths=(30, 30))
-    dr, er, lr = task.demonstrations(envs, 2, g, sides=torch.full((n,), RIGHT), lengths=(30, 30))
-    promp = ProMP(7, 10, 50)
-    ds = demonstration_dataset(
-        promp, dl + dr, torch.cat([el, er]), labels=torch.cat([ll, lr]), var_floor=1e-3
-    )
-    env_map = make_env_map("torch", 30.0, nearest_k=4).fit(ds.env, ds.mean, ds.var, ds.label)
-    return Policy(
-        promp,
-        env_map,
-        task.name,
-        task=task,
-        duration=1.5,
-        switch_margin=0.02,
-        decision_dt=0.02,
-        check=True,
-        switch_clearance=0.01,
-        warm_up=False,
-    )
+    return two_class_arm_policy(check=True, warm_up=False)
 
 
 @pytest.fixture(scope="module")

@@ -61,7 +61,7 @@ from ..control.plan_memo import ClearanceMemo, point_reach
 from ..gp.model import EnvToProMP
 from .choice import ClassChoice
 from .export import write_program
-from .limits import JerkLimiter, robot_limits
+from .limits import JerkLimiter, JointwiseLimiter, robot_limits
 from .means import ClassMeans, EndEffector, basis3, decay_matrix
 from .process_planner import ProcessPlanner
 from .programs import write_programs
@@ -104,11 +104,13 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
             process, inputs and plans in shared memory: no GIL shared with the caller;
             :mod:`protorch.policy.process_planner`).
         limits: keep the reference within the robot's velocity, acceleration and jerk limits at
-        every
-            call (``planner="thread"`` only: :class:`~protorch.policy.limits.JerkLimiter`'s Ruckig
-            hand-overs where the wanted reference leaves them). Off by default: on the default arm
-            run a class switch's offset asks for more acceleration than the Panda's limits, and the
-            limited hand-over, slower, lets the arm touch the can (docs/control_loop.md).
+            every call (``planner="thread"`` or ``"process"`` only): ``True`` or ``"joint"``,
+            :class:`~protorch.policy.limits.JointwiseLimiter` (a Ruckig hand-over per joint where
+            the wanted reference leaves the limits, each joint back on it as soon as it can);
+            ``"together"``, :class:`~protorch.policy.limits.JerkLimiter` (one hand-over of all
+            joints, time-synchronised: every joint as slow as the slowest, which costs the moving
+            test 0.05-0.10 of its success, docs/control_loop_moving.md). Off by default: a class
+            switch's offset asks for more acceleration than the Panda's limits.
             ``max_velocity``, ``max_jerk`` (and
             ``max_acceleration``): the limits, ``None``: the robot's
             (:func:`~protorch.policy.limits.robot_limits`).
@@ -132,7 +134,7 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         max_acceleration=None,
         switch_clearance: float = 0.0,
         planner: str = "inline",
-        limits: bool = False,
+        limits: bool | str = False,
         max_velocity=None,
         max_jerk=None,
         plan_period: float | None = None,
@@ -207,6 +209,8 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         self._at_jump = self._decay(0.0) if math.isfinite(self.blend) else None  # (3, 2)
         robot = getattr(task, "robot", None)
         self.planner = planner
+        if limits not in (False, True, "joint", "together"):
+            raise ValueError(f"limits must be false, true, 'joint' or 'together', got {limits!r}")
         if limits and planner == "inline":
             raise ValueError(
                 "limits=True needs planner='thread' or 'process' (the inline reference is the "
@@ -221,7 +225,7 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
                 max_acceleration=max_acceleration,
                 max_jerk=max_jerk,
             )
-            self._limiter = JerkLimiter(*lim)
+            self._limiter = (JerkLimiter if limits == "together" else JointwiseLimiter)(*lim)
         self._planner = self._tracker = None
         if planner != "inline" and task is None and self.labels.numel() > 1:
             raise ValueError(

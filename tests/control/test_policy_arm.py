@@ -378,7 +378,10 @@ def test_load_gives_a_point_particle_run_as_a_policy(tmp_path):
     check_export(pol, tmp_path, envs, calls=200)
 
 
-def test_the_threaded_reference_keeps_the_robots_limits_through_the_moving_tests_switches(policy):
+@pytest.mark.parametrize("limits", [True, "together"])
+def test_the_threaded_reference_keeps_the_robots_limits_through_the_moving_tests_switches(
+    policy, limits
+):
     """The moving test's episodes (the can crossing the arm's path, switches included) replayed at
     1 kHz through ``planner="thread"`` with a plan made every 5 ms on the inputs of that tick (the
     planner thread's rhythm, made deterministic here): between consecutive ticks the velocity,
@@ -410,7 +413,7 @@ def test_the_threaded_reference_keeps_the_robots_limits_through_the_moving_tests
         planner="thread",
         plan_period=1e6,
         warm_up=False,
-        limits=True,
+        limits=limits,
     )
     lim = pol._limiter
     vmax, amax, jmax = lim.vmax, lim.amax, lim.jmax

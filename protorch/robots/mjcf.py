@@ -147,7 +147,7 @@ def _geom(model, g: int, link: ET.Element, offset: np.ndarray, folder: Path, tag
         return False
     el = ET.SubElement(link, tag)
     _origin(el, model.geom_pos[g] - offset, model.geom_quat[g])
-    ET.SubElement(ET.SubElement(el, "geometry"), shape[0], **shape[1])
+    ET.SubElement(ET.SubElement(el, "geometry"), shape[0], attrib=shape[1])
     return True
 
 
@@ -204,7 +204,7 @@ def mjcf_to_urdf(path: str | Path, folder: Path, where: str | None = None) -> tu
     if not bodies:
         raise MjcfError(f"{where} has no body but the world's (and free or mocap bodies)")
     obj = mujoco.mjtObj
-    names = {0: "world"}
+    names = {0: "mjcf_world"}  # not "world": MuJoCo takes a URDF link of that name as its own
     for b in bodies:
         names[b] = _name(model, obj.mjOBJ_BODY, b, f"body{b}")
     offsets = {0: np.zeros(3)}
@@ -259,7 +259,7 @@ def mjcf_to_urdf(path: str | Path, folder: Path, where: str | None = None) -> tu
                 }
             effort = _effort(model, j)  # 0: none given (the loader's default and warning)
             limit |= {"effort": repr(effort or 0.0), "velocity": "0.0"}  # MJCF has no velocity
-            ET.SubElement(joint, "limit", **limit)
+            ET.SubElement(joint, "limit", attrib=limit)
     for kind, count in (
         ("tendons", model.ntendon),
         ("equality constraints", model.neq),

@@ -12,7 +12,7 @@ from geoms resolved), and the compiled model is written out body by body:
   the joint is not limited), a ``slide`` ``prismatic``, none ``fixed``; its torque limit the
   ``forcerange`` of the motor driving it, else the motor's ``gear`` times its ``ctrlrange``, else
   the joint's ``actuatorfrcrange`` (absent: the loader's stated default); MJCF has no velocity
-  limit (the loader's default, with its warning);
+  limit: :data:`MJCF_VELOCITY` is written (reported in the summary);
 * each geom a ``<collision>`` (a geom that collides: ``contype`` or ``conaffinity`` set) or a
   ``<visual>`` (one that does not; where a body has no such geom its collision geoms are drawn):
   spheres, capsules, cylinders and boxes as themselves, ellipsoids as boxes around them, meshes as
@@ -37,7 +37,11 @@ import numpy as np
 
 from .meshes import cache_dir
 
-__all__ = ["MjcfError", "mjcf_urdf", "mjcf_to_urdf", "quat_rpy"]
+__all__ = ["MjcfError", "MJCF_VELOCITY", "mjcf_urdf", "mjcf_to_urdf", "quat_rpy"]
+
+# rad/s: every joint's <limit velocity> (MJCF has none; the kinematics, the moving test and the
+# controller read the URDF's, so it must be a working speed: robot.max_velocity sets the limits)
+MJCF_VELOCITY = 2.0
 
 
 class MjcfError(ValueError):
@@ -151,6 +155,16 @@ def _geom(model, g: int, link: ET.Element, offset: np.ndarray, folder: Path, tag
     return True
 
 
+def _at_origin(model, b: int) -> bool:
+    """Whether body ``b`` is fixed at its parent's origin, unrotated (a base that can be the
+    URDF's root link)."""
+    return (
+        model.body_jntnum[b] == 0
+        and not np.any(model.body_pos[b])
+        and np.array_equal(model.body_quat[b], [1.0, 0.0, 0.0, 0.0])
+    )
+
+
 def _kept_bodies(model, where: str, ignored: dict) -> list[int]:
     """The bodies written (a body with a free joint, a mocap body and their subtrees left out)."""
     import mujoco
@@ -209,7 +223,10 @@ def mjcf_to_urdf(path: str | Path, folder: Path, where: str | None = None) -> tu
         names[b] = _name(model, obj.mjOBJ_BODY, b, f"body{b}")
     offsets = {0: np.zeros(3)}
     robot = ET.Element("robot", name=root_name)
-    ET.SubElement(robot, "link", name=names[0])
+    top = [b for b in bodies if model.body_parentid[b] == 0]
+    root = top[0] if len(top) == 1 and _at_origin(model, top[0]) else 0
+    if root == 0:  # the world a link of its own only where the arm's base is placed in it
+        ET.SubElement(robot, "link", name=names[0])
     ngeoms = 0
     for b in bodies:
         nj = int(model.body_jntnum[b])
@@ -245,6 +262,8 @@ def mjcf_to_urdf(path: str | Path, folder: Path, where: str | None = None) -> tu
                 raise MjcfError(f"{where}: slide joint {jname!r} has no range")
         else:
             jname, kind = f"{names[b]}_fixed", "fixed"
+        if b == root:  # the base, at the world's origin: the URDF's root link
+            continue
         joint = ET.SubElement(robot, "joint", name=jname, type=kind)
         _origin(joint, xyz, model.body_quat[b])
         ET.SubElement(joint, "parent", link=names[parent])
@@ -258,7 +277,7 @@ def mjcf_to_urdf(path: str | Path, folder: Path, where: str | None = None) -> tu
                     "upper": repr(float(model.jnt_range[j, 1])),
                 }
             effort = _effort(model, j)  # 0: none given (the loader's default and warning)
-            limit |= {"effort": repr(effort or 0.0), "velocity": "0.0"}  # MJCF has no velocity
+            limit |= {"effort": repr(effort or 0.0), "velocity": repr(MJCF_VELOCITY)}
             ET.SubElement(joint, "limit", attrib=limit)
     for kind, count in (
         ("tendons", model.ntendon),
@@ -269,7 +288,13 @@ def mjcf_to_urdf(path: str | Path, folder: Path, where: str | None = None) -> tu
     ):
         if count:
             ignored[kind] = int(count)
-    report = {"file": str(path), "bodies": len(bodies), "geoms": ngeoms, "ignored": ignored}
+    report = {
+        "file": str(path),
+        "bodies": len(bodies),
+        "geoms": ngeoms,
+        "ignored": ignored,
+        "velocity": MJCF_VELOCITY,
+    }
     return ET.tostring(robot, encoding="unicode"), report
 
 

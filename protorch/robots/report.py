@@ -42,6 +42,11 @@ def found_lines(found: dict) -> list[str]:
         m = found["mjcf"]
         out.append(
             f"converted from MJCF {m['file']}: {m['bodies']} bodies, {m['geoms']} geoms"
+            + (
+                f", joint velocities {m['velocity']:g} rad/s (MJCF has none)"
+                if "velocity" in m
+                else ""
+            )
             + (f", ignored {_mapping(m['ignored'])}" if m.get("ignored") else "")
         )
     if found.get("end_link"):

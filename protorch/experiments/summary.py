@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 import os
 
+from ..robots.report import robot_found_lines
 from .common import SHARED_OPTIMIZER_KEYS, flatten_metrics, optimizer_label
 from .headlines import Headline
 from .registry import REGISTRY
@@ -116,6 +117,8 @@ def build_summary(
     }
     if baseline is not None:
         out["baseline"] = baseline
+    if robot_found_lines(metrics):  # what protorch found or defaulted for the robot
+        out["robot"] = robot_found_lines(metrics)
     if error is not None:
         out["error"] = error
     return out
@@ -190,6 +193,7 @@ def format_summary(name: str, summary: dict) -> str:
     if summary.get("process_seconds") is not None:
         process = _seconds(summary["process_seconds"])
         times += f", process {process} (Python's start and imports included)"
+    lines += summary.get("robot", [])
     lines.append(f"  status {status}; wall time: {times}")
     lines.append(f"  run folder {summary['run_dir']}")
     return "\n".join(lines)

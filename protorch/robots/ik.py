@@ -8,7 +8,9 @@ from torch import Tensor
 
 from ..checks import check_tensor
 
-__all__ = ["inverse_kinematics"]
+__all__ = ["inverse_kinematics", "ik_seeds", "seed_label"]
+
+SEED_SPREAD = 0.25  # a perturbed seed: the middle plus up to this fraction of each joint's range
 
 
 def inverse_kinematics(
@@ -81,3 +83,26 @@ def inverse_kinematics(
         )  # (B, 1)
         q = torch.minimum(torch.maximum(q + scale * dq, lo), hi)
     return q, err
+
+
+def ik_seeds(lower: Tensor, upper: Tensor, count: int = 9, seed: int = 0) -> Tensor:
+    """Starting poses for inverse kinematics, tried in order: the joint limits' middle, then
+    ``count - 1`` poses perturbed from it by up to :data:`SEED_SPREAD` of each joint's range
+    (uniform, a generator seeded with ``seed``: the same poses every call), clamped into the
+    limits. ``lower, upper (J,)`` -> ``(count, J)``. The middle is often singular (an arm with
+    symmetric limits stands straight up there); a perturbed seed leaves the singularity."""
+    if count < 1:
+        raise ValueError(f"count={count} must be at least 1")
+    mid = 0.5 * (lower + upper)  # (J,)
+    gen = torch.Generator().manual_seed(int(seed))
+    u = torch.rand(count - 1, lower.shape[-1], generator=gen, dtype=torch.float64)  # (K-1, J)
+    shift = (2 * u - 1).to(lower) * SEED_SPREAD * (upper - lower)  # (K-1, J)
+    return torch.cat([mid[None], torch.minimum(torch.maximum(mid + shift, lower), upper)])
+
+
+def seed_label(k: int, seeds: Tensor) -> str:
+    """How seed ``k`` of :func:`ik_seeds` is reported: the middle, or the perturbed pose."""
+    if k == 0:
+        return "the joint limits' middle"
+    pose = ", ".join(f"{v:.3f}" for v in seeds[k].tolist())
+    return f"perturbed seed {k} of {seeds.shape[0] - 1} ([{pose}] rad; the middle failed)"

@@ -38,6 +38,7 @@ import torch
 
 from ..threads import torch_threads
 from .description import capsule_segments
+from .ik import ik_seeds, seed_label
 from .kinematics import ArmKinematics
 
 __all__ = [
@@ -98,12 +99,13 @@ def _down(yaw: float, dtype) -> torch.Tensor:
 
 
 def _sweep(
-    kin, xs: torch.Tensor, z: float, rot: torch.Tensor, iters: int = 150
+    kin, xs: torch.Tensor, z: float, rot: torch.Tensor, iters: int = 150, seed=None
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Hand-down IK at ``(x, 0, z)`` for each ``x`` ``(N,)``: ``(q (N, J), ok (N,))``."""
+    """Hand-down IK at ``(x, 0, z)`` for each ``x`` ``(N,)`` from ``seed (J,)`` (default: the
+    joint limits' middle): ``(q (N, J), ok (N,))``."""
     kw = dict(dtype=kin.lower.dtype, device=kin.lower.device)
     n = xs.shape[0]
-    mid = (0.5 * (kin.lower + kin.upper)).to(**kw)  # (J,)
+    mid = (0.5 * (kin.lower + kin.upper) if seed is None else seed).to(**kw)  # (J,)
     pts = torch.stack([xs, torch.zeros_like(xs), torch.full_like(xs, z)], -1).to(**kw)  # (N, 3)
     rots = rot.to(**kw).expand(n, 3, 3)
 
@@ -197,20 +199,24 @@ def measure_layout(kin, name: str = "the arm") -> dict:
     xs = torch.arange(
         0.02, 1.1 * length + 0.1, 0.01, dtype=torch.float64
     )  # the hand reaches no farther than L
-    best = None
-    for yaw in (0.0, math.pi / 2):
-        q, ok = _sweep(kin, xs, z, _down(yaw, dtype))
-        lo, hi = _longest_run(ok)
-        if best is None or hi - lo > best[1] - best[0]:
-            best = (lo, hi, yaw, q)
+    seeds = ik_seeds(kin.lower.cpu(), kin.upper.cpu())  # (K, J): the middle first
+    for k in range(seeds.shape[0]):  # a perturbed seed only where the middle's lattice fails
+        best = None
+        for yaw in (0.0, math.pi / 2):
+            seed = None if k == 0 else seeds[k]
+            q, ok = _sweep(kin, xs, z, _down(yaw, dtype), seed=seed)
+            lo, hi = _longest_run(ok)
+            if best is None or hi - lo > best[1] - best[0]:
+                best = (lo, hi, yaw, q)
+        if best[1] - best[0] >= 10:
+            break
     lo, hi, yaw, q = best
     if hi - lo < 10:
         raise ValueError(
             f"{name} holds its hand down at {z:.3f} m above the table over no interval of 10 cm "
-            "along x "
-            "(the hand-down inverse kinematics from the joint limits' middle); give robot.home and "
-            "the "
-            "workspace (task.can_box, task.goal_box, task.table)"
+            f"along x (the hand-down inverse kinematics from the joint limits' middle and "
+            f"{seeds.shape[0] - 1} perturbed seeds); give robot.home and the workspace "
+            "(task.can_box, task.goal_box, task.table)"
         )
     r0, r1 = float(xs[lo]), float(xs[hi])
     scale = r1 / PANDA_REACH[1]
@@ -244,7 +250,7 @@ def measure_layout(kin, name: str = "the arm") -> dict:
         "home": [float(v) for v in home[0].tolist()],
         "home_target": [home_x, 0.0, round(z, 4)],
         "home_residual": float(err[0]),
-        "home_seed": "the joint limits' middle, continued along the reach lattice",
+        "home_seed": f"{seed_label(k, seeds)}, continued along the reach lattice",
         "can_box": [
             [at(_CAN_X[0]), at(_CAN_X[1])],
             [round(-_CAN_Y * s_h, 4), round(_CAN_Y * s_h, 4)],

@@ -10,6 +10,8 @@ The settings (``conf/robot/*.yaml``; docs/your_own_robot.md; every key optional 
                     other keys override; null: none
 ``name``            display name (figure titles, metrics.json); null: the URDF's ``<robot name>``
 ``urdf``            the URDF file (relative: to the working directory; in a shipped yaml, to it)
+``mjcf``            instead of ``urdf``: an MJCF (MuJoCo) file, converted once to a URDF
+                    (:mod:`protorch.robots.mjcf`)
 ``end_link``        the chain's last link, the tool centre point
 ``home``            the start configuration, one angle (rad) per joint of the chain
 ``max_velocity``    rad/s, a number or one per joint; null: the URDF's ``<limit velocity>``
@@ -53,7 +55,6 @@ A velocity or effort limit missing, not positive, or implausible (a velocity abo
 
 from __future__ import annotations
 
-import functools
 import json
 import logging
 import math
@@ -61,13 +62,20 @@ import numbers
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from ..errors import ProtorchError
-from .capsules import fit_capsules
 from .clean import CleanError, clean_urdf, end_link_candidates, urdf_chain
-from .description import Capsule, Inertial, PointMass, Robot
+from .description import Robot
 from .kinematics import ArmKinematics
 from .layout import hand_down_layout
-from .urdf import ROBOTS_DIR, collision_geometry, parse_urdf, rpy_matrix, shipped_yaml
+from .mjcf import MjcfError, mjcf_urdf
+from .parts import (
+    RobotError,
+    auto_capsules,
+    capsules_setting,
+    joint_vector,
+    point_masses_setting,
+    urdf_inertials,
+)
+from .urdf import ROBOTS_DIR, parse_urdf, shipped_yaml
 
 log = logging.getLogger(__name__)
 
@@ -94,6 +102,7 @@ DEFAULTS = {
     "base": None,
     "name": None,
     "urdf": None,
+    "mjcf": None,
     "end_link": None,
     "home": None,
     "max_velocity": None,
@@ -116,6 +125,7 @@ SETTINGS = {
     "none",
     "name": "display name (figure titles, metrics.json); null: the URDF's <robot name>",
     "urdf": "the arm's URDF file",
+    "mjcf": "the arm's MJCF (MuJoCo) file, instead of robot.urdf",
     "end_link": "the chain's last link: the tool centre point",
     "home": "the start configuration, one angle (rad) per joint",
     "max_velocity": "rad/s, a number or one per joint; null: the URDF's <limit velocity>",
@@ -142,10 +152,6 @@ SETTINGS = {
     "balance_inertia": "true: inertias violating A + B >= C balanced with a warning; false: "
     "refused",
 }
-
-
-class RobotError(ProtorchError, ValueError):
-    """A robot setting refused; its message is one line naming the setting."""
 
 
 def shipped_robots() -> list[str]:
@@ -188,14 +194,23 @@ def robot_settings(spec=None) -> dict:
             raise RobotError(f"protorch/robots/{base}.yaml: {unknown[0]!r} is not a robot setting")
         out.update(shipped)
     out.update({k: v for k, v in spec.items() if v is not None and v != "???"})
-    if out["urdf"] is None:
+    for key in ("urdf", "mjcf"):
+        if out[key] is not None and not isinstance(out[key], (str, Path)):
+            raise RobotError(f"robot.{key}={out[key]!r} must be a file path")
+    if out["urdf"] is None and out["mjcf"] is None:
         raise RobotError(
-            "robot.urdf must be set (robot=custom needs robot.urdf; robot.end_link and robot.home "
-            "are found where not given)"
+            "robot.urdf must be set (robot=custom needs robot.urdf, or robot.mjcf for an MJCF "
+            "file; robot.end_link and robot.home are found where not given)"
         )
-    if not isinstance(out["urdf"], (str, Path)):
-        raise RobotError(f"robot.urdf={out['urdf']!r} must be a file path")
-    out["urdf"] = str(Path(out["urdf"]).expanduser().resolve())
+    if out["urdf"] is not None and out["mjcf"] is not None:
+        raise RobotError(
+            f"robot.urdf={out['urdf']} and robot.mjcf={out['mjcf']} are both set"
+            + (f" (robot.base={base} gives the URDF)" if base else "")
+            + ": give one"
+        )
+    for key in ("urdf", "mjcf"):
+        if out[key] is not None:
+            out[key] = str(Path(out[key]).expanduser().resolve())
     out["base"] = base
     return out
 
@@ -205,97 +220,6 @@ def _parse(text: str, where: str) -> ET.Element:
         return parse_urdf(text, where)
     except ValueError as exc:
         raise RobotError(str(exc)) from None
-
-
-def _vec(value, n: int, key: str, names, *, positive: bool = True) -> tuple[float, ...]:
-    if isinstance(value, numbers.Real) and not isinstance(value, bool):
-        value = [value] * n
-    if not isinstance(value, (list, tuple)) or len(value) != n:
-        raise RobotError(
-            f"robot.{key}={value!r} must be a number or {n} numbers, one per joint {list(names)}"
-        )
-    out = []
-    for v, name in zip(value, names):
-        if (
-            isinstance(v, bool)
-            or not isinstance(v, numbers.Real)
-            or not math.isfinite(float(v))
-            or (float(v) <= 0 if positive else float(v) < 0)
-        ):
-            raise RobotError(
-                f"robot.{key} has {v!r} for joint {name!r}: it must be a finite number "
-                f"{'> 0' if positive else '>= 0'}"
-            )
-        out.append(float(v))
-    return tuple(out)
-
-
-def _floats(text: str | None, n: int, what: str) -> tuple[float, ...]:
-    try:
-        vals = tuple(float(v) for v in (text or "").split())
-    except ValueError:
-        raise RobotError(f"{what}={text!r} must be {n} numbers") from None
-    if len(vals) != n:
-        raise RobotError(f"{what}={text!r} must be {n} numbers")
-    return vals
-
-
-def _origin(el: ET.Element | None) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    if el is None:
-        return (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
-    return (
-        _floats(el.get("xyz", "0 0 0"), 3, "<origin xyz>"),
-        _floats(el.get("rpy", "0 0 0"), 3, "<origin rpy>"),
-    )
-
-
-def _apply(rot, xyz, p) -> tuple[float, float, float]:
-    return tuple(sum(rot[i][k] * p[k] for k in range(3)) + xyz[i] for i in range(3))
-
-
-def urdf_inertials(root: ET.Element) -> dict[str, Inertial]:
-    """Every link's ``<inertial>`` as an :class:`Inertial` in the link frame (an inertial frame
-    rotated by ``rpy`` has its inertia rotated into the link's)."""
-    out = {}
-    for link in root.iter("link"):
-        el = link.find("inertial")
-        if el is None:
-            continue
-        name = link.get("name")
-        mass_el, inertia_el = el.find("mass"), el.find("inertia")
-        if mass_el is None or inertia_el is None:
-            raise RobotError(
-                f"robot.urdf: link {name!r} has an <inertial> without <mass> or <inertia>"
-            )
-        xyz, rpy = _origin(el.find("origin"))
-        try:
-            mass = float(mass_el.get("value"))
-            xx, xy, xz, yy, yz, zz = (
-                float(inertia_el.get(k)) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
-            )
-        except (TypeError, ValueError):
-            raise RobotError(
-                f"robot.urdf: link {name!r} has an <inertial> with a missing or non-numeric value"
-            ) from None
-        if any(rpy):
-            rot = rpy_matrix(rpy)
-            mat = [[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]
-            rm = [
-                [sum(rot[i][k] * mat[k][j] for k in range(3)) for j in range(3)] for i in range(3)
-            ]
-            full = [
-                [sum(rm[i][k] * rot[j][k] for k in range(3)) for j in range(3)] for i in range(3)
-            ]
-            xx, yy, zz, xy, xz, yz = (
-                full[0][0],
-                full[1][1],
-                full[2][2],
-                full[0][1],
-                full[0][2],
-                full[1][2],
-            )
-        out[name] = Inertial(mass, tuple(xyz), (xx, yy, zz, xy, xz, yz))
-    return out
 
 
 def check_inertials(robot: Robot) -> None:
@@ -314,99 +238,6 @@ def check_inertials(robot: Robot) -> None:
                 "add "
                 "them to the URDF or set settings.physics.run=never"
             )
-
-
-def auto_capsules(urdf: str | Path, links, where: str) -> dict[str, tuple[Capsule, ...]]:
-    """Capsules fitted to the URDF's ``<collision>`` geometry of those ``links`` that have some
-    (:func:`protorch.robots.capsules.fit_capsules`: cylinders, spheres, boxes and ``<capsule>``
-    exactly, meshes with ``trimesh``); a geometry it cannot read is refused in one line naming the
-    link. ``urdf``: a path, or a cleaned text (:func:`~protorch.robots.clean.clean_urdf`, its mesh
-    paths absolute). Cached per URDF text: a robot loaded again reuses its fit."""
-    if isinstance(urdf, Path) or not str(urdf).lstrip().startswith("<"):
-        source = str(urdf)
-        text = Path(urdf).read_text()
-    else:
-        source = text = str(urdf)
-    return {
-        link: tuple(Capsule(link, a, b, r) for a, b, r in caps)
-        for link, caps in _fit_cached(text, source, tuple(links), where).items()
-    }
-
-
-@functools.lru_cache(maxsize=16)
-def _fit_cached(text: str, urdf: str, links: tuple[str, ...], where: str) -> dict:
-    try:
-        have = {g.link for g in collision_geometry(urdf)}
-        wanted = [n for n in links if n in have]
-        return fit_capsules(urdf, links=wanted) if wanted else {}
-    except (ValueError, FileNotFoundError, ImportError) as exc:
-        raise RobotError(
-            f"robot.capsules=auto: {where}: {exc}; give the capsules in robot.capsules"
-        ) from None
-
-
-def _capsules(value, path, frame_names, where) -> dict[str, tuple[Capsule, ...]]:
-    if value in ("none", None, False):
-        return {}
-    if value == "auto":
-        return auto_capsules(path, frame_names, where)
-    if not isinstance(value, dict):
-        raise RobotError(
-            f"robot.capsules={value!r} must be auto, none or {{link: [{{a, b, radius}}, ...]}}"
-        )
-    out = {}
-    for link, caps in value.items():
-        if link not in frame_names:
-            raise RobotError(f"robot.capsules has link {link!r}, not on the chain {frame_names}")
-        if not isinstance(caps, (list, tuple)):
-            raise RobotError(
-                f"robot.capsules.{link} must be a list of {{a: [x, y, z], b: [x, y, z], radius: r}}"
-            )
-        items = []
-        for i, c in enumerate(caps):
-            try:
-                a, b, r = (
-                    tuple(float(v) for v in c["a"]),
-                    tuple(float(v) for v in c["b"]),
-                    float(c["radius"]),
-                )
-                ok = len(a) == 3 and len(b) == 3 and r > 0 and all(map(math.isfinite, (*a, *b, r)))
-            except (TypeError, KeyError, ValueError):
-                ok = False
-            if not ok:
-                raise RobotError(
-                    f"robot.capsules.{link}[{i}]={c!r} must be {{a: [x, y, z], b: [x, y, z], "
-                    f"radius: r > 0}}"
-                )
-            items.append(Capsule(link, a, b, r))
-        out[link] = tuple(items)
-    return out
-
-
-def _point_masses(value, frame_names) -> tuple[PointMass, ...]:
-    out = []
-    for i, p in enumerate(value or []):
-        try:
-            pm = PointMass(
-                str(p["link"]),
-                tuple(float(v) for v in p["pos"]),
-                float(p["mass"]),
-                tuple(float(v) for v in p["inertia"]),
-            )
-            ok = len(pm.pos) == 3 and len(pm.inertia) == 3 and pm.mass > 0
-        except (TypeError, KeyError, ValueError):
-            ok = False
-        if not ok:
-            raise RobotError(
-                f"robot.point_masses[{i}]={p!r} must be {{link, pos: [x, y, z], mass > 0, "
-                "inertia: [ixx, iyy, izz]}}"
-            )
-        if pm.link not in frame_names:
-            raise RobotError(
-                f"robot.point_masses[{i}] is on link {pm.link!r}, not on the chain {frame_names}"
-            )
-        out.append(pm)
-    return tuple(out)
 
 
 def _end_link(root: ET.Element, value, where: str) -> tuple[str, bool]:
@@ -443,8 +274,9 @@ def load_robot(spec=None) -> Robot:
     if isinstance(spec, Robot):
         return spec
     cfg = robot_settings(spec)
-    path = Path(cfg["urdf"])
-    where = f"robot.urdf={path}"
+    kind = "mjcf" if cfg["mjcf"] is not None else "urdf"
+    path = Path(cfg[kind])
+    where = f"robot.{kind}={path}"
     if not path.is_file():
         raise RobotError(f"{where}: no such file")
     stat = path.stat()
@@ -454,7 +286,13 @@ def load_robot(spec=None) -> Robot:
         key = None
     if key is not None and key in _LOADED:
         return _LOADED[key]
-    robot = _load(cfg, path, where)
+    found: dict = {}
+    if kind == "mjcf":  # an MJCF file: read by MuJoCo, written once as a URDF (robots.mjcf)
+        try:
+            path, found["mjcf"] = mjcf_urdf(path, where)
+        except (MjcfError, OSError) as exc:
+            raise RobotError(str(exc).splitlines()[0]) from None
+    robot = _load(cfg, path, where, found)
     if key is not None:
         _LOADED[key] = robot
         while len(_LOADED) > 16:
@@ -465,8 +303,7 @@ def load_robot(spec=None) -> Robot:
 _LOADED: dict[str, Robot] = {}  # load_robot's results by settings and file (a Robot is frozen)
 
 
-def _load(cfg: dict, path: Path, where: str) -> Robot:
-    found: dict = {}
+def _load(cfg: dict, path: Path, where: str, found: dict) -> Robot:
     root = _parse(path.read_text(), where)
     end_link, auto_end = _end_link(root, cfg["end_link"], where)
     links = [link.get("name") for link in root.iter("link")]
@@ -581,7 +418,7 @@ def _load(cfg: dict, path: Path, where: str) -> Robot:
             raise RobotError(
                 f"robot.home has {q} for joint {name!r}, outside its limits [{lo}, {hi}]"
             )
-    capsules = _capsules(cfg["capsules"], text, frame_names, where)
+    capsules = capsules_setting(cfg["capsules"], text, frame_names, where)
     first_moving = next(i for i, j in enumerate(joints) if j.get("type") != "fixed")
     base_links = cfg["base_links"]
     if base_links == "auto":
@@ -610,18 +447,18 @@ def _load(cfg: dict, path: Path, where: str) -> Robot:
         lower=tuple(lower),
         upper=tuple(upper),
         max_velocity=velocity,
-        max_acceleration=_vec(cfg["max_acceleration"], n, "max_acceleration", names),
-        max_jerk=_vec(
+        max_acceleration=joint_vector(cfg["max_acceleration"], n, "max_acceleration", names),
+        max_jerk=joint_vector(
             DEFAULT_JERK if cfg["max_jerk"] is None else cfg["max_jerk"], n, "max_jerk", names
         ),
         max_torque=torque,
-        damping=_vec(cfg["damping"], n, "damping", names, positive=False),
-        armature=_vec(cfg["armature"], n, "armature", names, positive=False),
+        damping=joint_vector(cfg["damping"], n, "damping", names, positive=False),
+        armature=joint_vector(cfg["armature"], n, "armature", names, positive=False),
         capsules=capsules,
         base_links=tuple(base_links),
         forearm_link=forearm,
         inertials=urdf_inertials(root),
-        point_masses=_point_masses(cfg["point_masses"], frame_names),
+        point_masses=point_masses_setting(cfg["point_masses"], frame_names),
         settings=cfg,
         text=text,
         found=found,
@@ -677,7 +514,7 @@ def _urdf_or_default(
     """A limit from the setting ``robot.<key>`` or, where it is null, the URDF's; where the URDF's
     is missing, not positive or above ``most``: ``default``, with a warning naming the joints."""
     if value is not None:
-        return _vec(value, n, key, names)
+        return joint_vector(value, n, key, names)
     bad = [name for v, name in zip(urdf, names) if v is None or not 0 < v <= most]
     if bad:
         log.warning(

@@ -367,3 +367,15 @@ def test_pybullet_arms_run_unedited():
         scene = build_scene(ArmReachTask(robot=robot, collision="volume"))
         assert scene.model.nv == robot.num_joints
         assert robot.found["home"]["residual"] < 1e-6
+
+
+@pytest.mark.slow
+def test_a_half_size_arm_finds_its_home_from_a_perturbed_seed(tmp_path):
+    """The example arm at half size: from the limits' middle (the arm upright, singular) its hand
+    reaches down over less than 10 cm; a perturbed seed finds the home, reported as used."""
+    robot = load_robot({"urdf": str(_write(tmp_path, user_arm_urdf(scale=0.5)))})
+    home, layout = robot.found["home"], robot.found["layout"]
+    assert home["seed"].startswith("perturbed seed") and home["residual"] < 1e-6
+    assert layout["reach"][1] - layout["reach"][0] >= 0.10
+    pose = robot.kinematics().ee_pose(torch.tensor(robot.home, dtype=torch.float64))
+    assert float(pose[2, 2]) == pytest.approx(-1.0, abs=1e-6)  # the hand pointing down

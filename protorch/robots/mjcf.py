@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ProtorchError
 from .meshes import cache_dir
 
 __all__ = ["MjcfError", "MJCF_VELOCITY", "mjcf_urdf", "mjcf_to_urdf", "quat_rpy"]
@@ -44,7 +45,7 @@ __all__ = ["MjcfError", "MJCF_VELOCITY", "mjcf_urdf", "mjcf_to_urdf", "quat_rpy"
 MJCF_VELOCITY = 2.0
 
 
-class MjcfError(ValueError):
+class MjcfError(ProtorchError, ValueError):
     """An MJCF file protorch cannot use; one line naming the file and the element."""
 
 

@@ -17,7 +17,7 @@ from protorch.control.arm import run_arm_episodes
 from protorch.policy.policy import Policy
 from protorch.tasks.arm.reach import LEFT, RIGHT, ArmReachTask
 
-from ..policy.arm_policy import two_class_arm_policy
+from ..policy.builders import moving_episodes, point_particle_config, two_class_arm_policy
 from .test_policy import check_export
 
 F64 = torch.float64
@@ -337,28 +337,9 @@ def test_load_gives_a_point_particle_run_as_a_policy(tmp_path):
     from protorch.experiments import run_experiment
     from protorch.tasks import PointParticleTask
 
-    cfg = {
-        "name": "point_particle",
-        "seed": 0,
-        "plot": False,
-        "optimizer": {
-            "name": "pro",
-            "beta": 20.0,
-            "max_iter": 5,
-            "num_samples": 20,
-            "relevance_samples": 20,
-        },
-        "gp": {"backend": "torch", "alpha": 1e-3, "var_floor": 1e-4},
-        "task": {"_target_": "protorch.tasks.PointParticleTask", "demo_envs": 6},
-        "settings": {
-            "loop": {"num_envs": 10, "batch_size": 10},
-            "test": {"num_envs": 5},
-            "dynamic": {"episodes": 2},
-            "dynamic_paper": {"episodes": 2},
-            "baselines": [],
-            "progress": False,
-        },
-    }
+    cfg = point_particle_config(
+        max_iter=5, samples=20, demo_envs=6, num_envs=10, test=5, episodes=2
+    )
     run_experiment(cfg, tmp_path)
     pol = protorch.load(tmp_path)
     assert (
@@ -389,18 +370,7 @@ def test_the_threaded_reference_keeps_the_robots_limits_through_the_moving_tests
     more acceleration than joint 2's 7.5 rad/s^2: Ruckig's hand-overs to the new plan's motion take
     over there), the reference never jumps and is back on the plan by the end of the hold."""
     task = policy.task
-    res = run_arm_episodes(
-        policy,
-        task,
-        task.sample_envs(6, torch.Generator().manual_seed(1)),
-        generator=torch.Generator().manual_seed(2),
-        duration=policy.duration,
-        hold=0.3,
-        dt=0.02,
-        switch_margin=policy.switch_margin,
-        switch_clearance=policy.switch_clearance,
-    )
-    assert int(res.switches.sum()) >= 1
+    res = moving_episodes(policy)
     pol = Policy(
         policy._P,
         policy.env_map,

@@ -18,6 +18,7 @@ import torch
 
 from protorch.policy.load import POLICY_FILE, _tuples, read_config, read_policy_record
 from tests.control.test_policy import toy_policy
+from tests.policy.builders import point_particle_config
 
 F64 = torch.float64
 ROOT = Path(__file__).resolve().parents[2]
@@ -48,28 +49,7 @@ def test_load_imports_neither_hydra_nor_omegaconf(tmp_path):
     import protorch
     from protorch.experiments import run_experiment
 
-    cfg = {
-        "name": "point_particle",
-        "seed": 0,
-        "plot": False,
-        "optimizer": {
-            "name": "pro",
-            "beta": 20.0,
-            "max_iter": 3,
-            "num_samples": 10,
-            "relevance_samples": 10,
-        },
-        "gp": {"backend": "torch", "alpha": 1e-3, "var_floor": 1e-4},
-        "task": {"_target_": "protorch.tasks.PointParticleTask", "demo_envs": 4},
-        "settings": {
-            "loop": {"num_envs": 6, "batch_size": 6},
-            "test": {"num_envs": 3},
-            "dynamic": {"episodes": 1},
-            "dynamic_paper": {"episodes": 1},
-            "baselines": [],
-            "progress": False,
-        },
-    }
+    cfg = point_particle_config(max_iter=3, samples=10, demo_envs=4, num_envs=6, test=3, episodes=1)
     run_experiment(cfg, tmp_path)
     assert read_policy_record(tmp_path / POLICY_FILE)["experiment"] == "point_particle"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}

@@ -8,11 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from protorch.control.arm import run_arm_episodes
 from protorch.control.episodes import check_timing
 from protorch.control.policy_episodes import PolicyMeans, policy_copy, run_policy_episodes
 
-from .arm_policy import two_class_arm_policy
+from .builders import moving_episodes, two_class_arm_policy
 
 F64 = torch.float64
 pytestmark = pytest.mark.slow  # IK demonstrations and an arm map
@@ -27,19 +26,7 @@ def policy():
 @pytest.fixture(scope="module")
 def moving(policy):
     """The moving test's episodes (random moves of the can and the target), with switches."""
-    task = policy.task
-    res = run_arm_episodes(
-        policy,
-        task,
-        task.sample_envs(6, torch.Generator().manual_seed(1)),
-        generator=torch.Generator().manual_seed(2),
-        duration=policy.duration,
-        hold=0.3,
-        dt=0.02,
-        switch_margin=policy.switch_margin,
-        switch_clearance=policy.switch_clearance,
-    )
-    assert int(res.switches.sum()) >= 1
+    res = moving_episodes(policy)
     return res, check_timing(0.02, policy.duration, 0.3)
 
 

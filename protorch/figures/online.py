@@ -63,7 +63,7 @@ class _EpisodeArtists:
     :func:`write_episode_gif`)."""
 
     def __init__(
-        self, ax, positions, envs, means, markers, *, goal_tol: float, legend: bool, recent: int
+        self, ax, positions, envs, means, markers, *, goal_tol: float, legend: bool, recent, dt
     ):
         from matplotlib.patches import Circle, Rectangle
 
@@ -74,7 +74,7 @@ class _EpisodeArtists:
             means,
             markers,
         )
-        self.recent = recent
+        self.recent = max(1, int(round(recent / dt)))  # seconds -> steps
         self.walls = [
             ax.add_patch(
                 Rectangle(
@@ -196,14 +196,7 @@ def draw_online_frame(
     if not 0 <= t < positions.shape[0]:
         raise ValueError(f"t must be in [0, {positions.shape[0] - 1}], got {t}")
     arts = _EpisodeArtists(
-        ax,
-        positions,
-        envs,
-        means,
-        markers,
-        goal_tol=goal_tol,
-        legend=False,
-        recent=max(1, int(round(recent / dt))),
+        ax, positions, envs, means, markers, goal_tol=goal_tol, legend=False, recent=recent, dt=dt
     )
     arts.show(t, f"t = {t * dt:.2f} s")
     for a in arts.moving:
@@ -285,14 +278,7 @@ def write_episode_gif(
     if success is not None:
         head += f": {'success' if success else 'failure'}"
     arts = _EpisodeArtists(
-        ax,
-        positions,
-        envs,
-        means,
-        markers,
-        goal_tol=goal_tol,
-        legend=True,
-        recent=max(1, int(round(0.1 / dt))),
+        ax, positions, envs, means, markers, goal_tol=goal_tol, legend=True, recent=0.1, dt=dt
     )  # draw_online_frame's faded path
     arts.show(idx[0], head)  # the legend and the layout see every artist once
     for a in arts.moving:

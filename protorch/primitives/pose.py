@@ -27,7 +27,7 @@ import torch
 from torch import Tensor, nn
 
 from ..checks import check_tensor
-from .promp import ProMP
+from .promp import ProMP, demo_list
 from .quaternions import quaternion_to_matrix
 
 __all__ = [
@@ -249,17 +249,7 @@ class PoseProMP(nn.Module):
         """Demonstrations ``(T_i, 7)`` with unit quaternions, sign-continuous in time and the first
         one in the hemisphere of ``reference (4,)`` (default: the first demonstration's first
         quaternion). This is what :meth:`fit` fits."""
-        if isinstance(demos, Tensor):
-            demos = check_tensor(demos, "demos")
-            if demos.ndim == 2:
-                demos = demos[None]
-            if demos.ndim != 3:
-                raise ValueError(
-                    f"demos must be (n, T, 7) or a list of (T_i, 7), got shape {tuple(demos.shape)}"
-                )
-            demos = list(demos)
-        if len(demos) == 0:
-            raise ValueError("demos is empty")
+        demos = demo_list(demos, "(n, T, 7) or a list of (T_i, 7), got shape")
         out = [
             normalize_poses(torch.as_tensor(d).to(self.position.basis), f"demos[{i}]")
             for i, d in enumerate(demos)

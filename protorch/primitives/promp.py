@@ -63,6 +63,22 @@ def _roundoff(x: Tensor) -> float:
     return 1e3 * torch.finfo(x.dtype).eps * max(float(x.abs().max()) if x.numel() else 0.0, 1e-30)
 
 
+def demo_list(demos: Tensor | Sequence[Tensor], shapes: str) -> Sequence[Tensor]:
+    """``demos`` as a sequence of demonstrations: a tensor ``(n, T, ...)`` (or one demonstration
+    ``(T, ...)``) split along its first axis, a sequence as given (not empty). ``shapes`` names
+    the shapes allowed in the error (:meth:`ProMP.fit`, :meth:`~protorch.primitives.pose.PoseProMP.fit`)."""
+    if isinstance(demos, Tensor):
+        demos = check_tensor(demos, "demos")
+        if demos.ndim == 2:
+            demos = demos[None]
+        if demos.ndim != 3:
+            raise ValueError(f"demos must be {shapes} {tuple(demos.shape)}")
+        demos = list(demos)
+    if len(demos) == 0:
+        raise ValueError("demos is empty")
+    return demos
+
+
 class ProMP(nn.Module):
     """A ProMP: basis functions plus a Gaussian over weights ``N(mean, cov)``.
 
@@ -150,17 +166,7 @@ class ProMP(nn.Module):
     # ------------------------------------------------------------ fitting
     def _stack_demos(self, demos: Tensor | Sequence[Tensor]) -> Tensor:
         """Demonstrations of any lengths -> ``(n, T, D)`` on the common phase."""
-        if isinstance(demos, Tensor):
-            demos = check_tensor(demos, "demos")
-            if demos.ndim == 2:
-                demos = demos[None]
-            if demos.ndim != 3:
-                raise ValueError(
-                    f"demos must be (n, T, D) or a list of (T_i, D), got {tuple(demos.shape)}"
-                )
-            demos = list(demos)
-        if len(demos) == 0:
-            raise ValueError("demos is empty")
+        demos = demo_list(demos, "(n, T, D) or a list of (T_i, D), got")
         out = []
         for i, y in enumerate(demos):
             y = check_tensor(y, f"demos[{i}]").to(self.basis)

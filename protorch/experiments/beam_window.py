@@ -221,42 +221,13 @@ def _setup(
     )
 
 
-def _run(
-    out_dir,
-    *,
-    seed,
-    device,
-    dtype,
-    optimizer,
-    plot,
-    task,
-    operator,
-    num_demos,
-    promp,
-    eval_dtype,
-    eval_samples,
-    guidance,
-    teleop,
-    progress,
-    guidance_compare=None,
-) -> dict:
+def _run(out_dir, *, seed, plot, progress, guidance_compare=None, **settings) -> dict:
     """Build task and demonstrations -> optimise (two-stage PRO) -> evaluate (teleoperation, and
-    guidance from each optimiser's distribution) -> figures."""
+    guidance from each optimiser's distribution) -> figures. ``settings``: :func:`_setup`'s."""
     t_start = time.perf_counter()
     out_dir = Path(out_dir)
-    cfg = _setup(
-        dtype=dtype,
-        device=device,
-        optimizer=optimizer,
-        task=task,
-        operator=operator,
-        num_demos=num_demos,
-        promp=promp,
-        eval_dtype=eval_dtype,
-        eval_samples=eval_samples,
-        guidance=guidance,
-        teleop=teleop,
-    )
+    cfg = _setup(**settings)
+    dtype, device, optimizer = settings["dtype"], settings["device"], settings["optimizer"]
     compare = compare_settings(guidance_compare)
     gen = torch.Generator(device=cfg.model.phase.device).manual_seed(int(seed) + _EVAL_SEED)
     demos, demo_hits, demo_model, metrics_demos = _demonstrations(

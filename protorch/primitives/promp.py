@@ -66,7 +66,8 @@ def _roundoff(x: Tensor) -> float:
 def demo_list(demos: Tensor | Sequence[Tensor], shapes: str) -> Sequence[Tensor]:
     """``demos`` as a sequence of demonstrations: a tensor ``(n, T, ...)`` (or one demonstration
     ``(T, ...)``) split along its first axis, a sequence as given (not empty). ``shapes`` names
-    the shapes allowed in the error (:meth:`ProMP.fit`, :meth:`~protorch.primitives.pose.PoseProMP.fit`)."""
+    the shapes allowed in the error (:meth:`ProMP.fit`,
+    :meth:`~protorch.primitives.pose.PoseProMP.fit`)."""
     if isinstance(demos, Tensor):
         demos = check_tensor(demos, "demos")
         if demos.ndim == 2:

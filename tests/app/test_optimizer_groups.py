@@ -115,21 +115,25 @@ def test_each_optimizer_option_builds_through_the_registry(experiment, option):
     opt.tell(torch.rand(*w.shape[:2], setup.task.num_objectives, dtype=w.dtype))
 
 
-def test_the_default_point_particle_optimizers_are_the_papers():
-    cfg = composed("experiment=point_particle")
-    assert list(cfg["optimizer"].items()) == [
+def pro_settings(beta: float, max_iter: int) -> list[tuple]:
+    """The paper's PRO settings in the config's order, ``beta`` and ``max_iter`` aside."""
+    return [
         ("name", "pro"),
-        ("beta", 20.0),
+        ("beta", beta),
         ("num_samples", 100),
-        ("max_iter", 200),
+        ("max_iter", max_iter),
         ("tol", 1e-3),
         ("window", 5),
         ("relevance_samples", 100),
         ("relevance_var", 1e-5),
         ("relevance_every", 1),
         ("noise_floor", None),
-        ("convergence", "mean"),
     ]
+
+
+def test_the_default_point_particle_optimizers_are_the_papers():
+    cfg = composed("experiment=point_particle")
+    assert list(cfg["optimizer"].items()) == pro_settings(20.0, 200) + [("convergence", "mean")]
     assert list(cfg["baseline_optimizer"].items()) == [
         ("name", "rwr"),
         ("beta", 20.0),
@@ -144,18 +148,7 @@ def test_the_default_point_particle_optimizers_are_the_papers():
 
 def test_the_default_arm_optimizer_is_the_papers():
     cfg = composed("experiment=arm_reach")
-    assert list(cfg["optimizer"].items()) == [
-        ("name", "pro"),
-        ("beta", 200.0),
-        ("num_samples", 100),
-        ("max_iter", 50),
-        ("tol", 1e-3),
-        ("window", 5),
-        ("relevance_samples", 100),
-        ("relevance_var", 1e-5),
-        ("relevance_every", 1),
-        ("noise_floor", None),
-    ]
+    assert list(cfg["optimizer"].items()) == pro_settings(200.0, 50)
 
 
 @pytest.mark.parametrize(

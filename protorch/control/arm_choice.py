@@ -381,33 +381,21 @@ def checked_choice(
     def part(x, i):
         return None if x is None else (x[:, i] if per_class else x[i])
 
-    bad = rest_blocked(
-        task,
-        promp,
+    def check(m, en, q, v, o):  # rest_blocked on these means, systems, states, other's entries
+        extra = None if o is None else switch_clearance * o
+        return rest_blocked(task, promp, m, en, q, z, rest, v, follow, extra, memo)
+
+    bad = check(
         means[c, e][None],
         env,
         now[c, e] if per_class else now,
-        z,
-        rest,
         None if qd is None else (qd[c, e] if per_class else qd),
-        follow,
-        None if other is None else switch_clearance * other[c, e][None],
-        memo,
+        None if other is None else other[c, e][None],
     )[0]  # (E,)
     if bool(bad.any()):
         i = torch.nonzero(bad).flatten()  # (n,) the systems whose choice is blocked
-        blocked = rest_blocked(
-            task,
-            promp,
-            means[:, i],
-            env[i],
-            part(now, i),
-            z,
-            rest,
-            part(qd, i),
-            follow,
-            None if other is None else switch_clearance * other[:, i],
-            memo,
+        blocked = check(
+            means[:, i], env[i], part(now, i), part(qd, i), None if other is None else other[:, i]
         )  # (K, n)
         c = c.clone()
         c[i] = hysteresis_choice(

@@ -50,6 +50,21 @@ def cfg(*overrides: str) -> dict:
     )  # baseline_optimizer: ${optimizer.*}
 
 
+def prepared(c: dict, **task):
+    """:func:`prepare` on the settings ``c`` (:func:`cfg`) without dynamic episodes; ``task``
+    overrides keys of ``c["task"]``."""
+    s = c["settings"]
+    return prepare(
+        optimizer=c["optimizer"],
+        task=c["task"] | task if task else c["task"],
+        gp=c["gp"],
+        promp=s["promp"],
+        loop=s["loop"],
+        test=s["test"],
+        dynamic={"episodes": 0},
+    )
+
+
 def test_config_holds_the_papers_settings():
     with initialize_config_dir(config_dir=str(config_dir()), version_base=None):
         full = compose(config_name="config", overrides=["experiment=arm_reach"])
@@ -194,16 +209,7 @@ def test_gp_sparse_runs_the_same_loop_as_the_exact_maps_nearest_k(tmp_path):
 def test_prepare_builds_labelled_demonstrations_and_priors():
     assert cfg()["task"]["collision"] == "volume"  # the default plans with the volumes
     c = cfg("task.collision=skeleton")  # every straight prior kept
-    s = c["settings"]
-    setup = prepare(
-        optimizer=c["optimizer"],
-        task=c["task"],
-        gp=c["gp"],
-        promp=s["promp"],
-        loop=s["loop"],
-        test=s["test"],
-        dynamic={"episodes": 0},
-    )
+    setup = prepared(c)
     data = setup.initial_data()
     assert len(data) == 2 + 30 and data.label[:2].tolist() == [
         LEFT,
@@ -218,18 +224,9 @@ def test_prepare_builds_labelled_demonstrations_and_priors():
 
 def test_volume_task_keeps_only_the_priors_clear_of_the_can_under_its_volumes():
     c = cfg("task.collision=volume", "task.priors=60")
-    s = c["settings"]
 
     def setup(clear):
-        return prepare(
-            optimizer=c["optimizer"],
-            task=c["task"] | {"prior_clear": clear, "prior_detours": []},
-            gp=c["gp"],
-            promp=s["promp"],
-            loop=s["loop"],
-            test=s["test"],
-            dynamic={"episodes": 0},
-        )
+        return prepared(c, prior_clear=clear, prior_detours=[])
 
     auto, every = setup("auto"), setup(False)
     assert (
@@ -247,15 +244,7 @@ def test_volume_task_keeps_only_the_priors_clear_of_the_can_under_its_volumes():
     assert len(auto.initial_data()) == 2 + int(ok.sum())
     assert cfg()["task"]["prior_clear"] == "auto" and cfg()["task"]["prior_detours"] == "auto"
     # the detour priors (tests/tasks/arm/test_priors.py) come after the straight ones kept
-    with_detours = prepare(
-        optimizer=c["optimizer"],
-        task=c["task"],
-        gp=c["gp"],
-        promp=s["promp"],
-        loop=s["loop"],
-        test=s["test"],
-        dynamic={"episodes": 0},
-    )
+    with_detours = prepared(c)
     assert (
         with_detours.prior_detours == (0.18, 0.24)
         and sum(with_detours.prior_report["detours"].values()) > 0
@@ -292,15 +281,7 @@ def test_loop_over_the_table_grid_iterates_the_initial_data_and_tests_both_regio
         assert t["region"] == "rectangles" and t["num_envs"] == 6 and t["table"]["num_envs"] == 6
         assert 0.0 <= t["table"]["success_rate"] <= 1.0
     # the loop's environments are the data set's own: the 2 demonstrated ones, then grid nodes
-    setup = prepare(
-        optimizer=c["optimizer"],
-        task=c["task"],
-        gp=c["gp"],
-        promp=c["settings"]["promp"],
-        loop=c["settings"]["loop"],
-        test=c["settings"]["test"],
-        dynamic={"episodes": 0},
-    )
+    setup = prepared(c)
     grid_envs = setup.task.prior_grid(30, over="table")
     assert torch.equal(setup.prior_envs, grid_envs)
     ds = TrajectoryDataset.load(checkpoint_path(tmp_path))
@@ -316,16 +297,7 @@ def test_the_skeleton_can_objective_reaches_the_task_from_the_config(gen):
     """task.can_objective=skeleton: the experiment's task reads the skeleton in the can objective
     (the benchmark's choice, docs/peers.md 3d) and the end effector in the other two."""
     c = cfg("task.can_objective=skeleton", "task.collision=skeleton")
-    s = c["settings"]
-    setup = prepare(
-        optimizer=c["optimizer"],
-        task=c["task"],
-        gp=c["gp"],
-        promp=s["promp"],
-        loop=s["loop"],
-        test=s["test"],
-        dynamic={"episodes": 0},
-    )
+    setup = prepared(c)
     task = setup.task
     assert task.can_objective == "skeleton" and task.collision == "skeleton"
     env = task.sample_envs(3, gen)  # (3, 4)
@@ -343,16 +315,7 @@ def test_the_skeleton_can_objective_reaches_the_task_from_the_config(gen):
 
 def test_plan_margin_is_the_loops_margin_and_the_tests_keep_margin():
     c = cfg("task.priors=20", "task.plan_margin=0.03")
-    s = c["settings"]
-    setup = prepare(
-        optimizer=c["optimizer"],
-        task=c["task"] | {"prior_detours": []},
-        gp=c["gp"],
-        promp=s["promp"],
-        loop=s["loop"],
-        test=s["test"],
-        dynamic={"episodes": 0},
-    )
+    setup = prepared(c, prior_detours=[])
     assert (
         setup.task.margin == 0.01 and setup.loop_task.margin == 0.03
     )  # the volumes' test margin is kept
@@ -366,12 +329,4 @@ def test_plan_margin_is_the_loops_margin_and_the_tests_keep_margin():
         setup.task.success(traj, setup.prior_envs) & (gap > 0.03),
     )
     with pytest.raises(ValueError, match="task.plan_margin"):
-        prepare(
-            optimizer=c["optimizer"],
-            task=c["task"] | {"plan_margin": -0.01},
-            gp=c["gp"],
-            promp=s["promp"],
-            loop=s["loop"],
-            test=s["test"],
-            dynamic={"episodes": 0},
-        )
+        prepared(c, plan_margin=-0.01)

@@ -40,6 +40,15 @@ from ..primitives.pose import POSE_DIM, align_quaternions, normalize_poses
 
 __all__ = ["HapticGuidance", "GuidedTrials", "stiffness_law", "guidance_force"]
 
+STIFFNESS_DEFAULTS = dict(
+    position_gain=30.0,
+    position_max=3000.0,
+    position_min=0.0,
+    rotation_gain=0.3,
+    rotation_max=30.0,
+    rotation_min=0.0,
+)  # the stiffness law's settings (HapticGuidance.check_settings, teleop_guide.GUIDE_DEFAULTS)
+
 
 def _nonneg(value, name: str) -> float:
     v = float(value)
@@ -139,14 +148,7 @@ class HapticGuidance(nn.Module):
     def check_settings(**settings) -> dict:
         """Validate the keyword arguments of the constructor (without a ProMP); return them with
         the defaults filled in. Raises a ``ValueError`` naming the bad setting."""
-        defaults = dict(
-            position_gain=30.0,
-            position_max=3000.0,
-            position_min=0.0,
-            rotation_gain=0.3,
-            rotation_max=30.0,
-            rotation_min=0.0,
-        )
+        defaults = STIFFNESS_DEFAULTS
         unknown = sorted(set(settings) - set(defaults))
         if unknown:
             raise ValueError(f"unknown guidance setting(s) {unknown}; allowed: {sorted(defaults)}")

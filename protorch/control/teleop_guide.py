@@ -36,17 +36,12 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .guidance import stiffness_law
+from .guidance import STIFFNESS_DEFAULTS, stiffness_law
 
 __all__ = ["MixtureGuide", "GuideState", "variance_map", "GUIDE_DEFAULTS"]
 
 GUIDE_DEFAULTS = dict(
-    position_gain=30.0,
-    position_max=3000.0,
-    position_min=0.0,
-    rotation_gain=0.3,
-    rotation_max=30.0,
-    rotation_min=0.0,
+    **STIFFNESS_DEFAULTS,
     hand_position=300.0,
     hand_rotation=3.0,
     tau=0.3,

@@ -20,6 +20,7 @@ MODULES = [
     "protorch.gp.closed_form",
     "protorch.gp.gpytorch_exact",
     "protorch.gp.sparse",
+    "protorch.loop.initial",
 ]
 
 

@@ -49,6 +49,17 @@ def demonstration_dataset(
         lone: an environment (and label) with 1 demonstration: ``"refuse"`` (an error), or
             ``"pool"``: its variance is the mean variance of the same label's entries with >= 2
             demonstrations (an error where that label has none).
+
+    Example: two environments, three straight 2-D demonstrations each.
+
+    >>> from protorch import ProMP
+    >>> promp = ProMP(num_dof=2, num_basis=5, num_steps=20)
+    >>> envs = torch.tensor([[0.0], [0.0], [0.0], [1.0], [1.0], [1.0]])  # (6, E=1)
+    >>> s = torch.linspace(0, 1, 20)[:, None]  # (T, 1)
+    >>> demos = [s * torch.tensor([1.0, 0.1 * i]) + e for i, e in enumerate(envs)]  # (T, 2) each
+    >>> data = demonstration_dataset(promp, demos, envs, var_floor=1e-4)
+    >>> data.env.shape, data.mean.shape, bool((data.var >= 1e-4).all())
+    (torch.Size([2, 1]), torch.Size([2, 10]), True)
     """
     demo_envs = torch.as_tensor(demo_envs)
     if demo_envs.ndim != 2 or demo_envs.shape[0] != len(demos):

@@ -17,7 +17,7 @@ from ..tasks.arm.collision import capsule_ends
 from ..tasks.arm.geometry import segment_cylinder_distance
 from .means import basis3
 
-__all__ = ["ExportProgram", "static_gaps", "write_program"]
+__all__ = ["ExportProgram", "save_program", "static_gaps", "write_program"]
 
 
 def static_gaps(task, q: Tensor, env: Tensor) -> Tensor:
@@ -162,13 +162,28 @@ def write_program(policy, path: Path, aoti: bool = False) -> Path:
         policy.env_map.E[0].to(torch.float64),
         torch.tensor(0.5 * policy.duration, dtype=torch.float64),
     )
+    return save_program(
+        program,
+        args,
+        path,
+        aoti,
+        "this policy",
+        "; a task's costs must be traceable (no Python branches on tensor values)",
+    )
+
+
+def save_program(
+    module: torch.nn.Module, args: tuple, path: Path, aoti: bool, what: str, hint: str = ""
+) -> Path:
+    """``module`` traced by ``torch.export`` at ``args`` and written to ``path`` atomically
+    (``aoti``: compiled by AOTInductor into a package first); a module that cannot be traced is
+    one ``RuntimeError`` naming ``what`` (and ``hint``)."""
     try:
-        ep = torch.export.export(program, args, strict=False)
+        ep = torch.export.export(module, args, strict=False)
     except Exception as exc:
         raise RuntimeError(
-            f"torch.export could not trace this policy ({type(exc).__name__}: "
-            f"{str(exc).splitlines()[0] if str(exc) else ''}); a task's costs must be traceable "
-            "(no Python branches on tensor values)"
+            f"torch.export could not trace {what} ({type(exc).__name__}: "
+            f"{str(exc).splitlines()[0] if str(exc) else ''}){hint}"
         ) from exc
     buf = io.BytesIO()
     if aoti:

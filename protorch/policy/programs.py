@@ -25,7 +25,6 @@ the tracker's output as the limiter does; the limits are written beside the prog
 
 from __future__ import annotations
 
-import io
 import json
 import math
 from pathlib import Path
@@ -35,7 +34,7 @@ from torch import Tensor
 
 from ..control.arm_choice import rest_scores
 from ..data.files import atomic_write_bytes
-from .export import ExportProgram, static_gaps
+from .export import ExportProgram, save_program, static_gaps
 from .means import basis3
 
 __all__ = ["PlannerProgram", "TrackerProgram", "tracker_state", "write_programs"]
@@ -226,22 +225,6 @@ def tracker_state(policy) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     )
 
 
-def _save(module: torch.nn.Module, args: tuple, path: Path, aoti: bool) -> Path:
-    try:
-        ep = torch.export.export(module, args, strict=False)
-    except Exception as exc:
-        raise RuntimeError(
-            f"torch.export could not trace the {type(module).__name__} ({type(exc).__name__}: "
-            f"{str(exc).splitlines()[0] if str(exc) else ''})"
-        ) from exc
-    buf = io.BytesIO()
-    if aoti:
-        torch._inductor.aoti_compile_and_package(ep, package_path=buf)
-    else:
-        torch.export.save(ep, buf)
-    return atomic_write_bytes(path, buf.getvalue())
-
-
 def write_programs(policy, folder: Path, aoti: bool | str = False) -> Path:
     """:meth:`~protorch.policy.policy.Policy.export` to a folder: ``planner.pt2``,
     ``tracker.pt2`` and ``programs.json`` (the rates, the shapes, the labels, which program is an
@@ -256,15 +239,17 @@ def write_programs(policy, folder: Path, aoti: bool | str = False) -> Path:
     t = torch.tensor(0.5 * policy.duration, dtype=f64)
     q = torch.zeros(policy._d, dtype=f64)
     planner = PlannerProgram(policy)
-    _save(
+    save_program(
         planner,
         (env, t, q, q.clone(), torch.tensor(-1, dtype=i64), torch.tensor(0, dtype=i64)),
         folder / "planner.pt2",
         aoti is True,
+        f"the {type(planner).__name__}",
     )
     W = torch.zeros(policy._kb, policy._d, dtype=f64)
     args = (t.clone(), W, q.clone(), q.clone(), *tracker_state(policy))  # no input aliases another
-    _save(TrackerProgram(policy), args, folder / "tracker.pt2", bool(aoti))
+    tracker = TrackerProgram(policy)
+    save_program(tracker, args, folder / "tracker.pt2", bool(aoti), f"the {type(tracker).__name__}")
     lim = policy._limiter
     meta = {
         "aoti": {"planner": aoti is True, "tracker": bool(aoti)},

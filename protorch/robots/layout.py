@@ -10,7 +10,13 @@ The Panda's numbers (``robot=panda``, unchanged) anchor the rule. Its hand, poin
 ``[0.2, 0.9] x [-0.5, 0.5]``, the can 0.0375 m in radius and 0.23 m high. For another arm:
 
 1. its size ``s_v = L / L_panda`` (``L``: the summed distances between consecutive frame origins
-   from the second moving joint to the end link) sets the working height ``0.10 s_v``; the can's
+   from the second moving joint to the end link) sets the working height ``0.10 s_v``, raised
+   where the hand's bodies reach farther below the end link than the Panda's do: the end link
+   stands at least ``d + 0.0889 s_v`` above the table, ``d`` how far the capsules of the links
+   rigid with the end link reach below it with the hand down (:func:`hand_drop`; the Panda's
+   0.0111 m, its hand's lowest point 0.0889 m above the table, :data:`PANDA_HAND_LOW`). Placed by
+   its frame alone, the KUKA iiwa's link 7 (reaching 0.059 m below its frame) passed 0.024 m above
+   the table at home, and its moving motions touched it; the can's
    height is the Panda's 0.23 m times the ratio of the wrists' heights at home (the frame the
    second-to-last joint moves; the Panda's 0.3104 m), so that the wrist passes over the can as
    the Panda's does; where the arm has capsules (:func:`auto_workspace`), the ratio of the lowest
@@ -45,10 +51,12 @@ __all__ = [
     "PANDA_LAYOUT",
     "PANDA_LENGTH",
     "PANDA_REACH",
+    "PANDA_HAND_LOW",
     "PANDA_WRIST_LOW",
     "arm_length",
     "auto_workspace",
     "hand_down_layout",
+    "hand_drop",
     "measure_layout",
     "wrist_low",
 ]
@@ -62,6 +70,8 @@ PANDA_LENGTH = 1.0897  # m, the Panda's L (module docstring), measured on protor
 PANDA_WRIST = 0.3104
 # m, the lowest point of the Panda's wrist capsules (link 6's, protorch/robots/panda.yaml) at home
 PANDA_WRIST_LOW = 0.2274
+# m, the lowest point of the Panda's hand capsules (panda_hand's) at home, the end link 0.10 m up
+PANDA_HAND_LOW = 0.0889
 _HEIGHT, _CAN_HEIGHT, _CAN_RADIUS = 0.10, 0.23, 0.0375
 _HOME_X, _CAN_X, _GOAL_X, _TABLE_X = 0.40, (0.50, 0.62), (0.66, 0.74), (0.2, 0.9)
 _CAN_Y, _GOAL_Y, _TABLE_Y = 0.12, 0.24, 0.5
@@ -148,7 +158,11 @@ def auto_workspace(robot) -> tuple[dict, dict | None]:
     (:func:`hand_down_layout`)."""
     if robot.settings.get("base") is not None:
         return dict(PANDA_LAYOUT), None
-    layout = robot.found.get("layout") or hand_down_layout(robot.kinematics(), robot.name)
+    layout = robot.found.get("layout")
+    if layout is None:
+        kin = robot.kinematics()
+        layout = hand_down_layout(kin, robot.name, hand_drop(kin, robot.capsules))
+    layout = dict(layout)
     low = wrist_low(robot)
     if low is not None:  # the wrist's bodies, not its frame, pass over the can as the Panda's
         layout["wrist_low"] = round(low, 4)
@@ -172,30 +186,61 @@ def wrist_low(robot) -> float | None:
     return float((torch.minimum(a[:, 2], b[:, 2]) - r.to(a)).min())
 
 
-def hand_down_layout(kin, name: str = "the arm") -> dict:
-    """The measured layout of an arm (module docstring), cached per URDF text and end link:
-    :func:`measure_layout`."""
-    return dict(_cached(kin.urdf_text, kin.end_link, name))
+def hand_drop(kin, capsules) -> float | None:
+    """How far (m) the capsules of the links rigid with the end link (those past the last moving
+    joint) reach below the end link's origin when the end link's ``z`` points down (the hand-down
+    pose of :func:`measure_layout`, any yaw): ``capsules`` ``{link: (Capsule, ...)}``; negative
+    where they stay above it, ``None`` where the hand has no capsules. The Panda's: 0.0111 m."""
+    names = kin.frame_names
+    moving = [names.index(n) for n in names[1:] if n in _moving_frames(kin)]
+    hand = set(names[moving[-1] :])
+    caps = [c for link in names if link in hand for c in capsules.get(link, ())]
+    if not caps:
+        return None
+    mid = (0.5 * (kin.lower + kin.upper)).clamp(kin.lower, kin.upper)  # (J,): any pose will do
+    frames = kin.frames(mid)  # (F, 4, 4)
+    a, b, r = capsule_segments(frames, names, caps)  # (C, 3), (C, 3), (C,)
+    end = frames[names.index(kin.end_link)]  # (4, 4)
+    z_axis, origin = end[:3, 2], end[:3, 3]  # the end link's z, pointing down when held down
+    along = torch.stack([(a - origin) @ z_axis, (b - origin) @ z_axis])  # (2, C)
+    return float((along.max(0).values + r.to(a)).max())
+
+
+def hand_down_layout(kin, name: str = "the arm", drop: float | None = None) -> dict:
+    """The measured layout of an arm (module docstring), cached per URDF text, end link and
+    hand drop (:func:`hand_drop`): :func:`measure_layout`."""
+    drop = None if drop is None else round(float(drop), 6)
+    return dict(_cached(kin.urdf_text, kin.end_link, name, drop))
 
 
 @functools.lru_cache(maxsize=8)
-def _cached(text: str, end_link: str, name: str) -> dict:
+def _cached(text: str, end_link: str, name: str, drop: float | None) -> dict:
 
     with (
         torch.no_grad(),
         torch_threads(1),
     ):  # small batches: one thread (several only wait on each other)
-        return measure_layout(ArmKinematics(text, end_link=end_link), name)
+        return measure_layout(ArmKinematics(text, end_link=end_link), name, drop)
 
 
-def measure_layout(kin, name: str = "the arm") -> dict:
+def working_height(s_v: float, drop: float | None) -> float:
+    """The end link's height above the table (m) on the hand-down lattice: ``0.10 s_v``, or
+    higher where the hand reaches farther below the end link than the Panda's (module
+    docstring, step 1)."""
+    z = _HEIGHT * s_v
+    return z if drop is None else max(z, drop + PANDA_HAND_LOW * s_v)
+
+
+def measure_layout(kin, name: str = "the arm", drop: float | None = None) -> dict:
     """The measured layout of an arm (module docstring): ``{"scale", "height", "reach", "yaw",
     "home", "home_target", "home_residual", "home_seed", "can_box", "goal_box", "table",
-    "can_radius", "can_height"}``; a ``ValueError`` where the hand reaches no 10 cm interval."""
+    "can_radius", "can_height", "hand_drop"}``, ``drop`` the hand's reach below the end link
+    (:func:`hand_drop`, ``None``: no capsules); a ``ValueError`` where the hand reaches no 10 cm
+    interval."""
     dtype = kin.lower.dtype
     length = arm_length(kin)
     s_v = length / PANDA_LENGTH
-    z = _HEIGHT * s_v
+    z = working_height(s_v, drop)
     xs = torch.arange(
         0.02, 1.1 * length + 0.1, 0.01, dtype=torch.float64
     )  # the hand reaches no farther than L
@@ -245,6 +290,7 @@ def measure_layout(kin, name: str = "the arm") -> dict:
         "scale_xy": round(s_h, 4),
         "length": round(length, 4),
         "height": round(z, 4),
+        "hand_drop": None if drop is None else round(drop, 4),
         "reach": [round(r0, 4), round(r1, 4)],
         "yaw": yaw,
         "home": [float(v) for v in home[0].tolist()],

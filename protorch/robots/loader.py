@@ -65,7 +65,7 @@ from pathlib import Path
 from .clean import CleanError, clean_urdf, end_link_candidates, urdf_chain
 from .description import Robot
 from .kinematics import ArmKinematics
-from .layout import hand_down_layout
+from .layout import hand_down_layout, hand_drop
 from .mjcf import MjcfError, mjcf_urdf
 from .parts import (
     RobotError,
@@ -401,9 +401,10 @@ def _load(cfg: dict, path: Path, where: str, found: dict) -> Robot:
     frame_names = [joints[0].find("parent").get("link")] + [
         j.find("child").get("link") for j in joints
     ]
+    capsules = capsules_setting(cfg["capsules"], text, frame_names, where)
     home = cfg["home"]
     if home is None:
-        home = _auto_home(text, end_link, found, where)
+        home = _auto_home(text, end_link, capsules, found, where)
         cfg = {
             **cfg,
             "home": list(home),
@@ -418,7 +419,6 @@ def _load(cfg: dict, path: Path, where: str, found: dict) -> Robot:
             raise RobotError(
                 f"robot.home has {q} for joint {name!r}, outside its limits [{lo}, {hi}]"
             )
-    capsules = capsules_setting(cfg["capsules"], text, frame_names, where)
     first_moving = next(i for i, j in enumerate(joints) if j.get("type") != "fixed")
     base_links = cfg["base_links"]
     if base_links == "auto":
@@ -484,12 +484,13 @@ def _log_found(found: dict, where: str) -> None:
         log.info("%s: found %s", where, "; ".join(parts))
 
 
-def _auto_home(text: str, end_link: str, found: dict, where: str) -> list[float]:
-    """The hand-down home (:func:`protorch.robots.layout.hand_down_layout`), its report in
-    ``found``."""
+def _auto_home(text: str, end_link: str, capsules, found: dict, where: str) -> list[float]:
+    """The hand-down home (:func:`protorch.robots.layout.hand_down_layout`, the hand's capsules
+    kept as high above the table as the Panda's), its report in ``found``."""
 
+    kin = ArmKinematics(text, end_link=end_link)
     try:
-        layout = hand_down_layout(ArmKinematics(text, end_link=end_link), f"the arm of {where}")
+        layout = hand_down_layout(kin, f"the arm of {where}", hand_drop(kin, capsules))
     except ValueError as exc:
         raise RobotError(str(exc)) from None
     found["home"] = {

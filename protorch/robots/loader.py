@@ -303,16 +303,9 @@ def load_robot(spec=None) -> Robot:
 _LOADED: dict[str, Robot] = {}  # load_robot's results by settings and file (a Robot is frozen)
 
 
-def _load(cfg: dict, path: Path, where: str, found: dict) -> Robot:
-    root = _parse(path.read_text(), where)
-    end_link, auto_end = _end_link(root, cfg["end_link"], where)
-    links = [link.get("name") for link in root.iter("link")]
-    if end_link not in links:
-        raise RobotError(
-            f"robot.end_link={end_link!r} is not a link of {where}; its links are {links}"
-        )
-    if auto_end:
-        found["end_link"] = end_link
+def _checked_settings(cfg: dict) -> tuple[list, dict, dict]:
+    """``robot.packages``, ``robot.limits`` and ``robot.locked`` checked (and
+    ``robot.balance_inertia``): one ``RobotError`` naming the setting."""
     packages = cfg["packages"] or []
     if isinstance(packages, (str, Path)) or not isinstance(packages, (list, tuple)):
         raise RobotError(f"robot.packages={packages!r} must be a list of folders")
@@ -338,6 +331,20 @@ def _load(cfg: dict, path: Path, where: str, found: dict) -> Robot:
             raise RobotError(
                 f"robot.locked.{name}={v!r} must be a number (rad, or m for a sliding joint)"
             )
+    return packages, limits, locked
+
+
+def _load(cfg: dict, path: Path, where: str, found: dict) -> Robot:
+    root = _parse(path.read_text(), where)
+    end_link, auto_end = _end_link(root, cfg["end_link"], where)
+    links = [link.get("name") for link in root.iter("link")]
+    if end_link not in links:
+        raise RobotError(
+            f"robot.end_link={end_link!r} is not a link of {where}; its links are {links}"
+        )
+    if auto_end:
+        found["end_link"] = end_link
+    packages, limits, locked = _checked_settings(cfg)
     try:
         cleaned = clean_urdf(
             path,
@@ -354,35 +361,8 @@ def _load(cfg: dict, path: Path, where: str, found: dict) -> Robot:
     found.update(report)
     text = cleaned.text
     root = _parse(text, where)
-    joints = urdf_chain(root, end_link)
-    moving = [j for j in joints if j.get("type") != "fixed"]
-    kinds = sorted({j.get("type") for j in moving} - {"revolute"})
-    if kinds:
-        raise RobotError(
-            f"{where}: the chain to robot.end_link={end_link!r} has {kinds[0]} joints; "
-            "only revolute, continuous and fixed joints are supported"
-        )
-    names = [j.get("name") for j in moving]
-    if len(names) < MIN_JOINTS:
-        raise RobotError(
-            f"robot.end_link={end_link!r}: the chain of {where} to it has {len(names)} joints "
-            f"{names}; the arm experiment needs at least {MIN_JOINTS}"
-        )
-    lower, upper, vel, eff = [], [], [], []
-    for j in moving:
-        lim = j.find("limit")
-        get = (lambda k: None) if lim is None else lim.get
-        if get("lower") is None or get("upper") is None:
-            raise RobotError(f"{where}: joint {j.get('name')!r} has no <limit lower=... upper=...>")
-        lo, hi = float(get("lower")), float(get("upper"))
-        if not lo < hi:
-            raise RobotError(
-                f"{where}: joint {j.get('name')!r} has limits lower={lo} >= upper={hi}"
-            )
-        lower.append(lo)
-        upper.append(hi)
-        vel.append(float(get("velocity")) if get("velocity") is not None else None)
-        eff.append(float(get("effort")) if get("effort") is not None else None)
+    joints, moving, names = _chain(root, end_link, where)
+    lower, upper, vel, eff = _urdf_limits(moving, where)
     n = len(names)
     velocity = _urdf_or_default(
         cfg["max_velocity"],
@@ -398,6 +378,8 @@ def _load(cfg: dict, path: Path, where: str, found: dict) -> Robot:
     torque = _urdf_or_default(
         cfg["max_torque"], eff, n, names, "max_torque", DEFAULT_EFFORT, math.inf, found, where
     )
+    if _write_limits(root, moving, velocity, torque):  # a default or a setting: into the text
+        text = ET.tostring(root, encoding="unicode")
     frame_names = [joints[0].find("parent").get("link")] + [
         j.find("child").get("link") for j in joints
     ]
@@ -463,6 +445,62 @@ def _load(cfg: dict, path: Path, where: str, found: dict) -> Robot:
         text=text,
         found=found,
     )
+
+
+def _chain(root: ET.Element, end_link: str, where: str) -> tuple[list, list, list[str]]:
+    """``(joints, moving joints, their names)`` of the chain to ``end_link``: revolute (or
+    continuous) and fixed joints only, at least ``MIN_JOINTS`` moving."""
+    joints = urdf_chain(root, end_link)
+    moving = [j for j in joints if j.get("type") != "fixed"]
+    kinds = sorted({j.get("type") for j in moving} - {"revolute"})
+    if kinds:
+        raise RobotError(
+            f"{where}: the chain to robot.end_link={end_link!r} has {kinds[0]} joints; "
+            "only revolute, continuous and fixed joints are supported"
+        )
+    names = [j.get("name") for j in moving]
+    if len(names) < MIN_JOINTS:
+        raise RobotError(
+            f"robot.end_link={end_link!r}: the chain of {where} to it has {len(names)} joints "
+            f"{names}; the arm experiment needs at least {MIN_JOINTS}"
+        )
+    return joints, moving, names
+
+
+def _urdf_limits(moving: list, where: str) -> tuple[list, list, list, list]:
+    """``(lower, upper, velocity, effort)`` of the chain's moving joints from their ``<limit>``
+    (velocity and effort ``None`` where missing); a joint without lower and upper refused."""
+    lower, upper, vel, eff = [], [], [], []
+    for j in moving:
+        lim = j.find("limit")
+        get = (lambda k: None) if lim is None else lim.get
+        if get("lower") is None or get("upper") is None:
+            raise RobotError(f"{where}: joint {j.get('name')!r} has no <limit lower=... upper=...>")
+        lo, hi = float(get("lower")), float(get("upper"))
+        if not lo < hi:
+            raise RobotError(
+                f"{where}: joint {j.get('name')!r} has limits lower={lo} >= upper={hi}"
+            )
+        lower.append(lo)
+        upper.append(hi)
+        vel.append(float(get("velocity")) if get("velocity") is not None else None)
+        eff.append(float(get("effort")) if get("effort") is not None else None)
+    return lower, upper, vel, eff
+
+
+def _write_limits(root: ET.Element, moving: list, velocity, torque) -> bool:
+    """The resolved velocity and torque limits written into the chain's ``<limit>`` elements, so
+    that every reader of the robot's URDF text (its kinematics' ``max_velocity``, the MuJoCo
+    scene's motors) sees ``robot.max_velocity`` and ``robot.max_torque``; whether any changed."""
+    changed = False
+    for j, v, e in zip(moving, velocity, torque):
+        lim = j.find("limit")
+        for key, value in (("velocity", v), ("effort", e)):
+            old = lim.get(key)
+            if old is None or float(old) != float(value):
+                lim.set(key, repr(float(value)))
+                changed = True
+    return changed
 
 
 def _log_found(found: dict, where: str) -> None:

@@ -13,7 +13,7 @@ hand and tool centre point, as bodies of their own) and adds:
   cannot read them whole: :mod:`protorch.robots.clean`) in geom
   group 3, which the renders show instead of the capsules where the URDF has them;
 * the robot's joint damping and rotor armature, and a torque motor per joint clipped to its
-  torque limits (the URDF's ``<limit effort>``);
+  torque limits (``robot.max_torque``: the URDF's ``<limit effort>`` or its default);
 * the table top (a box whose top face is ``z = 0`` under the robot and the task's table), the can
   (a cylinder of the task's radius and height on a *mocap* body: a person moves it, the arm
   cannot push it, and MuJoCo reports every contact with it) and the target (a visual marker on a

@@ -278,6 +278,10 @@ def test_missing_or_implausible_limits_are_defaulted_with_a_warning(tmp_path, ca
         and robot.max_torque[1] == 150.0
     )
     assert robot.found["max_velocity_default"] == {"joints": ["shoulder_pan"], "value": 2.0}
+    # the defaults reach every reader of the URDF text (the controllers read the kinematics')
+    assert robot.kinematics().max_velocity.tolist() == list(robot.max_velocity)
+    limit = ET.fromstring(robot.urdf_text).find("joint[@name='shoulder_pan']/limit")
+    assert float(limit.get("velocity")) == 2.0 and float(limit.get("effort")) == 50.0
     assert robot.found["max_torque_default"] == {"joints": ["shoulder_pan"], "value": 50.0}
     assert sum("shoulder_pan" in r.getMessage() for r in caplog.records) == 2
 

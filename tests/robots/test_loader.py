@@ -60,6 +60,7 @@ def test_a_users_arm_from_settings(arm):
     )
     over = load_robot({**arm, "max_velocity": 1.5, "damping": [0.5] * 6})
     assert over.max_velocity == (1.5,) * 6 and over.damping == (0.5,) * 6
+    assert over.kinematics().max_velocity.tolist() == [1.5] * 6  # the setting in the text
 
 
 def test_auto_capsules_enclose_the_collision_cylinders(arm, gen):

@@ -37,12 +37,15 @@ rows, elapsed seconds) in the same file's metadata, so data set and state can ne
 ``<run_dir>/loop_metrics.csv`` is rewritten atomically from those rows at the same moment.
 ``Run(dir, resume=True)`` reloads that file, rebuilds the map by replaying the same fit and
 adds (so it is bit-identical to the killed run's) and continues with the next step: a resumed run
-ends with the same data set as an uninterrupted one. The run's folder is checked to be writable
-before any work.
+ends with the same data set as an uninterrupted one. The refill loop (:mod:`.refill`) has work in
+flight at its checkpoints; each one saves it beside the data set (``inflight-<step>.safetensors``,
+:mod:`.inflight`) and a resumed run puts it back, so it too goes on bit for bit. The run's
+folder is checked to be writable before any work.
 
 The package: :mod:`.settings` (:class:`LoopSettings`, :class:`OptimizerSpec`, :class:`Run`,
 validated), :mod:`.state` (:class:`RunState`:
-signature, checkpoint, resume), :mod:`.phases` (choose, infer, optimise, accept) and
+signature, checkpoint, resume), :mod:`.phases` (choose, infer, optimise, accept),
+:mod:`.refill` (the refill loop), :mod:`.inflight` (its work in flight at a checkpoint) and
 :mod:`.initial` (the demonstrations' data set); :func:`self_improve` reads as the algorithm above.
 """
 

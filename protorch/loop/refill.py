@@ -14,22 +14,27 @@ until ``g`` of them are done, and are added and refilled together: a map whose a
 Steps here are bookkeeping: a metrics row (and ``eval_success``, the checkpoint, ``on_step``) is
 written each time at least ``B`` more environments have finished, and after the last. ``tried``
 lists the finished environments in the order they finished; each row's ``adds`` the sizes of the
-map's adds, so a resumed run replays them exactly. A killed run resumes from its last checkpoint
-with every environment finished by then; the problems in flight at the kill start again from the
-map (a resumed run tries every environment once, but its numbers are not those of an
-uninterrupted run: which environments share the optimiser's batch differs).
+map's adds, so a resumed run replays them exactly. Each checkpoint also saves what is in flight
+(:mod:`.inflight`: the optimiser's state and random generator, the slots, the environments
+started, the slots waiting for their next environment), and a resumed run puts it back and goes
+on from there: a killed run resumes bit for bit as the uninterrupted run goes on. (A checkpoint
+without that state, an older protorch's, restarts the problems in flight from the map, with a
+warning: every environment is still tried once, but the numbers differ.)
 """
 
 from __future__ import annotations
 
 import inspect
+import warnings
 from types import SimpleNamespace
 
 import torch
 from torch import Tensor
 
+from ..data.files import CheckpointError
 from ..optim.base import BaseOptimizer
 from ..threads import core_budget
+from .inflight import load_optimizer_state, optimizer_state
 from .phases import Problems, accept, add, choose, infer, per_env, sample_costs
 
 __all__ = ["problem_budget", "refill_loop"]
@@ -65,6 +70,24 @@ class Slots:
         self.converged = torch.zeros(
             k * b, dtype=torch.bool
         )  # (K B,) whether it converged when it stopped
+        self.pending: Tensor | None = None  # (s,) finished slots not yet given their next one
+
+    _SAVED = ("pick", "env", "env_e", "initial_success", "stopped_at", "converged")
+
+    def state(self) -> dict[str, Tensor]:
+        """The slots' tensors, for the in-flight checkpoint (``slots.<name>``)."""
+        return {f"slots.{k}": getattr(self, k) for k in self._SAVED}
+
+    def load(self, tensors: dict[str, Tensor]) -> None:
+        """Put :meth:`state`'s tensors back (the same ``B``, ``K`` and environment size)."""
+        for k in self._SAVED:
+            mine, saved = getattr(self, k), tensors[f"slots.{k}"]
+            if saved.shape != mine.shape or saved.dtype != mine.dtype:
+                raise CheckpointError(
+                    f"the checkpoint's slots have {k} {tuple(saved.shape)} {saved.dtype}, this "
+                    f"run's {tuple(mine.shape)} {mine.dtype}"
+                )
+            mine.copy_(saved)
 
     def rows(self, slots: Tensor) -> Tensor:
         """Optimiser rows of ``slots (s,)``, label-major: ``(K s,)``."""
@@ -104,11 +127,30 @@ def refill_loop(
     budget = problem_budget(optimizer, optimizer_kwargs)
     k = 1 if labels is None else int(labels.numel())
     todo = settings.num_envs - len(state.tried)
-    b = min(settings.batch_size, todo)
-    if b <= 0:
+    restored, state.restored = state.restored, None
+    if todo <= 0:
         return
-    slots = Slots(b, k, pool.shape[1], ev)
-    started: list[int] = list(state.tried)  # finished or in flight
+    if restored is not None:  # the slots as the checkpoint left them
+        b = int(restored[1]["slots"])
+        if int(restored[1]["labels"]) != k:
+            raise CheckpointError(
+                f"the checkpoint's loop has {restored[1]['labels']} label(s) per environment in "
+                f"flight, this run {k}"
+            )
+        slots = Slots(b, k, pool.shape[1], ev)
+        slots.load(restored[0])
+        started: list[int] = [int(i) for i in restored[1]["started"]]  # finished or in flight
+    else:
+        b = min(settings.batch_size, todo)
+        slots = Slots(b, k, pool.shape[1], ev)
+        started = list(state.tried)
+        if state.resumed_from is not None:
+            warnings.warn(
+                f"{state.checkpoint_file} holds no state of the environments in flight (written "
+                "by an older protorch): they start again from the map, and the resumed run's "
+                "numbers are not those of an uninterrupted run",
+                stacklevel=3,
+            )
 
     def start(free: Tensor):
         """Problems for the next untried environments in ``free (s,)`` slots (fewer if the pool
@@ -129,19 +171,48 @@ def refill_loop(
         slots.fill(free, picks, problems)
         return free, problems
 
-    filled, first = start(torch.arange(b))
-    opt = optimizer(
-        first.mu,
-        first.var,
-        seed=settings.step_seed(state.step + 1),
-        **{**optimizer_kwargs, "max_iter": 2**62},
-    )  # the budget is per problem: ``budget``
-    opt.history_limit = max(1, opt.convergence.window)
+    kwargs = {**optimizer_kwargs, "max_iter": 2**62}  # the budget is per problem: ``budget``
+    if restored is None:
+        filled, first = start(torch.arange(b))
+        opt = optimizer(first.mu, first.var, seed=settings.step_seed(state.step + 1), **kwargs)
+        opt.history_limit = max(1, opt.convergence.window)
+    else:  # the optimiser the checkpoint saved, rebuilt at its size and given its state
+        shape = (k * b, data.mean.shape[1])  # (K B, N)
+        blank = torch.zeros(shape, dtype=ev.eval_dtype, device=ev.device)
+        opt = optimizer(blank, torch.ones_like(blank), seed=0, **kwargs)
+        opt.history_limit = max(1, opt.convergence.window)
+        load_optimizer_state(
+            opt,
+            {n.removeprefix("opt."): t for n, t in restored[0].items() if n.startswith("opt.")},
+            restored[1]["optimizer"],
+        )
+    acc = _Accumulator()
+
+    def in_flight() -> tuple[dict, dict] | None:
+        """What a checkpoint saves of the work in flight (``None`` once every environment is
+        finished): taken in ``finish_step``, where the metrics row was just taken (``acc``
+        empty) and the finished slots wait for their next environment (``slots.pending``)."""
+        if len(state.tried) >= settings.num_envs:
+            return None
+        if acc.batch:
+            raise RuntimeError("the refill loop checkpoints only right after a metrics row")
+        ot, om = optimizer_state(opt)
+        pending = [] if slots.pending is None else slots.pending.tolist()
+        meta = {"slots": b, "labels": k, "started": started, "pending": pending, "optimizer": om}
+        return {**slots.state(), **{f"opt.{n}": t for n, t in ot.items()}}, meta
+
+    if state.run_dir is not None:
+        optimizer_state(opt)  # an optimiser whose state cannot be saved is refused before work
+        state.inflight = in_flight
     if torch.get_num_threads() < core_budget() and callable(getattr(opt, "draw_ahead", None)):
         opt.draw_ahead()
-    if solved is not None:
-        opt.mark_converged(solved(first.mean_traj, slots.env_e))
-    acc = _Accumulator()
+    if restored is None:
+        if solved is not None:
+            opt.mark_converged(solved(first.mean_traj, slots.env_e))
+    else:  # the checkpoint was taken before its finished slots got their next environments
+        _refill(
+            opt, slots, torch.as_tensor(restored[1]["pending"], dtype=torch.long), start, solved
+        )
     while True:
         _finish_and_refill(
             ev, gp, data, opt, slots, settings, budget, solved, state, acc, start, finish_step
@@ -157,6 +228,7 @@ def refill_loop(
             done = torch.zeros_like(act)
             done[act] = solved(ev.promp.trajectory(opt.mean[act]), slots.env_e[act])
             opt.mark_converged(done)
+    state.inflight = None  # every environment finished: nothing in flight
     if acc.batch:
         finish_step(acc.row())
     opt.stop()  # cancels a draw made ahead
@@ -254,18 +326,24 @@ def _finish_and_refill(
         state.tried.extend(slots.pick[idx].tolist())
         slots.pick[idx] = -1
         if acc.batch >= settings.batch_size:
+            slots.pending = idx  # a checkpoint here saves them as waiting for their next ones
             finish_step(acc.row())
-        filled, problems = start(idx)
-        if problems is not None:
-            frows = slots.rows(filled)
-            opt.restart(frows.to(opt.mean.device), problems.mu, problems.var)
-            if solved is not None:
-                opt.mark_converged(
-                    _rows_mask(opt, frows, solved(problems.mean_traj, problems.env_e))
-                )
-        parked = idx[filled.numel() :]
-        if parked.numel():
-            opt.mark_converged(_rows_mask(opt, slots.rows(parked), True))
+        _refill(opt, slots, idx, start, solved)
+
+
+def _refill(opt, slots: Slots, idx: Tensor, start, solved) -> None:
+    """Give the finished slots ``idx (s,)`` the next untried environments (``start``), restarting
+    their optimiser rows; the slots left without one are parked (their rows marked converged)."""
+    slots.pending = None
+    filled, problems = start(idx)
+    if problems is not None:
+        frows = slots.rows(filled)
+        opt.restart(frows.to(opt.mean.device), problems.mu, problems.var)
+        if solved is not None:
+            opt.mark_converged(_rows_mask(opt, frows, solved(problems.mean_traj, problems.env_e)))
+    parked = idx[filled.numel() :]
+    if parked.numel():
+        opt.mark_converged(_rows_mask(opt, slots.rows(parked), True))
 
 
 def _rows_mask(opt, rows: Tensor, value) -> Tensor:

@@ -27,6 +27,7 @@ from torch import Tensor
 from ..data.checkpoint import checkpoint_path
 from ..data.dataset import TrajectoryDataset
 from ..data.files import atomic_write_bytes
+from .inflight import read_inflight, remove_inflight, write_inflight
 from .settings import LoopSettings
 
 __all__ = [
@@ -160,7 +161,10 @@ class RunState:
     seconds spent by earlier (resumed) processes.
 
     ``save`` writes the data set with the map's settings (``save_model``'s signature); ``None``
-    ``run_dir``: nothing is written.
+    ``run_dir``: nothing is written. ``inflight``, set by a loop with work in flight between its
+    checkpoints (the refill loop), returns that work's ``(tensors, meta)`` (or ``None``: none);
+    each checkpoint writes it beside the data set (:mod:`.inflight`), and :meth:`resume` reads it
+    back into ``restored``.
     """
 
     signature: dict
@@ -172,6 +176,8 @@ class RunState:
     seconds_before: float = 0.0
     resumed_from: int | None = None
     started: float = field(default_factory=time.perf_counter)
+    inflight: Callable[[], tuple[dict, dict] | None] | None = None
+    restored: tuple[dict, dict] | None = None
 
     @property
     def checkpoint_file(self) -> Path | None:
@@ -227,6 +233,8 @@ class RunState:
             )
         self.tried, self.rows = list(state["tried"]), list(state["rows"])
         self.seconds_before, self.step = float(state["seconds"]), int(state["step"])
+        record = state.get("inflight")
+        self.restored = None if record is None else read_inflight(ckpt.parent, record)
         self.resumed_from = self.step
         self.started = time.perf_counter()
         return loaded
@@ -259,10 +267,15 @@ class RunState:
             at += n
 
     def checkpoint(self, dataset: TrajectoryDataset, env_map) -> None:
-        """Write the data set with this state in its metadata, then ``loop_metrics.csv`` (both
-        atomic; nothing without a ``run_dir``)."""
+        """Write the work in flight (if any, :mod:`.inflight`), the data set with this state in
+        its metadata (naming that file), then ``loop_metrics.csv`` (each atomic; nothing without a
+        ``run_dir``). The previous checkpoint's in-flight file is removed once the new data set is
+        published, so a kill at any instant leaves a data set and the in-flight file it names."""
         if self.run_dir is None:
             return
+        folder = checkpoint_path(self.run_dir).parent
+        work = None if self.inflight is None else self.inflight()
+        record = None if work is None else write_inflight(folder, self.step, *work)
         dataset.metadata["loop"] = {
             "version": LOOP_STATE_VERSION,
             "signature": self.signature,
@@ -270,6 +283,7 @@ class RunState:
             "tried": self.tried,
             "rows": self.rows,
             "seconds": round(self.elapsed(), 3),
+            **({} if record is None else {"inflight": record}),
         }
         self.save(
             self.run_dir,
@@ -279,4 +293,5 @@ class RunState:
             include_unconverged=True,
             **env_map.options(),
         )
+        remove_inflight(folder, None if record is None else record["file"])
         write_metrics_csv(self.run_dir / METRICS_FILE, self.rows)

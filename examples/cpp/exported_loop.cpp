@@ -16,7 +16,7 @@
 //   env.f64 (T, env_dim) one environment per tick; q0.f64, qd0.f64 (D,) the arm at the start.
 // Outputs (folder --out): q.f64, qd.f64, qdd.f64 (T, D); label.i64 (T,) int64; plan_t.f64 (T,);
 //   tracker_s.f64, tracker_cpu_s.f64 (T,) the tracker's wall (steady_clock) and thread CPU
-//   seconds per call.
+//   seconds per call; planner_s.f64 (one per plan) the planner's wall seconds per call.
 // From programs.json it reads dof, num_basis, env_dim, decision_dt, tick and the aoti flags.
 //
 // The arm is taken to follow the reference exactly (the measured q, qd handed to both programs
@@ -114,7 +114,7 @@ double thread_cpu_s() {
 }
 
 struct Result {
-  std::vector<double> q, qd, qdd, plan_t, tracker_s, tracker_cpu_s;
+  std::vector<double> q, qd, qdd, plan_t, tracker_s, tracker_cpu_s, planner_s;
   std::vector<int64_t> label;
 };
 
@@ -142,7 +142,11 @@ Result run_loop(torch::inductor::AOTIModelPackageLoader& planner,
   for (int64_t i = 0; i < ticks; ++i) {
     at::Tensor t = at::scalar_tensor(static_cast<double>(i) * tick, f64);
     if (i % plan_every == 0) {
-      Tensors out = planner.run({vector_f64(envs, i * env_dim, env_dim), t, q, qd, current, slot});
+      at::Tensor env = vector_f64(envs, i * env_dim, env_dim);
+      const auto p0 = std::chrono::steady_clock::now();
+      Tensors out = planner.run({env, t, q, qd, current, slot});
+      r.planner_s.push_back(
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - p0).count());
       W = out[0], label = out[1], current = out[2], slot = out[3], plan_t = out[4];
     }
     const double c0 = thread_cpu_s();
@@ -232,6 +236,7 @@ int main(int argc, char** argv) {
     const std::set<int64_t> classes(r.label.begin(), r.label.end());
     std::cout << r.tracker_s.size() << " ticks, a plan every " << plan_every
               << ": tracker wall " << summary(r.tracker_s) << "; CPU " << summary(r.tracker_cpu_s)
+              << "; planner (" << r.planner_s.size() << " calls) wall " << summary(r.planner_s)
               << "; classes [";
     for (auto it = classes.begin(); it != classes.end(); ++it) {
       std::cout << (it == classes.begin() ? "" : ", ") << *it;
@@ -247,6 +252,7 @@ int main(int argc, char** argv) {
       write_raw(out_dir + "/plan_t.f64", r.plan_t);
       write_raw(out_dir + "/tracker_s.f64", r.tracker_s);
       write_raw(out_dir + "/tracker_cpu_s.f64", r.tracker_cpu_s);
+      write_raw(out_dir + "/planner_s.f64", r.planner_s);
     }
   } catch (const std::exception& e) {
     std::cerr << "exported_loop: " << e.what() << std::endl;

@@ -5,8 +5,8 @@ native-endian float64 / int64, row-major, no header.
     python examples/cpp/raw.py outputs raw_out out.pt --dof 7   # the C++ outputs -> a .pt
 
 ``raw_in``: ``env.f64 (T, env_dim)``, ``q0.f64, qd0.f64 (D,)``. ``raw_out``: ``q.f64, qd.f64,
-qdd.f64 (T, D)``, ``label.i64 (T,)``, ``plan_t.f64, tracker_s.f64, tracker_cpu_s.f64 (T,)``: the
-keys of ``examples/exported_loop.py``'s ``--out``.
+qdd.f64 (T, D)``, ``label.i64 (T,)``, ``plan_t.f64, tracker_s.f64, tracker_cpu_s.f64 (T,)`` (the
+keys of ``examples/exported_loop.py``'s ``--out``) and ``planner_s.f64`` (one per plan).
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ OUTPUTS = {
     "plan_t": "f64",
     "tracker_s": "f64",
     "tracker_cpu_s": "f64",
+    "planner_s": "f64",
 }
 
 
@@ -53,7 +54,7 @@ def write_inputs(folder: Path, envs: torch.Tensor, q0: torch.Tensor, qd0: torch.
 
 def read_outputs(folder: Path, dof: int) -> dict[str, torch.Tensor]:
     """The C++ loop's ``--out`` folder: ``q, qd, qdd (T, D)``, ``label (T,)`` int64, ``plan_t,
-    tracker_s, tracker_cpu_s (T,)``."""
+    tracker_s, tracker_cpu_s (T,)``, ``planner_s`` (one per plan)."""
     out = {}
     for name, kind in OUTPUTS.items():
         dtype = np.float64 if kind == "f64" else np.int64

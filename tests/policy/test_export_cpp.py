@@ -75,6 +75,7 @@ def test_the_cpp_loop_on_the_aoti_programs_equals_the_threaded_policy(tmp_path):
     assert set(want["label"]) == {0, 1}  # a switch on the way
     assert got["plan_t"].tolist() == want["plan_t"]
     assert got["tracker_s"].shape == (400,) and bool((got["tracker_s"] > 0).all())
+    assert got["planner_s"].shape == (80,)  # a plan every 5 ticks
     pol.close()
 
     meta = json.loads((folder / "programs.json").read_text())

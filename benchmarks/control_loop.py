@@ -44,8 +44,10 @@ walk's p99.
 ``--planner thread,process,inline``: ``thread`` and ``process`` (the planner in a child process)
 paced at 1 kHz, the plan's age printed; ``--competitors N`` runs N CPU-bound processes while the
 calls are timed; ``--switch-interval S`` sets ``sys.setswitchinterval``. ``--exported
-export|aoti|aoti-tracker``: also both halves written by ``policy.export(folder)`` and driven by
-``examples/exported_loop.py`` in a process without protorch (the tracker's wall and CPU time).
+export|aoti|aoti-tracker|cpp``: also both halves written by ``policy.export(folder)`` and driven
+by ``examples/exported_loop.py`` in a process without protorch (the tracker's wall and CPU time);
+``cpp``: both compiled by AOTInductor and also driven by the C++ loop of ``examples/cpp`` (built
+here with cmake and torch's libtorch), the two timings side by side.
 
 ``--aoti``: also the program ``policy.export(path, aoti=True)`` writes (AOTInductor, compiled on
 this machine; the compile time is printed), loaded with ``torch._inductor.aoti_load_package`` and
@@ -337,38 +339,85 @@ runpy.run_path(sys.argv[0], run_name="__main__")
 """
 
 
+def build_cpp(build: Path) -> Path:
+    """examples/cpp configured and built in ``build`` (cmake, torch's cmake files): the
+    binary."""
+    root = Path(__file__).resolve().parents[1]
+    cmake = ["cmake", "-S", str(root / "examples" / "cpp"), "-B", str(build)]
+    cmake += ["-DCMAKE_BUILD_TYPE=Release", f"-DCMAKE_PREFIX_PATH={torch.utils.cmake_prefix_path}"]
+    for cmd in (cmake, ["cmake", "--build", str(build), "-j", "2"]):
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(f"{' '.join(cmd)} failed: {proc.stderr[-2000:]}")
+    return build / "exported_loop"
+
+
 def time_exported(policy, calls: int, aoti: bool | str) -> None:
     """``--exported``: both halves written by ``policy.export(folder)`` and driven by
     ``examples/exported_loop.py`` in a process where protorch cannot be imported (the planner
     every decision interval, the tracker every tick, back to back), on the moving walk (at most
-    2,000 ticks: the planner program run by ``torch.export``'s module is slow): the tracker
-    program's wall time per call."""
-    import subprocess
-    import sys
+    2,000 ticks where the planner is not compiled: its ``torch.export`` module is slow): the
+    tracker program's wall and CPU time per call. ``aoti="cpp"``: both compiled, and the same
+    packages on the same inputs also driven by the C++ loop of ``examples/cpp`` (built here),
+    the two timed side by side, their largest difference printed."""
     import tempfile
 
+    cpp = aoti == "cpp"
     root = Path(__file__).resolve().parents[1]
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        folder = policy.export(Path(tmp) / "programs", aoti=aoti)
+        folder = policy.export(Path(tmp) / "programs", aoti=True if cpp else aoti)
         export_s = time.perf_counter() - t0
-        envs = environments(policy, min(calls, 2000), "moving")  # the planner program is slow
+        compiled = cpp or aoti is True
+        envs = environments(policy, calls if compiled else min(calls, 2000), "moving")
         q0 = torch.as_tensor(policy.task.start_config(), dtype=torch.float64)
-        torch.save({"env": envs, "q0": q0, "qd0": torch.zeros_like(q0)}, f"{tmp}/inputs.pt")
+        qd0 = torch.zeros_like(q0)
+        torch.save({"env": envs, "q0": q0, "qd0": qd0}, f"{tmp}/inputs.pt")
         Path(tmp, "blocked.py").write_text(BLOCKED_DRIVER)
         cmd = [sys.executable, f"{tmp}/blocked.py", str(root / "examples" / "exported_loop.py")]
         cmd += [str(folder), "--inputs", f"{tmp}/inputs.pt", "--out", f"{tmp}/out.pt"]
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
             raise RuntimeError(proc.stderr[-2000:])
+        load_py = os.getloadavg()[0]
         out = torch.load(f"{tmp}/out.pt", weights_only=True)
-        ts, cpu = out["tracker_s"].tolist(), out["tracker_cpu_s"].tolist()
-    print(
-        f"exported halves (AOTInductor: {aoti}; export "
-        f"{export_s:.0f} s), driven without protorch: {proc.stdout.strip()}"
+        print(
+            f"exported halves (AOTInductor: {aoti}; export "
+            f"{export_s:.0f} s), driven without protorch: {proc.stdout.strip()}"
+        )
+        if not cpp:
+            print_times("tracker", out["tracker_s"].tolist(), out["tracker_cpu_s"].tolist())
+            print(f"  load average {load_py:.1f} on {os.cpu_count()} cores")
+            return
+        sys.path.insert(0, str(root / "examples" / "cpp"))
+        from raw import read_outputs, write_inputs  # examples/cpp/raw.py
+
+        t0 = time.perf_counter()
+        binary = build_cpp(Path(tmp) / "build")
+        build_s = time.perf_counter() - t0
+        write_inputs(Path(tmp) / "raw_in", envs, q0, qd0)
+        cmd = [str(binary), str(folder), f"{tmp}/raw_in", "--out", f"{tmp}/raw_out"]
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(proc.stderr[-2000:])
+        load_cpp = os.getloadavg()[0]
+        got = read_outputs(Path(tmp) / "raw_out", q0.shape[0])
+    print(f"examples/cpp (built in {build_s:.0f} s), the same packages: {proc.stdout.strip()}")
+    worst = max(float((got[k] - out[k]).abs().max()) for k in ("q", "qd", "qdd"))
+    same = torch.equal(got["label"], out["label"].to(torch.long)) and torch.equal(
+        got["plan_t"], out["plan_t"]
     )
-    print_times("tracker", ts, cpu)
-    print(f"  load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    print(
+        f"  C++ against Python on {envs.shape[0]} ticks: q, qd, qdd differ by {worst:.2g} at "
+        f"most; labels and plan times {'the same' if same else 'DIFFER'} at every tick"
+    )
+    for name, res, load in (("python", out, load_py), ("c++", got, load_cpp)):
+        print_times(name, res["tracker_s"].tolist(), res["tracker_cpu_s"].tolist())
+        over = int((res["tracker_s"] > 1e-4).sum())
+        print(
+            f"  {name:8s} tracker calls over 0.1 ms: {over} of {res['tracker_s'].numel()}; load "
+            f"average {load:.1f} on {os.cpu_count()} cores"
+        )
 
 
 def reversed_switches(labels: torch.Tensor, within: int = 3) -> tuple[int, int]:
@@ -498,8 +547,8 @@ def main() -> None:
         "--exported",
         default="",
         help="also both halves exported (export(folder)) and driven without protorch: export "
-        "(torch.export), aoti (AOTInductor packages, compiled here) or aoti-tracker (the tracker "
-        "only compiled)",
+        "(torch.export), aoti (AOTInductor packages, compiled here), aoti-tracker (the tracker "
+        "only compiled) or cpp (aoti, also driven by examples/cpp's C++ loop, built here)",
     )
     ap.add_argument(
         "--competitors",
@@ -624,7 +673,9 @@ def run_all(args) -> None:
         time_exported(
             protorch.load(args.run, backend=args.backends.split(",")[0], planner="thread"),
             args.calls,
-            aoti={"export": False, "aoti": True, "aoti-tracker": "tracker"}[args.exported],
+            aoti={"export": False, "aoti": True, "aoti-tracker": "tracker", "cpp": "cpp"}[
+                args.exported
+            ],
         )
     if args.soak:
         soak(protorch.load(args.run, backend=args.backends.split(",")[0]), args.soak)

@@ -16,7 +16,10 @@ tick from the newest plan, never waiting for the planner.
 
 The tracker calls no torch operation: torch's operators release the GIL while they run, and a
 thread that gave the GIL away waits to take it back while the planner holds it (up to
-``sys.getswitchinterval()``, 5 ms by default). NumPy's small operations keep it.
+``sys.getswitchinterval()``). NumPy's small operations keep it. While planner threads run, the
+switch interval is held at :data:`SWITCH_INTERVAL` (0.5 ms; Python's default is 5 ms): the loop's
+thread, woken for a tick, waits for the planner's GIL at most that long
+(:class:`_SwitchInterval`).
 """
 
 from __future__ import annotations
@@ -198,7 +201,7 @@ class _SwitchInterval:
     changed it since. Process-wide, as the GIL is; ``planner="process"`` shares no GIL and
     leaves it alone."""
 
-    lock = threading.Lock()
+    lock = threading.RLock()  # reentrant: a collection within may run a dropped planner's __del__
     running = 0
     saved: float | None = None  # the interval found, where it was lowered
 

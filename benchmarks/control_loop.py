@@ -43,11 +43,16 @@ walk's p99.
 
 ``--planner thread,process,inline``: ``thread`` and ``process`` (the planner in a child process)
 paced at 1 kHz, the plan's age printed; ``--competitors N`` runs N CPU-bound processes while the
-calls are timed; ``--switch-interval S`` sets ``sys.setswitchinterval``. ``--exported
-export|aoti|aoti-tracker|cpp``: also both halves written by ``policy.export(folder)`` and driven
-by ``examples/exported_loop.py`` in a process without protorch (the tracker's wall and CPU time);
-``cpp``: both compiled by AOTInductor and also driven by the C++ loop of ``examples/cpp`` (built
-here with cmake and torch's libtorch), the two timings side by side.
+calls are timed; ``--switch-interval S`` sets ``sys.setswitchinterval``; ``--limits
+off|joint|together|both`` picks the limiter (``both``: off, then joint); ``--gc-freeze`` calls
+``gc.freeze()`` after each load; ``--realtime PRIO`` puts the calling thread (not the planner)
+at ``SCHED_FIFO`` priority ``PRIO`` after each load (Linux, ``CAP_SYS_NICE``). Paced calls also
+print how late they started after their tick was due (the sleep's overshoot, the wait for a core
+and, with a planner thread, for the GIL). ``--exported export|aoti|aoti-tracker|cpp``: also both
+halves written by ``policy.export(folder)`` and driven by ``examples/exported_loop.py`` in a
+process without protorch (the tracker's wall and CPU time); ``cpp``: both compiled by AOTInductor
+and also driven by the C++ loop of ``examples/cpp`` (built here with cmake and torch's libtorch),
+the two timings side by side.
 
 ``--aoti``: also the program ``policy.export(path, aoti=True)`` writes (AOTInductor, compiled on
 this machine; the compile time is printed), loaded with ``torch._inductor.aoti_load_package`` and
@@ -174,13 +179,17 @@ def time_calls(
     return ts, cpu, policy.means.misses - misses0
 
 
-def time_paced(policy, envs: torch.Tensor) -> tuple[list[float], list[float], list[float]]:
+def time_paced(
+    policy, envs: torch.Tensor
+) -> tuple[list[float], list[float], list[float], list[float]]:
     """:func:`time_calls` for ``planner="thread"``: the calls paced at 1 kHz (the loop sleeps to
     the next millisecond, as a control loop waits for its next tick; the planner thread runs in
     between), each motion's first plan made by ``reset(env)`` before its first tick. Wall-clock
-    and CPU seconds of each call and the age of the plan it tracked (``t - plan_t``, seconds)."""
+    and CPU seconds of each call, the age of the plan it tracked (``t - plan_t``, seconds) and
+    how late the call started (seconds after its tick was due: the sleep's overshoot, the wait
+    for a core and, with a planner thread, for the GIL)."""
     period = int(round((policy.duration + 1.0) * 1000))
-    ts, cpu, ages, q = [], [], [], None
+    ts, cpu, ages, late, q = [], [], [], [], None
     due = time.perf_counter()
     for i in range(envs.shape[0]):
         if i % period == 0:
@@ -190,7 +199,7 @@ def time_paced(policy, envs: torch.Tensor) -> tuple[list[float], list[float], li
         now = time.perf_counter()
         if now < due:
             time.sleep(due - now)
-        due = max(due + 1e-3, time.perf_counter())
+        was_due, due = due, max(due + 1e-3, time.perf_counter())
         t = (i % period) * 1e-3
         COLLECTIONS.on = True
         c0, t0 = time.thread_time(), time.perf_counter()
@@ -198,13 +207,15 @@ def time_paced(policy, envs: torch.Tensor) -> tuple[list[float], list[float], li
         ts.append(time.perf_counter() - t0)
         cpu.append(time.thread_time() - c0)
         COLLECTIONS.on = False
+        late.append(max(t0 - was_due, 0.0))
         ages.append(t - r.plan_t)
         q = r.q
-    return ts, cpu, ages
+    return ts, cpu, ages, late
 
 
-def print_ages(policy, ts: list[float], ages: list[float]) -> None:
-    """The plan's age (median, p99, max, in decision intervals) and the calls over 1 ms."""
+def print_ages(policy, ts: list[float], ages: list[float], late: list[float]) -> None:
+    """The plan's age (median, p99, max, in decision intervals), the calls over 1 ms and how late
+    the calls started (:func:`time_paced`; p99 and max, ms)."""
     a = [x / policy.decision_dt for x in ages]
     print(
         f"  plan age in decision intervals ({policy.decision_dt * 1e3:g} ms): median "
@@ -212,6 +223,11 @@ def print_ages(policy, ts: list[float], ages: list[float]) -> None:
         f"p99 {_percentile(a, 0.99):.2f}, max {max(a):.2f}; plans made {policy._planner.plans}; "
         f"calls over 1 ms: {sum(x > 1e-3 for x in ts)}; hand-overs by Ruckig: "
         f"{policy._limiter.following if policy._limiter is not None else 0}"
+    )
+    ms = [x * 1e3 for x in late]
+    print(
+        f"  calls started late (after the tick was due): p99 {_percentile(ms, 0.99):.3f} ms, max "
+        f"{max(ms):.3f} ms, {sum(x > 1.0 for x in ms)} over 1 ms"
     )
 
 
@@ -551,6 +567,26 @@ def main() -> None:
         "only compiled) or cpp (aoti, also driven by examples/cpp's C++ loop, built here)",
     )
     ap.add_argument(
+        "--limits",
+        default="run",
+        choices=sorted(LIMITS),
+        help="the limiter of thread and process: run (the load's default), off, joint, together, "
+        "or both (off and joint, one after the other)",
+    )
+    ap.add_argument(
+        "--gc-freeze",
+        action="store_true",
+        help="gc.freeze() after each load (the objects alive then never walked by a collection)",
+    )
+    ap.add_argument(
+        "--realtime",
+        type=int,
+        default=0,
+        metavar="PRIO",
+        help="the calling thread at SCHED_FIFO priority PRIO after each load (Linux, needs "
+        "CAP_SYS_NICE; the planner keeps the normal policy)",
+    )
+    ap.add_argument(
         "--competitors",
         type=int,
         default=0,
@@ -593,6 +629,9 @@ def main() -> None:
             p.wait()
 
 
+LIMITS = {"run": "", "off": "off", "joint": "joint", "together": "together", "both": "off,joint"}
+
+
 def run_all(args) -> None:
     """:func:`main`'s measurements."""
     print(
@@ -605,35 +644,60 @@ def run_all(args) -> None:
         else [{"on": True, "off": False}[c] for c in args.check.split(",")]
     )
     runs = [
-        (b, c, p) for b in args.backends.split(",") for c in checks for p in args.planner.split(",")
+        (b, c, p, lim)
+        for b in args.backends.split(",")
+        for c in checks
+        for p in args.planner.split(",")
+        for lim in (
+            [None] if args.limits == "run" or p == "inline" else LIMITS[args.limits].split(",")
+        )
     ]
-    for backend, check, planner in runs:
+    for backend, check, planner, limits in runs:
+        if args.realtime:  # back to the normal policy, which the planner's thread or child inherit
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
         t0 = time.perf_counter()
         policy = protorch.load(
             args.run,
             backend=backend,
             planner=planner,
             **({} if check is None else {"check": check}),
+            **({} if limits is None else {"limits": False if limits == "off" else limits}),
         )
+        if args.gc_freeze:
+            gc.freeze()
+        if args.realtime:  # this thread only: the planner thread and child were started at load
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.realtime))
         load_s = time.perf_counter() - t0
+        if args.realtime:
+            print(f"  the calling thread at SCHED_FIFO priority {args.realtime}")
         print(
-            f"backend {backend}, plan check {'on' if policy.check else 'off'}, planner {planner}: "
+            f"backend {backend}, plan check {'on' if policy.check else 'off'}, planner {planner}, "
+            f"limits {'off' if policy._limiter is None else type(policy._limiter).__name__}: "
             "map of "
             f"{policy.env_map.num_points} environments, classes {policy.labels.tolist()}, load + "
             f"warm-up {load_s:.2f} s"
+            + (f", gc.freeze(): {gc.get_freeze_count()} objects frozen" if args.gc_freeze else "")
         )
         if planner in ("thread", "process"):
             for kind in args.kinds.split(","):
                 envs = environments(policy, args.calls, kind)
                 COLLECTIONS.seen.clear()
-                ts, cpu, ages = time_paced(policy, envs)
+                ts, cpu, ages, late = time_paced(policy, envs)
                 print_times(kind, ts, cpu)
                 print(
                     f"  {kind:8s} garbage collections within the calls: {COLLECTIONS.summary()}; "
                     "load average "
                     f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
                 )
-                print_ages(policy, ts, ages)
+                print_ages(policy, ts, ages, late)
+                c0, t0 = time.thread_time(), time.perf_counter()
+                gc.collect()  # what one that fell into the loop would hold the GIL for
+                print(
+                    f"  a full garbage collection after the calls: wall "
+                    f"{(time.perf_counter() - t0) * 1e3:.1f} ms, CPU "
+                    f"{(time.thread_time() - c0) * 1e3:.1f} ms, {len(gc.get_objects())} objects "
+                    "tracked"
+                )
             policy.close()
             continue
         for kind in args.kinds.split(","):

@@ -40,7 +40,7 @@ class Reference(_Reference):
     ``t`` of the inputs the plan in use was made from (inline: the call's own ``t``)."""
 
     def __new__(cls, q, qd, qdd, label, plan_t: float = math.nan):
-        self = super().__new__(cls, q, qd, qdd, label)
+        self = tuple.__new__(cls, (q, qd, qdd, label))  # the named tuple's own __new__, inlined
         self.plan_t = plan_t
         return self
 

@@ -16,13 +16,17 @@ tick from the newest plan, never waiting for the planner.
 
 The tracker calls no torch operation: torch's operators release the GIL while they run, and a
 thread that gave the GIL away waits to take it back while the planner holds it (up to
-``sys.getswitchinterval()``, 5 ms by default). NumPy's small operations keep it.
+``sys.getswitchinterval()``). NumPy's small operations keep it. While planner threads run, the
+switch interval is held at :data:`SWITCH_INTERVAL` (0.5 ms; Python's default is 5 ms): the loop's
+thread, woken for a tick, waits for the planner's GIL at most that long
+(:class:`_SwitchInterval`).
 """
 
 from __future__ import annotations
 
 import atexit
 import math
+import sys
 import threading
 import time
 import weakref
@@ -34,7 +38,15 @@ from torch import Tensor
 
 from .reference import Reference, as_array
 
-__all__ = ["Plan", "Planner", "Tracker", "TwoRatePolicy", "basis3_np", "decay_np"]
+__all__ = [
+    "SWITCH_INTERVAL",
+    "Plan",
+    "Planner",
+    "Tracker",
+    "TwoRatePolicy",
+    "basis3_np",
+    "decay_np",
+]
 
 
 class Plan(NamedTuple):
@@ -128,29 +140,34 @@ class Tracker:
             hit = self._decays[s] = decay_np(self.blend, s)[:2]
         return hit
 
-    def step(self, t: float, plan: Plan, q: np.ndarray | None, qd: np.ndarray | None) -> np.ndarray:
+    def step(self, t: float, plan: Plan, q, qd) -> np.ndarray:
         """The reference ``(3, D)`` (position, velocity, acceleration) at ``t`` (not before the
-        last call's) tracking ``plan``; ``q, qd (D,)`` the measured joints (the first call of a
-        motion starts the reference there)."""
+        last call's) tracking ``plan``; ``q, qd``: ``D`` measured joints each or ``None`` (the
+        first call of a motion starts the reference there).
+
+        The products are ``ndarray.dot``: the same BLAS product as ``@`` for these 2-D float64
+        arrays (the same bits), without the ufunc machinery's ~0.8 us per call of ``@``."""
         phi = self.basis(t)  # (3, Kb)
-        state = phi @ plan.W  # (3, D)
+        state = phi.dot(plan.W)  # (3, D)
         if self._at_jump is not None:
             jump = None
-            if self.plan is not None:
-                if plan is not self.plan:  # the mean's jump where the plan changed
-                    jump = phi[:2] @ (self.plan.W - plan.W)  # (2, D)
+            last = self.plan
+            if last is not None:
+                if plan is not last:  # the mean's jump where the plan changed
+                    jump = phi[:2].dot(last.W - plan.W)  # (2, D)
             elif q is not None:  # start where the arm is (at rest where qd is not given)
-                jump = np.stack([q, 0.0 * q if qd is None else qd]) - state[:2]
+                q = np.asarray(q, dtype=np.float64)
+                jump = np.stack([q, 0.0 * q if qd is None else np.asarray(qd)]) - state[:2]
             off = self.off
             if off is not None:
-                off = self._decay(t - self.t) @ off  # (2, D)
+                off = self._decay(t - self.t).dot(off)  # (2, D)
                 if jump is not None:
                     off += jump
             else:
                 off = jump
             if off is not None:
                 self.off = off
-                state += self._at_jump @ off
+                state += self._at_jump.dot(off)
         last_t, changed = self.t, plan is not self.plan
         dt = t - last_t if self.plan is not None else 0.0
         self.plan, self.t = plan, t
@@ -158,18 +175,71 @@ class Tracker:
             off, W = self.off, plan.W
 
             def future(s: float) -> np.ndarray:  # the wanted state s seconds after the last call
-                at = self.basis(last_t + s) @ W  # (3, D)
+                at = self.basis(last_t + s).dot(W)  # (3, D)
                 if off is not None:
-                    at = at + (self._at_jump @ (self._decay(s - dt) @ off) if s >= dt else 0.0)
+                    at = at + (self._at_jump.dot(self._decay(s - dt).dot(off)) if s >= dt else 0.0)
                 return at
 
             state = self.limiter.step(state, dt, future, changed)
         return state
 
 
-def _run(ref, period: float, stop: threading.Event) -> None:
+SWITCH_INTERVAL = 5e-4
+"""The interpreter's switch interval (s) while a planner thread runs (:class:`_SwitchInterval`)."""
+
+
+class _SwitchInterval:
+    """``sys.setswitchinterval`` held at :data:`SWITCH_INTERVAL` while planner threads run.
+
+    The control loop's thread sleeps between ticks; woken, it needs the GIL, and where the
+    planner holds it (its Python between torch's operators) it waits until the planner gives it
+    away, at most one switch interval where the planner is on a core: up to 5 ms at Python's
+    default, five ticks. 0.5 ms is longer than a tracker's call (~0.05 ms: the waiting planner
+    does not push the caller off the GIL within a call) and shorter than a tick. The first
+    running planner lowers the interval to it (never raises it: an application's lower setting
+    stays); the last one to stop puts back the interval it found, unless the application has
+    changed it since. Process-wide, as the GIL is; ``planner="process"`` shares no GIL and
+    leaves it alone."""
+
+    lock = threading.RLock()  # reentrant: a collection within may run a dropped planner's __del__
+    running = 0
+    saved: float | None = None  # the interval found, where it was lowered
+
+    def __init__(self) -> None:
+        cls = type(self)
+        with cls.lock:
+            if cls.running == 0:
+                now = sys.getswitchinterval()
+                cls.saved = now if now > SWITCH_INTERVAL else None
+                if cls.saved is not None:
+                    sys.setswitchinterval(SWITCH_INTERVAL)
+            cls.running += 1
+        self.held = True
+
+    def release(self) -> None:
+        """Once per planner (:meth:`Planner.close` and the thread's end both call it)."""
+        cls = type(self)
+        with cls.lock:
+            if not self.held:
+                return
+            self.held = False
+            cls.running -= 1
+            if cls.running == 0 and cls.saved is not None:
+                if math.isclose(sys.getswitchinterval(), SWITCH_INTERVAL, rel_tol=1e-3):
+                    sys.setswitchinterval(cls.saved)  # not where the application set its own
+                cls.saved = None
+
+
+def _run(ref, period: float, stop: threading.Event, hold: _SwitchInterval) -> None:
     """The planner's loop (a weak reference to its :class:`Planner`: a planner nobody
-    holds stops)."""
+    holds stops); the switch interval given back when it ends."""
+    try:
+        _loop(ref, period, stop)
+    finally:
+        hold.release()
+
+
+def _loop(ref, period: float, stop: threading.Event) -> None:
     due = time.perf_counter()
     done = None
     while not stop.is_set():
@@ -218,9 +288,10 @@ class Planner:
         self.plans = 0  # plans made
         self.lock = threading.Lock()
         self._stop = threading.Event()
+        self._hold = _SwitchInterval()
         self._thread = threading.Thread(
             target=_run,
-            args=(weakref.ref(self), self.period, self._stop),
+            args=(weakref.ref(self), self.period, self._stop, self._hold),
             name="protorch-planner",
             daemon=True,
         )
@@ -237,29 +308,39 @@ class Planner:
             return self.motion
 
     def close(self) -> None:
-        """Stop the thread (it ends within one ``period``)."""
+        """Stop the thread (it ends within one ``period``) and give the switch interval back
+        (:class:`_SwitchInterval`)."""
         self._stop.set()
+        self._hold.release()
 
     def __del__(self) -> None:
-        self._stop.set()
+        if hasattr(self, "_hold"):  # not where __init__ refused its arguments
+            self._stop.set()
+            self._hold.release()
 
 
-def _as_array(x, n: int, name: str):
-    """:func:`~protorch.policy.reference.as_array` for a ``(n,)`` vector on the tracker's path:
-    the same arrays and the same errors, about three times cheaper for a CPU float64 tensor or
-    array (its values checked as Python floats, the array built from them)."""
+def _values(x, n: int, name: str) -> list[float] | None:
+    """``n`` values for the tracker's path: a list of Python floats of its own (``None`` stays
+    ``None``), with :func:`~protorch.policy.reference.as_array`'s errors. A CPU float64 tensor or
+    array (the loop's usual input) is read with ``tolist`` and checked as floats, about five
+    times cheaper than ``as_array`` (no ``x.device``, no NumPy array built: the planner builds
+    its own)."""
     if x is None:
         return None
-    if (type(x) is Tensor and x.dtype == torch.float64 and x.device.type == "cpu") or (
-        type(x) is np.ndarray and x.dtype == np.float64
+    if (type(x) is Tensor and x.dtype is torch.float64 and x.is_cpu) or (
+        type(x) is np.ndarray and x.dtype is _F64
     ):
         if x.shape != (n,):
             raise ValueError(f"{name} must be {(n,)} values, got shape {tuple(x.shape)}")
         vals = x.tolist()
-        if not all(map(math.isfinite, vals)):
+        # a sum of finite floats is finite unless it overflows: then each value is looked at
+        if not math.isfinite(sum(vals)) and not all(map(math.isfinite, vals)):
             raise ValueError(f"{name} holds NaN or inf: {vals}")
-        return np.array(vals)
-    return as_array(x, (n,), name)
+        return vals
+    return as_array(x, (n,), name).tolist()
+
+
+_F64 = np.dtype(np.float64)
 
 
 class TwoRatePolicy:
@@ -267,21 +348,25 @@ class TwoRatePolicy:
     input check without torch, the planner's step and the tracker's call."""
 
     def _check_np(self, env, t, q, qd) -> tuple:
-        """:meth:`_check` without torch operations: ``env (d,)``, ``t``, ``q, qd (D,)`` or ``None``
-        as float64 NumPy arrays of their own."""
-        env = _as_array(env, self._env_dim, "env")
+        """:meth:`_check` without torch operations: ``env`` (``d`` values), ``t``, ``q, qd`` (``D``
+        values each) or ``None``, the values as lists of Python floats of their own
+        (:func:`_values`)."""
+        env = _values(env, self._env_dim, "env")
         t = float(t)
         if not math.isfinite(t) or t < 0:
             raise ValueError(
                 f"t must be a finite time >= 0 (seconds since the motion started), got {t!r}"
             )
-        return env, t, _as_array(q, self._d, "q"), _as_array(qd, self._d, "qd")
+        return env, t, _values(q, self._d, "q"), _values(qd, self._d, "qd")
 
     def _plan(self, motion: int, env, t: float, q, qd) -> Plan:
-        """The planner's step: the inline class choice at the inputs the tracker handed over."""
-        env_t = torch.from_numpy(env).to(self._device)
-        q_t = None if q is None else torch.from_numpy(q).to(self._device)
-        qd_t = None if qd is None else torch.from_numpy(qd).to(self._device)
+        """The planner's step: the inline class choice at the inputs the tracker handed over
+        (``env``, ``q``, ``qd``: float64 arrays or lists of floats)."""
+        env = np.asarray(env, dtype=np.float64)
+        env_t, q_t, qd_t = (
+            None if x is None else torch.as_tensor(x, dtype=torch.float64).to(self._device)
+            for x in (env, q, qd)
+        )
         with torch.inference_mode():
             c, w = self.choose(env_t, t, q_t, env.tolist(), self.basis_at(t), qd_t)  # w (1, N)
             self._m.t = t

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import gc
 import math
+import sys
 import time
 
 import numpy as np
@@ -14,7 +15,15 @@ import pytest
 import torch
 
 from protorch.policy.limits import JerkLimiter, robot_limits
-from protorch.policy.two_rate import basis3_np
+from protorch.policy.two_rate import (
+    SWITCH_INTERVAL,
+    Plan,
+    Tracker,
+    _SwitchInterval,
+    _values,
+    basis3_np,
+    decay_np,
+)
 from protorch.robots.published import FRANKA_JOINT_LIMITS
 from tests.control.test_policy import toy_policy
 
@@ -175,3 +184,116 @@ def test_the_limiter_keeps_the_limits_and_gives_the_wanted_state_back():
         s[300:], w[300:]
     )  # the hand-over met the wanted motion: passed through again
     assert 0 < lim.following <= 3 and lim.failed == 0
+
+
+def test_the_planner_holds_the_switch_interval_while_it_runs():
+    """The first running planner thread lowers the switch interval to SWITCH_INTERVAL, the last
+    one to stop puts back the one it found; an application's lower interval is kept, one it set
+    meanwhile is not overwritten, a dropped policy gives it back too; process planners leave it."""
+    found = sys.getswitchinterval()
+    gc.collect()  # planners of dropped policies give it back when collected
+    assert _SwitchInterval.running == 0
+    try:
+        sys.setswitchinterval(0.005)
+        a = toy_policy(nearest_k=8, planner="thread", plan_period=1e6)
+        b = toy_policy(nearest_k=8, planner="thread", plan_period=1e6)
+        assert math.isclose(sys.getswitchinterval(), SWITCH_INTERVAL)
+        a.close()
+        a.close()  # once per planner
+        assert math.isclose(sys.getswitchinterval(), SWITCH_INTERVAL)  # b still runs
+        b.close()
+        assert math.isclose(sys.getswitchinterval(), 0.005)
+
+        sys.setswitchinterval(1e-4)  # lower already: kept
+        c = toy_policy(nearest_k=8, planner="thread", plan_period=1e6)
+        assert math.isclose(sys.getswitchinterval(), 1e-4)
+        c.close()
+        assert math.isclose(sys.getswitchinterval(), 1e-4)
+
+        sys.setswitchinterval(0.005)
+        d = toy_policy(nearest_k=8, planner="thread", plan_period=1e6)
+        sys.setswitchinterval(0.002)  # the application's own, while the planner runs
+        d.close()
+        assert math.isclose(sys.getswitchinterval(), 0.002)
+
+        sys.setswitchinterval(0.005)
+        e = toy_policy(nearest_k=8, planner="thread", plan_period=1e6)
+        assert math.isclose(sys.getswitchinterval(), SWITCH_INTERVAL)
+        del e
+        gc.collect()
+        assert math.isclose(sys.getswitchinterval(), 0.005)
+        assert _SwitchInterval.running == 0
+
+        f = toy_policy(nearest_k=8, planner="process", plan_period=2e-3)
+        assert math.isclose(sys.getswitchinterval(), 0.005)
+        f.close()
+    finally:
+        sys.setswitchinterval(found)
+
+
+def test_the_trackers_input_check_reads_tensors_arrays_and_lists_alike():
+    """``_values``: the same floats from a float64 tensor, array or list and from a float32
+    tensor (through ``as_array``); the same errors; finite values whose sum overflows pass."""
+    x = [0.25, -1.5, 3.0]
+    for given in (
+        torch.tensor(x, dtype=F64),
+        np.array(x),
+        x,
+        torch.tensor(x, dtype=torch.float32),
+    ):
+        got = _values(given, 3, "q")
+        assert type(got) is list and got == x and got is not given
+    assert _values(None, 3, "q") is None
+    assert _values(torch.tensor([1e308, 1e308, -1e308], dtype=F64), 3, "q") == [
+        1e308,
+        1e308,
+        -1e308,
+    ]
+    for bad in (math.nan, math.inf, -math.inf):
+        with pytest.raises(ValueError, match="q holds NaN or inf"):
+            _values(torch.tensor([0.0, bad, 1.0], dtype=F64), 3, "q")
+        with pytest.raises(ValueError, match="q holds NaN or inf"):
+            _values(np.array([0.0, bad, 1.0]), 3, "q")
+    with pytest.raises(ValueError, match=r"q must be \(3,\) values, got shape \(3, 1\)"):
+        _values(torch.zeros(3, 1, dtype=F64), 3, "q")
+    with pytest.raises(ValueError, match=r"q must be \(3,\) values, got shape \(2,\)"):
+        _values(np.zeros(2), 3, "q")
+
+
+def test_the_trackers_products_are_the_matmuls_bit_for_bit():
+    """``Tracker.step`` (``ndarray.dot``) against the offset written out with ``@``: the same
+    bits at every call, through plan changes, off the millisecond grid too."""
+    g = np.random.default_rng(0)
+    kb, d, duration, blend = 10, 7, 2.0, 10.0
+    centers, width = np.linspace(0.0, 1.0, kb), 0.08
+    phi_ms = np.stack(
+        [
+            basis3_np(centers, width, i * 1e-3 / duration)
+            * np.array([1.0, 1 / duration, 1 / duration**2])[:, None]
+            for i in range(int(duration * 1000) + 1)
+        ]
+    )  # (T_ms + 1, 3, Kb)
+    tr = Tracker(phi_ms, centers, width, duration, blend)
+    plans = [Plan(g.standard_normal((kb, d)), c % 2, 0.0, 0) for c in range(6)]
+    q0 = g.standard_normal(d)
+    at_jump = decay_np(blend, 0.0)  # (3, 2)
+    off, last, last_t = None, None, 0.0
+    for i in range(600):
+        t = i * 1e-3 + (3.7e-4 if i % 50 == 7 else 0.0)
+        plan = plans[(i // 97) % len(plans)]
+        got = tr.step(t, plan, q0 if i == 0 else None, None)
+        phi = tr.basis(t)  # (3, Kb)
+        want = phi @ plan.W  # (3, D)
+        if last is None:
+            jump = np.stack([q0, 0.0 * q0]) - want[:2]
+        else:
+            jump = phi[:2] @ (last.W - plan.W) if plan is not last else None
+        if off is not None:
+            off = decay_np(blend, t - last_t)[:2] @ off
+            if jump is not None:
+                off += jump
+        else:
+            off = jump
+        want += at_jump @ off
+        last, last_t = plan, t
+        assert np.array_equal(got, want), i

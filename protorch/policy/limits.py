@@ -22,7 +22,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["JerkLimiter", "JointwiseLimiter", "robot_limits"]
+__all__ = ["LIMITS", "JerkLimiter", "JointwiseLimiter", "make_limiter", "robot_limits"]
+
+LIMITS = ("auto", True, False, "joint", "together")  # the values of a policy's ``limits``
 
 DEFAULT_JERK = (
     7500.0  # rad/s^3 per joint where a robot states none (Franka's, of the same order as KUKA's)
@@ -61,6 +63,54 @@ def robot_limits(
             )
         out.append(a)
     return out[0], out[1], out[2]
+
+
+def make_limiter(
+    limits,
+    planner: str,
+    robot,
+    dof: int,
+    *,
+    max_velocity=None,
+    max_acceleration=None,
+    max_jerk=None,
+):
+    """The limiter of a policy's reference (:class:`~protorch.policy.policy.Policy`'s
+    ``limits``), or ``None``: ``"auto"`` (the default) is :class:`JointwiseLimiter` for
+    ``planner="thread"`` or ``"process"`` where the robot states its velocity and acceleration
+    limits (or they are given) and none for ``planner="inline"`` (the moving test's reference,
+    unlimited) or a task without a robot; ``True`` or ``"joint"``, :class:`JointwiseLimiter`;
+    ``"together"``, :class:`JerkLimiter`; ``False``, none. The limits: :func:`robot_limits`.
+    Raises ``ValueError`` for another ``limits``, a limiter asked of the inline planner, or a limit
+    that is missing or not > 0."""
+    if not (limits is True or limits is False or (isinstance(limits, str) and limits in LIMITS)):
+        raise ValueError(
+            f"limits must be 'auto', true, false, 'joint' or 'together', got {limits!r}"
+        )
+    if limits == "auto":
+        stated = all(
+            given is not None or getattr(robot, name, None) is not None
+            for name, given in (
+                ("max_velocity", max_velocity),
+                ("max_acceleration", max_acceleration),
+            )
+        )
+        limits = "joint" if planner != "inline" and stated else False
+    if limits is False:
+        return None
+    if planner == "inline":
+        raise ValueError(
+            f"limits={limits!r} needs planner='thread' or 'process' (the inline reference is the "
+            "moving test's, unlimited)"
+        )
+    lim = robot_limits(
+        robot,
+        dof,
+        max_velocity=max_velocity,
+        max_acceleration=max_acceleration,
+        max_jerk=max_jerk,
+    )
+    return (JerkLimiter if limits == "together" else JointwiseLimiter)(*lim)
 
 
 class JerkLimiter:

@@ -20,9 +20,10 @@ step, MuJoCo: at every physics step), without and with the robot's velocity, acc
 limits (``joint``: ``JointwiseLimiter``, the two-rate policy's default; ``together``:
 ``JerkLimiter``, synchronised; ``on``: ``limits=True``, joint by joint). Printed with it:
 ``peaks``, over every tick of every episode, the reference's largest ``|qd| / max_velocity``,
-``|qdd| / max_acceleration``, ``|jerk| / max_jerk`` (the acceleration's change over the tick) and
-``|q - q_last| / (tick max_velocity)`` (the robot's limits), and the episodes whose first three
-exceed ``1 + 1e-9``.
+``|qdd| / max_acceleration``, ``|jerk| / max_jerk`` (the acceleration's change over the tick),
+``|q - q_last| / (tick max_velocity)`` and ``|qd - qd_last| / (tick max_acceleration)`` (the
+robot's limits; the tick: the control step in kinematics, the physics step in MuJoCo), and the
+episodes where one of them exceeds ``1 + 1e-9``.
 """
 
 from __future__ import annotations
@@ -156,9 +157,9 @@ def main() -> None:
                     "failures": {k: int(v.sum()) for k, v in r["failures"].items()},
                 }
                 if args.follow == "reference":  # the reference's largest ratios to the limits
-                    peaks = r["peaks"]  # (m, 4)
+                    peaks = r["peaks"]  # (m, 5)
                     row["peaks"] = [float(x) for x in peaks.max(axis=0)]
-                    row["episodes_over_limits"] = int((peaks[:, :3] > 1 + 1e-9).any(axis=1).sum())
+                    row["episodes_over_limits"] = int((peaks > 1 + 1e-9).any(axis=1).sum())
                 key = f"{plant}/{mode}" + (
                     f"/reference/limits={lim}" if args.follow != "mean" else ""
                 )

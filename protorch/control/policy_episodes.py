@@ -75,10 +75,12 @@ class PolicyMeans:
     the tracker it runs, :class:`~protorch.policy.two_rate.Tracker`, with ``limits`` the
     policy's ``limits`` for ``planner="thread"``, :func:`~protorch.policy.limits.make_limiter`)
     kept in :attr:`ref` ``(E, 2, D)`` for the arm and in :attr:`states` ``(E, T+1, 3, D)``; in
-    MuJoCo (:meth:`reference_markers`) also at every physics step. :attr:`peaks` ``(E, 4)``: over
+    MuJoCo (:meth:`reference_markers`) also at every physics step. :attr:`peaks` ``(E, 5)``: over
     every tick at which the reference was computed, the largest ``|qd| / max_velocity``, ``|qdd|
-    / max_acceleration``, ``|qdd - qdd_last| / (tick max_jerk)`` and ``|q - q_last| / (tick
-    max_velocity)`` (the robot's limits, :func:`~protorch.policy.limits.robot_limits`)."""
+    / max_acceleration``, ``|qdd - qdd_last| / (tick max_jerk)``, ``|q - q_last| / (tick
+    max_velocity)`` and ``|qd - qd_last| / (tick max_acceleration)`` (the robot's limits,
+    :func:`~protorch.policy.limits.robot_limits`; the last three: finite differences at the
+    tick)."""
 
     def __init__(
         self,
@@ -125,7 +127,7 @@ class PolicyMeans:
             else None
         )
         self._current: list = [None] * e  # the plan each episode tracks now
-        self.peaks = np.zeros((e, 4))  # (E, 4) the reference's largest ratios to the limits
+        self.peaks = np.zeros((e, 5))  # (E, 5) the reference's largest ratios to the limits
         self._last: list = [None] * e  # (3, D) each episode's last reference and its time
         self._lim = (
             robot_limits(policies[0].task.robot, policies[0]._d) if follow == "reference" else None
@@ -202,11 +204,12 @@ class PolicyMeans:
             return
         vmax, amax, jmax = self._lim
         last = self._last[e]
-        row = [np.abs(state[1] / vmax).max(), np.abs(state[2] / amax).max(), 0.0, 0.0]
+        row = [np.abs(state[1] / vmax).max(), np.abs(state[2] / amax).max(), 0.0, 0.0, 0.0]
         if last is not None and s > last[0]:
             tick = s - last[0]
             row[2] = np.abs((state[2] - last[1][2]) / (tick * jmax)).max()
             row[3] = np.abs((state[0] - last[1][0]) / (tick * vmax)).max()
+            row[4] = np.abs((state[1] - last[1][1]) / (tick * amax)).max()
         self._last[e] = (s, state.copy())
         np.maximum(self.peaks[e], row, out=self.peaks[e])
 
@@ -235,7 +238,7 @@ def run_policy_episodes(
 
     Returns ``success (E,)`` bool, ``labels (E, T+1)``, ``age (E, T+1)`` (seconds), ``switches
     (E,)``, ``q (E, T+1, J)``, ``states (E, T+1, 3, J)`` (the reference at the control steps,
-    ``follow="reference"``; zeros otherwise), ``peaks (E, 4)`` (:attr:`PolicyMeans.peaks`) as
+    ``follow="reference"``; zeros otherwise), ``peaks (E, 5)`` (:attr:`PolicyMeans.peaks`) as
     NumPy arrays, and ``failures`` (physics: per failure ``(E,)``).
 
     ``follow="reference"``: the arm's velocity command follows the policy's reference

@@ -12,10 +12,11 @@ wanted state is reached within one interval; from there on the wanted state is p
 again.
 
 The limits hold between consecutive outputs: ``|qd| <= max_velocity``, ``|qdd| <=
-max_acceleration`` and ``|qdd_t - qdd_{t-dt}| <= max_jerk dt`` per joint (to Ruckig's own
-tolerance, about 1e-9 relative), provided the wanted state's velocity and acceleration are
-within the limits where it is passed through (where they are not, Ruckig follows it with its
-target clipped to the limits).
+max_acceleration``, ``|qdd_t - qdd_{t-dt}| <= max_jerk dt`` and the finite differences
+``|q_t - q_{t-dt}| <= max_velocity dt``, ``|qd_t - qd_{t-dt}| <= max_acceleration dt`` per joint
+(to Ruckig's own tolerance, about 1e-9 relative), provided the wanted state's velocity and
+acceleration are within the limits where it is passed through (where they are not, Ruckig
+follows it with its target clipped to the limits).
 """
 
 from __future__ import annotations
@@ -176,9 +177,12 @@ class JerkLimiter:
 
     def _within(self, last: np.ndarray, want: np.ndarray, dt: float) -> bool:
         """Whether ``want`` follows ``last`` within the limits: velocity and acceleration within
-        theirs, the acceleration's change within ``max_jerk dt``, and position and velocity where
-        a constant jerk over ``dt`` takes them (within what ``max_jerk`` moves them over ``dt``).
-        All five are linear in ``(last, want)``: one product with a matrix kept per ``dt``."""
+        theirs, the acceleration's change within ``max_jerk dt``, the position's and the
+        velocity's within ``max_velocity dt`` and ``max_acceleration dt`` (the finite differences
+        at the tick within the limits: at a coarse tick the next two allow more), and position
+        and velocity where a constant jerk over ``dt`` takes them (within what ``max_jerk`` moves
+        them over ``dt``). All seven are linear in ``(last, want)``: one product with a matrix
+        kept per ``dt``."""
         hit = self._tests.get(dt)
         if hit is None:
             if len(self._tests) >= 64:
@@ -190,12 +194,14 @@ class JerkLimiter:
                     [0, 0, 0, 0, 1, 0],  # the velocity
                     [0, 0, 0, 0, 0, 1],  # the acceleration
                     [0, -1, -dt / 2, 0, 1, -dt / 2],  # velocity off a constant jerk's
-                    [-1, -dt, -h / 3, 1, 0, -h / 6],
+                    [-1, -dt, -h / 3, 1, 0, -h / 6],  # position off it
+                    [-1, 0, 0, 1, 0, 0],  # the change of position
+                    [0, -1, 0, 0, 1, 0],  # the change of velocity
                 ],
                 dtype=np.float64,
-            )  # position off it
-            j = self.jmax
-            bound = np.stack([j * dt, self.vmax, self.amax, j * h / 2, j * h * dt / 6])  # (5, D)
+            )
+            j, v, a = self.jmax, self.vmax, self.amax
+            bound = np.stack([j * dt, v, a, j * h / 2, j * h * dt / 6, v * dt, a * dt])  # (7, D)
             hit = self._tests[dt] = (M, bound)
         M, bound = hit
         return bool((np.abs(M @ np.concatenate([last, want])) <= bound).all())

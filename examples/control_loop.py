@@ -9,8 +9,10 @@ run's own workspace (:func:`start_and_slide`).
 The policy is loaded with ``planner="thread"``: its class decisions run on a thread beside the
 loop, which is paced at real time (each step waits for its millisecond) so that the planner sees
 the loop as a robot's would; ``--planner inline`` runs every decision inside the call (the
-moving test's choice exactly) and the loop as fast as it goes. Printed: the ticks whose
-``policy.reference`` took over 1 ms, and the plan's age. The plant is the MuJoCo Panda scene of the
+moving test's choice exactly) and the loop as fast as it goes. With the thread the reference
+keeps the robot's velocity, acceleration and jerk limits (the policy's default, ``--limits
+auto``; ``--limits off``: not). Printed: the ticks whose ``policy.reference`` took over 1 ms,
+and the plan's age. The plant is the MuJoCo Panda scene of the
 physics test (:func:`protorch.sim.scene.build_scene`),
 stepped by MuJoCo at 1 ms; at every step the reference comes from ``policy.reference`` for the
 environment seen now and the measured joints, and the torque from the project's computed-torque

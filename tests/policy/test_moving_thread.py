@@ -153,7 +153,7 @@ def test_the_mujoco_arm_follows_the_default_limited_reference_at_every_physics_s
     """MuJoCo's reference follows the policy's (``follow="reference"``, the planner a step
     behind): by default (``limits="auto"``) it keeps the Panda's velocity, acceleration and jerk
     limits at every physics step (2 ms) of the moving test's episodes, switches included, the
-    last physics step of a control step to the next included; ``limits=False`` asks for more there."""
+    last physics step of a control step to the next included; ``limits=False`` asks for more."""
     pytest.importorskip("mujoco", minversion="4.0", reason="the physics extra is not installed")
     from protorch.sim.scene import build_scene, controller_model
 

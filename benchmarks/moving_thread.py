@@ -14,9 +14,16 @@ own numbers (``metrics.json``'s moving test: kinematics, and the physics test's 
     python benchmarks/moving_thread.py RUN [RUN ...] [--modes inline,lagged,thread]
         [--plants kin,mujoco] [--episodes N] [--thread-episodes N] [--lag 1] [--json out.json]
 
-``--follow reference --limits off,on --plants kin``: the kinematic arm's velocity command follows
-the policy's reference (the tracker's plan mean plus continuity offset, evaluated at the control
-step), without and with the robot's velocity, acceleration and jerk limits.
+``--follow reference --limits off,joint``: the arm's velocity command follows the policy's
+reference (the tracker's plan mean plus continuity offset; kinematics: evaluated at the control
+step, MuJoCo: at every physics step), without and with the robot's velocity, acceleration and jerk
+limits (``joint``: ``JointwiseLimiter``, the two-rate policy's default; ``together``:
+``JerkLimiter``, synchronised; ``on``: ``limits=True``, joint by joint). Printed with it:
+``peaks``, over every tick of every episode, the reference's largest ``|qd| / max_velocity``,
+``|qdd| / max_acceleration``, ``|jerk| / max_jerk`` (the acceleration's change over the tick),
+``|q - q_last| / (tick max_velocity)`` and ``|qd - qd_last| / (tick max_acceleration)`` (the
+robot's limits; the tick: the control step in kinematics, the physics step in MuJoCo), and the
+episodes where one of them exceeds ``1 + 1e-9``.
 """
 
 from __future__ import annotations
@@ -94,8 +101,8 @@ def main() -> None:
     ap.add_argument(
         "--limits",
         default="off",
-        help="off, on, joint (joint by joint, unsynchronised) or a list, e.g. off,on,joint "
-        "(with --follow reference)",
+        help="off, joint (joint by joint, the default's), together (synchronised), on "
+        "(limits=True: joint) or a list, e.g. off,joint (with --follow reference)",
     )
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
@@ -132,7 +139,9 @@ def main() -> None:
                     max_acceleration=amax,
                     physics=phys,
                     follow=args.follow,
-                    limits={"off": False, "on": True, "joint": "joint"}[lim],
+                    limits={"off": False, "on": True, "joint": "joint", "together": "together"}[
+                        lim
+                    ],
                 )
                 if mode == "inline":
                     switched[plant] = r["switches"] > 0
@@ -147,6 +156,10 @@ def main() -> None:
                     "seconds": round(time.perf_counter() - t0, 1),
                     "failures": {k: int(v.sum()) for k, v in r["failures"].items()},
                 }
+                if args.follow == "reference":  # the reference's largest ratios to the limits
+                    peaks = r["peaks"]  # (m, 5)
+                    row["peaks"] = [float(x) for x in peaks.max(axis=0)]
+                    row["episodes_over_limits"] = int((peaks > 1 + 1e-9).any(axis=1).sum())
                 key = f"{plant}/{mode}" + (
                     f"/reference/limits={lim}" if args.follow != "mean" else ""
                 )

@@ -1,7 +1,7 @@
 """A 1 kHz control loop with a trained arm run (docs/control_loop.md).
 
     python examples/control_loop.py RUN_DIR [--plot docs/img/control_loop.png] [--planner
-    thread|inline] [--limits]
+    thread|inline] [--limits auto|off|joint|together]
 
 The same loop runs an iiwa14 run (``robot=iiwa14``): the start and the slide are laid out in the
 run's own workspace (:func:`start_and_slide`).
@@ -9,8 +9,10 @@ run's own workspace (:func:`start_and_slide`).
 The policy is loaded with ``planner="thread"``: its class decisions run on a thread beside the
 loop, which is paced at real time (each step waits for its millisecond) so that the planner sees
 the loop as a robot's would; ``--planner inline`` runs every decision inside the call (the
-moving test's choice exactly) and the loop as fast as it goes. Printed: the ticks whose
-``policy.reference`` took over 1 ms, and the plan's age. The plant is the MuJoCo Panda scene of the
+moving test's choice exactly) and the loop as fast as it goes. With the thread the reference
+keeps the robot's velocity, acceleration and jerk limits (the policy's default, ``--limits
+auto``; ``--limits off``: not). Printed: the ticks whose ``policy.reference`` took over 1 ms,
+and the plan's age. The plant is the MuJoCo Panda scene of the
 physics test (:func:`protorch.sim.scene.build_scene`),
 stepped by MuJoCo at 1 ms; at every step the reference comes from ``policy.reference`` for the
 environment seen now and the measured joints, and the torque from the project's computed-torque
@@ -220,12 +222,16 @@ def main() -> None:
     ap.add_argument("--planner", default="thread", choices=["thread", "inline"])
     ap.add_argument(
         "--limits",
-        action="store_true",
-        help="hold the reference to the robot's velocity, acceleration and jerk limits (thread)",
+        default="auto",
+        choices=["auto", "off", "joint", "together"],
+        help="the reference held to the robot's velocity, acceleration and jerk limits (thread): "
+        "auto (the policy's default: joint by joint with planner thread, none inline), off, joint "
+        "(each joint handed over on its own), together (all joints synchronised)",
     )
     args = ap.parse_args()
     torch.set_num_threads(1)
-    policy = protorch.load(args.run, planner=args.planner, limits=args.limits)
+    limits = False if args.limits == "off" else args.limits
+    policy = protorch.load(args.run, planner=args.planner, limits=limits)
     env0, can_to = start_and_slide(policy.task, args.env, args.can_to)
     log = control_loop(
         policy,

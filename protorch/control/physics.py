@@ -325,7 +325,11 @@ def run_physics_episodes(
 
     ``scene``: the plant (:func:`~protorch.sim.scene.build_scene`); ``ctrl_model``: the
     controller's model (:func:`~protorch.sim.scene.controller_model`); ``system``: what answers
-    the mean weights every control step; ``kp, kd``: the computed-torque gains; ``ref_kp``,
+    the mean weights every control step (a system with a method ``reference_markers(t, times (n,),
+    m, m_vel (E, n, D)) -> (m, m_vel)`` replaces the mean's marker and its velocity at the
+    physics steps of control step ``t`` with its own reference,
+    :class:`~protorch.control.policy_episodes.PolicyMeans`); ``kp, kd``: the computed-torque
+    gains; ``ref_kp``,
     ``max_acceleration``: the reference's velocity command (the kinematic test's ``kp`` and
     acceleration limits); ``threads``: the thread pools of the plant's and the controller's
     batches; ``feasible``: a fraction of the torque limits within which the reference's
@@ -383,6 +387,9 @@ def run_physics_episodes(
             m_vel = (
                 dm / timing.duration * (times < timing.duration - 1e-12)[None, :, None]
             )  # (E, n, D)
+            follow = getattr(system, "reference_markers", None)
+            if follow is not None:  # a system with its own reference to follow (policy_episodes)
+                m, m_vel = follow(t, times, m, m_vel)  # (E, n, D) twice
             for s in range(n_sub):
                 a_r = velocity_command_acceleration(
                     q_r, v_r, m[:, s], m_vel[:, s], kp=ref_kp, vmax=vmax, amax=amax, dt=h

@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..policy.limits import JerkLimiter, JointwiseLimiter, robot_limits
+from ..policy.limits import make_limiter, robot_limits
 from ..policy.policy import Policy
 from ..policy.two_rate import Tracker
 from .arm import arm_outcome, count_switches
@@ -72,9 +72,15 @@ class PolicyMeans:
     ``envs (E, T+1, 4)``; :attr:`labels` ``(E, T+1)`` the tracked class, :attr:`age` ``(E, T+1)``
     the seconds between the instant and the inputs of its plan. ``follow="reference"``: the
     policy's reference (``mode="thread"``: :meth:`~protorch.policy.policy.Policy.reference`; else
-    the tracker it runs, :class:`~protorch.policy.two_rate.Tracker`, with ``limits`` the robot's
-    limits) kept in :attr:`ref` ``(E, 2, D)`` for the arm and in :attr:`states` ``(E, T+1, 3,
-    D)``."""
+    the tracker it runs, :class:`~protorch.policy.two_rate.Tracker`, with ``limits`` the
+    policy's ``limits`` for ``planner="thread"``, :func:`~protorch.policy.limits.make_limiter`)
+    kept in :attr:`ref` ``(E, 2, D)`` for the arm and in :attr:`states` ``(E, T+1, 3, D)``; in
+    MuJoCo (:meth:`reference_markers`) also at every physics step. :attr:`peaks` ``(E, 5)``: over
+    every tick at which the reference was computed, the largest ``|qd| / max_velocity``, ``|qdd|
+    / max_acceleration``, ``|qdd - qdd_last| / (tick max_jerk)``, ``|q - q_last| / (tick
+    max_velocity)`` and ``|qd - qd_last| / (tick max_acceleration)`` (the robot's limits,
+    :func:`~protorch.policy.limits.robot_limits`; the last three: finite differences at the
+    tick)."""
 
     def __init__(
         self,
@@ -85,7 +91,7 @@ class PolicyMeans:
         lag: int = 1,
         *,
         follow: str = "mean",
-        limits: bool | str = False,
+        limits: bool | str = "auto",
     ) -> None:
         if follow not in ("mean", "reference"):
             raise ValueError(f"follow must be 'mean' or 'reference', got {follow!r}")
@@ -120,6 +126,12 @@ class PolicyMeans:
             if follow == "reference" and mode != "thread"
             else None
         )
+        self._current: list = [None] * e  # the plan each episode tracks now
+        self.peaks = np.zeros((e, 5))  # (E, 5) the reference's largest ratios to the limits
+        self._last: list = [None] * e  # (3, D) each episode's last reference and its time
+        self._lim = (
+            robot_limits(policies[0].task.robot, policies[0]._d) if follow == "reference" else None
+        )
 
     def answer(self, t: int, z: float, q: Tensor, qd: Tensor | None = None) -> Tensor:
         s = t * self.timing.dt
@@ -132,6 +144,7 @@ class PolicyMeans:
             if self.mode == "thread":
                 if t == 0:
                     pol.reset(env, qe, qde)  # the motion's first plan, before its first tick
+                    self._last[e] = None
                     self._start = time.perf_counter()
                 wait = self._start + s - time.perf_counter()
                 if wait > 0:
@@ -140,9 +153,11 @@ class PolicyMeans:
                 plan = pol._tracker.plan
                 self.states[e, t] = torch.stack([r.q, r.qd, r.qdd]).numpy()
                 self.ref[e] = torch.from_numpy(self.states[e, t, :2])
+                self._peak(e, s, self.states[e, t])
             else:
                 if t == 0:
                     pol.reset()
+                    self._last[e] = None
                     if self._trackers is not None:
                         self._trackers[e].reset()
                 self._plans[e].append(pol._plan(0, env, s, qe, qde))
@@ -150,9 +165,53 @@ class PolicyMeans:
                 if self._trackers is not None:  # the tracker's reference, at the control step
                     self.states[e, t] = self._trackers[e].step(s, plan, qe, qde)
                     self.ref[e] = torch.from_numpy(self.states[e, t, :2])
+                    self._peak(e, s, self.states[e, t])
+            self._current[e] = plan
             self.labels[e, t], self.age[e, t] = plan.label, s - plan.t
             out.append(plan.W.T.reshape(-1))  # (N,) = (D Kb), the weights' layout
         return torch.from_numpy(np.stack(out)).to(q.dtype)  # (E, N)
+
+    def reference_markers(
+        self, t: int, times: Tensor, m: Tensor, m_vel: Tensor
+    ) -> tuple[Tensor, Tensor]:
+        """The markers the MuJoCo reference follows at the physics steps ``times (n,)`` of control
+        step ``t`` (:func:`~protorch.control.physics.run_physics_episodes`): the plan's mean's,
+        ``m, m_vel (E, n, D)``, as they are (``follow="mean"``), or the policy's reference at each
+        physics step (``follow="reference"``: the tracker stepped at every physics step on the
+        plan of control step ``t``, its limiter too)."""
+        if self.follow != "reference":
+            return m, m_vel
+        if self._trackers is None:
+            raise ValueError("follow='reference' in MuJoCo runs modes 'inline' and 'lagged'")
+        out = np.empty((len(self.policies), len(times), 2, m.shape[-1]))  # (E, n, 2, D)
+        for e, tracker in enumerate(self._trackers):
+            for i, s in enumerate(times.tolist()):
+                if i == 0:  # control step t itself: computed by answer()
+                    out[e, i] = self.states[e, t, :2]
+                    continue
+                k = round(s * 1000.0)  # a whole millisecond: the tracker's basis table
+                s = k * 1e-3 if abs(k * 1e-3 - s) < 1e-9 else s
+                state = tracker.step(s, self._current[e], None, None)  # (3, D)
+                self._peak(e, s, state)
+                out[e, i] = state[:2]
+        ref = torch.from_numpy(out).to(m)
+        return ref[:, :, 0], ref[:, :, 1]
+
+    def _peak(self, e: int, s: float, state: np.ndarray) -> None:
+        """Keep episode ``e``'s largest ratios to the limits (:attr:`peaks`) with the reference
+        ``state (3, D)`` at time ``s``."""
+        if self._lim is None:
+            return
+        vmax, amax, jmax = self._lim
+        last = self._last[e]
+        row = [np.abs(state[1] / vmax).max(), np.abs(state[2] / amax).max(), 0.0, 0.0, 0.0]
+        if last is not None and s > last[0]:
+            tick = s - last[0]
+            row[2] = np.abs((state[2] - last[1][2]) / (tick * jmax)).max()
+            row[3] = np.abs((state[0] - last[1][0]) / (tick * vmax)).max()
+            row[4] = np.abs((state[1] - last[1][1]) / (tick * amax)).max()
+        self._last[e] = (s, state.copy())
+        np.maximum(self.peaks[e], row, out=self.peaks[e])
 
 
 def run_policy_episodes(
@@ -166,7 +225,7 @@ def run_policy_episodes(
     max_acceleration=None,
     physics: dict | None = None,
     follow: str = "mean",
-    limits: bool | str = False,
+    limits: bool | str = "auto",
 ) -> dict:
     """The moving test's episodes in ``envs (E, T+1, 4)`` with :class:`PolicyMeans` naming the
     means (module docstring): all at once with a copy of ``policy`` per episode
@@ -178,15 +237,18 @@ def run_policy_episodes(
     ``kp``, ``kd``, ``ref_kp``, ``max_acceleration``, ``feasible``).
 
     Returns ``success (E,)`` bool, ``labels (E, T+1)``, ``age (E, T+1)`` (seconds), ``switches
-    (E,)``, ``q (E, T+1, J)``, ``states (E, T+1, 3, J)`` (the reference, ``follow="reference"``;
-    zeros otherwise) as NumPy arrays, and ``failures`` (physics: per failure ``(E,)``).
+    (E,)``, ``q (E, T+1, J)``, ``states (E, T+1, 3, J)`` (the reference at the control steps,
+    ``follow="reference"``; zeros otherwise), ``peaks (E, 5)`` (:attr:`PolicyMeans.peaks`) as
+    NumPy arrays, and ``failures`` (physics: per failure ``(E,)``).
 
-    ``follow="reference"`` (kinematics): the arm's velocity command follows the policy's reference
-    (:meth:`~protorch.policy.policy.Policy.reference`'s tracker, evaluated at the control step:
-    the plan's mean plus the continuity offset; ``limits``: held to the robot's velocity,
-    acceleration and jerk limits) instead of the tracked plan's mean."""
-    if follow == "reference" and physics is not None:
-        raise ValueError("follow='reference' is a kinematic test (physics=None)")
+    ``follow="reference"``: the arm's velocity command follows the policy's reference
+    (:meth:`~protorch.policy.policy.Policy.reference`'s tracker: the plan's mean plus the
+    continuity offset; ``limits``: the policy's ``limits`` for ``planner="thread"``, by default
+    held to the robot's velocity, acceleration and jerk limits, ``False`` not) instead of the
+    tracked plan's mean: in kinematics evaluated at the control step, in MuJoCo at every physics
+    step (modes ``inline`` and ``lagged``)."""
+    if follow == "reference" and physics is not None and mode == "thread":
+        raise ValueError("follow='reference' in MuJoCo runs modes 'inline' and 'lagged'")
     task, promp = policy.task, policy._P
     if envs.dim() != 3 or envs.shape[1] != timing.total + 1:
         raise ValueError(
@@ -201,7 +263,7 @@ def run_policy_episodes(
         groups = [list(range(envs.shape[0]))]
     parts = []
     for idx in groups:
-        opts = {"planner": "thread", "limits": bool(limits)} if mode == "thread" else {}
+        opts = {"planner": "thread", "limits": limits} if mode == "thread" else {}
         pols = [policy_copy(policy, **opts) for _ in idx]
         try:
             parts.append(
@@ -219,6 +281,7 @@ def run_policy_episodes(
         "switches": count_switches(torch.from_numpy(lab)).numpy(),
         "q": np.concatenate([p["q"] for p in parts]),
         "states": np.concatenate([p["states"] for p in parts]),
+        "peaks": np.concatenate([p["peaks"] for p in parts]),
         "failures": {k: np.concatenate([f[k] for f in fails]) for k in fails[0]},
     }
 
@@ -242,18 +305,19 @@ def _run(pols, envs: Tensor, timing: Timing, mode, lag, kp, amax, physics, kw, f
         "labels": system.labels.numpy(),
         "age": system.age,
         "states": system.states,
+        "peaks": system.peaks,
         "q": q,
         "failures": failures,
     }
 
 
 def _tracker(policy, limits):
-    """The tracker ``planner="thread"`` gives ``policy``
-    (:class:`~protorch.policy.two_rate.Tracker`, with the robot's limits:
-    :class:`~protorch.policy.limits.JerkLimiter`; ``limits="joint"``: joint by joint,
-    :class:`~protorch.policy.limits.JointwiseLimiter`), without its thread."""
-    kind = JointwiseLimiter if limits == "joint" else JerkLimiter
-    lim = kind(*robot_limits(policy.task.robot, policy._d)) if limits else None
+    """The tracker ``planner="thread"`` with ``limits`` gives ``policy``
+    (:class:`~protorch.policy.two_rate.Tracker` with the limiter of
+    :func:`~protorch.policy.limits.make_limiter`: ``"auto"``, ``True``, ``"joint"``
+    :class:`~protorch.policy.limits.JointwiseLimiter`, ``"together"``
+    :class:`~protorch.policy.limits.JerkLimiter`, ``False`` none), without its thread."""
+    lim = make_limiter(limits, "thread", policy.task.robot, policy._d)
     P = policy._P
     return Tracker(
         policy._phi_ms.cpu().numpy(),

@@ -12,17 +12,20 @@ wanted state is reached within one interval; from there on the wanted state is p
 again.
 
 The limits hold between consecutive outputs: ``|qd| <= max_velocity``, ``|qdd| <=
-max_acceleration`` and ``|qdd_t - qdd_{t-dt}| <= max_jerk dt`` per joint (to Ruckig's own
-tolerance, about 1e-9 relative), provided the wanted state's velocity and acceleration are
-within the limits where it is passed through (where they are not, Ruckig follows it with its
-target clipped to the limits).
+max_acceleration``, ``|qdd_t - qdd_{t-dt}| <= max_jerk dt`` and the finite differences
+``|q_t - q_{t-dt}| <= max_velocity dt``, ``|qd_t - qd_{t-dt}| <= max_acceleration dt`` per joint
+(to Ruckig's own tolerance, about 1e-9 relative), provided the wanted state's velocity and
+acceleration are within the limits where it is passed through (where they are not, Ruckig
+follows it with its target clipped to the limits).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["JerkLimiter", "JointwiseLimiter", "robot_limits"]
+__all__ = ["LIMITS", "JerkLimiter", "JointwiseLimiter", "make_limiter", "robot_limits"]
+
+LIMITS = ("auto", True, False, "joint", "together")  # the values of a policy's ``limits``
 
 DEFAULT_JERK = (
     7500.0  # rad/s^3 per joint where a robot states none (Franka's, of the same order as KUKA's)
@@ -61,6 +64,54 @@ def robot_limits(
             )
         out.append(a)
     return out[0], out[1], out[2]
+
+
+def make_limiter(
+    limits,
+    planner: str,
+    robot,
+    dof: int,
+    *,
+    max_velocity=None,
+    max_acceleration=None,
+    max_jerk=None,
+):
+    """The limiter of a policy's reference (:class:`~protorch.policy.policy.Policy`'s
+    ``limits``), or ``None``: ``"auto"`` (the default) is :class:`JointwiseLimiter` for
+    ``planner="thread"`` or ``"process"`` where the robot states its velocity and acceleration
+    limits (or they are given) and none for ``planner="inline"`` (the moving test's reference,
+    unlimited) or a task without a robot; ``True`` or ``"joint"``, :class:`JointwiseLimiter`;
+    ``"together"``, :class:`JerkLimiter`; ``False``, none. The limits: :func:`robot_limits`.
+    Raises ``ValueError`` for another ``limits``, a limiter asked of the inline planner, or a limit
+    that is missing or not > 0."""
+    if not (limits is True or limits is False or (isinstance(limits, str) and limits in LIMITS)):
+        raise ValueError(
+            f"limits must be 'auto', true, false, 'joint' or 'together', got {limits!r}"
+        )
+    if limits == "auto":
+        stated = all(
+            given is not None or getattr(robot, name, None) is not None
+            for name, given in (
+                ("max_velocity", max_velocity),
+                ("max_acceleration", max_acceleration),
+            )
+        )
+        limits = "joint" if planner != "inline" and stated else False
+    if limits is False:
+        return None
+    if planner == "inline":
+        raise ValueError(
+            f"limits={limits!r} needs planner='thread' or 'process' (the inline reference is the "
+            "moving test's, unlimited)"
+        )
+    lim = robot_limits(
+        robot,
+        dof,
+        max_velocity=max_velocity,
+        max_acceleration=max_acceleration,
+        max_jerk=max_jerk,
+    )
+    return (JerkLimiter if limits == "together" else JointwiseLimiter)(*lim)
 
 
 class JerkLimiter:
@@ -126,9 +177,12 @@ class JerkLimiter:
 
     def _within(self, last: np.ndarray, want: np.ndarray, dt: float) -> bool:
         """Whether ``want`` follows ``last`` within the limits: velocity and acceleration within
-        theirs, the acceleration's change within ``max_jerk dt``, and position and velocity where
-        a constant jerk over ``dt`` takes them (within what ``max_jerk`` moves them over ``dt``).
-        All five are linear in ``(last, want)``: one product with a matrix kept per ``dt``."""
+        theirs, the acceleration's change within ``max_jerk dt``, the position's and the
+        velocity's within ``max_velocity dt`` and ``max_acceleration dt`` (the finite differences
+        at the tick within the limits: at a coarse tick the next two allow more), and position
+        and velocity where a constant jerk over ``dt`` takes them (within what ``max_jerk`` moves
+        them over ``dt``). All seven are linear in ``(last, want)``: one product with a matrix
+        kept per ``dt``."""
         hit = self._tests.get(dt)
         if hit is None:
             if len(self._tests) >= 64:
@@ -140,12 +194,14 @@ class JerkLimiter:
                     [0, 0, 0, 0, 1, 0],  # the velocity
                     [0, 0, 0, 0, 0, 1],  # the acceleration
                     [0, -1, -dt / 2, 0, 1, -dt / 2],  # velocity off a constant jerk's
-                    [-1, -dt, -h / 3, 1, 0, -h / 6],
+                    [-1, -dt, -h / 3, 1, 0, -h / 6],  # position off it
+                    [-1, 0, 0, 1, 0, 0],  # the change of position
+                    [0, -1, 0, 0, 1, 0],  # the change of velocity
                 ],
                 dtype=np.float64,
-            )  # position off it
-            j = self.jmax
-            bound = np.stack([j * dt, self.vmax, self.amax, j * h / 2, j * h * dt / 6])  # (5, D)
+            )
+            j, v, a = self.jmax, self.vmax, self.amax
+            bound = np.stack([j * dt, v, a, j * h / 2, j * h * dt / 6, v * dt, a * dt])  # (7, D)
             hit = self._tests[dt] = (M, bound)
         M, bound = hit
         return bool((np.abs(M @ np.concatenate([last, want])) <= bound).all())

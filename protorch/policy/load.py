@@ -80,7 +80,9 @@ def load_policy(
     of the map (as :func:`protorch.data.checkpoint.load`; the policy's per-call path is float64
     whatever the map's dtype). ``options`` override :class:`~protorch.policy.policy.Policy`'s
     settings (``planner``, ``duration``, ``switch_margin``, ``decision_dt``, ``blend``, ``check``,
-    ``kp``, ``max_acceleration``, ``switch_clearance``, ``limits``, ``max_velocity``, ``max_jerk``).
+    ``kp``, ``max_acceleration``, ``switch_clearance``, ``limits``, ``max_velocity``, ``max_jerk``;
+    ``limits`` is not a run's setting: ``"auto"``, the robot's limits with ``planner="thread"``
+    or ``"process"``, unless given).
     Raises ``FileNotFoundError`` (no such folder, no checkpoint) or ``ValueError`` (another
     experiment, a config this protorch refuses), each naming ``run=``."""
     dtype = torch.float64 if dtype is None else dtype

@@ -41,8 +41,8 @@ backwards within a motion (a smaller ``t`` than the last is taken as the last).
 
 That is ``planner="inline"``: every call does items 1-4. With ``planner="thread"`` items 1-2 run
 on a planner thread beside the caller and the call tracks the newest plan (items 3-4 in NumPy,
-:mod:`protorch.policy.two_rate`); ``limits=True`` holds the reference to the robot's velocity,
-acceleration and jerk limits (:mod:`protorch.policy.limits`).
+:mod:`protorch.policy.two_rate`), the reference held to the robot's velocity, acceleration and
+jerk limits by default (``limits="auto"``, :mod:`protorch.policy.limits`; ``limits=False``: not).
 """
 
 from __future__ import annotations
@@ -61,7 +61,7 @@ from ..control.plan_memo import ClearanceMemo, point_reach
 from ..gp.model import EnvToProMP
 from .choice import ClassChoice
 from .export import write_program
-from .limits import JerkLimiter, JointwiseLimiter, robot_limits
+from .limits import make_limiter
 from .means import ClassMeans, EndEffector, basis3, decay_matrix
 from .process_planner import ProcessPlanner
 from .programs import write_programs
@@ -104,13 +104,16 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
             process, inputs and plans in shared memory: no GIL shared with the caller;
             :mod:`protorch.policy.process_planner`).
         limits: keep the reference within the robot's velocity, acceleration and jerk limits at
-            every call (``planner="thread"`` or ``"process"`` only): ``True`` or ``"joint"``,
+            every call (``planner="thread"`` or ``"process"``): ``"auto"`` (the default),
+            :class:`~protorch.policy.limits.JointwiseLimiter` for the two-rate planners where the
+            robot states its limits, none inline (the moving test's reference, unlimited, exactly)
+            or without a robot; ``True`` or ``"joint"``,
             :class:`~protorch.policy.limits.JointwiseLimiter` (a Ruckig hand-over per joint where
             the wanted reference leaves the limits, each joint back on it as soon as it can);
             ``"together"``, :class:`~protorch.policy.limits.JerkLimiter` (one hand-over of all
             joints, time-synchronised: every joint as slow as the slowest, which costs the moving
-            test 0.05-0.10 of its success, docs/control_loop_moving.md). Off by default: a class
-            switch's offset asks for more acceleration than the Panda's limits.
+            test 0.05-0.10 of its success, docs/control_loop_moving.md); ``False``: none
+            (:func:`~protorch.policy.limits.make_limiter`).
             ``max_velocity``, ``max_jerk`` (and
             ``max_acceleration``): the limits, ``None``: the robot's
             (:func:`~protorch.policy.limits.robot_limits`).
@@ -134,7 +137,7 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         max_acceleration=None,
         switch_clearance: float = 0.0,
         planner: str = "inline",
-        limits: bool | str = False,
+        limits: bool | str = "auto",
         max_velocity=None,
         max_jerk=None,
         plan_period: float | None = None,
@@ -209,23 +212,16 @@ class Policy(ClassChoice, TwoRatePolicy, EnvToProMP):
         self._at_jump = self._decay(0.0) if math.isfinite(self.blend) else None  # (3, 2)
         robot = getattr(task, "robot", None)
         self.planner = planner
-        if limits not in (False, True, "joint", "together"):
-            raise ValueError(f"limits must be false, true, 'joint' or 'together', got {limits!r}")
-        if limits and planner == "inline":
-            raise ValueError(
-                "limits=True needs planner='thread' or 'process' (the inline reference is the "
-                "moving test's, unlimited)"
-            )
-        self._limiter = None
-        if limits:
-            lim = robot_limits(
-                robot,
-                self._d,
-                max_velocity=max_velocity,
-                max_acceleration=max_acceleration,
-                max_jerk=max_jerk,
-            )
-            self._limiter = (JerkLimiter if limits == "together" else JointwiseLimiter)(*lim)
+        given = dict(
+            max_velocity=max_velocity, max_acceleration=max_acceleration, max_jerk=max_jerk
+        )
+        self._limiter = make_limiter(limits, planner, robot, self._d, **given)
+        # the limits of the two halves (planner="thread"), written beside the exported programs
+        self._halves_limiter = (
+            self._limiter
+            if planner != "inline"
+            else make_limiter(limits, "thread", robot, self._d, **given)
+        )
         self._planner = self._tracker = None
         if planner != "inline" and task is None and self.labels.numel() > 1:
             raise ValueError(

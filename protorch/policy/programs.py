@@ -18,9 +18,12 @@ between calls passed in and handed back.
   offset (the jump of the mean added where the plan changed; at the motion's first call,
   ``started = 0``, the gap from the measured ``q, qd``). The state at a motion's start: zeros.
 
-The robot's jerk limiter (:class:`~protorch.policy.limits.JerkLimiter`, ``limits=True``) is not
-in the tracker program: Ruckig is a C++ library (``ruckig::Ruckig``) that a C++ loop applies to
-the tracker's output as the limiter does; the limits are written beside the programs.
+The robot's limiter (:class:`~protorch.policy.limits.JointwiseLimiter`, on by default for the two
+rates; :class:`~protorch.policy.limits.JerkLimiter` with ``limits="together"``) is not in the
+tracker program: Ruckig is a C++ library (``ruckig::Ruckig``) that a C++ loop applies to the
+tracker's output as the limiter does; the limits are written beside the programs
+(``programs.json``'s ``limits``: ``null`` with ``limits=False``; ``synchronised``: one hand-over
+of all joints, else one per joint).
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from torch import Tensor
 from ..control.arm_choice import rest_scores
 from ..data.files import atomic_write_bytes
 from .export import ExportProgram, save_program, static_gaps
+from .limits import JerkLimiter
 from .means import basis3
 
 __all__ = ["PlannerProgram", "TrackerProgram", "tracker_state", "write_programs"]
@@ -250,7 +254,7 @@ def write_programs(policy, folder: Path, aoti: bool | str = False) -> Path:
     args = (t.clone(), W, q.clone(), q.clone(), *tracker_state(policy))  # no input aliases another
     tracker = TrackerProgram(policy)
     save_program(tracker, args, folder / "tracker.pt2", bool(aoti), f"the {type(tracker).__name__}")
-    lim = policy._limiter
+    lim = policy._halves_limiter  # the two-rate policy's (an inline policy's: what thread gets)
     meta = {
         "aoti": {"planner": aoti is True, "tracker": bool(aoti)},
         "env_dim": policy.env_dim,
@@ -266,6 +270,7 @@ def write_programs(policy, folder: Path, aoti: bool | str = False) -> Path:
             "max_velocity": lim.vmax.tolist(),
             "max_acceleration": lim.amax.tolist(),
             "max_jerk": lim.jmax.tolist(),
+            "synchronised": isinstance(lim, JerkLimiter),  # one hand-over of all joints, or each
         },
     }
     atomic_write_bytes(folder / "programs.json", json.dumps(meta, indent=1).encode())

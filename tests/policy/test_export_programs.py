@@ -65,6 +65,7 @@ def check_programs(pol, tmp_path: Path, envs, q0, every: int, aoti: bool | str =
         meta["aoti"] == {"planner": aoti is True, "tracker": bool(aoti)}
         and meta["dof"] == pol._d
         and meta["labels"] == pol._label_list
+        and meta["limits"] is None  # the programs' references are unlimited: compared below
     )
     qd0 = torch.zeros_like(q0)
     torch.save({"env": envs, "q0": q0, "qd0": qd0}, tmp_path / "inputs.pt")
@@ -96,6 +97,33 @@ def test_the_exported_halves_driven_without_protorch_equal_the_threaded_policy(t
     labels = check_programs(pol, tmp_path, walk(400), torch.tensor([0.1, -0.2], dtype=F64), 5)
     assert labels == {0, 1}
     pol.close()
+
+
+def test_programs_json_names_the_limits_of_the_two_halves(tmp_path):
+    """``programs.json``'s ``limits``: those the two halves run with in Python, the robot's
+    (here given) joint by joint by default, also where the policy itself was loaded inline (its
+    exported halves are ``planner="thread"``'s); ``"together"`` synchronised; ``False`` none."""
+    lim = {"max_velocity": 1.5, "max_acceleration": 4.0, "max_jerk": 900.0}
+    want = {
+        "max_velocity": [1.5, 1.5],
+        "max_acceleration": [4.0, 4.0],
+        "max_jerk": [900.0, 900.0],
+    }
+    for i, (options, expect) in enumerate(
+        [
+            ({}, {**want, "synchronised": False}),
+            ({"planner": "thread", "plan_period": 1e6}, {**want, "synchronised": False}),
+            (
+                {"planner": "thread", "plan_period": 1e6, "limits": "together"},
+                {**want, "synchronised": True},
+            ),
+            ({"limits": False}, None),
+        ]
+    ):
+        pol = toy_policy(nearest_k=8, warm_up=False, **lim, **options)
+        folder = pol.export(tmp_path / str(i))
+        assert json.loads((folder / "programs.json").read_text())["limits"] == expect, options
+        pol.close()
 
 
 def test_a_single_tick_of_each_program_keeps_its_state_explicit():
@@ -158,6 +186,7 @@ def test_the_exported_arm_halves_with_the_plan_check_equal_the_threaded_policy(t
         check=True,
         planner="thread",
         plan_period=1e6,
+        limits=False,  # the exported loop applies no Ruckig (a C++ loop would: programs.json)
     )
     envs = walks(600)[0]  # (601, 4) the can from one side of the path to the other
     q0 = torch.as_tensor(pol.task.start_config(), dtype=F64)

@@ -1,13 +1,18 @@
 """The robot's limits joint by joint (:class:`~protorch.policy.limits.JointwiseLimiter`): the
 same per-joint limits as :class:`~protorch.policy.limits.JerkLimiter`, each joint handed over on
-its own, so a joint with a small jump is back on the wanted motion before the slowest one."""
+its own, so a joint with a small jump is back on the wanted motion before the slowest one; the
+policy's ``limits`` (:func:`~protorch.policy.limits.make_limiter`): on by default for the
+two-rate planners, off inline, bad values refused."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
+import torch
 
-from protorch.policy.limits import JerkLimiter, JointwiseLimiter
+from protorch.policy.limits import JerkLimiter, JointwiseLimiter, make_limiter
 from protorch.robots.published import FRANKA_JOINT_LIMITS
 
 LIMITS = [
@@ -55,3 +60,150 @@ def test_jointwise_hand_overs_keep_the_limits_and_free_the_fast_joints():
 def test_jointwise_limits_are_checked():
     with pytest.raises(ValueError, match="one value per joint"):
         JointwiseLimiter([1.0, 2.0], [1.0], [1.0, 2.0])
+
+
+# ----------------------------------------------------------------- the policy's default
+
+
+def test_the_two_rate_planners_are_limited_by_default_and_inline_is_not():
+    """``limits="auto"`` (the default): joint by joint with the robot's limits for the thread and
+    process planners, none inline or without a robot's limits; ``True`` is joint by joint,
+    ``"together"`` synchronised, ``False`` none."""
+    panda = SimpleNamespace(**FRANKA_JOINT_LIMITS)
+    for planner in ("thread", "process"):
+        lim = make_limiter("auto", planner, panda, 7)
+        assert type(lim) is JointwiseLimiter
+        for got, want in zip((lim.vmax, lim.amax, lim.jmax), LIMITS):
+            np.testing.assert_array_equal(got, want)
+        assert make_limiter(False, planner, panda, 7) is None
+        assert type(make_limiter(True, planner, panda, 7)) is JointwiseLimiter
+        assert type(make_limiter("joint", planner, panda, 7)) is JointwiseLimiter
+        assert type(make_limiter("together", planner, panda, 7)) is JerkLimiter
+        assert make_limiter("auto", planner, None, 7) is None  # no robot: nothing to hold to
+        given = make_limiter("auto", planner, None, 2, max_velocity=1.0, max_acceleration=2.0)
+        np.testing.assert_array_equal(given.amax, [2.0, 2.0])
+    assert make_limiter("auto", "inline", panda, 7) is None
+    assert make_limiter(False, "inline", panda, 7) is None
+
+
+@pytest.mark.parametrize("bad", ["yes", "on", 1, 0, None, "Joint"])
+def test_bad_limits_are_refused(bad):
+    with pytest.raises(ValueError, match="limits must be 'auto', true, false"):
+        make_limiter(bad, "thread", SimpleNamespace(**FRANKA_JOINT_LIMITS), 7)
+
+
+def test_a_limiter_inline_and_a_bad_limit_are_refused():
+    panda = SimpleNamespace(**FRANKA_JOINT_LIMITS)
+    for limits in (True, "joint", "together"):
+        with pytest.raises(ValueError, match="needs planner='thread' or 'process'"):
+            make_limiter(limits, "inline", panda, 7)
+    with pytest.raises(ValueError, match="max_velocity: the robot states none"):
+        make_limiter(True, "thread", None, 7)
+    with pytest.raises(ValueError, match="max_jerk must be a number or 7 numbers"):
+        make_limiter("auto", "thread", panda, 7, max_jerk=-1.0)
+
+
+def test_the_policy_refuses_bad_limits_before_any_work():
+    from tests.control.test_policy import toy_policy
+
+    with pytest.raises(ValueError, match="limits must be 'auto', true, false"):
+        toy_policy(planner="thread", limits="sometimes", warm_up=False)
+    with pytest.raises(ValueError, match="needs planner='thread'"):
+        toy_policy(limits=True, warm_up=False)
+
+
+def _ticks(pol, envs, q, qd, every: int = 5) -> np.ndarray:
+    """``pol``'s reference at every 1 ms tick of one episode (``envs (T+1, 4)``, ``q, qd (T+1,
+    D)`` at the 20 ms control steps), a plan made every ``every`` ticks on that tick's inputs
+    (the planner thread's rhythm, made deterministic); inline: every call plans. ``(ticks, 3,
+    D)`` and the labels."""
+    per = 20
+    if pol.planner == "inline":
+        pol.reset()
+    else:  # the motion's first plan, at t = 0
+        pol.reset(envs[0], q[0], qd[0])
+    states, labels = [], []
+    for i in range((envs.shape[0] - 1) * per + 1):
+        s, t = i // per, i * 1e-3
+        if pol.planner != "inline" and i and i % every == 0:
+            with pol._planner.lock:
+                pol._planner.plan = pol._plan(
+                    pol._motion, envs[s].numpy(), t, q[s].numpy(), qd[s].numpy()
+                )
+        r = pol.reference(envs[s], t, q[s], qd[s])
+        states.append(torch.stack([r.q, r.qd, r.qdd]).numpy())
+        labels.append(r.label)
+    return np.stack(states), np.array(labels)
+
+
+def _ratios(x: np.ndarray, lim, tick: float = 1e-3) -> np.ndarray:
+    """The largest ``|qd| / vmax``, ``|qdd| / amax``, ``|qdd_t - qdd_{t-1}| / (tick jmax)``,
+    ``|q_t - q_{t-1}| / (tick vmax)`` and ``|qd_t - qd_{t-1}| / (tick amax)`` over ``x (T, 3,
+    D)``: the last three finite differences at the tick."""
+    vmax, amax, jmax = lim
+    d = np.diff(x, axis=0) / tick  # (T-1, 3, D)
+    return np.array(
+        [
+            (np.abs(x[:, 1]) / vmax).max(),
+            (np.abs(x[:, 2]) / amax).max(),
+            (np.abs(d[:, 2]) / jmax).max(),
+            (np.abs(d[:, 0]) / vmax).max(),
+            (np.abs(d[:, 1]) / amax).max(),
+        ]
+    )
+
+
+@pytest.mark.slow  # IK demonstrations and an arm map (tests/policy/builders.py)
+def test_the_default_threaded_reference_keeps_the_limits_and_inline_is_unchanged():
+    """The two-class arm map's moving-test episodes (random moves of the can and the target,
+    class switches) with an environment jump added (the can thrown 8 cm across at 0.6 s), at
+    1 kHz: the threaded policy *as it comes* (no ``limits`` given) keeps the Panda's velocity,
+    acceleration and jerk limits at every tick (the finite differences of position, velocity
+    and acceleration at the tick within them too); the same with ``limits=False`` asks for more
+    (the check is not vacuous); the inline policy as it comes has no limiter and gives bit for
+    bit what ``limits=False`` gives."""
+    from protorch.policy.limits import robot_limits
+
+    from .builders import moving_episodes, two_class_arm_policy
+
+    base = two_class_arm_policy(warm_up=False)
+    res = moving_episodes(base)
+    envs = res.envs.clone().to(torch.float64)  # (E, T+1, 4)
+    envs[:, 30:, 1] += torch.where(envs[:, 30:31, 1] > 0, -0.08, 0.08)  # the jump, at 0.6 s
+    kw = dict(
+        task=base.task,
+        duration=base.duration,
+        switch_margin=base.switch_margin,
+        decision_dt=base.decision_dt,
+        switch_clearance=base.switch_clearance,
+        warm_up=False,
+    )
+    limited = type(base)(
+        base._P, base.env_map, base.task_name, planner="thread", plan_period=1e6, **kw
+    )  # no limits given: the default
+    free = type(base)(
+        base._P, base.env_map, base.task_name, planner="thread", plan_period=1e6, limits=False, **kw
+    )
+    assert type(limited._limiter) is JointwiseLimiter and free._limiter is None
+    lim = robot_limits(base.task.robot, 7)
+    np.testing.assert_array_equal(limited._limiter.amax, [15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0])
+    inline, inline_off = base, type(base)(base._P, base.env_map, base.task_name, limits=False, **kw)
+    assert inline._limiter is None and inline.planner == "inline"
+    worst_on, worst_off, switches = np.zeros(5), np.zeros(5), 0
+    for e in range(envs.shape[0]):
+        q, qd = res.q[e].to(torch.float64), res.qd[e].to(torch.float64)
+        x_on, lab = _ticks(limited, envs[e], q, qd)
+        x_off, _ = _ticks(free, envs[e], q, qd)
+        switches += int((np.diff(lab) != 0).sum())
+        worst_on = np.maximum(worst_on, _ratios(x_on, lim))
+        worst_off = np.maximum(worst_off, _ratios(x_off, lim))
+        if e < 2:  # inline as it comes: bit for bit the unlimited inline reference
+            a, la = _ticks(inline, envs[e], q, qd)
+            b, lb = _ticks(inline_off, envs[e], q, qd)
+            np.testing.assert_array_equal(a, b)
+            np.testing.assert_array_equal(la, lb)
+    assert switches >= 1
+    assert (worst_on <= 1 + 1e-9).all(), worst_on
+    assert worst_off[1:3].max() > 1.5, worst_off  # unlimited: a switch, a jump ask for more
+    free.close()
+    limited.close()

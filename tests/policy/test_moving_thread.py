@@ -147,3 +147,40 @@ def test_the_example_loop_runs_the_threaded_policy_within_the_limits(policy):
     assert (np.abs(log["qd_r"]) <= lim.vmax * (1 + 1e-9)).all()
     assert (np.abs(log["qdd_r"]) <= lim.amax * (1 + 1e-9)).all()
     assert (jerk <= lim.jmax * (1 + 1e-6)).all()
+
+
+def test_the_mujoco_arm_follows_the_default_limited_reference_at_every_physics_step(policy, moving):
+    """MuJoCo's reference follows the policy's (``follow="reference"``, the planner a step
+    behind): by default (``limits="auto"``) it keeps the Panda's velocity, acceleration and jerk
+    limits at every physics step (2 ms) of the moving test's episodes, switches included, the
+    last physics step of a control step to the next included; ``limits=False`` asks for more."""
+    pytest.importorskip("mujoco", minversion="4.0", reason="the physics extra is not installed")
+    from protorch.sim.scene import build_scene, controller_model
+
+    res, timing = moving
+    task = policy.task
+    e = torch.arange(res.envs.shape[0])
+    phys = dict(
+        scene=build_scene(task),
+        ctrl_model=controller_model(task),
+        kp=400.0,
+        kd=40.0,
+        ref_kp=10.0,
+        max_acceleration=task.robot.max_acceleration,
+    )
+    on = run_policy_episodes(
+        policy, res.envs[e], timing, "lagged", physics=phys, follow="reference"
+    )
+    off = run_policy_episodes(
+        policy, res.envs[e], timing, "lagged", physics=phys, follow="reference", limits=False
+    )
+    assert int(on["switches"].sum()) >= 1
+    assert (on["peaks"] <= 1 + 1e-9).all(), on["peaks"]  # finite differences at 2 ms too
+    assert on["peaks"][:, 2].max() > 0.99  # the jerk limit was reached: a hand-over at 2 ms
+    assert off["peaks"][:, 1:3].max() > 1.5, off["peaks"]
+    # the control steps' references are the tracker's at those instants, limited there too
+    assert np.isfinite(on["q"]).all() and on["states"].shape == (len(e), timing.total + 1, 3, 7)
+    with pytest.raises(ValueError, match="modes 'inline' and 'lagged'"):
+        run_policy_episodes(
+            policy, res.envs[e[:1]], timing, "thread", physics=phys, follow="reference"
+        )

@@ -23,7 +23,14 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["LIMITS", "JerkLimiter", "JointwiseLimiter", "make_limiter", "robot_limits"]
+__all__ = [
+    "LIMITS",
+    "JerkLimiter",
+    "JointwiseLimiter",
+    "make_limiter",
+    "robot_limits",
+    "within_limits",
+]
 
 LIMITS = ("auto", True, False, "joint", "together")  # the values of a policy's ``limits``
 
@@ -114,6 +121,40 @@ def make_limiter(
     return (JerkLimiter if limits == "together" else JointwiseLimiter)(*lim)
 
 
+def within_limits(
+    tests: dict, vmax: np.ndarray, amax: np.ndarray, jmax: np.ndarray, last, want, dt: float
+) -> bool:
+    """Whether ``want (3, D)`` follows ``last (3, D)`` within the limits ``(D,)``: velocity and
+    acceleration within theirs, the acceleration's change within ``max_jerk dt``, the position's
+    and the velocity's within ``max_velocity dt`` and ``max_acceleration dt`` (the finite
+    differences at the tick within the limits: at a coarse tick the next two allow more), and
+    position and velocity where a constant jerk over ``dt`` takes them (within what ``max_jerk``
+    moves them over ``dt``). All seven are linear in ``(last, want)``: one product with a matrix
+    kept in ``tests`` per ``dt``."""
+    hit = tests.get(dt)
+    if hit is None:
+        if len(tests) >= 64:
+            tests.clear()
+        h = dt * dt
+        M = np.array(
+            [
+                [0, 0, -1, 0, 0, 1],  # the change of acceleration
+                [0, 0, 0, 0, 1, 0],  # the velocity
+                [0, 0, 0, 0, 0, 1],  # the acceleration
+                [0, -1, -dt / 2, 0, 1, -dt / 2],  # velocity off a constant jerk's
+                [-1, -dt, -h / 3, 1, 0, -h / 6],  # position off it
+                [-1, 0, 0, 1, 0, 0],  # the change of position
+                [0, -1, 0, 0, 1, 0],  # the change of velocity
+            ],
+            dtype=np.float64,
+        )
+        j, v, a = jmax, vmax, amax
+        bound = np.stack([j * dt, v, a, j * h / 2, j * h * dt / 6, v * dt, a * dt])  # (7, D)
+        hit = tests[dt] = (M, bound)
+    M, bound = hit
+    return bool((np.abs(M @ np.concatenate([last, want])) <= bound).all())
+
+
 class JerkLimiter:
     """A wanted state ``(3, D)`` (position, velocity, acceleration) per tick -> the state sent
     ``(3, D)``, within the limits (module docstring). ``max_velocity``, ``max_acceleration``,
@@ -176,35 +217,8 @@ class JerkLimiter:
         return out.copy()
 
     def _within(self, last: np.ndarray, want: np.ndarray, dt: float) -> bool:
-        """Whether ``want`` follows ``last`` within the limits: velocity and acceleration within
-        theirs, the acceleration's change within ``max_jerk dt``, the position's and the
-        velocity's within ``max_velocity dt`` and ``max_acceleration dt`` (the finite differences
-        at the tick within the limits: at a coarse tick the next two allow more), and position
-        and velocity where a constant jerk over ``dt`` takes them (within what ``max_jerk`` moves
-        them over ``dt``). All seven are linear in ``(last, want)``: one product with a matrix
-        kept per ``dt``."""
-        hit = self._tests.get(dt)
-        if hit is None:
-            if len(self._tests) >= 64:
-                self._tests.clear()
-            h = dt * dt
-            M = np.array(
-                [
-                    [0, 0, -1, 0, 0, 1],  # the change of acceleration
-                    [0, 0, 0, 0, 1, 0],  # the velocity
-                    [0, 0, 0, 0, 0, 1],  # the acceleration
-                    [0, -1, -dt / 2, 0, 1, -dt / 2],  # velocity off a constant jerk's
-                    [-1, -dt, -h / 3, 1, 0, -h / 6],  # position off it
-                    [-1, 0, 0, 1, 0, 0],  # the change of position
-                    [0, -1, 0, 0, 1, 0],  # the change of velocity
-                ],
-                dtype=np.float64,
-            )
-            j, v, a = self.jmax, self.vmax, self.amax
-            bound = np.stack([j * dt, v, a, j * h / 2, j * h * dt / 6, v * dt, a * dt])  # (7, D)
-            hit = self._tests[dt] = (M, bound)
-        M, bound = hit
-        return bool((np.abs(M @ np.concatenate([last, want])) <= bound).all())
+        """:func:`within_limits` of this limiter's joints."""
+        return within_limits(self._tests, self.vmax, self.amax, self.jmax, last, want, dt)
 
     def _start(self, last: np.ndarray, want: np.ndarray, dt: float, future) -> np.ndarray:
         """A hand-over trajectory from ``last`` to the wanted motion (``future``), meeting it at
@@ -279,6 +293,8 @@ class JointwiseLimiter:
             )
         self.vmax, self.amax, self.jmax = v, a, j  # (D,)
         self.joints = [JerkLimiter(v[i : i + 1], a[i : i + 1], j[i : i + 1]) for i in range(len(v))]
+        self._tests: dict = {}  # dt -> the step's tests, all joints at once (within_limits)
+        self.reset()
 
     @property
     def following(self) -> int:
@@ -291,9 +307,32 @@ class JointwiseLimiter:
     def reset(self) -> None:
         for x in self.joints:
             x.reset()
+        self._last: np.ndarray | None = None  # (3, D) the last state sent, every joint
+        self._stale = False  # the joints' own ``last`` behind ``_last`` (passed through since)
+        self._following = False  # a joint on a hand-over
 
     def step(self, want: np.ndarray, dt: float, future, changed: bool = False) -> np.ndarray:
-        """:meth:`JerkLimiter.step` per joint: ``want (3, D)`` -> ``(3, D)``."""
+        """:meth:`JerkLimiter.step` per joint: ``want (3, D)`` -> ``(3, D)``. Where no joint is on
+        a hand-over (or ``changed`` ends them) and every joint's step is within the limits, the
+        wanted state is passed through in one test of all joints (what each joint's limiter
+        would do, without a Python call per joint)."""
+        last = self._last
+        if (
+            last is not None
+            and dt > 0.0
+            and (changed or not self._following)
+            and within_limits(self._tests, self.vmax, self.amax, self.jmax, last, want, dt)
+        ):
+            if self._following:  # changed: the hand-overs under way end, as each joint's would
+                for lim in self.joints:
+                    lim._join = None
+                self._following = False
+            self._last, self._stale = want.copy(), True
+            return want.copy()
+        if self._stale:  # the joints take the state passed through since their last step
+            for i, lim in enumerate(self.joints):
+                lim.last = last[:, i : i + 1].copy()
+            self._stale = False
         out = np.empty_like(want)
         memo: dict = {}
 
@@ -307,4 +346,6 @@ class JointwiseLimiter:
             out[:, i : i + 1] = lim.step(
                 want[:, i : i + 1], dt, lambda s, i=i: at(s)[:, i : i + 1], changed
             )
+        self._last = out.copy()
+        self._following = any(lim._join is not None for lim in self.joints)
         return out

@@ -207,3 +207,50 @@ def test_the_default_threaded_reference_keeps_the_limits_and_inline_is_unchanged
     assert worst_off[1:3].max() > 1.5, worst_off  # unlimited: a switch, a jump ask for more
     free.close()
     limited.close()
+
+
+class _EachJoint:
+    """The joint-by-joint limiter spelled out: one :class:`JerkLimiter` per joint, stepped one
+    after the other (what :class:`JointwiseLimiter` must equal, its all-joints pass-through
+    included)."""
+
+    def __init__(self, vmax, amax, jmax) -> None:
+        self.joints = [
+            JerkLimiter(vmax[i : i + 1], amax[i : i + 1], jmax[i : i + 1]) for i in range(len(vmax))
+        ]
+
+    def step(self, want, dt, future, changed=False):
+        return np.concatenate(
+            [
+                lim.step(want[:, i : i + 1], dt, lambda s, i=i: future(s)[:, i : i + 1], changed)
+                for i, lim in enumerate(self.joints)
+            ],
+            axis=1,
+        )
+
+
+def test_the_all_joints_pass_through_equals_each_joint_s_limiter_bit_for_bit():
+    """A wandering motion with velocity steps (class switches), a position jump (an environment
+    jump), new motions (``changed``) and irregular ticks (0, 1, 2 ms): JointwiseLimiter's output
+    equals the per-joint limiters' bit for bit, with hand-overs under way and without."""
+    rng = np.random.default_rng(0)
+    steps = [0.0] + rng.choice([0.0, 1e-3, 1e-3, 1e-3, 2e-3], 1499).tolist()
+    jumps = {300: 0.4, 700: -0.8, 1100: 0.3}  # tick -> a velocity step on every joint
+    freq = rng.uniform(0.5, 2.0, 7)  # (D,)
+
+    def motion(t: float, k: int) -> np.ndarray:  # (3, D)
+        base = sum(v for j, v in jumps.items() if k >= j)
+        pos = 0.3 * np.sin(freq * t) + base * t * GAIN + (0.02 if k >= 900 else 0.0)
+        vel = 0.3 * freq * np.cos(freq * t) + base * GAIN
+        return np.stack([pos, vel, -0.3 * freq**2 * np.sin(freq * t)])
+
+    fast, slow = JointwiseLimiter(*LIMITS), _EachJoint(*LIMITS)
+    t = 0.0
+    for k, dt in enumerate(steps):
+        t += dt
+        want = motion(t, k)
+        changed = k in (500, 1300)
+        a = fast.step(want, dt, lambda s, t=t, k=k: motion(t - dt + s, k), changed)
+        b = slow.step(want, dt, lambda s, t=t, k=k: motion(t - dt + s, k), changed)
+        np.testing.assert_array_equal(a, b, err_msg=f"tick {k}")
+    assert fast.following == sum(j.following for j in slow.joints) > 0  # hand-overs happened

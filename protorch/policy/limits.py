@@ -330,7 +330,7 @@ class JointwiseLimiter:
                 self._following = False
             self._last, self._stale = want.copy(), True
             return want.copy()
-        if self._stale:  # the joints take the state passed through since their last step
+        if self._stale and last is not None:  # the joints take the state passed through since
             for i, lim in enumerate(self.joints):
                 lim.last = last[:, i : i + 1].copy()
             self._stale = False

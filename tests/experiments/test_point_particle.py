@@ -126,7 +126,13 @@ def test_tiny_run_writes_metrics_checkpoint_and_baselines(tmp_path):
     with pytest.raises(FileExistsError, match="resume=true"):
         run_experiment(cfg("plot=false"), tmp_path)
     again = run_experiment(cfg("plot=false", "resume=true"), tmp_path)
-    assert again["loop"]["resumed_from"] == 2 and again["test"] == m["test"]
+    assert again["loop"]["resumed_from"] == 2
+    # the same test: rates and counts exactly, the error medians to 1e-9 (the test re-evaluated
+    # in a process whose earlier work differs: seen once under xdist 2.4e-13 apart, BLAS's rounding)
+    exact = {k: v for k, v in m["test"].items() if not k.endswith("_median")}
+    assert {k: again["test"][k] for k in exact} == exact
+    for k in set(m["test"]) - set(exact):
+        assert again["test"][k] == pytest.approx(m["test"][k], rel=1e-9, abs=1e-12), k
 
 
 @pytest.mark.slow

@@ -92,13 +92,19 @@ def arm_length(kin) -> float:
         kin.lower, kin.upper
     )
     pos = kin.link_positions(q).cpu()  # (F, 3)
-    moving = [i for i, n in enumerate(kin.frame_names) if n in _moving_frames(kin)]
+    moving = _moving_indices(kin)
     start = moving[1] if len(moving) > 1 else 0
     return float((pos[start + 1 :] - pos[start:-1]).norm(dim=-1).sum())
 
 
-def _moving_frames(kin) -> set[str]:
-    return {n for n in kin.frame_names[1:] if kin.chain.find_frame(n).joint.joint_type != "fixed"}
+def _moving_indices(kin) -> list[int]:
+    """The indices in ``kin.frame_names`` of the frames a moving (not fixed) joint moves."""
+    names = kin.frame_names
+    return [
+        i
+        for i in range(1, len(names))
+        if kin.chain.find_frame(names[i]).joint.joint_type != "fixed"
+    ]
 
 
 def _down(yaw: float, dtype) -> torch.Tensor:
@@ -176,7 +182,7 @@ def wrist_low(robot) -> float | None:
     Panda's link 6, :data:`PANDA_WRIST_LOW`); ``None`` where the wrist has no capsules."""
     kin = robot.kinematics()
     names = kin.frame_names
-    moving = [names.index(n) for n in names[1:] if n in _moving_frames(kin)]
+    moving = _moving_indices(kin)
     wrist = set(names[moving[-2] : moving[-1]])
     caps = [c for c in robot.capsule_list() if c.link in wrist]
     if not caps:
@@ -192,7 +198,7 @@ def hand_drop(kin, capsules) -> float | None:
     pose of :func:`measure_layout`, any yaw): ``capsules`` ``{link: (Capsule, ...)}``; negative
     where they stay above it, ``None`` where the hand has no capsules. The Panda's: 0.0111 m."""
     names = kin.frame_names
-    moving = [names.index(n) for n in names[1:] if n in _moving_frames(kin)]
+    moving = _moving_indices(kin)
     hand = set(names[moving[-1] :])
     caps = [c for link in names if link in hand for c in capsules.get(link, ())]
     if not caps:
@@ -282,8 +288,7 @@ def measure_layout(kin, name: str = "the arm", drop: float | None = None) -> dic
         iters=300,
         tol=1e-9,
     )
-    moving = [n for n in kin.frame_names[1:] if n in _moving_frames(kin)]
-    wrist = float(kin.link_positions(home[0])[kin.frame_names.index(moving[-2]), 2])
+    wrist = float(kin.link_positions(home[0])[_moving_indices(kin)[-2], 2])
     return {
         "wrist_height": round(wrist, 4),
         "scale": round(s_v, 4),

@@ -210,10 +210,7 @@ class JerkLimiter:
         is planned afresh)."""
         last = self.last
         if last is None:
-            out = want.copy()
-            np.clip(out[1], -self.vmax, self.vmax, out=out[1])
-            np.clip(out[2], -self.amax, self.amax, out=out[2])
-            out[2] = self._braking_np(out[2], out[1])
+            out = self._clipped(want)
             self.last, self._join = out, None
             return out.copy()
         if dt <= 0.0:
@@ -259,11 +256,7 @@ class JerkLimiter:
             res = self._toward(future(ahead))
         if res not in self._ok:
             self.failed += 1
-            out = want.copy()
-            np.clip(out[1], -self.vmax, self.vmax, out=out[1])
-            np.clip(out[2], -self.amax, self.amax, out=out[2])
-            out[2] = self._braking_np(out[2], out[1])
-            return out
+            return self._clipped(want)
         self._join, self._elapsed = self._traj.duration, dt
         if dt >= self._join:
             self._join = None
@@ -289,10 +282,16 @@ class JerkLimiter:
             res = self._calculate()
         return res
 
-    def _braking_np(self, a: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """:meth:`_braking` of every joint: ``a, v (D,)`` -> ``(D,)``."""
-        cap = np.sqrt(np.maximum(2.0 * self.jmax * (self.vmax - np.abs(v)), 0.0))  # (D,)
-        return np.where(a * v > 0.0, np.clip(a, -cap, cap), a)
+    def _clipped(self, want: np.ndarray) -> np.ndarray:
+        """A copy of ``want (3, D)`` with its velocity and acceleration clipped to the limits and
+        its acceleration held to what the velocity limit allows (:meth:`_braking`, every
+        joint): what is sent where no hand-over is planned."""
+        out = want.copy()
+        np.clip(out[1], -self.vmax, self.vmax, out=out[1])
+        np.clip(out[2], -self.amax, self.amax, out=out[2])
+        cap = np.sqrt(np.maximum(2.0 * self.jmax * (self.vmax - np.abs(out[1])), 0.0))  # (D,)
+        out[2] = np.where(out[2] * out[1] > 0.0, np.clip(out[2], -cap, cap), out[2])
+        return out
 
     @staticmethod
     def _braking(a: float, v: float, vmax: float, jmax: float) -> float:

@@ -135,9 +135,8 @@ def within_limits(
     moves them over ``dt``), all seven linear in ``(last, want)``: one product with a matrix kept
     in ``tests`` per ``dt``; and the velocity ``want`` reaches once its acceleration is brought to
     0 at ``max_jerk`` (``v + a |a| / (2 max_jerk)``) within ``max_velocity``: a state nearer the
-    velocity limit, still accelerating toward it, is left for a hand-over (passed through, the
-    next step could not keep the limit: 0.28% over on a motion accelerating at 12 rad/s^2 into
-    the Panda's 2.175 rad/s)."""
+    velocity limit, still accelerating toward it, is left for a hand-over (no jerk-limited motion
+    from it keeps the velocity limit)."""
     hit = tests.get(dt)
     if hit is None:
         if len(tests) >= 64:

@@ -14,9 +14,8 @@ The Panda's numbers (``robot=panda``, unchanged) anchor the rule. Its hand, poin
    where the hand's bodies reach farther below the end link than the Panda's do: the end link
    stands at least ``d + 0.0889 s_v`` above the table, ``d`` how far the capsules of the links
    rigid with the end link reach below it with the hand down (:func:`hand_drop`; the Panda's
-   0.0111 m, its hand's lowest point 0.0889 m above the table, :data:`PANDA_HAND_LOW`). Placed by
-   its frame alone, the KUKA iiwa's link 7 (reaching 0.059 m below its frame) passed 0.024 m above
-   the table at home, and its moving motions touched it; the can's
+   0.0111 m, its hand's lowest point 0.0889 m above the table, :data:`PANDA_HAND_LOW`; pybullet's
+   KUKA iiwa's link 7 reaches 0.059 m below its frame); the can's
    height is the Panda's 0.23 m times the ratio of the wrists' heights at home (the frame the
    second-to-last joint moves; the Panda's 0.3104 m), so that the wrist passes over the can as
    the Panda's does; where the arm has capsules (:func:`auto_workspace`), the ratio of the lowest

@@ -9,7 +9,11 @@ through while the step from the last output is within the limits, and otherwise 
 Ruckig (time-optimal, jerk-limited trajectories between two kinematic states, Berscheid and
 Kroeger 2021): from the last output to the wanted state, sampled one interval later, until the
 wanted state is reached within one interval; from there on the wanted state is passed through
-again.
+again. The meeting time is the first at which Ruckig reaches the wanted state, of the times the
+caller allows (the tracker: whole milliseconds, where the wanted state is a table lookup); a
+hand-over under way that a new plan interrupts is planned afresh from the time the old one would
+have met (a new plan moves the meeting little; searching again from the next tick put each
+re-planned meeting later, on the benchmark's walk twice as many hand-overs).
 
 The limits hold between consecutive outputs: ``|qd| <= max_velocity``, ``|qdd| <=
 max_acceleration``, ``|qdd_t - qdd_{t-dt}| <= max_jerk dt`` and the finite differences
@@ -202,11 +206,22 @@ class JerkLimiter:
         self._join: float | None = None  # the duration of the hand-over trajectory followed now
         self._elapsed = 0.0  # seconds into it
 
-    def step(self, want: np.ndarray, dt: float, future, changed: bool = False) -> np.ndarray:
+    def step(
+        self,
+        want: np.ndarray,
+        dt: float,
+        future,
+        changed: bool = False,
+        meet=None,
+        within: bool | None = None,
+    ) -> np.ndarray:
         """The state to send ``dt`` seconds after the last one (``want (3, D)``; a new array).
         ``future(s)``: the wanted state ``s`` seconds after the last one, ``(3, D)``, where a
         hand-over meets it; ``changed``: the wanted motion is a new one (a hand-over under way
-        is planned afresh)."""
+        is planned afresh); ``meet(s)``: the first time ``>= s`` at which a hand-over may meet
+        the wanted motion (``None``: any; the tracker's: its whole milliseconds, where
+        ``future`` is a table lookup); ``within``: the step's limit test where the caller has
+        made it (:func:`within_limits`)."""
         last = self.last
         if last is None:
             out = self._clipped(want)
@@ -214,18 +229,21 @@ class JerkLimiter:
             return out.copy()
         if dt <= 0.0:
             return last.copy()
-        if self._join is not None and changed:
-            self._join = None
+        guess = dt
+        if self._join is not None and changed:  # re-planned from where the old one would meet
+            guess, self._join = max(self._join - self._elapsed, dt), None
         if self._join is not None:  # on a hand-over trajectory: follow it to its end
             self._elapsed += dt
             if self._elapsed < self._join - 1e-12:
                 self.last = out = np.array(self._traj.at_time(self._elapsed))  # (3, D)
                 return out.copy()
             self._join = None
-        if self._within(last, want, dt):
+        if within is None:
+            within = self._within(last, want, dt)
+        if within:
             self.last = out = want.copy()
             return out.copy()
-        self.last = out = self._start(last, want, dt, future)
+        self.last = out = self._start(last, want, dt, future, meet, guess)
         return out.copy()
 
     def _within(self, last: np.ndarray, want: np.ndarray, dt: float) -> bool:
@@ -234,14 +252,20 @@ class JerkLimiter:
             within_limits(self._tests, self.vmax, self.amax, self.jmax, last, want, dt).all()
         )
 
-    def _start(self, last: np.ndarray, want: np.ndarray, dt: float, future) -> np.ndarray:
+    def _start(
+        self, last: np.ndarray, want: np.ndarray, dt: float, future, meet, guess: float
+    ) -> np.ndarray:
         """A hand-over trajectory from ``last`` to the wanted motion (``future``), meeting it at
-        the first time it can (every joint at once, Ruckig's time synchronisation), its state
-        ``dt`` in."""
+        the first time from ``guess`` on that it can (every joint at once, Ruckig's time
+        synchronisation; of the times ``meet`` allows), its state ``dt`` in. ``guess``: ``dt``,
+        or where a hand-over under way is planned afresh, the time the old one would have met
+        its motion (a new plan moves the meeting little: the search starts there)."""
         self.following += 1
         inp = self._inp
         inp.current_position, inp.current_velocity, inp.current_acceleration = last.tolist()
-        ahead, res = dt, None
+        ahead, res = guess, None
+        if meet is not None and guess > dt:
+            ahead = meet(guess)
         for _ in range(
             16
         ):  # the first meeting time T at which the wanted state at T can be reached by T
@@ -250,6 +274,8 @@ class JerkLimiter:
             if res is None or self._traj.duration <= ahead:
                 break
             ahead = max(self._traj.duration, 1.2 * ahead)
+            if meet is not None:
+                ahead = meet(ahead)
         if res is not None:
             inp.minimum_duration = ahead  # meet it exactly then (every joint at once)
             res = self._toward(future(ahead))
@@ -344,7 +370,9 @@ class JointwiseLimiter:
         self._stale = False  # the joints' own ``last`` behind ``_last`` (passed through since)
         self._following = False  # a joint on a hand-over
 
-    def step(self, want: np.ndarray, dt: float, future, changed: bool = False) -> np.ndarray:
+    def step(
+        self, want: np.ndarray, dt: float, future, changed: bool = False, meet=None
+    ) -> np.ndarray:
         """:meth:`JerkLimiter.step` per joint: ``want (3, D)`` -> ``(3, D)``. Where no joint is on
         a hand-over (or ``changed`` ends them) and every joint's step is within the limits, the
         wanted state is passed through in one test of all joints (what each joint's limiter
@@ -380,7 +408,12 @@ class JointwiseLimiter:
                 out[:, i : i + 1] = lim.last
                 continue
             out[:, i : i + 1] = lim.step(
-                want[:, i : i + 1], dt, lambda s, i=i: at(s)[:, i : i + 1], changed
+                want[:, i : i + 1],
+                dt,
+                lambda s, i=i: at(s)[:, i : i + 1],
+                changed,
+                meet,
+                None if ok is None else bool(ok[i]),
             )
         self._last = out.copy()
         self._following = any(lim._join is not None for lim in self.joints)

@@ -16,7 +16,11 @@ tick from the newest plan, never waiting for the planner.
 
 The tracker calls no torch operation: torch's operators release the GIL while they run, and a
 thread that gave the GIL away waits to take it back while the planner holds it (up to
-``sys.getswitchinterval()``). NumPy's small operations keep it. While planner threads run, the
+``sys.getswitchinterval()``). NumPy's small ufuncs and ``@`` keep it; ``ndarray.dot`` does not
+(its BLAS call lets the GIL go: with a thread spinning in Python beside it, ten ``(3, 12) x
+(12, 7)`` products took up to 3.9 ms with ``.dot``, 0.07 ms with ``@``), so the tracker's products
+are ``@``. The reference's tensors (``torch.from_numpy``) let it go too, briefly, once the
+reference is made. While planner threads run, the
 switch interval is held at :data:`SWITCH_INTERVAL` (0.5 ms; Python's default is 5 ms): the loop's
 thread, woken for a tick, waits for the planner's GIL at most that long
 (:class:`_SwitchInterval`).
@@ -132,6 +136,15 @@ class Tracker:
             return self.phi_ms[i]
         return basis3_np(self.centers, self.width, t / self.duration) * self.scale
 
+    def _basis_near(self, t: float) -> np.ndarray:
+        """:meth:`basis` with ``t`` within 1e-12 s of a whole millisecond taken as it (where a
+        hand-over meets the plan: ``last_t + s`` rounds off the grid by an ulp)."""
+        if t < self.duration:
+            i = round(t * 1000.0)
+            if i < self.phi_ms.shape[0] and abs(t - i * 1e-3) <= 1e-12:
+                return self.phi_ms[i]
+        return self.basis(t)
+
     def _decay(self, s: float) -> np.ndarray:
         hit = self._decays.get(s)
         if hit is None:
@@ -145,29 +158,30 @@ class Tracker:
         last call's) tracking ``plan``; ``q, qd``: ``D`` measured joints each or ``None`` (the
         first call of a motion starts the reference there).
 
-        The products are ``ndarray.dot``: the same BLAS product as ``@`` for these 2-D float64
-        arrays (the same bits), without the ufunc machinery's ~0.8 us per call of ``@``."""
+        The products are ``@``, not ``ndarray.dot`` (the same bits; ``.dot`` lets the GIL go:
+        module docstring). Where the limiter hands over, the meeting with the plan is at a whole
+        millisecond (``meet``: the basis there is the table's)."""
         phi = self.basis(t)  # (3, Kb)
-        state = phi.dot(plan.W)  # (3, D)
+        state = phi @ plan.W  # (3, D)
         if self._at_jump is not None:
             jump = None
             last = self.plan
             if last is not None:
                 if plan is not last:  # the mean's jump where the plan changed
-                    jump = phi[:2].dot(last.W - plan.W)  # (2, D)
+                    jump = phi[:2] @ (last.W - plan.W)  # (2, D)
             elif q is not None:  # start where the arm is (at rest where qd is not given)
                 q = np.asarray(q, dtype=np.float64)
                 jump = np.stack([q, 0.0 * q if qd is None else np.asarray(qd)]) - state[:2]
             off = self.off
             if off is not None:
-                off = self._decay(t - self.t).dot(off)  # (2, D)
+                off = self._decay(t - self.t) @ off  # (2, D)
                 if jump is not None:
                     off += jump
             else:
                 off = jump
             if off is not None:
                 self.off = off
-                state += self._at_jump.dot(off)
+                state += self._at_jump @ off
         last_t, changed = self.t, plan is not self.plan
         dt = t - last_t if self.plan is not None else 0.0
         self.plan, self.t = plan, t
@@ -175,12 +189,15 @@ class Tracker:
             off, W = self.off, plan.W
 
             def future(s: float) -> np.ndarray:  # the wanted state s seconds after the last call
-                at = self.basis(last_t + s).dot(W)  # (3, D)
+                at = self._basis_near(last_t + s) @ W  # (3, D)
                 if off is not None:
-                    at = at + (self._at_jump.dot(self._decay(s - dt).dot(off)) if s >= dt else 0.0)
+                    at = at + (self._at_jump @ (self._decay(s - dt) @ off) if s >= dt else 0.0)
                 return at
 
-            state = self.limiter.step(state, dt, future, changed)
+            def meet(s: float) -> float:  # the first whole millisecond s or more after last_t
+                return math.ceil((last_t + s) * 1000.0 - 1e-6) * 1e-3 - last_t
+
+            state = self.limiter.step(state, dt, future, changed, meet)
         return state
 
 

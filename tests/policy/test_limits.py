@@ -282,3 +282,48 @@ def test_a_motion_accelerating_into_the_velocity_limit_keeps_it(make):
     # ramp early cost (at the velocity limit it cannot be made up)
     np.testing.assert_allclose(x[-1, 1:], ramp(0.399)[1:], atol=1e-9)
     assert 0.0 <= ramp(0.399)[0, 0] - x[-1, 0, 0] < 1e-5
+
+
+def test_a_hand_over_meets_on_the_grid_and_a_new_plan_keeps_its_meeting():
+    """With ``meet`` (the tracker's whole milliseconds) a hand-over's meeting time lies on the
+    grid, and a new plan a little off the old one (``changed``) re-plans the hand-over to meet
+    at the old meeting time, not later, within the limits; without ``meet``, the meeting is
+    Ruckig's own time (off the grid)."""
+    vmax, amax, jmax = (x[:1] for x in LIMITS)
+
+    def motion(t: float, bias: float) -> np.ndarray:  # (3, 1): a velocity step at 0.05 s
+        s = max(t - 0.05, 0.0)
+        return np.array([[s * (0.8 + bias)], [(t >= 0.05) * (0.8 + bias)], [0.0]])
+
+    def meet_ms(t0: float):
+        return lambda s: np.ceil(round((t0 + s) * 1e3, 9)) * 1e-3 - t0
+
+    for grid in (True, False):
+        lim, out, meets = JerkLimiter(vmax, amax, jmax), [], []
+        for k in range(300):
+            t, bias = k * 1e-3, (1e-4 if k >= 55 else 0.0)  # a new plan at 55 ms
+            t0 = t - 1e-3
+            out.append(
+                lim.step(
+                    motion(t, bias),
+                    1e-3 if k else 0.0,
+                    lambda s, t0=t0, bias=bias: motion(t0 + s, bias),
+                    changed=k == 55,
+                    meet=meet_ms(t0) if grid else None,
+                )
+            )
+            if lim._join is not None:
+                meets.append(t + lim._join - lim._elapsed)  # the meeting time (s)
+        x = np.stack(out)  # (T, 3, 1)
+        assert (np.abs(x[:, 1]) <= vmax * (1 + 1e-9)).all()
+        assert (np.abs(x[:, 2]) <= amax * (1 + 1e-9)).all()
+        assert (np.abs(np.diff(x[:, 2], axis=0)) <= jmax * 1e-3 * (1 + 1e-6)).all()
+        np.testing.assert_allclose(x[-1], motion(0.299, 1e-4), atol=1e-12)  # back on it
+        first, second = meets[0], meets[-1]
+        assert lim.following == 2 and first > 0.06  # two hand-overs: at 50 ms and at 55 ms
+        if grid:
+            assert abs(first * 1e3 - round(first * 1e3)) < 1e-9
+            assert abs(second - first) < 1e-12  # re-planned to meet when the old one would
+        else:
+            assert abs(first * 1e3 - round(first * 1e3)) > 1e-6  # Ruckig's own time
+            assert second <= first + 1e-3

@@ -261,8 +261,8 @@ def test_the_trackers_input_check_reads_tensors_arrays_and_lists_alike():
 
 
 def test_the_trackers_products_are_the_matmuls_bit_for_bit():
-    """``Tracker.step`` (``ndarray.dot``) against the offset written out with ``@``: the same
-    bits at every call, through plan changes, off the millisecond grid too."""
+    """``Tracker.step`` against the offset written out: the same bits at every call, through plan
+    changes, off the millisecond grid too."""
     g = np.random.default_rng(0)
     kb, d, duration, blend = 10, 7, 2.0, 10.0
     centers, width = np.linspace(0.0, 1.0, kb), 0.08

@@ -45,7 +45,9 @@ walk's p99.
 paced at 1 kHz, the plan's age printed; ``--competitors N`` runs N CPU-bound processes while the
 calls are timed; ``--switch-interval S`` sets ``sys.setswitchinterval``; ``--limits
 off|joint|together|both`` picks the limiter (``both``: off, then joint); ``--gc-freeze`` calls
-``gc.freeze()`` after each load; ``--realtime PRIO`` puts the calling thread (not the planner)
+``gc.freeze()`` after each load; ``--spinner`` runs a thread spinning in Python beside the
+loop (an application's other thread: wherever a call lets the GIL go, the spinner may take it
+for up to a switch interval); ``--realtime PRIO`` puts the calling thread (not the planner)
 at ``SCHED_FIFO`` priority ``PRIO`` after each load (Linux, ``CAP_SYS_NICE``). Paced calls also
 print how late they started after their tick was due (the sleep's overshoot, the wait for a core
 and, with a planner thread, for the GIL). ``--exported export|aoti|aoti-tracker|cpp``: also both
@@ -69,6 +71,7 @@ import math
 import os
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -593,6 +596,12 @@ def main() -> None:
         help="CPU-bound processes (a Python busy loop each) running while the calls are timed",
     )
     ap.add_argument(
+        "--spinner",
+        action="store_true",
+        help="a thread of the application spinning in Python beside the loop while the calls are "
+        "timed (a GUI's or a middleware's thread: it holds the GIL whenever the loop lets it go)",
+    )
+    ap.add_argument(
         "--pieces",
         action="store_true",
         help="also the decisions' pieces timed (the walk once more, each piece wrapped in a timer)",
@@ -621,12 +630,26 @@ def main() -> None:
         subprocess.Popen([sys.executable, "-c", "while True: pass"])
         for _ in range(args.competitors)
     ]
+    spinning = threading.Event()
+    if args.spinner:
+        spinning.set()
+        threading.Thread(target=spin, args=(spinning,), daemon=True).start()
     try:
         run_all(args)
     finally:
+        spinning.clear()
         for p in busy:
             p.kill()
             p.wait()
+
+
+def spin(on: threading.Event) -> None:
+    """``--spinner``: Python bytecode while ``on`` is set (the loop's thread takes the GIL back
+    from it only at a switch interval, or where it waits itself)."""
+    n = 0
+    while on.is_set():
+        for _ in range(1000):
+            n += 1
 
 
 LIMITS = {"run": "", "off": "off", "joint": "joint", "together": "together", "both": "off,joint"}
@@ -637,6 +660,7 @@ def run_all(args) -> None:
     print(
         f"torch {torch.__version__}, 1 thread, run {args.run}, switch interval "
         f"{sys.getswitchinterval() * 1e3:g} ms, {args.competitors} CPU-bound competitors"
+        + (", a thread spinning in Python beside the loop" if args.spinner else "")
     )
     checks = (
         [None]

@@ -118,6 +118,7 @@ def main() -> None:
         n = envs.shape[0] if args.episodes <= 0 else min(args.episodes, envs.shape[0])
         res: dict = {}
         switched: dict = {}  # plant -> (n,) whether the inline episode switched classes
+        unlimited: dict = {}  # (plant, mode) -> (m, 5) the reference's peaks without limits
         for plant in args.plants.split(","):
             phys = None if plant == "kin" else _physics(pol.task, pcfg, dyn, amax)
             for mode, lim in [
@@ -155,11 +156,22 @@ def main() -> None:
                     "age_max_ms": float(age.max() * 1e3),
                     "seconds": round(time.perf_counter() - t0, 1),
                     "failures": {k: int(v.sum()) for k, v in r["failures"].items()},
+                    # paired with the run's own on the same episodes
+                    "lost": int((own[plant][pick] & ~r["success"]).sum()),
+                    "gained": int((~own[plant][pick] & r["success"]).sum()),
                 }
                 if args.follow == "reference":  # the reference's largest ratios to the limits
                     peaks = r["peaks"]  # (m, 5)
                     row["peaks"] = [float(x) for x in peaks.max(axis=0)]
                     row["episodes_over_limits"] = int((peaks > 1 + 1e-9).any(axis=1).sum())
+                    if lim == "off":
+                        unlimited[(plant, mode)] = peaks
+                    elif (plant, mode) in unlimited:  # why the limits lose: what was asked
+                        lost = own[plant][pick] & ~r["success"]  # (m,)
+                        asked = unlimited[(plant, mode)][lost]  # (lost, 5)
+                        row["lost_unlimited_peaks"] = [
+                            [round(float(x), 2) for x in a] for a in asked
+                        ]
                 key = f"{plant}/{mode}" + (
                     f"/reference/limits={lim}" if args.follow != "mean" else ""
                 )

@@ -17,10 +17,9 @@ tick from the newest plan, never waiting for the planner.
 The tracker calls no torch operation: torch's operators release the GIL while they run, and a
 thread that gave the GIL away waits to take it back while the planner holds it (up to
 ``sys.getswitchinterval()``). NumPy's small ufuncs and ``@`` keep it; ``ndarray.dot`` does not
-(its BLAS call lets the GIL go: with a thread spinning in Python beside it, ten ``(3, 12) x
-(12, 7)`` products took up to 3.9 ms with ``.dot``, 0.07 ms with ``@``), so the tracker's products
-are ``@``. The reference's tensors (``torch.from_numpy``) let it go too, briefly, once the
-reference is made. While planner threads run, the
+(its BLAS call lets the GIL go), so the tracker's products are ``@`` (the same bits). The
+reference's tensors (``torch.from_numpy``) let it go too, briefly, once the reference is made.
+While planner threads run, the
 switch interval is held at :data:`SWITCH_INTERVAL` (0.5 ms; Python's default is 5 ms): the loop's
 thread, woken for a tick, waits for the planner's GIL at most that long
 (:class:`_SwitchInterval`).

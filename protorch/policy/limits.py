@@ -266,19 +266,19 @@ class JerkLimiter:
         ahead, res = guess, None
         if meet is not None and guess > dt:
             ahead = meet(guess)
-        for _ in range(
-            16
-        ):  # the first meeting time T at which the wanted state at T can be reached by T
+        # the first meeting time T at which the wanted state at T can be reached by T (``want``
+        # is the wanted state one tick on)
+        for _ in range(16):
             inp.minimum_duration = None
-            res = self._toward(future(ahead))
+            res = self._toward(want if ahead == dt else future(ahead))
             if res is None or self._traj.duration <= ahead:
                 break
             ahead = max(self._traj.duration, 1.2 * ahead)
             if meet is not None:
                 ahead = meet(ahead)
-        if res is not None:
-            inp.minimum_duration = ahead  # meet it exactly then (every joint at once)
-            res = self._toward(future(ahead))
+        if res is not None:  # meet it exactly then (every joint at once)
+            inp.minimum_duration = ahead
+            res = self._toward(want if ahead == dt else future(ahead))
         if res not in self._ok:
             self.failed += 1
             return self._clipped(want)
@@ -367,7 +367,6 @@ class JointwiseLimiter:
         for x in self.joints:
             x.reset()
         self._last: np.ndarray | None = None  # (3, D) the last state sent, every joint
-        self._stale = False  # the joints' own ``last`` behind ``_last`` (passed through since)
         self._following = False  # a joint on a hand-over
 
     def step(
@@ -386,13 +385,9 @@ class JointwiseLimiter:
                 for lim in self.joints:
                     lim._join = None
                 self._following = False
-            self._last, self._stale = want.copy(), True
+            self._last = want.copy()
             return want.copy()
-        if self._stale and last is not None:  # the joints take the state passed through since
-            for i, lim in enumerate(self.joints):
-                lim.last = last[:, i : i + 1].copy()
-            self._stale = False
-        out = np.empty_like(want)
+        out = want.copy()  # (3, D): the joints passed through keep the wanted state
         memo: dict = {}
 
         def at(s: float) -> np.ndarray:  # the wanted state s ahead, computed once per s
@@ -401,12 +396,13 @@ class JointwiseLimiter:
                 hit = memo[s] = future(s)  # (3, D)
             return hit
 
+        following = False
         for i, lim in enumerate(self.joints):
             if ok is not None and ok[i] and (changed or lim._join is None):
                 lim._join = None  # within its limits, no hand-over left: passed through
-                lim.last = want[:, i : i + 1].copy()
-                out[:, i : i + 1] = lim.last
                 continue
+            if lim._join is None and last is not None:  # passed through since its last step
+                lim.last = last[:, i : i + 1].copy()
             out[:, i : i + 1] = lim.step(
                 want[:, i : i + 1],
                 dt,
@@ -415,6 +411,7 @@ class JointwiseLimiter:
                 meet,
                 None if ok is None else bool(ok[i]),
             )
+            following = following or lim._join is not None
         self._last = out.copy()
-        self._following = any(lim._join is not None for lim in self.joints)
+        self._following = following
         return out

@@ -212,8 +212,10 @@ class JerkLimiter:
         dt: float,
         future,
         changed: bool = False,
+        *,
         meet=None,
         within: bool | None = None,
+        near: bool = False,
     ) -> np.ndarray:
         """The state to send ``dt`` seconds after the last one (``want (3, D)``; a new array).
         ``future(s)``: the wanted state ``s`` seconds after the last one, ``(3, D)``, where a
@@ -221,7 +223,9 @@ class JerkLimiter:
         is planned afresh); ``meet(s)``: the first time ``>= s`` at which a hand-over may meet
         the wanted motion (``None``: any; the tracker's: its whole milliseconds, where
         ``future`` is a table lookup); ``within``: the step's limit test where the caller has
-        made it (:func:`within_limits`)."""
+        made it (:func:`within_limits`); ``near``: the new motion is near the old one (the
+        tracker: a new plan of the same class), so a hand-over under way is re-planned from its
+        old meeting time on."""
         last = self.last
         if last is None:
             out = self._clipped(want)
@@ -230,8 +234,10 @@ class JerkLimiter:
         if dt <= 0.0:
             return last.copy()
         guess = dt
-        if self._join is not None and changed:  # re-planned from where the old one would meet
-            guess, self._join = max(self._join - self._elapsed, dt), None
+        if self._join is not None and changed:  # re-planned (near: from its old meeting on)
+            if near:
+                guess = max(self._join - self._elapsed, dt)
+            self._join = None
         if self._join is not None:  # on a hand-over trajectory: follow it to its end
             self._elapsed += dt
             if self._elapsed < self._join - 1e-12:
@@ -256,26 +262,35 @@ class JerkLimiter:
         self, last: np.ndarray, want: np.ndarray, dt: float, future, meet, guess: float
     ) -> np.ndarray:
         """A hand-over trajectory from ``last`` to the wanted motion (``future``), meeting it at
-        the first time from ``guess`` on that it can (every joint at once, Ruckig's time
-        synchronisation; of the times ``meet`` allows), its state ``dt`` in. ``guess``: ``dt``,
-        or where a hand-over under way is planned afresh, the time the old one would have met
-        its motion (a new plan moves the meeting little: the search starts there)."""
+        the first time it can (every joint at once, Ruckig's time synchronisation; of the times
+        ``meet`` allows), its state ``dt`` in. ``guess``: ``dt``, or where a hand-over under way
+        is planned afresh, the time the old one would have met its motion: kept where Ruckig's
+        shortest time to the new motion's state then is within a tick of it (a new plan moves
+        the meeting little), else searched from the next tick (a meeting later than the first
+        possible one stretches Ruckig's profile, which may swing the joint away and back)."""
         self.following += 1
         inp = self._inp
         inp.current_position, inp.current_velocity, inp.current_acceleration = last.tolist()
-        ahead, res = guess, None
-        if meet is not None and guess > dt:
-            ahead = meet(guess)
-        # the first meeting time T at which the wanted state at T can be reached by T (``want``
-        # is the wanted state one tick on)
-        for _ in range(16):
+        ahead, res = dt, None
+        if guess > dt:  # the old meeting, where the new motion is met then and not a tick sooner
+            g = meet(guess) if meet is not None else guess
             inp.minimum_duration = None
-            res = self._toward(want if ahead == dt else future(ahead))
-            if res is None or self._traj.duration <= ahead:
-                break
-            ahead = max(self._traj.duration, 1.2 * ahead)
-            if meet is not None:
-                ahead = meet(ahead)
+            res = self._toward(future(g))
+            if res is not None and g - dt < self._traj.duration <= g:
+                ahead = g
+            else:
+                res = None
+        if ahead == dt:
+            # the first meeting time T at which the wanted state at T can be reached by T
+            # (``want`` is the wanted state one tick on)
+            for _ in range(16):
+                inp.minimum_duration = None
+                res = self._toward(want if ahead == dt else future(ahead))
+                if res is None or self._traj.duration <= ahead:
+                    break
+                ahead = max(self._traj.duration, 1.2 * ahead)
+                if meet is not None:
+                    ahead = meet(ahead)
         if res is not None:  # meet it exactly then (every joint at once)
             inp.minimum_duration = ahead
             res = self._toward(want if ahead == dt else future(ahead))
@@ -370,7 +385,14 @@ class JointwiseLimiter:
         self._following = False  # a joint on a hand-over
 
     def step(
-        self, want: np.ndarray, dt: float, future, changed: bool = False, meet=None
+        self,
+        want: np.ndarray,
+        dt: float,
+        future,
+        changed: bool = False,
+        *,
+        meet=None,
+        near: bool = False,
     ) -> np.ndarray:
         """:meth:`JerkLimiter.step` per joint: ``want (3, D)`` -> ``(3, D)``. Where no joint is on
         a hand-over (or ``changed`` ends them) and every joint's step is within the limits, the
@@ -408,8 +430,9 @@ class JointwiseLimiter:
                 dt,
                 lambda s, i=i: at(s)[:, i : i + 1],
                 changed,
-                meet,
-                None if ok is None else bool(ok[i]),
+                meet=meet,
+                within=None if ok is None else bool(ok[i]),
+                near=near,
             )
             following = following or lim._join is not None
         self._last = out.copy()

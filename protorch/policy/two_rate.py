@@ -182,6 +182,7 @@ class Tracker:
                 self.off = off
                 state += self._at_jump @ off
         last_t, changed = self.t, plan is not self.plan
+        near = changed and self.plan is not None and plan.label == self.plan.label
         dt = t - last_t if self.plan is not None else 0.0
         self.plan, self.t = plan, t
         if self.limiter is not None:
@@ -196,7 +197,7 @@ class Tracker:
             def meet(s: float) -> float:  # the first whole millisecond s or more after last_t
                 return math.ceil((last_t + s) * 1000.0 - 1e-6) * 1e-3 - last_t
 
-            state = self.limiter.step(state, dt, future, changed, meet)
+            state = self.limiter.step(state, dt, future, changed, meet=meet, near=near)
         return state
 
 

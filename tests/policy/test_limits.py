@@ -284,46 +284,55 @@ def test_a_motion_accelerating_into_the_velocity_limit_keeps_it(make):
     assert 0.0 <= ramp(0.399)[0, 0] - x[-1, 0, 0] < 1e-5
 
 
-def test_a_hand_over_meets_on_the_grid_and_a_new_plan_keeps_its_meeting():
-    """With ``meet`` (the tracker's whole milliseconds) a hand-over's meeting time lies on the
-    grid, and a new plan a little off the old one (``changed``) re-plans the hand-over to meet
-    at the old meeting time, not later, within the limits; without ``meet``, the meeting is
-    Ruckig's own time (off the grid)."""
+def _meetings(bias_after: float, grid: bool = True, near: bool = True):
+    """One joint: a velocity step at 50 ms (a hand-over), and at 55 ms a new plan (``changed``)
+    whose velocity step is ``0.8 + bias_after``. The states sent ``(T, 3, 1)``, the hand-over's
+    meeting time (s) after each tick where one is under way, and the limits."""
     vmax, amax, jmax = (x[:1] for x in LIMITS)
 
-    def motion(t: float, bias: float) -> np.ndarray:  # (3, 1): a velocity step at 0.05 s
+    def motion(t: float, bias: float) -> np.ndarray:  # (3, 1)
         s = max(t - 0.05, 0.0)
         return np.array([[s * (0.8 + bias)], [(t >= 0.05) * (0.8 + bias)], [0.0]])
 
     def meet_ms(t0: float):
         return lambda s: np.ceil(round((t0 + s) * 1e3, 9)) * 1e-3 - t0
 
-    for grid in (True, False):
-        lim, out, meets = JerkLimiter(vmax, amax, jmax), [], []
-        for k in range(300):
-            t, bias = k * 1e-3, (1e-4 if k >= 55 else 0.0)  # a new plan at 55 ms
-            t0 = t - 1e-3
-            out.append(
-                lim.step(
-                    motion(t, bias),
-                    1e-3 if k else 0.0,
-                    lambda s, t0=t0, bias=bias: motion(t0 + s, bias),
-                    changed=k == 55,
-                    meet=meet_ms(t0) if grid else None,
-                )
+    lim, out, meets = JerkLimiter(vmax, amax, jmax), [], []
+    for k in range(300):
+        t, bias = k * 1e-3, (bias_after if k >= 55 else 0.0)
+        t0 = t - 1e-3
+        out.append(
+            lim.step(
+                motion(t, bias),
+                1e-3 if k else 0.0,
+                lambda s, t0=t0, bias=bias: motion(t0 + s, bias),
+                changed=k == 55,
+                meet=meet_ms(t0) if grid else None,
+                near=near,
             )
-            if lim._join is not None:
-                meets.append(t + lim._join - lim._elapsed)  # the meeting time (s)
-        x = np.stack(out)  # (T, 3, 1)
-        assert (np.abs(x[:, 1]) <= vmax * (1 + 1e-9)).all()
-        assert (np.abs(x[:, 2]) <= amax * (1 + 1e-9)).all()
-        assert (np.abs(np.diff(x[:, 2], axis=0)) <= jmax * 1e-3 * (1 + 1e-6)).all()
-        np.testing.assert_allclose(x[-1], motion(0.299, 1e-4), atol=1e-12)  # back on it
-        first, second = meets[0], meets[-1]
-        assert lim.following == 2 and first > 0.06  # two hand-overs: at 50 ms and at 55 ms
-        if grid:
-            assert abs(first * 1e3 - round(first * 1e3)) < 1e-9
-            assert abs(second - first) < 1e-12  # re-planned to meet when the old one would
-        else:
-            assert abs(first * 1e3 - round(first * 1e3)) > 1e-6  # Ruckig's own time
-            assert second <= first + 1e-3
+        )
+        if lim._join is not None:
+            meets.append(t + lim._join - lim._elapsed)
+    x = np.stack(out)
+    assert (np.abs(x[:, 1]) <= vmax * (1 + 1e-9)).all()
+    assert (np.abs(x[:, 2]) <= amax * (1 + 1e-9)).all()
+    assert (np.abs(np.diff(x[:, 2], axis=0)) <= jmax * 1e-3 * (1 + 1e-6)).all()
+    np.testing.assert_allclose(x[-1], motion(0.299, bias_after), atol=1e-12)  # back on it
+    return meets, lim
+
+
+def test_a_hand_over_meets_on_the_grid_and_a_new_plan_keeps_its_meeting_where_it_can():
+    """With ``meet`` (the tracker's whole milliseconds) a hand-over's meeting lies on the grid;
+    re-planned for the same motion (a new plan of the same class, ``near``) it keeps its meeting
+    time; re-planned for a motion it can meet sooner it meets sooner, not at the old time (a
+    later meeting than the first possible one stretches Ruckig's profile, which can swing the
+    joint away and back: the example loop's arm hit the can that way); without ``meet`` the
+    meeting is Ruckig's own time (off the grid). Every tick within the limits."""
+    same, lim = _meetings(0.0)
+    assert lim.following == 2 and same[0] > 0.06  # hand-overs at 50 ms and at 55 ms
+    assert abs(same[0] * 1e3 - round(same[0] * 1e3)) < 1e-9
+    assert abs(same[-1] - same[0]) < 1e-12
+    sooner, _ = _meetings(-0.3)  # the new plan asks for a smaller velocity step
+    assert sooner[0] == same[0] and sooner[-1] < sooner[0] - 0.01
+    free, _ = _meetings(0.0, grid=False)
+    assert abs(free[0] * 1e3 - round(free[0] * 1e3)) > 1e-6

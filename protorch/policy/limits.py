@@ -10,10 +10,13 @@ Ruckig (time-optimal, jerk-limited trajectories between two kinematic states, Be
 Kroeger 2021): from the last output to the wanted state, sampled one interval later, until the
 wanted state is reached within one interval; from there on the wanted state is passed through
 again. The meeting time is the first at which Ruckig reaches the wanted state, of the times the
-caller allows (the tracker: whole milliseconds, where the wanted state is a table lookup); a
-hand-over under way that a new plan interrupts is planned afresh from the time the old one would
-have met (a new plan moves the meeting little; searching again from the next tick put each
-re-planned meeting later, on the benchmark's walk twice as many hand-overs).
+caller allows (the tracker: whole milliseconds, where the wanted state is a table lookup). A
+hand-over under way that a new plan of the same class interrupts keeps its meeting time where
+Ruckig's shortest time to the new plan's state then is within a tick of it (a new plan moves the
+meeting little, and the search from the next tick, growing 20% a step, met later each time:
+re-planned again and again); otherwise it is searched from the next tick. Keeping the old
+meeting whenever it could be met stretched Ruckig's profile where the new plan could be met
+sooner, and in the example loop the arm swung into the can.
 
 The limits hold between consecutive outputs: ``|qd| <= max_velocity``, ``|qdd| <=
 max_acceleration``, ``|qdd_t - qdd_{t-dt}| <= max_jerk dt`` and the finite differences

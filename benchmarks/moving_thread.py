@@ -147,6 +147,7 @@ def main() -> None:
                 if mode == "inline":
                     switched[plant] = r["switches"] > 0
                 age = r["age"][:, : timing.moving]
+                lost = own[plant][pick] & ~r["success"]  # (m,) the run's own won, this lost
                 row = {
                     "episodes": m,
                     "success_rate": float(r["success"].mean()),
@@ -157,7 +158,7 @@ def main() -> None:
                     "seconds": round(time.perf_counter() - t0, 1),
                     "failures": {k: int(v.sum()) for k, v in r["failures"].items()},
                     # paired with the run's own on the same episodes
-                    "lost": int((own[plant][pick] & ~r["success"]).sum()),
+                    "lost": int(lost.sum()),
                     "gained": int((~own[plant][pick] & r["success"]).sum()),
                 }
                 if args.follow == "reference":  # the reference's largest ratios to the limits
@@ -167,7 +168,6 @@ def main() -> None:
                     if lim == "off":
                         unlimited[(plant, mode)] = peaks
                     elif (plant, mode) in unlimited:  # why the limits lose: what was asked
-                        lost = own[plant][pick] & ~r["success"]  # (m,)
                         asked = unlimited[(plant, mode)][lost]  # (lost, 5)
                         row["lost_unlimited_peaks"] = [
                             [round(float(x), 2) for x in a] for a in asked

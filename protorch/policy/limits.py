@@ -281,9 +281,7 @@ class JerkLimiter:
             res = self._toward(future(g))
             if res is not None and g - dt < self._traj.duration <= g:
                 ahead = g
-            else:
-                res = None
-        if ahead == dt:
+        if ahead == dt:  # (a rejected guess's result is replaced here)
             # the first meeting time T at which the wanted state at T can be reached by T
             # (``want`` is the wanted state one tick on)
             for _ in range(16):

@@ -284,10 +284,11 @@ def test_a_motion_accelerating_into_the_velocity_limit_keeps_it(make):
     assert 0.0 <= ramp(0.399)[0, 0] - x[-1, 0, 0] < 1e-5
 
 
-def _meetings(bias_after: float, grid: bool = True, near: bool = True):
-    """One joint: a velocity step at 50 ms (a hand-over), and at 55 ms a new plan (``changed``)
-    whose velocity step is ``0.8 + bias_after``. The states sent ``(T, 3, 1)``, the hand-over's
-    meeting time (s) after each tick where one is under way, and the limits."""
+def _meetings(bias_after: float, grid: bool = True):
+    """One joint: a velocity step at 50 ms (a hand-over), and at 55 ms a new plan of the same
+    class (``changed``, ``near``) whose velocity step is ``0.8 + bias_after``; every tick checked
+    against the limits. The hand-over's meeting time (s) after each tick where one is under way,
+    and the limiter."""
     vmax, amax, jmax = (x[:1] for x in LIMITS)
 
     def motion(t: float, bias: float) -> np.ndarray:  # (3, 1)
@@ -308,7 +309,7 @@ def _meetings(bias_after: float, grid: bool = True, near: bool = True):
                 lambda s, t0=t0, bias=bias: motion(t0 + s, bias),
                 changed=k == 55,
                 meet=meet_ms(t0) if grid else None,
-                near=near,
+                near=True,
             )
         )
         if lim._join is not None:
